@@ -1,0 +1,80 @@
+//#import sampling.wgsl
+//#import trace.wgsl
+// The AO kernel: one sample of one pixel per invocation (a camera ray, then one AO ray
+// from its hit), added to the pixel's compensated running sums.
+
+// Neumaier's compensated addition: (sum, compensation) + x.
+fn add_compensated(acc: vec2f, x: f32) -> vec2f {
+    let t = acc.x + x;
+    var c: f32;
+    if (abs(acc.x) >= abs(x)) {
+        c = (acc.x - t) + x;
+    } else {
+        c = (x - t) + acc.x;
+    }
+    return vec2f(t, acc.y + c);
+}
+
+fn camera_ray(pixel: vec2f) -> array<vec3f, 2> {
+    let sx = 2.0 * pixel.x / f32(frame.width) - 1.0;
+    let sy = 1.0 - 2.0 * pixel.y / f32(frame.height);
+    if (frame.orthographic != 0u) {
+        return array<vec3f, 2>(frame.eye + sx * frame.right + sy * frame.up, frame.forward);
+    }
+    return array<vec3f, 2>(frame.eye, normalize(frame.forward + sx * frame.right + sy * frame.up));
+}
+
+// AO value of one sample: albedo x the hemisphere estimate, or the background.
+fn shade_sample(px: vec2u, u: vec4f) -> f32 {
+    let ray = camera_ray(vec2f(px) + u.xy);
+    let o = ray[0];
+    let d = ray[1];
+    let hit = trace(o, d, INF, false);
+    if (hit.kind == HIT_NONE) {
+        return frame.background;
+    }
+    var p = o + hit.t * d;
+    var n: vec3f;
+    var albedo: f32;
+    if (hit.kind == HIT_PLANE) {
+        n = planes[hit.index].normal;
+        albedo = planes[hit.index].albedo;
+    } else {
+        let prim = primitives[hit.index];
+        albedo = prim.a.w;
+        if (bitcast<u32>(prim.b.w) == PRIM_SPHERE) {
+            n = normalize(p - prim.a.xyz);
+            p = prim.a.xyz + prim.b.x * n;
+        } else {
+            n = normalize(cross(prim.b.xyz, prim.c.xyz));
+        }
+    }
+    // The hemisphere faces the side the camera ray came from.
+    if (dot(n, d) > 0.0) {
+        n = -n;
+    }
+    let w_local = sample_hemisphere(frame.hemisphere, u.zw);
+    let w = local_to_world(w_local, n);
+    atomicAdd(&counters[COUNTER_AO_RAYS], 1u);
+    let shadow = trace(offset_ray_origin(p, n), w, frame.max_distance, true);
+    if (shadow.kind != HIT_NONE) {
+        return 0.0;
+    }
+    return albedo * hemisphere_weight(frame.hemisphere, w_local);
+}
+
+@compute @workgroup_size(WORKGROUP_WIDTH, WORKGROUP_HEIGHT, 1)
+fn render_sample(@builtin(global_invocation_id) gid: vec3u) {
+    if (gid.x >= frame.width || gid.y >= frame.height) {
+        return;
+    }
+    let u = sample_uniforms(gid.x, gid.y, dispatch.sample_index, frame.seed);
+    let value = shade_sample(gid.xy, u);
+    if (truncated) {
+        atomicAdd(&counters[COUNTER_TRUNCATED], 1u);
+        return;
+    }
+    let i = gid.y * frame.width + gid.x;
+    let acc = film[i];
+    film[i] = vec4f(add_compensated(acc.xy, value), add_compensated(acc.zw, value * value));
+}

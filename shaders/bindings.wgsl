@@ -1,0 +1,67 @@
+// Resources of the AO kernel. Host mirrors: src/gpu/layout.rs (sizes checked by tests).
+
+// Per-render constants.
+struct Frame {
+    eye: vec3f,
+    orthographic: u32,
+    right: vec3f,       // image-plane x axis, half the view width
+    width: u32,
+    up: vec3f,          // image-plane y axis, half the view height
+    height: u32,
+    forward: vec3f,
+    seed: u32,
+    max_distance: f32,  // INF when unlimited
+    background: f32,
+    hemisphere: u32,    // HEMISPHERE_*
+    plane_count: u32,
+    node_count: u32,    // 0 when the scene has no finite primitives
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+// Per-dispatch constants, bound with a dynamic offset.
+struct Dispatch {
+    sample_index: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+// BVH2 node holding both children's boxes (see src/bvh.rs, GpuNode).
+struct Node {
+    a_min: vec3f,
+    a_index: u32,
+    a_max: vec3f,
+    a_count: u32,
+    b_min: vec3f,
+    b_index: u32,
+    b_max: vec3f,
+    b_count: u32,
+}
+
+// Triangle: (v0, albedo), (e1, tag), (e2, 0). Sphere: (centre, albedo), (radius, 0, 0, tag).
+struct Primitive {
+    a: vec4f,
+    b: vec4f,
+    c: vec4f,
+}
+
+struct Plane {
+    normal: vec3f,
+    d: f32,
+    albedo: f32,
+    _pad0: f32,
+    _pad1: f32,
+    _pad2: f32,
+}
+
+@group(0) @binding(0) var<uniform> frame: Frame;
+@group(0) @binding(1) var<uniform> dispatch: Dispatch;
+@group(0) @binding(2) var<storage, read> nodes: array<Node>;
+@group(0) @binding(3) var<storage, read> primitives: array<Primitive>;
+@group(0) @binding(4) var<storage, read> planes: array<Plane>;
+// Per pixel: (sum, compensation, sum of squares, compensation).
+@group(0) @binding(5) var<storage, read_write> film: array<vec4f>;
+// COUNTER_AO_RAYS, COUNTER_TRUNCATED.
+@group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>, COUNTER_COUNT>;

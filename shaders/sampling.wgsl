@@ -1,0 +1,117 @@
+// Random numbers, hemisphere warps and shading frames: the WGSL twin of src/sampling.rs.
+// Function names match the Rust ones; the parity tests run both on the same inputs.
+
+const PI: f32 = 3.14159265358979323846;
+const FRAC_PI_2: f32 = 1.57079632679489661923;
+const FRAC_PI_4: f32 = 0.78539816339744830962;
+const FRAC_1_PI: f32 = 0.31830988618379067154;
+
+// 4-D PCG hash (Jarzynski & Olano, JCGT 2020).
+fn pcg4d(v_in: vec4u) -> vec4u {
+    var v = v_in * 1664525u + 1013904223u;
+    v.x += v.y * v.w;
+    v.y += v.z * v.x;
+    v.z += v.x * v.y;
+    v.w += v.y * v.z;
+    v ^= v >> vec4u(16u);
+    v.x += v.y * v.w;
+    v.y += v.z * v.x;
+    v.z += v.x * v.y;
+    v.w += v.y * v.z;
+    return v;
+}
+
+// Top 24 bits to [0, 1); the largest value is the largest f32 below one.
+fn u32_to_unit_float(x: u32) -> f32 {
+    return f32(x >> 8u) * (1.0 / 16777216.0);
+}
+
+// The four uniform numbers of one sample: (pixel jitter x, y, hemisphere u1, u2).
+fn sample_uniforms(px: u32, py: u32, sample_index: u32, seed: u32) -> vec4f {
+    let h = pcg4d(vec4u(px, py, sample_index, seed));
+    return vec4f(u32_to_unit_float(h.x), u32_to_unit_float(h.y), u32_to_unit_float(h.z), u32_to_unit_float(h.w));
+}
+
+fn safe_sqrt(x: f32) -> f32 {
+    return sqrt(max(x, 0.0));
+}
+
+// Uniform hemisphere: z = u1, phi = 2 pi u2; pdf 1/2pi.
+fn sample_uniform_hemisphere(u: vec2f) -> vec3f {
+    let z = u.x;
+    let r = safe_sqrt(1.0 - z * z);
+    let phi = 2.0 * PI * u.y;
+    return vec3f(r * cos(phi), r * sin(phi), z);
+}
+
+fn uniform_hemisphere_pdf() -> f32 {
+    return 0.5 * FRAC_1_PI;
+}
+
+// Shirley-Chiu concentric map from the square to the unit disk.
+fn sample_uniform_disk_concentric(u: vec2f) -> vec2f {
+    let o = 2.0 * u - vec2f(1.0);
+    if (o.x == 0.0 && o.y == 0.0) {
+        return vec2f(0.0);
+    }
+    var r: f32;
+    var theta: f32;
+    if (abs(o.x) > abs(o.y)) {
+        r = o.x;
+        theta = FRAC_PI_4 * (o.y / o.x);
+    } else {
+        r = o.y;
+        theta = FRAC_PI_2 - FRAC_PI_4 * (o.x / o.y);
+    }
+    return r * vec2f(cos(theta), sin(theta));
+}
+
+// Cosine-weighted hemisphere: uniform disk point projected up; pdf cos(theta)/pi.
+fn sample_cosine_hemisphere(u: vec2f) -> vec3f {
+    let d = sample_uniform_disk_concentric(u);
+    let z = safe_sqrt(1.0 - d.x * d.x - d.y * d.y);
+    return vec3f(d.x, d.y, z);
+}
+
+fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
+    return cos_theta * FRAC_1_PI;
+}
+
+// Direction in the local frame (z = normal) for the hemisphere id (HEMISPHERE_*).
+fn sample_hemisphere(hemisphere: u32, u: vec2f) -> vec3f {
+    if (hemisphere == HEMISPHERE_UNIFORM) {
+        return sample_uniform_hemisphere(u);
+    }
+    return sample_cosine_hemisphere(u);
+}
+
+// cos(theta) / (pi pdf): the AO estimate of one unoccluded direction.
+fn hemisphere_weight(hemisphere: u32, w: vec3f) -> f32 {
+    if (hemisphere == HEMISPHERE_UNIFORM) {
+        return 2.0 * w.z;
+    }
+    return 1.0;
+}
+
+// Orthonormal basis without a singularity (Duff et al., JCGT 2017, listing 3).
+fn orthonormal_basis(n: vec3f) -> mat2x3f {
+    let sign = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    let t = vec3f(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    let s = vec3f(b, sign + n.y * n.y * a, -n.y);
+    return mat2x3f(t, s);
+}
+
+fn local_to_world(w: vec3f, n: vec3f) -> vec3f {
+    let ts = orthonormal_basis(n);
+    return ts[0] * w.x + ts[1] * w.y + n * w.z;
+}
+
+// Offset along the geometric normal scaled to the position's magnitude
+// (Waechter & Binder, Ray Tracing Gems ch. 6).
+fn offset_ray_origin(p: vec3f, n: vec3f) -> vec3f {
+    let of_i = vec3i(256.0 * n);
+    let p_i = bitcast<vec3f>(bitcast<vec3i>(p) + select(of_i, -of_i, p < vec3f(0.0)));
+    return select(p_i, p + (1.0 / 65536.0) * n, abs(p) < vec3f(1.0 / 32.0));
+}

@@ -1,0 +1,210 @@
+//! BVH construction with obvhs and the GPU layout of nodes and primitives.
+//!
+//! One BVH holds every finite primitive: triangles first (ids `0..n_tri`), then spheres.
+//! Infinite planes stay outside it. The GPU layout is a BVH2 whose nodes carry both
+//! children's boxes (Aila & Laine, "Understanding the Efficiency of Ray Traversal on GPUs",
+//! HPG 2009), so one 64-byte fetch tests two boxes; primitives are stored in BVH leaf
+//! order, so leaves index them directly without an indirection table.
+
+use crate::scene::Scene;
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3A;
+use obvhs::{BvhBuildParams, aabb::Aabb, bvh2::Bvh2};
+use std::time::Instant;
+
+/// Marks an absent child (only when the root itself is a leaf).
+pub const INVALID_INDEX: u32 = u32::MAX;
+/// Primitive tag stored in `GpuPrimitive::b[3]`'s bits.
+pub const PRIM_TRIANGLE: u32 = 0;
+/// Primitive tag of a sphere.
+pub const PRIM_SPHERE: u32 = 1;
+/// Entries of the traversal stack in the shader; deeper trees are refused.
+pub const STACK_SIZE: u32 = 64;
+
+/// BVH build quality: obvhs's presets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum BuildQuality {
+    /// `BvhBuildParams::fastest_build`.
+    Fastest,
+    /// `BvhBuildParams::fast_build`.
+    Fast,
+    /// `BvhBuildParams::medium_build`.
+    #[default]
+    Medium,
+    /// `BvhBuildParams::slow_build`.
+    Slow,
+}
+
+impl BuildQuality {
+    fn params(self) -> BvhBuildParams {
+        match self {
+            BuildQuality::Fastest => BvhBuildParams::fastest_build(),
+            BuildQuality::Fast => BvhBuildParams::fast_build(),
+            BuildQuality::Medium => BvhBuildParams::medium_build(),
+            BuildQuality::Slow => BvhBuildParams::slow_build(),
+        }
+    }
+}
+
+/// BVH2 node with both children's boxes. A child with `count == 0` is an inner node
+/// (`index` into the node array); `count > 0` is a leaf of `count` primitives starting at
+/// `index` in the primitive array; `index == INVALID_INDEX` is no child.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct GpuNode {
+    /// Child A box minimum.
+    pub a_min: [f32; 3],
+    /// Child A index.
+    pub a_index: u32,
+    /// Child A box maximum.
+    pub a_max: [f32; 3],
+    /// Child A primitive count (0: inner node).
+    pub a_count: u32,
+    /// Child B box minimum.
+    pub b_min: [f32; 3],
+    /// Child B index.
+    pub b_index: u32,
+    /// Child B box maximum.
+    pub b_max: [f32; 3],
+    /// Child B primitive count (0: inner node).
+    pub b_count: u32,
+}
+const _: () = assert!(std::mem::size_of::<GpuNode>() == 64);
+
+/// A primitive in leaf order. Triangle: `a = (v0, albedo)`, `b = (v1 - v0, tag)`,
+/// `c = (v2 - v0, 0)`. Sphere: `a = (centre, albedo)`, `b = (radius, 0, 0, tag)`, `c = 0`.
+/// The tag is stored as the bits of `b[3]`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct GpuPrimitive {
+    /// First vertex or centre, and albedo.
+    pub a: [f32; 4],
+    /// First edge or radius, and the tag bits.
+    pub b: [f32; 4],
+    /// Second edge.
+    pub c: [f32; 4],
+}
+const _: () = assert!(std::mem::size_of::<GpuPrimitive>() == 48);
+
+/// Axis-aligned boxes of the BVH's primitives, in id order (triangles, then spheres).
+pub fn primitive_aabbs(scene: &Scene) -> Vec<Aabb> {
+    let tris = scene.triangles.iter().map(|t| {
+        let v = t.v.map(Vec3A::from);
+        Aabb::new(v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]))
+    });
+    let spheres = scene.spheres.iter().map(|s| {
+        let c = Vec3A::from(s.center);
+        Aabb::new(c - s.radius, c + s.radius)
+    });
+    tris.chain(spheres).collect()
+}
+
+/// Builds obvhs's BVH2 over the scene's finite primitives; returns it with the seconds taken.
+pub fn build_bvh2(scene: &Scene, quality: BuildQuality) -> (Bvh2, f64) {
+    let start = Instant::now();
+    let aabbs = primitive_aabbs(scene);
+    let bvh = if aabbs.is_empty() {
+        Bvh2::default()
+    } else {
+        obvhs::bvh2::builder::build_bvh2(&aabbs, quality.params(), &mut Default::default())
+    };
+    (bvh, start.elapsed().as_secs_f64())
+}
+
+/// Builds obvhs's compressed 8-wide BVH (used by the CPU reference); returns it with the
+/// seconds taken.
+pub fn build_cwbvh(scene: &Scene, quality: BuildQuality) -> (Option<obvhs::cwbvh::CwBvh>, f64) {
+    let start = Instant::now();
+    let aabbs = primitive_aabbs(scene);
+    let bvh = (!aabbs.is_empty())
+        .then(|| obvhs::cwbvh::builder::build_cwbvh(&aabbs, quality.params(), &mut Default::default()));
+    (bvh, start.elapsed().as_secs_f64())
+}
+
+/// The GPU form of a scene's BVH.
+#[derive(Clone, Debug, Default)]
+pub struct GpuBvh {
+    /// Nodes; the root is node 0. Empty when the scene has no finite primitives.
+    pub nodes: Vec<GpuNode>,
+    /// Primitives in leaf order.
+    pub primitives: Vec<GpuPrimitive>,
+    /// Depth of the deepest node (root = 1).
+    pub depth: u32,
+}
+
+/// The record of primitive `id` (triangles first, then spheres).
+pub(crate) fn gpu_primitive(scene: &Scene, id: usize) -> GpuPrimitive {
+    let n_tri = scene.triangles.len();
+    if id < n_tri {
+        let t = &scene.triangles[id];
+        let (v0, e1, e2) = (t.v[0], t.v[1] - t.v[0], t.v[2] - t.v[0]);
+        GpuPrimitive {
+            a: [v0.x, v0.y, v0.z, t.albedo],
+            b: [e1.x, e1.y, e1.z, f32::from_bits(PRIM_TRIANGLE)],
+            c: [e2.x, e2.y, e2.z, 0.0],
+        }
+    } else {
+        let s = &scene.spheres[id - n_tri];
+        GpuPrimitive {
+            a: [s.center.x, s.center.y, s.center.z, s.albedo],
+            b: [s.radius, 0.0, 0.0, f32::from_bits(PRIM_SPHERE)],
+            c: [0.0; 4],
+        }
+    }
+}
+
+impl GpuBvh {
+    /// Converts obvhs's BVH2 to the two-boxes-per-node layout.
+    pub fn from_bvh2(scene: &Scene, bvh: &Bvh2) -> GpuBvh {
+        if bvh.nodes.is_empty() {
+            return GpuBvh::default();
+        }
+        let primitives = bvh.primitive_indices.iter().map(|&id| gpu_primitive(scene, id as usize)).collect();
+        let child = |i: usize, gpu_index: &[u32]| -> ([f32; 3], [f32; 3], u32, u32) {
+            let n = &bvh.nodes[i];
+            let (min, max) = (n.aabb.min.to_array(), n.aabb.max.to_array());
+            if n.is_leaf() { (min, max, n.first_index, n.prim_count) } else { (min, max, gpu_index[i], 0) }
+        };
+        // Number inner nodes in depth-first order so a subtree is contiguous.
+        let mut gpu_index = vec![INVALID_INDEX; bvh.nodes.len()];
+        let mut order = Vec::new();
+        let mut stack = vec![(0usize, 1u32)];
+        let mut depth = 1;
+        while let Some((i, d)) = stack.pop() {
+            depth = depth.max(d);
+            let n = &bvh.nodes[i];
+            if n.is_leaf() {
+                continue;
+            }
+            gpu_index[i] = order.len() as u32;
+            order.push(i);
+            let first = n.first_index as usize;
+            stack.push((first + 1, d + 1));
+            stack.push((first, d + 1));
+        }
+        let nodes = if bvh.nodes[0].is_leaf() {
+            let (min, max, index, count) = child(0, &gpu_index);
+            vec![GpuNode {
+                a_min: min,
+                a_index: index,
+                a_max: max,
+                a_count: count,
+                b_min: [0.0; 3],
+                b_index: INVALID_INDEX,
+                b_max: [0.0; 3],
+                b_count: 0,
+            }]
+        } else {
+            order
+                .iter()
+                .map(|&i| {
+                    let first = bvh.nodes[i].first_index as usize;
+                    let (a_min, a_max, a_index, a_count) = child(first, &gpu_index);
+                    let (b_min, b_max, b_index, b_count) = child(first + 1, &gpu_index);
+                    GpuNode { a_min, a_index, a_max, a_count, b_min, b_index, b_max, b_count }
+                })
+                .collect()
+        };
+        GpuBvh { nodes, primitives, depth }
+    }
+}

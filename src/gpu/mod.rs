@@ -1,0 +1,407 @@
+//! The wgpu side: adapter and device, buffers, the AO pipeline, passes and readback.
+
+mod layout;
+
+pub use layout::{DispatchUniforms, FrameUniforms, GpuPlane};
+
+use crate::bvh::{GpuBvh, STACK_SIZE};
+use crate::error::{Error, Result};
+use crate::film::Film;
+use crate::scene::Scene;
+use std::sync::{Arc, Mutex};
+use wgpu::util::DeviceExt;
+
+/// Loop iterations one invocation may spend on all its rays together. Mesa 22.3's
+/// lavapipe silently ends an invocation after 65,535; a traversal that would pass this
+/// budget stops and voids its sample, and the pass reports [`Error::TraversalBudget`].
+pub const TRAVERSAL_BUDGET: u32 = 65_000;
+/// Workgroup size of the AO kernel.
+pub const WORKGROUP_SIZE: [u32; 2] = [8, 8];
+/// Counter of AO rays traced in a pass.
+pub const COUNTER_AO_RAYS: u32 = 0;
+/// Counter of samples voided by the traversal budget in a pass.
+pub const COUNTER_TRUNCATED: u32 = 1;
+/// Number of counters.
+pub const COUNTER_COUNT: u32 = 2;
+/// Most samples (dispatches) in one pass.
+pub const MAX_PASS_SAMPLES: u32 = 64;
+/// Stride of the per-dispatch uniforms (the largest `min_uniform_buffer_offset_alignment`).
+const DISPATCH_STRIDE: u64 = 256;
+
+/// What `aorender adapters` prints about an adapter.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct AdapterDescription {
+    /// Adapter name.
+    pub name: String,
+    /// Backend (Vulkan, Metal, …).
+    pub backend: String,
+    /// Discrete, integrated, CPU, ….
+    pub device_type: String,
+    /// Driver name and version.
+    pub driver: String,
+}
+
+impl AdapterDescription {
+    fn new(info: &wgpu::AdapterInfo) -> Self {
+        AdapterDescription {
+            name: info.name.clone(),
+            backend: format!("{:?}", info.backend),
+            device_type: format!("{:?}", info.device_type),
+            driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+        }
+    }
+}
+
+fn instance() -> wgpu::Instance {
+    wgpu::Instance::new(wgpu::InstanceDescriptor {
+        backends: wgpu::Backends::PRIMARY,
+        ..wgpu::InstanceDescriptor::new_without_display_handle()
+    })
+}
+
+/// Every adapter wgpu finds.
+pub fn list_adapters() -> Vec<AdapterDescription> {
+    let adapters = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::PRIMARY));
+    adapters.iter().map(|a| AdapterDescription::new(&a.get_info())).collect()
+}
+
+/// An adapter, its device and queue, with device errors captured instead of panicking.
+pub struct GpuContext {
+    /// The adapter.
+    pub adapter: wgpu::Adapter,
+    /// The device, created with the adapter's own limits.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The adapter's description.
+    pub description: AdapterDescription,
+    errors: Arc<Mutex<Vec<String>>>,
+}
+
+impl GpuContext {
+    /// Opens the best adapter (discrete, then integrated, virtual, CPU), or the first
+    /// whose name contains `name_filter` (case-insensitive).
+    pub fn new(name_filter: Option<&str>) -> Result<GpuContext> {
+        let adapters = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::PRIMARY));
+        let rank = |t: wgpu::DeviceType| match t {
+            wgpu::DeviceType::DiscreteGpu => 0,
+            wgpu::DeviceType::IntegratedGpu => 1,
+            wgpu::DeviceType::VirtualGpu => 2,
+            wgpu::DeviceType::Cpu => 3,
+            wgpu::DeviceType::Other => 4,
+        };
+        let adapter = match name_filter {
+            Some(f) => {
+                let f = f.to_lowercase();
+                adapters
+                    .into_iter()
+                    .find(|a| a.get_info().name.to_lowercase().contains(&f))
+                    .ok_or_else(|| Error::Gpu(format!("no adapter's name contains '{f}' (see `aorender adapters`)")))?
+            }
+            None => adapters.into_iter().min_by_key(|a| rank(a.get_info().device_type)).ok_or_else(|| {
+                Error::Gpu(
+                    "no GPU adapter found: install a Vulkan driver (on Debian/Ubuntu, the \
+                     mesa-vulkan-drivers package provides lavapipe), or use --device cpu"
+                        .into(),
+                )
+            })?,
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("aorender"),
+            required_features: wgpu::Features::empty(),
+            // wgpu's defaults cap a storage binding at 128 MiB: ask for what the adapter has.
+            required_limits: adapter.limits(),
+            ..Default::default()
+        }))
+        .map_err(|e| Error::Gpu(format!("cannot open a device on the adapter: {e}")))?;
+        let errors = Arc::new(Mutex::new(Vec::new()));
+        let sink = errors.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            sink.lock().expect("error sink").push(e.to_string().lines().next().unwrap_or("").to_string());
+        }));
+        let sink = errors.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            sink.lock().expect("error sink").push(format!("device lost ({reason:?}): {message}"));
+        });
+        let description = AdapterDescription::new(&adapter.get_info());
+        Ok(GpuContext { adapter, device, queue, description, errors })
+    }
+
+    /// The first device error since the last call, if any.
+    fn take_error(&self) -> Result<()> {
+        let mut errors = self.errors.lock().expect("error sink");
+        match errors.drain(..).next() {
+            Some(e) => Err(Error::Gpu(format!("GPU error: {e}"))),
+            None => Ok(()),
+        }
+    }
+
+    fn check_size(&self, what: &'static str, bytes: u64) -> Result<()> {
+        let limits = self.device.limits();
+        let binding = limits.max_storage_buffer_binding_size;
+        if bytes > binding {
+            return Err(Error::TooLarge {
+                what,
+                needed: bytes,
+                limit: binding,
+                limit_name: "max_storage_buffer_binding_size",
+            });
+        }
+        if bytes > limits.max_buffer_size {
+            return Err(Error::TooLarge {
+                what,
+                needed: bytes,
+                limit: limits.max_buffer_size,
+                limit_name: "max_buffer_size",
+            });
+        }
+        Ok(())
+    }
+}
+
+/// What one pass did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PassCounters {
+    /// AO rays traced.
+    pub ao_rays: u64,
+}
+
+/// The AO pipeline bound to one scene and image size.
+pub struct GpuRenderer<'a> {
+    ctx: &'a GpuContext,
+    pipeline: wgpu::ComputePipeline,
+    bind_group: wgpu::BindGroup,
+    film: wgpu::Buffer,
+    film_readback: wgpu::Buffer,
+    dispatch: wgpu::Buffer,
+    counters: wgpu::Buffer,
+    counters_readback: wgpu::Buffer,
+    width: u32,
+    height: u32,
+    /// Bytes of device memory the renderer allocated.
+    pub device_bytes: u64,
+}
+
+fn storage<T: bytemuck::Pod + bytemuck::Zeroable>(
+    ctx: &GpuContext,
+    label: &'static str,
+    data: &[T],
+) -> Result<wgpu::Buffer> {
+    // A binding may not be empty: upload one zeroed element for absent data.
+    let zero = [T::zeroed()];
+    let data = if data.is_empty() { &zero[..] } else { data };
+    let bytes: &[u8] = bytemuck::cast_slice(data);
+    ctx.check_size(label, bytes.len() as u64)?;
+    Ok(ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some(label),
+        contents: bytes,
+        usage: wgpu::BufferUsages::STORAGE,
+    }))
+}
+
+impl<'a> GpuRenderer<'a> {
+    /// Uploads the scene and builds the pipeline.
+    pub fn new(ctx: &'a GpuContext, scene: &Scene, bvh: &GpuBvh) -> Result<GpuRenderer<'a>> {
+        if bvh.depth > STACK_SIZE {
+            return Err(Error::Gpu(format!(
+                "the BVH is {} levels deep; the shader's traversal stack holds {STACK_SIZE}",
+                bvh.depth
+            )));
+        }
+        let s = &scene.settings;
+        let (width, height) = (s.width, s.height);
+        let device = &ctx.device;
+        let frame = FrameUniforms::new(scene, bvh.nodes.len() as u32);
+        let frame = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("frame"),
+            contents: bytemuck::bytes_of(&frame),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let dispatch = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("dispatch"),
+            size: DISPATCH_STRIDE * MAX_PASS_SAMPLES as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let nodes = storage(ctx, "BVH nodes", &bvh.nodes)?;
+        let primitives = storage(ctx, "primitives", &bvh.primitives)?;
+        let planes: Vec<GpuPlane> = scene.planes.iter().map(GpuPlane::from).collect();
+        let planes = storage(ctx, "planes", &planes)?;
+        let film_bytes = width as u64 * height as u64 * 16;
+        ctx.check_size("film", film_bytes)?;
+        let film = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("film"),
+            size: film_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let film_readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("film readback"),
+            size: film_bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let counter_bytes = 4 * COUNTER_COUNT as u64;
+        let counters = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("counters"),
+            size: counter_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let counters_readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("counters readback"),
+            size: counter_bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+
+        let entry = |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: dynamic, min_binding_size: None },
+            count: None,
+        };
+        let read_only = wgpu::BufferBindingType::Storage { read_only: true };
+        let read_write = wgpu::BufferBindingType::Storage { read_only: false };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("ao bindings"),
+            entries: &[
+                entry(0, wgpu::BufferBindingType::Uniform, false),
+                entry(1, wgpu::BufferBindingType::Uniform, true),
+                entry(2, read_only, false),
+                entry(3, read_only, false),
+                entry(4, read_only, false),
+                entry(5, read_write, false),
+                entry(6, read_write, false),
+            ],
+        });
+        let dispatch_binding = wgpu::BufferBinding {
+            buffer: &dispatch,
+            offset: 0,
+            size: wgpu::BufferSize::new(std::mem::size_of::<DispatchUniforms>() as u64),
+        };
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("ao bindings"),
+            layout: &layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: frame.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Buffer(dispatch_binding) },
+                wgpu::BindGroupEntry { binding: 2, resource: nodes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: primitives.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: planes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: film.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: counters.as_entire_binding() },
+            ],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("ao.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(crate::shaders::compose("ao.wgsl").into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("ao"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("ao"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("render_sample"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        ctx.take_error()?;
+        let device_bytes =
+            [&frame, &dispatch, &nodes, &primitives, &planes, &film, &film_readback, &counters, &counters_readback]
+                .iter()
+                .map(|b| b.size())
+                .sum();
+        Ok(GpuRenderer {
+            ctx,
+            pipeline,
+            bind_group,
+            film,
+            film_readback,
+            dispatch,
+            counters,
+            counters_readback,
+            width,
+            height,
+            device_bytes,
+        })
+    }
+
+    /// Adds samples `first .. first + count` of every pixel to the film (one dispatch per
+    /// sample) and waits for them.
+    pub fn render_pass(&mut self, first: u32, count: u32) -> Result<PassCounters> {
+        assert!((1..=MAX_PASS_SAMPLES).contains(&count), "pass of {count} samples");
+        let mut uniforms = vec![0u8; (DISPATCH_STRIDE * count as u64) as usize];
+        for k in 0..count {
+            let u = DispatchUniforms { sample_index: first.wrapping_add(k), _pad: [0; 3] };
+            let at = (DISPATCH_STRIDE * k as u64) as usize;
+            uniforms[at..at + std::mem::size_of::<DispatchUniforms>()].copy_from_slice(bytemuck::bytes_of(&u));
+        }
+        self.ctx.queue.write_buffer(&self.dispatch, 0, &uniforms);
+        let mut encoder =
+            self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("pass") });
+        encoder.clear_buffer(&self.counters, 0, None);
+        {
+            let mut pass =
+                encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("ao"), timestamp_writes: None });
+            pass.set_pipeline(&self.pipeline);
+            let groups_x = self.width.div_ceil(WORKGROUP_SIZE[0]);
+            let groups_y = self.height.div_ceil(WORKGROUP_SIZE[1]);
+            for k in 0..count {
+                pass.set_bind_group(0, &self.bind_group, &[(DISPATCH_STRIDE * k as u64) as u32]);
+                pass.dispatch_workgroups(groups_x, groups_y, 1);
+            }
+        }
+        encoder.copy_buffer_to_buffer(&self.counters, 0, &self.counters_readback, 0, None);
+        self.ctx.queue.submit([encoder.finish()]);
+        let words: Vec<u32> = self.read(&self.counters_readback)?;
+        let truncated = words[COUNTER_TRUNCATED as usize] as u64;
+        if truncated > 0 {
+            return Err(Error::TraversalBudget { count: truncated, budget: TRAVERSAL_BUDGET });
+        }
+        Ok(PassCounters { ao_rays: words[COUNTER_AO_RAYS as usize] as u64 })
+    }
+
+    /// Copies the film back: per-pixel compensated sums as f64.
+    pub fn read_film(&self, samples: u64) -> Result<Film> {
+        let mut encoder =
+            self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("film readback") });
+        encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, None);
+        self.ctx.queue.submit([encoder.finish()]);
+        let texels: Vec<[f32; 4]> = self.read(&self.film_readback)?;
+        let mut film = Film::new(self.width, self.height);
+        film.samples = samples;
+        for (i, t) in texels.iter().enumerate() {
+            film.sum[i] = t[0] as f64 + t[1] as f64;
+            film.sum_sq[i] = t[2] as f64 + t[3] as f64;
+        }
+        Ok(film)
+    }
+
+    /// Maps a readback buffer after the last submission and copies it out.
+    fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer) -> Result<Vec<T>> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+            let _ = tx.send(r);
+        });
+        self.ctx
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
+        self.ctx.take_error()?;
+        rx.recv()
+            .map_err(|_| Error::Gpu("buffer mapping was dropped".into()))?
+            .map_err(|e| Error::Gpu(format!("cannot map a readback buffer: {e}")))?;
+        let data = {
+            let view =
+                buffer.get_mapped_range(..).map_err(|e| Error::Gpu(format!("cannot read a mapped buffer: {e}")))?;
+            bytemuck::cast_slice(&view).to_vec()
+        };
+        buffer.unmap();
+        Ok(data)
+    }
+}

@@ -1,0 +1,206 @@
+//! The `aorender` command: render, list adapters.
+
+use anyhow::{Context, Result, bail};
+use aorender::bvh::BuildQuality;
+use aorender::{Device, Hemisphere, Progress, RenderOptions, Scene, render};
+use clap::{Parser, Subcommand, ValueEnum};
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(name = "aorender", version, about = "GPU ambient-occlusion renderer")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Render a scene file (.toml) or a bare mesh (.obj); the built-in aobench scene by default.
+    Render(RenderArgs),
+    /// List the adapters wgpu finds.
+    Adapters,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum HemisphereArg {
+    Uniform,
+    Cosine,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum DeviceArg {
+    Gpu,
+    Cpu,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum QualityArg {
+    Fastest,
+    Fast,
+    Medium,
+    Slow,
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    /// Scene file (.toml) or mesh (.obj). Default: the built-in aobench scene.
+    scene: Option<PathBuf>,
+    /// Output image: .png (8-bit sRGB), .exr or .pfm (32-bit float, linear).
+    #[arg(short, long, default_value = "out.png")]
+    output: PathBuf,
+    /// Image width (default: the scene's).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height (default: the scene's).
+    #[arg(long)]
+    height: Option<u32>,
+    /// Samples per pixel (default: the scene's).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// AO direction distribution (default: the scene's).
+    #[arg(long, value_enum)]
+    hemisphere: Option<HemisphereArg>,
+    /// AO rays longer than this are unoccluded (default: the scene's, else unlimited).
+    #[arg(long)]
+    max_distance: Option<f32>,
+    /// Random seed (default: the scene's, else 0).
+    #[arg(long)]
+    seed: Option<u32>,
+    /// Stop after the pass that passes this many seconds, with the samples done so far.
+    #[arg(long)]
+    time_limit: Option<f64>,
+    /// Write render statistics as JSON.
+    #[arg(long)]
+    stats: Option<PathBuf>,
+    /// GPU (wgpu compute) or the CPU reference renderer.
+    #[arg(long, value_enum, default_value = "gpu")]
+    device: DeviceArg,
+    /// Pick the adapter whose name contains this (case-insensitive).
+    #[arg(long)]
+    adapter: Option<String>,
+    /// BVH build preset (obvhs).
+    #[arg(long, value_enum, default_value = "medium")]
+    bvh_quality: QualityArg,
+}
+
+fn main() {
+    if let Err(e) = run() {
+        eprintln!("aorender: {e:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run() -> Result<()> {
+    match Cli::parse().command {
+        Command::Adapters => {
+            let adapters = aorender::gpu::list_adapters();
+            if adapters.is_empty() {
+                bail!("no adapters found: install a Vulkan driver (mesa-vulkan-drivers on Debian/Ubuntu)");
+            }
+            for a in adapters {
+                println!("{}\t{}\t{}\t{}", a.name, a.backend, a.device_type, a.driver);
+            }
+            Ok(())
+        }
+        Command::Render(args) => render_command(args),
+    }
+}
+
+fn render_command(args: RenderArgs) -> Result<()> {
+    let mut scene = match &args.scene {
+        Some(path) => Scene::load(path)?,
+        None => Scene::default_scene(),
+    };
+    let s = &mut scene.settings;
+    if let Some(w) = args.width {
+        s.width = w;
+    }
+    if let Some(h) = args.height {
+        s.height = h;
+    }
+    if let Some(n) = args.spp {
+        s.spp = n;
+    }
+    if let Some(h) = args.hemisphere {
+        s.hemisphere = match h {
+            HemisphereArg::Uniform => Hemisphere::Uniform,
+            HemisphereArg::Cosine => Hemisphere::Cosine,
+        };
+    }
+    if args.max_distance.is_some() {
+        s.max_distance = args.max_distance;
+    }
+    if let Some(seed) = args.seed {
+        s.seed = seed;
+    }
+    s.validate().map_err(anyhow::Error::msg).context("invalid option")?;
+    if let Some(t) = args.time_limit
+        && (t.is_nan() || t <= 0.0)
+    {
+        bail!("invalid option: --time-limit must be positive, got {t}");
+    }
+    // Refuse a bad output path before spending time on the render.
+    let ext = args.output.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    if !matches!(ext.as_str(), "png" | "exr" | "pfm") {
+        bail!("{}: unsupported output format: expected .png, .exr or .pfm", args.output.display());
+    }
+
+    let options = RenderOptions {
+        device: match args.device {
+            DeviceArg::Gpu => Device::Gpu,
+            DeviceArg::Cpu => Device::Cpu,
+        },
+        adapter: args.adapter.clone(),
+        time_limit: args.time_limit,
+        bvh_quality: match args.bvh_quality {
+            QualityArg::Fastest => BuildQuality::Fastest,
+            QualityArg::Fast => BuildQuality::Fast,
+            QualityArg::Medium => BuildQuality::Medium,
+            QualityArg::Slow => BuildQuality::Slow,
+        },
+    };
+
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let bar = indicatif::ProgressBar::new(scene.settings.spp as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} spp  {msg}  eta {eta}")
+                .expect("valid template"),
+        );
+        bar
+    });
+    let mut on_progress = |p: &Progress| {
+        if let Some(bar) = &bar {
+            bar.set_position(p.samples_done as u64);
+            bar.set_message(format!("{:.1} M rays/s", p.rays as f64 / p.elapsed.max(1e-9) / 1e6));
+        }
+    };
+    let out = render(&scene, &options, &mut on_progress)?;
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    out.film.write_image(&args.output)?;
+    let json = serde_json::to_string_pretty(&out.stats)?;
+    if let Some(path) = &args.stats {
+        aorender::film::write_atomically(path, format!("{json}\n").as_bytes())?;
+    }
+    let st = &out.stats;
+    eprintln!(
+        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s, BVH {:.2} s) on {} ({}); mean {:.4}",
+        args.output.display(),
+        st.width,
+        st.height,
+        st.samples_per_pixel,
+        st.render_seconds,
+        st.rays_per_second / 1e6,
+        st.bvh_build_seconds,
+        st.adapter,
+        st.backend,
+        st.image_mean
+    );
+    if st.samples_per_pixel < st.samples_requested {
+        eprintln!("time limit reached after {} of {} samples per pixel", st.samples_per_pixel, st.samples_requested);
+    }
+    println!("{json}");
+    Ok(())
+}

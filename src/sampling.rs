@@ -1,0 +1,205 @@
+//! Random numbers, hemisphere warps and shading frames.
+//!
+//! Every function here has a twin of the same name in `shaders/sampling.wgsl`; the
+//! parity tests run both on the same inputs. Warps come as sample / pdf / inverse
+//! (pbrt-v4, `util/sampling.h`), take `u ∈ [0,1)²`, and guard their square roots so
+//! that `u` exactly 0 or the largest float below 1 never gives NaN.
+
+use glam::{UVec4, Vec2, Vec3};
+use std::f32::consts::{FRAC_1_PI, FRAC_PI_2, FRAC_PI_4, PI};
+
+/// Per-sample random dimensions (one `pcg4d` call fills all four).
+pub const DIM_PIXEL: usize = 0;
+/// Index of the first of the two hemisphere dimensions.
+pub const DIM_HEMISPHERE: usize = 2;
+
+/// The 4-D PCG hash of Jarzynski & Olano, "Hash Functions for GPU Rendering" (JCGT 2020).
+pub fn pcg4d(v: UVec4) -> UVec4 {
+    let mut v = v * 1664525u32 + UVec4::splat(1013904223u32);
+    v.x = v.x.wrapping_add(v.y.wrapping_mul(v.w));
+    v.y = v.y.wrapping_add(v.z.wrapping_mul(v.x));
+    v.z = v.z.wrapping_add(v.x.wrapping_mul(v.y));
+    v.w = v.w.wrapping_add(v.y.wrapping_mul(v.z));
+    v ^= v >> 16;
+    v.x = v.x.wrapping_add(v.y.wrapping_mul(v.w));
+    v.y = v.y.wrapping_add(v.z.wrapping_mul(v.x));
+    v.z = v.z.wrapping_add(v.x.wrapping_mul(v.y));
+    v.w = v.w.wrapping_add(v.y.wrapping_mul(v.z));
+    v
+}
+
+/// Maps 32 random bits to a float in [0, 1) using the top 24 bits; the largest value
+/// is `1 - 2^-24`, the largest `f32` below one.
+pub fn u32_to_unit_float(x: u32) -> f32 {
+    (x >> 8) as f32 * (1.0 / 16777216.0)
+}
+
+/// The four uniform numbers of sample `sample_index` of pixel `(px, py)`: a pure
+/// function of (pixel, sample index, seed), so a render is reproducible and any
+/// range of sample indices can be rendered on its own.
+pub fn sample_uniforms(px: u32, py: u32, sample_index: u32, seed: u32) -> [f32; 4] {
+    let h = pcg4d(UVec4::new(px, py, sample_index, seed));
+    [u32_to_unit_float(h.x), u32_to_unit_float(h.y), u32_to_unit_float(h.z), u32_to_unit_float(h.w)]
+}
+
+/// `sqrt(max(x, 0))`: rounding can make `1 - z²` slightly negative.
+pub fn safe_sqrt(x: f32) -> f32 {
+    x.max(0.0).sqrt()
+}
+
+/// Hemisphere distribution of AO directions (`--hemisphere`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Hemisphere {
+    /// p(ω) = 1/2π; estimator 2ρ V cos θ.
+    Uniform,
+    /// p(ω) = cos θ/π via the concentric disk mapping; estimator ρ V.
+    Cosine,
+}
+
+impl Hemisphere {
+    /// Every variant, in CLI order.
+    pub const ALL: [Hemisphere; 2] = [Hemisphere::Uniform, Hemisphere::Cosine];
+
+    /// The name used on the command line, in scene files and in stats.
+    pub fn name(self) -> &'static str {
+        match self {
+            Hemisphere::Uniform => "uniform",
+            Hemisphere::Cosine => "cosine",
+        }
+    }
+
+    /// The id the shader switches on (`HEMISPHERE_*` in `sampling.wgsl`).
+    pub fn shader_id(self) -> u32 {
+        match self {
+            Hemisphere::Uniform => 0,
+            Hemisphere::Cosine => 1,
+        }
+    }
+
+    /// Direction in the local frame (z = normal).
+    pub fn sample(self, u: Vec2) -> Vec3 {
+        match self {
+            Hemisphere::Uniform => sample_uniform_hemisphere(u),
+            Hemisphere::Cosine => sample_cosine_hemisphere(u),
+        }
+    }
+
+    /// Solid-angle density of a local direction.
+    pub fn pdf(self, w: Vec3) -> f32 {
+        match self {
+            Hemisphere::Uniform => uniform_hemisphere_pdf(),
+            Hemisphere::Cosine => cosine_hemisphere_pdf(w.z),
+        }
+    }
+
+    /// The AO estimate of one unoccluded direction, `cos θ / (π p(ω))`, so that a fully
+    /// open hemisphere averages to one (pbrt's normalisation).
+    pub fn weight(self, w: Vec3) -> f32 {
+        match self {
+            Hemisphere::Uniform => 2.0 * w.z,
+            Hemisphere::Cosine => 1.0,
+        }
+    }
+}
+
+/// Uniform hemisphere by inversion: z = ξ₁, φ = 2πξ₂ (the lecture's "better" form).
+pub fn sample_uniform_hemisphere(u: Vec2) -> Vec3 {
+    let z = u.x;
+    let r = safe_sqrt(1.0 - z * z);
+    let phi = 2.0 * PI * u.y;
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// Density of [`sample_uniform_hemisphere`]: 1/2π.
+pub fn uniform_hemisphere_pdf() -> f32 {
+    0.5 * FRAC_1_PI
+}
+
+/// Inverse of [`sample_uniform_hemisphere`].
+pub fn invert_uniform_hemisphere_sample(w: Vec3) -> Vec2 {
+    let mut phi = w.y.atan2(w.x);
+    if phi < 0.0 {
+        phi += 2.0 * PI;
+    }
+    Vec2::new(w.z, phi / (2.0 * PI))
+}
+
+/// Shirley & Chiu's concentric map from the square to the unit disk.
+pub fn sample_uniform_disk_concentric(u: Vec2) -> Vec2 {
+    let o = 2.0 * u - Vec2::ONE;
+    if o.x == 0.0 && o.y == 0.0 {
+        return Vec2::ZERO;
+    }
+    let (r, theta) =
+        if o.x.abs() > o.y.abs() { (o.x, FRAC_PI_4 * (o.y / o.x)) } else { (o.y, FRAC_PI_2 - FRAC_PI_4 * (o.x / o.y)) };
+    r * Vec2::new(theta.cos(), theta.sin())
+}
+
+/// Inverse of [`sample_uniform_disk_concentric`].
+pub fn invert_uniform_disk_concentric_sample(p: Vec2) -> Vec2 {
+    let theta = p.y.atan2(p.x);
+    let r = (p.x * p.x + p.y * p.y).sqrt();
+    // Fold θ into [-π/4, 7π/4) to find the square's wedge.
+    let t = if theta < -FRAC_PI_4 { theta + 2.0 * PI } else { theta };
+    let o = if t < FRAC_PI_4 {
+        Vec2::new(r, r * t / FRAC_PI_4)
+    } else if t < 3.0 * FRAC_PI_4 {
+        Vec2::new(r * (FRAC_PI_2 - t) / FRAC_PI_4, r)
+    } else if t < 5.0 * FRAC_PI_4 {
+        Vec2::new(-r, r * (PI - t) / FRAC_PI_4)
+    } else {
+        Vec2::new(r * (t - 3.0 * FRAC_PI_2) / FRAC_PI_4, -r)
+    };
+    (o + Vec2::ONE) * 0.5
+}
+
+/// Cosine-weighted hemisphere: a point uniform on the disk projected up (Malley's method).
+pub fn sample_cosine_hemisphere(u: Vec2) -> Vec3 {
+    let d = sample_uniform_disk_concentric(u);
+    let z = safe_sqrt(1.0 - d.x * d.x - d.y * d.y);
+    Vec3::new(d.x, d.y, z)
+}
+
+/// Density of [`sample_cosine_hemisphere`]: cos θ / π.
+pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
+    cos_theta * FRAC_1_PI
+}
+
+/// Inverse of [`sample_cosine_hemisphere`].
+pub fn invert_cosine_hemisphere_sample(w: Vec3) -> Vec2 {
+    invert_uniform_disk_concentric_sample(Vec2::new(w.x, w.y))
+}
+
+/// Orthonormal basis around a unit vector without a singularity: Duff et al.,
+/// "Building an Orthonormal Basis, Revisited" (JCGT 2017), listing 3.
+pub fn orthonormal_basis(n: Vec3) -> (Vec3, Vec3) {
+    // `>= 0` rather than copysign, to treat -0.0 as the shader's `select` does.
+    let sign = if n.z >= 0.0 { 1.0 } else { -1.0 };
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    let t = Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+    let s = Vec3::new(b, sign + n.y * n.y * a, -n.y);
+    (t, s)
+}
+
+/// Local direction (z = `n`) to world space.
+pub fn local_to_world(w: Vec3, n: Vec3) -> Vec3 {
+    let (t, s) = orthonormal_basis(n);
+    t * w.x + s * w.y + n * w.z
+}
+
+/// Moves a surface point off its surface along the geometric normal by a few ulps of its
+/// own magnitude, so the offset scales with the position: Wächter & Binder, "A Fast and
+/// Robust Method for Avoiding Self-Intersection", Ray Tracing Gems ch. 6.
+pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
+    const ORIGIN: f32 = 1.0 / 32.0;
+    const FLOAT_SCALE: f32 = 1.0 / 65536.0;
+    const INT_SCALE: f32 = 256.0;
+    let offset = |p: f32, n: f32| -> f32 {
+        let of_i = (INT_SCALE * n) as i32;
+        let p_i = f32::from_bits((p.to_bits() as i32).wrapping_add(if p < 0.0 { -of_i } else { of_i }) as u32);
+        if p.abs() < ORIGIN { p + FLOAT_SCALE * n } else { p_i }
+    };
+    Vec3::new(offset(p.x, n.x), offset(p.y, n.y), offset(p.z, n.z))
+}

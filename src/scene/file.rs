@@ -1,0 +1,272 @@
+//! The TOML scene format (documented in the README). Unknown fields are errors.
+
+use super::{Plane, Scene, Settings, Sphere, Triangle, load_mesh};
+use crate::camera::{Camera, Projection};
+use crate::error::{Error, Result};
+use crate::sampling::Hemisphere;
+use glam::{Mat4, Vec3};
+use serde::Deserialize;
+use std::path::Path;
+
+/// The default scene's text, compiled in so the binary renders without any files.
+pub const DEFAULT_SCENE: &str = include_str!("../../scenes/aobench.toml");
+/// Name reported for the built-in scene.
+pub const DEFAULT_SCENE_NAME: &str = "scenes/aobench.toml";
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    #[serde(default)]
+    image: ImageSection,
+    #[serde(default)]
+    sampling: SamplingSection,
+    camera: CameraSection,
+    #[serde(default, rename = "object")]
+    objects: Vec<Object>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct ImageSection {
+    width: Option<u32>,
+    height: Option<u32>,
+    background: Option<f32>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct SamplingSection {
+    spp: Option<u32>,
+    hemisphere: Option<Hemisphere>,
+    max_distance: Option<f32>,
+    seed: Option<u32>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields, rename_all = "lowercase")]
+enum CameraKind {
+    Perspective,
+    Orthographic,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraSection {
+    #[serde(rename = "type")]
+    kind: CameraKind,
+    eye: [f32; 3],
+    look_at: [f32; 3],
+    #[serde(default = "default_up")]
+    up: [f32; 3],
+    /// Vertical field of view in degrees (perspective).
+    fov: Option<f32>,
+    /// View height in world units (orthographic).
+    height: Option<f32>,
+}
+
+fn default_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+fn default_albedo() -> f32 {
+    1.0
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+enum Object {
+    Mesh(MeshObject),
+    Sphere(SphereObject),
+    Plane(PlaneObject),
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MeshObject {
+    file: String,
+    #[serde(default = "default_albedo")]
+    albedo: f32,
+    transform: Option<Transform>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SphereObject {
+    center: [f32; 3],
+    radius: f32,
+    #[serde(default = "default_albedo")]
+    albedo: f32,
+    transform: Option<Transform>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PlaneObject {
+    point: [f32; 3],
+    normal: [f32; 3],
+    #[serde(default = "default_albedo")]
+    albedo: f32,
+    transform: Option<Transform>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum Scale {
+    Uniform(f32),
+    Axes([f32; 3]),
+}
+
+/// Applied as scale, then rotation (about x, then y, then z, in degrees), then
+/// translation; or a full row-major 4×4 `matrix` instead of those.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Transform {
+    scale: Option<Scale>,
+    rotate: Option<[f32; 3]>,
+    translate: Option<[f32; 3]>,
+    matrix: Option<[[f32; 4]; 4]>,
+}
+
+impl Transform {
+    fn matrix(&self) -> Result<Mat4, String> {
+        let m = if let Some(rows) = self.matrix {
+            if self.scale.is_some() || self.rotate.is_some() || self.translate.is_some() {
+                return Err("transform: give either matrix or scale/rotate/translate, not both".into());
+            }
+            Mat4::from_cols_array_2d(&rows).transpose()
+        } else {
+            let s = match self.scale {
+                None => Vec3::ONE,
+                Some(Scale::Uniform(s)) => Vec3::splat(s),
+                Some(Scale::Axes(a)) => Vec3::from(a),
+            };
+            let r = self.rotate.map(Vec3::from).unwrap_or(Vec3::ZERO);
+            let rotation =
+                glam::Quat::from_euler(glam::EulerRot::ZYX, r.z.to_radians(), r.y.to_radians(), r.x.to_radians());
+            let t = self.translate.map(Vec3::from).unwrap_or(Vec3::ZERO);
+            Mat4::from_scale_rotation_translation(s, rotation, t)
+        };
+        if !m.is_finite() {
+            return Err("transform has a NaN or infinite entry".into());
+        }
+        if m.determinant() == 0.0 {
+            return Err("transform is singular".into());
+        }
+        Ok(m)
+    }
+}
+
+pub(super) fn load_scene_file(path: &Path) -> Result<Scene> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::scene(path, e))?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    parse_scene(&text, path, base)
+}
+
+/// One-line form of a TOML error: message and line.
+fn toml_error(text: &str, e: &toml::de::Error) -> String {
+    let msg = e.message().replace('\n', " ");
+    match e.span() {
+        Some(span) => {
+            let line = text[..span.start.min(text.len())].matches('\n').count() + 1;
+            format!("line {line}: {}", msg.trim())
+        }
+        None => msg.trim().to_string(),
+    }
+}
+
+pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Scene> {
+    let file: SceneFile = toml::from_str(text).map_err(|e| Error::scene(path, toml_error(text, &e)))?;
+    let err = |m: String| Error::scene(path, m);
+
+    let defaults = Settings::default();
+    let settings = Settings {
+        width: file.image.width.unwrap_or(defaults.width),
+        height: file.image.height.unwrap_or(defaults.height),
+        background: file.image.background.unwrap_or(defaults.background),
+        spp: file.sampling.spp.unwrap_or(defaults.spp),
+        hemisphere: file.sampling.hemisphere.unwrap_or(defaults.hemisphere),
+        max_distance: file.sampling.max_distance,
+        seed: file.sampling.seed.unwrap_or(defaults.seed),
+    };
+    settings.validate().map_err(err)?;
+
+    let c = &file.camera;
+    let projection = match c.kind {
+        CameraKind::Perspective => {
+            if c.height.is_some() {
+                return Err(err("camera: 'height' is for orthographic cameras; use 'fov'".into()));
+            }
+            Projection::Perspective { vfov_deg: c.fov.ok_or_else(|| err("camera: perspective needs 'fov'".into()))? }
+        }
+        CameraKind::Orthographic => {
+            if c.fov.is_some() {
+                return Err(err("camera: 'fov' is for perspective cameras; use 'height'".into()));
+            }
+            Projection::Orthographic {
+                height: c.height.ok_or_else(|| err("camera: orthographic needs 'height'".into()))?,
+            }
+        }
+    };
+    let camera = Camera { eye: c.eye.into(), look_at: c.look_at.into(), up: c.up.into(), projection };
+    camera.validate().map_err(err)?;
+
+    let mut triangles: Vec<Triangle> = Vec::new();
+    let mut spheres = Vec::new();
+    let mut planes = Vec::new();
+    for (i, object) in file.objects.iter().enumerate() {
+        let name = |kind: &str| format!("object {} ({kind})", i + 1);
+        let (albedo, transform) = match object {
+            Object::Mesh(m) => (m.albedo, &m.transform),
+            Object::Sphere(s) => (s.albedo, &s.transform),
+            Object::Plane(p) => (p.albedo, &p.transform),
+        };
+        if !(albedo.is_finite() && albedo >= 0.0) {
+            return Err(err(format!("object {}: albedo must be finite and non-negative, got {albedo}", i + 1)));
+        }
+        let m = match transform {
+            Some(t) => t.matrix().map_err(|e| err(format!("object {}: {e}", i + 1)))?,
+            None => Mat4::IDENTITY,
+        };
+        match object {
+            Object::Mesh(mesh) => {
+                triangles.extend(load_mesh(&base_dir.join(&mesh.file), albedo, &m)?);
+            }
+            Object::Sphere(s) => {
+                let (center, radius) = (Vec3::from(s.center), s.radius);
+                if !(center.is_finite() && radius.is_finite() && radius > 0.0) {
+                    return Err(err(format!("{}: needs a finite centre and a positive radius", name("sphere"))));
+                }
+                // Spheres stay exact: only similarity transforms keep them spheres.
+                let (scale, _, _) = m.to_scale_rotation_translation();
+                let max_rel = (scale.abs().max_element() - scale.abs().min_element()) / scale.abs().max_element();
+                if max_rel > 1e-5 || m.row(3) != glam::Vec4::W {
+                    return Err(err(format!(
+                        "{}: transform must be a similarity (uniform scale, rotation, translation) to keep a sphere exact",
+                        name("sphere")
+                    )));
+                }
+                let center = m.transform_point3(center);
+                let radius = radius * scale.abs().x;
+                if !center.is_finite() || !radius.is_finite() {
+                    return Err(err(format!("{}: transformed sphere is not finite", name("sphere"))));
+                }
+                spheres.push(Sphere { center, radius, albedo });
+            }
+            Object::Plane(p) => {
+                let (point, normal) = (Vec3::from(p.point), Vec3::from(p.normal));
+                if !point.is_finite() || !normal.is_finite() || normal.length_squared() == 0.0 {
+                    return Err(err(format!("{}: needs a finite point and a non-zero normal", name("plane"))));
+                }
+                let point = m.transform_point3(point);
+                // Normals transform by the inverse transpose.
+                let normal = m.inverse().transpose().transform_vector3(normal).normalize();
+                if !point.is_finite() || !normal.is_finite() {
+                    return Err(err(format!("{}: transformed plane is not finite", name("plane"))));
+                }
+                planes.push(Plane { normal, d: normal.dot(point), albedo });
+            }
+        }
+    }
+    let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
+    Ok(Scene { name, camera, settings, triangles, spheres, planes })
+}

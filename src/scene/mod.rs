@@ -1,0 +1,238 @@
+//! The in-memory scene: primitives as the scene file states them (triangles, exact spheres,
+//! infinite planes), a camera and the render settings. Scene files and mesh formats are
+//! parsed into it by the submodules.
+
+mod file;
+mod obj;
+
+pub use file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME};
+
+use crate::camera::{Camera, Projection};
+use crate::error::{Error, Result};
+use crate::sampling::Hemisphere;
+use glam::Vec3;
+use std::path::Path;
+
+/// A triangle with its albedo.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Triangle {
+    /// Vertices, world space.
+    pub v: [Vec3; 3],
+    /// Diffuse reflectance ρ.
+    pub albedo: f32,
+}
+
+/// An exact sphere.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sphere {
+    /// Centre, world space.
+    pub center: Vec3,
+    /// Radius.
+    pub radius: f32,
+    /// Diffuse reflectance ρ.
+    pub albedo: f32,
+}
+
+/// An infinite plane `{x : n·x = d}`, hit from both sides.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Plane {
+    /// Unit normal.
+    pub normal: Vec3,
+    /// Signed distance of the plane from the origin along `normal`.
+    pub d: f32,
+    /// Diffuse reflectance ρ.
+    pub albedo: f32,
+}
+
+/// Image size and sampling defaults; command-line options override them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Settings {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Samples per pixel (each: one camera ray and at most one AO ray).
+    pub spp: u32,
+    /// AO direction distribution.
+    pub hemisphere: Hemisphere,
+    /// AO rays longer than this are unoccluded; `None` is no limit.
+    pub max_distance: Option<f32>,
+    /// Value of camera rays that hit nothing.
+    pub background: f32,
+    /// Seed of the random numbers.
+    pub seed: u32,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            width: 512,
+            height: 512,
+            spp: 64,
+            hemisphere: Hemisphere::Cosine,
+            max_distance: None,
+            background: 0.0,
+            seed: 0,
+        }
+    }
+}
+
+impl Settings {
+    /// Checks ranges; the message names the offending setting.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.width == 0 || self.height == 0 {
+            return Err(format!("image size must be positive, got {}x{}", self.width, self.height));
+        }
+        if self.width > 16384 || self.height > 16384 {
+            return Err(format!("image size {}x{} exceeds 16384 on a side", self.width, self.height));
+        }
+        if self.spp == 0 {
+            return Err("samples per pixel must be at least 1".into());
+        }
+        if let Some(d) = self.max_distance
+            && (d.is_nan() || d < 0.0)
+        {
+            return Err(format!("max distance must be zero or positive, got {d}"));
+        }
+        if !self.background.is_finite() {
+            return Err("background must be finite".into());
+        }
+        Ok(())
+    }
+}
+
+/// A scene ready to render.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Human-readable name (file stem or "aobench").
+    pub name: String,
+    /// The camera.
+    pub camera: Camera,
+    /// Render settings.
+    pub settings: Settings,
+    /// Triangles of all meshes, transformed to world space.
+    pub triangles: Vec<Triangle>,
+    /// Spheres.
+    pub spheres: Vec<Sphere>,
+    /// Infinite planes.
+    pub planes: Vec<Plane>,
+}
+
+/// Axis-aligned bounds of the finite primitives.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bounds {
+    /// Minimum corner.
+    pub min: Vec3,
+    /// Maximum corner.
+    pub max: Vec3,
+}
+
+impl Scene {
+    /// Loads a scene file (`.toml`) or a bare mesh (`.obj`), framed automatically.
+    pub fn load(path: &Path) -> Result<Scene> {
+        match extension(path).as_str() {
+            "toml" => file::load_scene_file(path),
+            "obj" => Scene::from_mesh_file(path),
+            "" => Err(Error::scene(path, "no file extension: expected .toml or .obj")),
+            ext => Err(Error::scene(path, format!("unsupported file type '.{ext}': expected .toml or .obj"))),
+        }
+    }
+
+    /// The built-in default scene (`scenes/aobench.toml`).
+    pub fn default_scene() -> Scene {
+        file::parse_scene(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME), Path::new("."))
+            .expect("the built-in scene is valid")
+    }
+
+    /// Parses a scene from TOML text; mesh paths resolve against `base_dir`.
+    pub fn from_toml_str(text: &str, path: &Path, base_dir: &Path) -> Result<Scene> {
+        file::parse_scene(text, path, base_dir)
+    }
+
+    /// A bare mesh, albedo 1, looked at from eye = centre + normalize(0.6, 0.45, 1.0) ×
+    /// 1.2 × diagonal with up +Y and a 45° vertical field of view; no distance limit.
+    pub fn from_mesh_file(path: &Path) -> Result<Scene> {
+        let triangles = load_mesh(path, 1.0, &glam::Mat4::IDENTITY)?;
+        let mut scene = Scene {
+            name: stem(path),
+            camera: Camera {
+                eye: Vec3::ZERO,
+                look_at: Vec3::NEG_Z,
+                up: Vec3::Y,
+                projection: Projection::Perspective { vfov_deg: 45.0 },
+            },
+            settings: Settings::default(),
+            triangles,
+            spheres: Vec::new(),
+            planes: Vec::new(),
+        };
+        scene.camera = scene.auto_camera();
+        Ok(scene)
+    }
+
+    /// The automatic framing used for bare meshes.
+    pub fn auto_camera(&self) -> Camera {
+        let b = self.bounds().unwrap_or(Bounds { min: Vec3::splat(-1.0), max: Vec3::splat(1.0) });
+        let centre = 0.5 * (b.min + b.max);
+        let diagonal = (b.max - b.min).length().max(f32::MIN_POSITIVE);
+        Camera {
+            eye: centre + Vec3::new(0.6, 0.45, 1.0).normalize() * 1.2 * diagonal,
+            look_at: centre,
+            up: Vec3::Y,
+            projection: Projection::Perspective { vfov_deg: 45.0 },
+        }
+    }
+
+    /// Bounds of triangles and spheres; `None` when the scene has neither.
+    pub fn bounds(&self) -> Option<Bounds> {
+        let mut min = Vec3::splat(f32::INFINITY);
+        let mut max = Vec3::splat(f32::NEG_INFINITY);
+        for t in &self.triangles {
+            for v in t.v {
+                min = min.min(v);
+                max = max.max(v);
+            }
+        }
+        for s in &self.spheres {
+            min = min.min(s.center - s.radius);
+            max = max.max(s.center + s.radius);
+        }
+        (min.x <= max.x).then_some(Bounds { min, max })
+    }
+
+    /// Number of primitives the BVH holds (triangles and spheres).
+    pub fn finite_primitive_count(&self) -> usize {
+        self.triangles.len() + self.spheres.len()
+    }
+}
+
+/// Loads a triangle mesh (`.obj`), applying `transform`; rejects empty meshes and
+/// non-finite coordinates.
+pub fn load_mesh(path: &Path, albedo: f32, transform: &glam::Mat4) -> Result<Vec<Triangle>> {
+    let triangles = match extension(path).as_str() {
+        "obj" => obj::load_obj(path)?,
+        ext => {
+            return Err(Error::scene(path, format!("unsupported mesh format '.{ext}': expected .obj")));
+        }
+    };
+    if triangles.is_empty() {
+        return Err(Error::scene(path, "mesh has no triangles"));
+    }
+    let mut out = Vec::with_capacity(triangles.len());
+    for (i, v) in triangles.into_iter().enumerate() {
+        let v = v.map(|p| transform.transform_point3(p));
+        if !v.iter().all(|p| p.is_finite()) {
+            return Err(Error::scene(path, format!("triangle {i} has a NaN or infinite coordinate")));
+        }
+        out.push(Triangle { v, albedo });
+    }
+    Ok(out)
+}
+
+fn extension(path: &Path) -> String {
+    path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
+}
+
+fn stem(path: &Path) -> String {
+    path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string()
+}

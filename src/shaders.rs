@@ -1,0 +1,71 @@
+//! WGSL sources: the files in `shaders/`, joined by their `//#import` lines, behind a
+//! generated header that defines the constants Rust and WGSL share (so each is written
+//! once, in Rust).
+
+use crate::bvh::{INVALID_INDEX, PRIM_SPHERE, PRIM_TRIANGLE, STACK_SIZE};
+use crate::gpu::{COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, TRAVERSAL_BUDGET, WORKGROUP_SIZE};
+use crate::sampling::Hemisphere;
+
+/// Every shader file, by name, compiled into the binary.
+pub const FILES: &[(&str, &str)] = &[
+    ("ao.wgsl", include_str!("../shaders/ao.wgsl")),
+    ("bindings.wgsl", include_str!("../shaders/bindings.wgsl")),
+    ("intersect.wgsl", include_str!("../shaders/intersect.wgsl")),
+    ("sampling.wgsl", include_str!("../shaders/sampling.wgsl")),
+    ("trace.wgsl", include_str!("../shaders/trace.wgsl")),
+];
+
+/// The constants shared with Rust, as WGSL.
+pub fn shared_constants() -> String {
+    let u = |name: &str, v: u32| format!("const {name}: u32 = {v}u;\n");
+    [
+        u("INVALID_INDEX", INVALID_INDEX),
+        u("PRIM_TRIANGLE", PRIM_TRIANGLE),
+        u("PRIM_SPHERE", PRIM_SPHERE),
+        u("STACK_SIZE", STACK_SIZE),
+        u("TRAVERSAL_BUDGET", TRAVERSAL_BUDGET),
+        u("WORKGROUP_WIDTH", WORKGROUP_SIZE[0]),
+        u("WORKGROUP_HEIGHT", WORKGROUP_SIZE[1]),
+        u("COUNTER_AO_RAYS", COUNTER_AO_RAYS),
+        u("COUNTER_TRUNCATED", COUNTER_TRUNCATED),
+        u("COUNTER_COUNT", COUNTER_COUNT),
+        u("HEMISPHERE_UNIFORM", Hemisphere::Uniform.shader_id()),
+        u("HEMISPHERE_COSINE", Hemisphere::Cosine.shader_id()),
+    ]
+    .concat()
+}
+
+/// The source of `name` with its imports (each once, dependencies first) behind the
+/// shared constants. `lookup` maps a file name to its text.
+pub fn compose_with<'a>(name: &str, lookup: &dyn Fn(&str) -> Option<&'a str>) -> Result<String, String> {
+    fn visit<'a>(
+        name: &str,
+        lookup: &dyn Fn(&str) -> Option<&'a str>,
+        seen: &mut Vec<String>,
+        out: &mut String,
+    ) -> Result<(), String> {
+        if seen.iter().any(|s| s == name) {
+            return Ok(());
+        }
+        seen.push(name.to_string());
+        let text = lookup(name).ok_or_else(|| format!("shader file '{name}' not found"))?;
+        for line in text.lines() {
+            if let Some(dep) = line.trim().strip_prefix("//#import ") {
+                visit(dep.trim(), lookup, seen, out)?;
+            }
+        }
+        out.push_str(&format!("// ---- {name}\n"));
+        out.push_str(text);
+        out.push('\n');
+        Ok(())
+    }
+    let mut out = shared_constants();
+    visit(name, lookup, &mut Vec::new(), &mut out)?;
+    Ok(out)
+}
+
+/// The composed source of a compiled-in shader file.
+pub fn compose(name: &str) -> String {
+    let lookup = |n: &str| FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t);
+    compose_with(name, &lookup).expect("compiled-in shaders resolve their imports")
+}
