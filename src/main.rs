@@ -62,13 +62,13 @@ struct RenderArgs {
     #[arg(long, value_enum)]
     hemisphere: Option<HemisphereArg>,
     /// AO rays longer than this are unoccluded (default: the scene's, else unlimited).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     max_distance: Option<f32>,
     /// Random seed (default: the scene's, else 0).
     #[arg(long)]
     seed: Option<u32>,
     /// Stop after the pass that passes this many seconds, with the samples done so far.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     time_limit: Option<f64>,
     /// Write render statistics as JSON.
     #[arg(long)]
@@ -91,8 +91,24 @@ fn main() {
     }
 }
 
+/// Parses the command line; usage errors are reported in one line (exit 2).
+fn parse() -> Cli {
+    match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if e.use_stderr() => {
+            let text = e.to_string();
+            let first = text.lines().next().unwrap_or("invalid arguments");
+            let first = first.strip_prefix("error: ").unwrap_or(first);
+            eprintln!("aorender: {first} (see aorender --help)");
+            std::process::exit(2);
+        }
+        // --help and --version
+        Err(e) => e.exit(),
+    }
+}
+
 fn run() -> Result<()> {
-    match Cli::parse().command {
+    match parse().command {
         Command::Adapters => {
             let adapters = aorender::gpu::list_adapters();
             if adapters.is_empty() {

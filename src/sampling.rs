@@ -203,3 +203,116 @@ pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
     };
     Vec3::new(offset(p.x, n.x), offset(p.y, n.y), offset(p.z, n.z))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A grid over [0,1)² that includes 0 and the largest float below one.
+    fn grid() -> Vec<Vec2> {
+        let last = 1.0 - f32::EPSILON / 2.0;
+        let mut xs: Vec<f32> = (0..33).map(|i| i as f32 / 33.0).collect();
+        xs.push(last);
+        xs.iter().flat_map(|&x| xs.iter().map(move |&y| Vec2::new(x, y))).collect()
+    }
+
+    #[test]
+    fn unit_float_range_is_zero_to_below_one() {
+        assert_eq!(u32_to_unit_float(0), 0.0);
+        assert_eq!(u32_to_unit_float(u32::MAX), 1.0 - f32::EPSILON / 2.0);
+    }
+
+    #[test]
+    fn warps_give_unit_upper_hemisphere_directions() {
+        for h in Hemisphere::ALL {
+            for u in grid() {
+                let w = h.sample(u);
+                assert!(w.is_finite(), "{h:?} {u}: {w}");
+                assert!((w.length() - 1.0).abs() < 1e-5, "{h:?} {u}: |w| = {}", w.length());
+                assert!(w.z >= 0.0, "{h:?} {u}: {w}");
+            }
+        }
+    }
+
+    #[test]
+    fn sample_then_invert_returns_the_input() {
+        for u in grid() {
+            // φ wraps at 1 and the concentric map folds its boundary; compare on the circle.
+            let close = |a: Vec2, b: Vec2| {
+                let dx = (a.x - b.x).abs();
+                let dy = (a.y - b.y).abs().min(1.0 - (a.y - b.y).abs());
+                dx < 2e-4 && dy < 2e-4
+            };
+            let back = invert_uniform_hemisphere_sample(sample_uniform_hemisphere(u));
+            // At the pole (z = ξ₁ → 1) the circle shrinks to a point and φ is lost.
+            assert!(close(u, back) || u.x == 1.0 - f32::EPSILON / 2.0, "uniform {u} -> {back}");
+            let back = invert_cosine_hemisphere_sample(sample_cosine_hemisphere(u));
+            assert!((u - back).abs().max_element() < 2e-4, "cosine {u} -> {back}");
+        }
+    }
+
+    #[test]
+    fn pdfs_integrate_to_one() {
+        // Midpoint rule in (cos θ, φ), where dω = d(cos θ) dφ.
+        let n = 2000;
+        for h in Hemisphere::ALL {
+            let mut total = 0.0f64;
+            for i in 0..n {
+                let z = (i as f32 + 0.5) / n as f32;
+                let w = Vec3::new(safe_sqrt(1.0 - z * z), 0.0, z);
+                total += h.pdf(w) as f64 * (1.0 / n as f64) * 2.0 * std::f64::consts::PI;
+            }
+            assert!((total - 1.0).abs() < 1e-4, "{h:?} pdf integrates to {total}");
+        }
+    }
+
+    #[test]
+    fn weight_is_cos_over_pi_pdf() {
+        for h in Hemisphere::ALL {
+            for u in grid() {
+                let w = h.sample(u);
+                if h.pdf(w) > 1e-3 {
+                    let expected = w.z / (PI * h.pdf(w));
+                    assert!((h.weight(w) - expected).abs() < 1e-4, "{h:?} {w}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn basis_is_orthonormal_for_axes_and_random_normals() {
+        let mut normals = vec![Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z, Vec3::new(0.0, 0.0, -0.0)];
+        for i in 0..1000u32 {
+            let u = sample_uniforms(i, 7, 0, 3);
+            let z = 2.0 * u[0] - 1.0;
+            let r = safe_sqrt(1.0 - z * z);
+            let phi = 2.0 * PI * u[1];
+            normals.push(Vec3::new(r * phi.cos(), r * phi.sin(), z));
+        }
+        for n in normals {
+            let n = if n.length_squared() == 0.0 { Vec3::Z } else { n };
+            let (t, s) = orthonormal_basis(n);
+            for (a, b) in [(t, s), (t, n), (s, n)] {
+                assert!(a.dot(b).abs() < 1e-5, "{n}: not orthogonal");
+            }
+            for v in [t, s] {
+                assert!((v.length() - 1.0).abs() < 1e-5, "{n}: not unit");
+            }
+            assert!((t.cross(s) - n).length() < 1e-5, "{n}: not right-handed");
+        }
+    }
+
+    #[test]
+    fn offset_moves_to_the_normal_side_at_every_scale() {
+        for scale in [1e-6f32, 1e-4, 1e-2, 1.0, 1e3, 1e6] {
+            for n in [Vec3::X, -Vec3::Y, Vec3::new(0.6, 0.0, 0.8), Vec3::new(-0.48, 0.6, -0.64)] {
+                for p in [Vec3::new(1.0, -2.0, 0.5), Vec3::new(-3.0, 0.25, 7.0), Vec3::ZERO] {
+                    let p = p * scale;
+                    let q = offset_ray_origin(p, n);
+                    assert!((q - p).dot(n) > 0.0, "scale {scale}, p {p}, n {n}: {q}");
+                    assert!((q - p).length() <= 1e-3 * (1.0 + p.abs().max_element()), "offset too large at {p}");
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,139 @@
+//! The `aorender` command: a render writes its image and stats; bad input gives one line
+//! naming the file and the problem, a non-zero exit, no panic, and no output file (an
+//! existing one is left as it was).
+
+mod common;
+use common::*;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn aorender(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_aorender"))
+        .args(args)
+        .current_dir(cwd)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("aorender runs")
+}
+
+/// Runs a render that must fail; checks exit, message and that `out` is untouched.
+fn assert_rejected(args: &[&str], cwd: &Path, expect_in_message: &[&str]) {
+    let out_path = cwd.join("out.png");
+    std::fs::write(&out_path, b"previous image").unwrap();
+    let output = aorender(args, cwd);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{args:?} succeeded; stderr: {stderr}");
+    assert!(!stderr.contains("panicked"), "{args:?} panicked: {stderr}");
+    let lines: Vec<&str> = stderr.lines().filter(|l| l.starts_with("aorender:")).collect();
+    assert_eq!(lines.len(), 1, "{args:?}: expected one error line, got: {stderr}");
+    for part in expect_in_message {
+        assert!(lines[0].contains(part), "{args:?}: '{}' does not mention '{part}'", lines[0]);
+    }
+    assert_eq!(std::fs::read(&out_path).unwrap(), b"previous image", "{args:?} touched the output");
+    let leftovers: Vec<_> = std::fs::read_dir(cwd)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "{args:?} left temporary files: {leftovers:?}");
+}
+
+#[test]
+fn bad_input_is_one_line_with_the_file_and_no_output() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let write = |name: &str, text: &str| std::fs::write(d.join(name), text).unwrap();
+    let scene = |objects: &str| {
+        format!("[camera]\ntype = \"perspective\"\neye = [0, 0, 5]\nlook_at = [0, 0, 0]\nfov = 45\n{objects}")
+    };
+    write("malformed.toml", "[camera\ntype = ");
+    write("unknown_field.toml", &(scene("") + "\n[image]\nwidht = 10\n"));
+    write("unknown_value.toml", &(scene("") + "\n[sampling]\nhemisphere = \"spherical\"\n"));
+    write("empty.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n");
+    write("nan.obj", "v 0 0 0\nv NaN 0 0\nv 0 1 0\nf 1 2 3\n");
+    write("bad_index.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n");
+    write("uses_nan.toml", &scene("[[object]]\ntype = \"mesh\"\nfile = \"nan.obj\"\n"));
+    write("uses_missing.toml", &scene("[[object]]\ntype = \"mesh\"\nfile = \"missing.obj\"\n"));
+    write(
+        "bad_sphere.toml",
+        &scene("[[object]]\ntype = \"sphere\"\ncenter = [0, 0, 0]\nradius = 1\ntransform = { scale = [1, 2, 1] }\n"),
+    );
+    let cases: &[(&[&str], &[&str])] = &[
+        (&["render", "missing.toml", "-o", "out.png"], &["missing.toml"]),
+        (&["render", "malformed.toml", "-o", "out.png"], &["malformed.toml", "line"]),
+        (&["render", "unknown_field.toml", "-o", "out.png"], &["unknown_field.toml", "widht"]),
+        (&["render", "unknown_value.toml", "-o", "out.png"], &["unknown_value.toml", "spherical"]),
+        (&["render", "empty.obj", "-o", "out.png"], &["empty.obj", "no triangles"]),
+        (&["render", "nan.obj", "-o", "out.png"], &["nan.obj", "NaN"]),
+        (&["render", "bad_index.obj", "-o", "out.png"], &["bad_index.obj"]),
+        (&["render", "uses_nan.toml", "-o", "out.png"], &["nan.obj", "NaN"]),
+        (&["render", "uses_missing.toml", "-o", "out.png"], &["missing.obj"]),
+        (&["render", "bad_sphere.toml", "-o", "out.png"], &["bad_sphere.toml", "similarity"]),
+        (&["render", "scene.xyz", "-o", "out.png"], &["scene.xyz"]),
+        (&["render", "--hemisphere", "spherical", "-o", "out.png"], &["spherical"]),
+        (&["render", "--spp", "0", "-o", "out.png"], &["samples per pixel"]),
+        (&["render", "--max-distance", "-1", "-o", "out.png"], &["max distance"]),
+        (&["render", "-o", "out.tiff"], &["out.tiff"]),
+    ];
+    for (args, expect) in cases {
+        assert_rejected(args, d, expect);
+    }
+}
+
+#[test]
+fn render_writes_image_and_stats() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let mut devices = vec!["cpu"];
+    if gpu_available() {
+        devices.push("gpu");
+    }
+    for device in devices {
+        for ext in ["png", "exr", "pfm"] {
+            let image = format!("aobench_{device}.{ext}");
+            let stats = format!("stats_{device}.json");
+            let args = ["render", "--width", "32", "--height", "24", "--spp", "4", "-o", &image, "--stats", &stats];
+            let output = aorender(&[&args[..], &["--device", device]].concat(), d);
+            assert!(output.status.success(), "{device}: {}", String::from_utf8_lossy(&output.stderr));
+            let bytes = std::fs::read(d.join(&image)).unwrap();
+            match ext {
+                "png" => {
+                    let img = image::load_from_memory(&bytes).unwrap();
+                    assert_eq!((img.width(), img.height()), (32, 24));
+                }
+                "exr" => {
+                    let img = image::load_from_memory(&bytes).unwrap();
+                    assert_eq!((img.width(), img.height()), (32, 24));
+                }
+                _ => {
+                    assert!(bytes.starts_with(b"Pf\n32 24\n-1.0\n"));
+                    assert_eq!(bytes.len(), "Pf\n32 24\n-1.0\n".len() + 32 * 24 * 4);
+                }
+            }
+            let json: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join(&stats)).unwrap()).unwrap();
+            for key in [
+                "samples_per_pixel",
+                "width",
+                "height",
+                "rays_traced",
+                "render_seconds",
+                "bvh_build_seconds",
+                "rays_per_second",
+                "triangles",
+                "adapter",
+                "backend",
+                "hemisphere",
+                "sampler",
+                "seed",
+            ] {
+                assert!(json.get(key).is_some(), "{device}: stats lack {key}");
+            }
+            assert_eq!(json["samples_per_pixel"], 4);
+            assert_eq!(json["width"], 32);
+            // aobench: every camera ray is traced, and the floor fills the lower half.
+            let rays = json["rays_traced"].as_u64().unwrap();
+            assert!(rays > 32 * 24 * 4 && rays < 2 * 32 * 24 * 4, "{device}: {rays} rays");
+        }
+    }
+}

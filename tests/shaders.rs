@@ -1,0 +1,68 @@
+//! Every WGSL file parses and validates with naga (composed with its imports), and the
+//! host structs match the WGSL structs' sizes.
+
+use aorender::bvh::{GpuNode, GpuPrimitive};
+use aorender::gpu::{DispatchUniforms, FrameUniforms, GpuPlane};
+use aorender::shaders::compose_with;
+use std::collections::BTreeMap;
+
+fn shader_files() -> BTreeMap<String, String> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders");
+    let mut files = BTreeMap::new();
+    for entry in std::fs::read_dir(&dir).expect("shaders/ exists") {
+        let path = entry.expect("directory entry").path();
+        if path.extension().is_some_and(|e| e == "wgsl") {
+            let name = path.file_name().unwrap().to_string_lossy().to_string();
+            files.insert(name, std::fs::read_to_string(&path).expect("readable shader"));
+        }
+    }
+    files
+}
+
+fn validate(name: &str, files: &BTreeMap<String, String>) -> naga::Module {
+    let lookup = |n: &str| files.get(n).map(|s| s.as_str());
+    let source = compose_with(name, &lookup).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let module =
+        naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&source)));
+    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&source)));
+    module
+}
+
+#[test]
+fn every_shader_file_validates() {
+    let files = shader_files();
+    assert!(!files.is_empty(), "no .wgsl files found in shaders/");
+    for name in files.keys() {
+        validate(name, &files);
+    }
+}
+
+#[test]
+fn compiled_in_shaders_are_the_files_on_disk() {
+    let files = shader_files();
+    let compiled: BTreeMap<String, String> =
+        aorender::shaders::FILES.iter().map(|(n, t)| (n.to_string(), t.to_string())).collect();
+    assert_eq!(files, compiled, "src/shaders.rs FILES must list every file in shaders/");
+}
+
+#[test]
+fn host_structs_match_wgsl_layout() {
+    let module = validate("ao.wgsl", &shader_files());
+    let mut layouter = naga::proc::Layouter::default();
+    layouter.update(module.to_ctx()).expect("layout");
+    let size_of = |name: &str| -> u32 {
+        let (handle, _) = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some(name))
+            .unwrap_or_else(|| panic!("WGSL struct {name} not found"));
+        layouter[handle].size
+    };
+    assert_eq!(size_of("Frame") as usize, size_of_val(&FrameUniforms::new(&aorender::Scene::default_scene(), 0)));
+    assert_eq!(size_of("Dispatch") as usize, std::mem::size_of::<DispatchUniforms>());
+    assert_eq!(size_of("Node") as usize, std::mem::size_of::<GpuNode>());
+    assert_eq!(size_of("Primitive") as usize, std::mem::size_of::<GpuPrimitive>());
+    assert_eq!(size_of("Plane") as usize, std::mem::size_of::<GpuPlane>());
+}

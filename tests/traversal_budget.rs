@@ -1,0 +1,80 @@
+//! lavapipe (Mesa 22.3) silently ends a shader invocation after 65,535 loop iterations.
+//! The kernel counts its iterations against `TRAVERSAL_BUDGET`: a scene that needs more
+//! must fail loudly, and one that needs nearly as many must still be exact.
+//!
+//! The scenes are stacks of thin slivers along the diagonal of a square, one per height.
+//! Camera rays pass beside every sliver but through every sliver's box on their way to the
+//! floor, so closest-hit traversal must test every sliver. (Identical copies of one
+//! triangle would do the same, but obvhs builds them into a chain as deep as the copies
+//! are many, which the renderer refuses before it traces.)
+
+mod common;
+use aorender::{Device, Error, RenderOptions, Scene, render};
+use common::*;
+
+fn sliver_stack(slivers: usize, dir: &std::path::Path) -> Scene {
+    let tris: Vec<_> = (0..slivers)
+        .map(|i| {
+            let z = i as f32 / slivers as f32;
+            [[-1.0, -1.0, z], [1.0, 1.0, z], [-0.98, -1.0, z]]
+        })
+        .collect();
+    let obj = dir.join("slivers.obj");
+    write_obj(&obj, &tris);
+    // The camera looks down at (0.5, -0.5), half a unit from the diagonal; the AO rays
+    // from the floor are too short to reach the slivers, so every sample is the albedo.
+    let text = r#"
+        [image]
+        width = 4
+        height = 4
+        [sampling]
+        spp = 2
+        max_distance = 0.001
+        [camera]
+        type = "orthographic"
+        eye = [0.5, -0.5, 3.0]
+        look_at = [0.5, -0.5, 0.0]
+        height = 0.01
+        [[object]]
+        type = "mesh"
+        file = "slivers.obj"
+        [[object]]
+        type = "plane"
+        point = [0.0, 0.0, -2.0]
+        normal = [0.0, 0.0, 1.0]
+        albedo = 0.5
+    "#;
+    scene_from_toml(text, dir)
+}
+
+#[test]
+fn a_traversal_over_budget_is_reported_not_truncated() {
+    if !gpu_available() {
+        return;
+    }
+    let dir = temp_dir();
+    let scene = sliver_stack(80_000, dir.path());
+    match render(&scene, &RenderOptions::default(), &mut |_| {}) {
+        Err(Error::TraversalBudget { count, .. }) => assert!(count > 0),
+        Err(e) => panic!("expected a traversal-budget error, got: {e}"),
+        Ok(out) => panic!("80,000 slivers rendered without an error (mean {})", out.film.image_mean()),
+    }
+}
+
+#[test]
+fn a_traversal_near_the_budget_is_exact() {
+    if !gpu_available() {
+        return;
+    }
+    let dir = temp_dir();
+    // About 40,000 primitive tests plus the inner nodes on the way: well past half of
+    // lavapipe's cap, so a kernel that looped more than it counts would be cut short.
+    let scene = sliver_stack(40_000, dir.path());
+    let out = render(&scene, &RenderOptions::default(), &mut |_| {}).expect("within budget");
+    // Every camera ray reaches the floor; no AO ray reaches anything: each sample is 0.5.
+    for v in out.film.mean() {
+        assert_eq!(v as f32, 0.5, "pixel value {v}: a traversal was cut short");
+    }
+    let cpu = render_on(&scene, Device::Cpu);
+    assert_eq!(cpu.mean(), out.film.mean());
+}
