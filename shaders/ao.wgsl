@@ -3,6 +3,10 @@
 // The AO kernel: one sample of one pixel per invocation (a camera ray, then one AO ray
 // from its hit), added to the pixel's compensated running sums.
 
+// Per-workgroup counts, added to the global counters once per workgroup: one global
+// atomic per invocation costs lavapipe's two worker threads a contended cache line.
+var<workgroup> workgroup_counters: array<atomic<u32>, COUNTER_COUNT>;
+
 // Neumaier's compensated addition: (sum, compensation) + x.
 fn add_compensated(acc: vec2f, x: f32) -> vec2f {
     let t = acc.x + x;
@@ -55,7 +59,7 @@ fn shade_sample(px: vec2u, u: vec4f) -> f32 {
     }
     let w_local = sample_hemisphere(frame.hemisphere, u.zw);
     let w = local_to_world(w_local, n);
-    atomicAdd(&counters[COUNTER_AO_RAYS], 1u);
+    atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], 1u);
     let shadow = trace(offset_ray_origin(p, n), w, frame.max_distance, true);
     if (shadow.kind != HIT_NONE) {
         return 0.0;
@@ -64,17 +68,22 @@ fn shade_sample(px: vec2u, u: vec4f) -> f32 {
 }
 
 @compute @workgroup_size(WORKGROUP_WIDTH, WORKGROUP_HEIGHT, 1)
-fn render_sample(@builtin(global_invocation_id) gid: vec3u) {
-    if (gid.x >= frame.width || gid.y >= frame.height) {
-        return;
+fn render_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+    if (gid.x < frame.width && gid.y < frame.height) {
+        let u = sample_uniforms(gid.x, gid.y, dispatch.sample_index, frame.seed);
+        let value = shade_sample(gid.xy, u);
+        if (truncated) {
+            atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
+        } else {
+            let i = gid.y * frame.width + gid.x;
+            let acc = film[i];
+            film[i] = vec4f(add_compensated(acc.xy, value), add_compensated(acc.zw, value * value));
+        }
     }
-    let u = sample_uniforms(gid.x, gid.y, dispatch.sample_index, frame.seed);
-    let value = shade_sample(gid.xy, u);
-    if (truncated) {
-        atomicAdd(&counters[COUNTER_TRUNCATED], 1u);
-        return;
+    workgroupBarrier();
+    if (lid == 0u) {
+        // Written out rather than looped: every loop counts against lavapipe's cap.
+        atomicAdd(&counters[COUNTER_AO_RAYS], atomicLoad(&workgroup_counters[COUNTER_AO_RAYS]));
+        atomicAdd(&counters[COUNTER_TRUNCATED], atomicLoad(&workgroup_counters[COUNTER_TRUNCATED]));
     }
-    let i = gid.y * frame.width + gid.x;
-    let acc = film[i];
-    film[i] = vec4f(add_compensated(acc.xy, value), add_compensated(acc.zw, value * value));
 }

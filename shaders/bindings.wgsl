@@ -28,18 +28,6 @@ struct Dispatch {
     _pad2: u32,
 }
 
-// BVH2 node holding both children's boxes (see src/bvh.rs, GpuNode).
-struct Node {
-    a_min: vec3f,
-    a_index: u32,
-    a_max: vec3f,
-    a_count: u32,
-    b_min: vec3f,
-    b_index: u32,
-    b_max: vec3f,
-    b_count: u32,
-}
-
 // Triangle: (v0, albedo), (e1, tag), (e2, 0). Sphere: (centre, albedo), (radius, 0, 0, tag).
 struct Primitive {
     a: vec4f,
@@ -58,7 +46,7 @@ struct Plane {
 
 @group(0) @binding(0) var<uniform> frame: Frame;
 @group(0) @binding(1) var<uniform> dispatch: Dispatch;
-@group(0) @binding(2) var<storage, read> nodes: array<Node>;
+// Binding 2 holds the BVH nodes; their type is the traversal's (trace.wgsl, trace_cwbvh.wgsl).
 @group(0) @binding(3) var<storage, read> primitives: array<Primitive>;
 @group(0) @binding(4) var<storage, read> planes: array<Plane>;
 // Per pixel: (sum, compensation, sum of squares, compensation).

@@ -1,50 +1,24 @@
-//#import bindings.wgsl
-//#import intersect.wgsl
-// BVH2 traversal as one loop that visits a node or a primitive per iteration, so the
-// iterations of all of an invocation's rays can be counted against TRAVERSAL_BUDGET
-// (lavapipe silently ends an invocation after 65,535 loop iterations).
+//#import trace_common.wgsl
+// BVH2 traversal as one loop that visits a node or a primitive per iteration.
 
-const HIT_NONE: u32 = 0u;
-const HIT_PRIMITIVE: u32 = 1u;
-const HIT_PLANE: u32 = 2u;
-
-struct Hit {
-    t: f32,
-    kind: u32,   // HIT_*
-    index: u32,  // primitive or plane index
+// BVH2 node holding both children's boxes (src/bvh.rs, GpuNode).
+struct Node {
+    a_min: vec3f,
+    a_index: u32,
+    a_max: vec3f,
+    a_count: u32,
+    b_min: vec3f,
+    b_index: u32,
+    b_max: vec3f,
+    b_count: u32,
 }
 
-// Loop iterations spent by this invocation so far.
-var<private> steps: u32 = 0u;
-// Set when a traversal ran out of budget: its answer is wrong and the sample is void.
-var<private> truncated: bool = false;
-
-fn intersect_primitive(i: u32, o: vec3f, d: vec3f, t_max: f32) -> f32 {
-    let p = primitives[i];
-    if (bitcast<u32>(p.b.w) == PRIM_SPHERE) {
-        return intersect_sphere(o, d, 0.0, t_max, p.a.xyz, p.b.x);
-    }
-    return intersect_triangle(o, d, 0.0, t_max, p.a.xyz, p.b.xyz, p.c.xyz);
-}
+@group(0) @binding(2) var<storage, read> nodes: array<Node>;
 
 // Closest hit within (0, t_max) or, with any_hit, the first hit found.
 fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
-    var hit = Hit(t_max, HIT_NONE, 0u);
-    for (var i = 0u; i < frame.plane_count; i++) {
-        if (steps >= TRAVERSAL_BUDGET) {
-            truncated = true;
-            return hit;
-        }
-        steps += 1u;
-        let t = intersect_plane(o, d, 0.0, hit.t, planes[i].normal, planes[i].d);
-        if (t < hit.t) {
-            hit = Hit(t, HIT_PLANE, i);
-            if (any_hit) {
-                return hit;
-            }
-        }
-    }
-    if (frame.node_count == 0u) {
+    var hit = trace_planes(o, d, t_max, any_hit);
+    if (frame.node_count == 0u || (any_hit && hit.kind != HIT_NONE)) {
         return hit;
     }
     let inv_d = safe_inverse(d);
@@ -53,11 +27,9 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     // (index, count): count 0 is an inner node, count > 0 a run of primitives.
     var cur = vec2u(0u, 0u);
     loop {
-        if (steps >= TRAVERSAL_BUDGET) {
-            truncated = true;
+        if (!take_step()) {
             break;
         }
-        steps += 1u;
         if (cur.y > 0u) {
             let t = intersect_primitive(cur.x, o, d, hit.t);
             if (t < hit.t) {

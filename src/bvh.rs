@@ -21,6 +21,26 @@ pub const PRIM_SPHERE: u32 = 1;
 /// Entries of the traversal stack in the shader; deeper trees are refused.
 pub const STACK_SIZE: u32 = 64;
 
+/// The node layout the GPU traverses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum BvhLayout {
+    /// Binary BVH, both children's boxes in each 64-byte node (`shaders/trace.wgsl`).
+    Bvh2,
+    /// obvhs's compressed 8-wide BVH, 80-byte nodes (`shaders/trace_cwbvh.wgsl`).
+    #[default]
+    Cwbvh,
+}
+
+impl BvhLayout {
+    /// The name used on the command line and in stats.
+    pub fn name(self) -> &'static str {
+        match self {
+            BvhLayout::Bvh2 => "bvh2",
+            BvhLayout::Cwbvh => "cwbvh",
+        }
+    }
+}
+
 /// BVH build quality: obvhs's presets.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum BuildQuality {
@@ -85,6 +105,7 @@ pub struct GpuPrimitive {
     pub c: [f32; 4],
 }
 const _: () = assert!(std::mem::size_of::<GpuPrimitive>() == 48);
+const _: () = assert!(std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>() == 80);
 
 /// Axis-aligned boxes of the BVH's primitives, in id order (triangles, then spheres).
 pub fn primitive_aabbs(scene: &Scene) -> Vec<Aabb> {
@@ -124,11 +145,16 @@ pub fn build_cwbvh(scene: &Scene, quality: BuildQuality) -> (Option<obvhs::cwbvh
 /// The GPU form of a scene's BVH.
 #[derive(Clone, Debug, Default)]
 pub struct GpuBvh {
-    /// Nodes; the root is node 0. Empty when the scene has no finite primitives.
-    pub nodes: Vec<GpuNode>,
+    /// Node layout.
+    pub layout: BvhLayout,
+    /// Nodes as uploaded (`GpuNode`s or obvhs `CwBvhNode`s); the root is node 0. Empty
+    /// when the scene has no finite primitives.
+    pub node_bytes: Vec<u8>,
+    /// Number of nodes.
+    pub node_count: u32,
     /// Primitives in leaf order.
     pub primitives: Vec<GpuPrimitive>,
-    /// Depth of the deepest node (root = 1).
+    /// Depth of the deepest inner node (root = 1): a bound on the traversal stack.
     pub depth: u32,
 }
 
@@ -154,10 +180,42 @@ pub(crate) fn gpu_primitive(scene: &Scene, id: usize) -> GpuPrimitive {
 }
 
 impl GpuBvh {
+    /// Builds the BVH of `scene` in `layout`.
+    pub fn build(scene: &Scene, layout: BvhLayout, quality: BuildQuality) -> GpuBvh {
+        match layout {
+            BvhLayout::Bvh2 => GpuBvh::from_bvh2(scene, &build_bvh2(scene, quality).0),
+            BvhLayout::Cwbvh => {
+                build_cwbvh(scene, quality).0.map(|b| GpuBvh::from_cwbvh(scene, &b)).unwrap_or_default()
+            }
+        }
+    }
+
+    /// Uploads obvhs's CWBVH as it is; primitives follow its `primitive_indices`.
+    pub fn from_cwbvh(scene: &Scene, bvh: &obvhs::cwbvh::CwBvh) -> GpuBvh {
+        let primitives = bvh.primitive_indices.iter().map(|&id| gpu_primitive(scene, id as usize)).collect();
+        // Inner children of a node are stored contiguously from child_base_idx.
+        let mut depth = 0;
+        let mut stack = vec![(0usize, 1u32)];
+        while let Some((i, d)) = stack.pop() {
+            depth = depth.max(d);
+            let n = &bvh.nodes[i];
+            for k in 0..n.imask.count_ones() as usize {
+                stack.push((n.child_base_idx as usize + k, d + 1));
+            }
+        }
+        GpuBvh {
+            layout: BvhLayout::Cwbvh,
+            node_bytes: bytemuck::cast_slice(&bvh.nodes).to_vec(),
+            node_count: bvh.nodes.len() as u32,
+            primitives,
+            depth,
+        }
+    }
+
     /// Converts obvhs's BVH2 to the two-boxes-per-node layout.
     pub fn from_bvh2(scene: &Scene, bvh: &Bvh2) -> GpuBvh {
         if bvh.nodes.is_empty() {
-            return GpuBvh::default();
+            return GpuBvh { layout: BvhLayout::Bvh2, ..Default::default() };
         }
         let primitives = bvh.primitive_indices.iter().map(|&id| gpu_primitive(scene, id as usize)).collect();
         let child = |i: usize, gpu_index: &[u32]| -> ([f32; 3], [f32; 3], u32, u32) {
@@ -171,11 +229,11 @@ impl GpuBvh {
         let mut stack = vec![(0usize, 1u32)];
         let mut depth = 1;
         while let Some((i, d)) = stack.pop() {
-            depth = depth.max(d);
             let n = &bvh.nodes[i];
             if n.is_leaf() {
                 continue;
             }
+            depth = depth.max(d);
             gpu_index[i] = order.len() as u32;
             order.push(i);
             let first = n.first_index as usize;
@@ -205,6 +263,13 @@ impl GpuBvh {
                 })
                 .collect()
         };
-        GpuBvh { nodes, primitives, depth }
+        let nodes: Vec<GpuNode> = nodes;
+        GpuBvh {
+            layout: BvhLayout::Bvh2,
+            node_bytes: bytemuck::cast_slice(&nodes).to_vec(),
+            node_count: nodes.len() as u32,
+            primitives,
+            depth,
+        }
     }
 }

@@ -1,7 +1,7 @@
 //! The `aorender` command: render, list adapters.
 
 use anyhow::{Context, Result, bail};
-use aorender::bvh::BuildQuality;
+use aorender::bvh::{BuildQuality, BvhLayout};
 use aorender::{Device, Hemisphere, Progress, RenderOptions, Scene, render};
 use clap::{Parser, Subcommand, ValueEnum};
 use std::io::IsTerminal;
@@ -40,6 +40,12 @@ enum QualityArg {
     Fast,
     Medium,
     Slow,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum LayoutArg {
+    Bvh2,
+    Cwbvh,
 }
 
 #[derive(clap::Args)]
@@ -82,6 +88,9 @@ struct RenderArgs {
     /// BVH build preset (obvhs).
     #[arg(long, value_enum, default_value = "medium")]
     bvh_quality: QualityArg,
+    /// BVH node layout the GPU traverses.
+    #[arg(long, value_enum, default_value = "cwbvh")]
+    bvh_layout: LayoutArg,
 }
 
 fn main() {
@@ -174,6 +183,10 @@ fn render_command(args: RenderArgs) -> Result<()> {
             QualityArg::Fast => BuildQuality::Fast,
             QualityArg::Medium => BuildQuality::Medium,
             QualityArg::Slow => BuildQuality::Slow,
+        },
+        bvh_layout: match args.bvh_layout {
+            LayoutArg::Bvh2 => BvhLayout::Bvh2,
+            LayoutArg::Cwbvh => BvhLayout::Cwbvh,
         },
     };
 

@@ -2,7 +2,7 @@
 //! GPU or the CPU reference until the sample count or the time limit is reached, and
 //! reports progress through a callback.
 
-use crate::bvh::{self, BuildQuality, GpuBvh};
+use crate::bvh::{self, BuildQuality, BvhLayout, GpuBvh};
 use crate::cpu::CpuTracer;
 use crate::error::Result;
 use crate::film::Film;
@@ -31,6 +31,8 @@ pub struct RenderOptions {
     pub time_limit: Option<f64>,
     /// BVH build preset.
     pub bvh_quality: BuildQuality,
+    /// BVH layout the GPU traverses (the CPU reference always uses obvhs's CWBVH).
+    pub bvh_layout: BvhLayout,
 }
 
 /// Progress after each pass.
@@ -166,10 +168,11 @@ pub fn render(scene: &Scene, options: &RenderOptions, progress: &mut dyn FnMut(&
         match options.device {
             Device::Gpu => {
                 let ctx = GpuContext::new(options.adapter.as_deref())?;
-                let (bvh2, build_seconds) = bvh::build_bvh2(scene, options.bvh_quality);
+                // Build time includes the conversion to the GPU layout.
+                let build = Instant::now();
+                let gpu_bvh = GpuBvh::build(scene, options.bvh_layout, options.bvh_quality);
+                let build_seconds = build.elapsed().as_secs_f64();
                 let setup = Instant::now();
-                let gpu_bvh = GpuBvh::from_bvh2(scene, &bvh2);
-                drop(bvh2);
                 let mut renderer = GpuRenderer::new(&ctx, scene, &gpu_bvh)?;
                 drop(gpu_bvh);
                 let setup_seconds = setup.elapsed().as_secs_f64();
@@ -178,7 +181,18 @@ pub fn render(scene: &Scene, options: &RenderOptions, progress: &mut dyn FnMut(&
                 })?;
                 let film = renderer.read_film(done as u64)?;
                 let d = ctx.description.clone();
-                (film, done, ao, secs, passes, build_seconds, setup_seconds, d, renderer.device_bytes, "bvh2")
+                (
+                    film,
+                    done,
+                    ao,
+                    secs,
+                    passes,
+                    build_seconds,
+                    setup_seconds,
+                    d,
+                    renderer.device_bytes,
+                    renderer.layout.name(),
+                )
             }
             Device::Cpu => {
                 let (cwbvh, build_seconds) = bvh::build_cwbvh(scene, options.bvh_quality);

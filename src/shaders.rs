@@ -2,7 +2,7 @@
 //! generated header that defines the constants Rust and WGSL share (so each is written
 //! once, in Rust).
 
-use crate::bvh::{INVALID_INDEX, PRIM_SPHERE, PRIM_TRIANGLE, STACK_SIZE};
+use crate::bvh::{BvhLayout, INVALID_INDEX, PRIM_SPHERE, PRIM_TRIANGLE, STACK_SIZE};
 use crate::gpu::{COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, TRAVERSAL_BUDGET, WORKGROUP_SIZE};
 use crate::sampling::Hemisphere;
 
@@ -13,7 +13,18 @@ pub const FILES: &[(&str, &str)] = &[
     ("intersect.wgsl", include_str!("../shaders/intersect.wgsl")),
     ("sampling.wgsl", include_str!("../shaders/sampling.wgsl")),
     ("trace.wgsl", include_str!("../shaders/trace.wgsl")),
+    ("trace_common.wgsl", include_str!("../shaders/trace_common.wgsl")),
+    ("trace_cwbvh.wgsl", include_str!("../shaders/trace_cwbvh.wgsl")),
 ];
+
+/// The traversal file of a BVH layout; `ao.wgsl` imports `trace.wgsl`, which the
+/// composer replaces with this.
+pub fn traversal_file(layout: BvhLayout) -> &'static str {
+    match layout {
+        BvhLayout::Bvh2 => "trace.wgsl",
+        BvhLayout::Cwbvh => "trace_cwbvh.wgsl",
+    }
+}
 
 /// The constants shared with Rust, as WGSL.
 pub fn shared_constants() -> String {
@@ -64,8 +75,11 @@ pub fn compose_with<'a>(name: &str, lookup: &dyn Fn(&str) -> Option<&'a str>) ->
     Ok(out)
 }
 
-/// The composed source of a compiled-in shader file.
-pub fn compose(name: &str) -> String {
-    let lookup = |n: &str| FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t);
+/// The composed source of a compiled-in shader file, with the traversal of `layout`.
+pub fn compose(name: &str, layout: BvhLayout) -> String {
+    let lookup = |n: &str| {
+        let n = if n == "trace.wgsl" { traversal_file(layout) } else { n };
+        FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t)
+    };
     compose_with(name, &lookup).expect("compiled-in shaders resolve their imports")
 }

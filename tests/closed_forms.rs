@@ -3,16 +3,8 @@
 //! makes each pixel's area average equal the point value to far below the noise.
 
 mod common;
-use aorender::{Device, Film, Hemisphere};
+use aorender::{Film, Hemisphere};
 use common::*;
-
-fn devices() -> Vec<Device> {
-    let mut d = vec![Device::Cpu];
-    if gpu_available() {
-        d.push(Device::Gpu);
-    }
-    d
-}
 
 fn assert_within_4_sigma(film: &Film, expected: f64, what: &str) {
     let mean = film.image_mean();
@@ -42,14 +34,14 @@ fn unoccluded_plane_is_exactly_the_albedo() {
         albedo = 0.7
     "#;
     let dir = temp_dir();
-    for device in devices() {
+    for options in all_options() {
         for hemisphere in [Hemisphere::Cosine] {
             let mut scene = scene_from_toml(scene_text, dir.path());
             scene.settings.hemisphere = hemisphere;
-            let film = render_on(&scene, device);
+            let film = render_with(&scene, &options);
             for (i, v) in film.mean().iter().enumerate() {
                 // Every sample is exactly 0.7f32; only the accumulation's rounding may show.
-                assert!((v - 0.7f32 as f64).abs() <= 1e-6, "{device:?}: pixel {i} is {v}, expected 0.7");
+                assert!((v - 0.7f32 as f64).abs() <= 1e-6, "{}: pixel {i} is {v}, expected 0.7", label(&options));
             }
         }
     }
@@ -80,12 +72,12 @@ fn plane_under_a_sphere_is_one_minus_r_over_d_squared() {
         normal = [0.0, 1.0, 0.0]
     "#;
     let dir = temp_dir();
-    for device in devices() {
+    for options in all_options() {
         for hemisphere in Hemisphere::ALL {
             let mut scene = scene_from_toml(scene_text, dir.path());
             scene.settings.hemisphere = hemisphere;
-            let film = render_on(&scene, device);
-            assert_within_4_sigma(&film, 0.75, &format!("{device:?} {}", hemisphere.name()));
+            let film = render_with(&scene, &options);
+            assert_within_4_sigma(&film, 0.75, &format!("{} {}", label(&options), hemisphere.name()));
         }
     }
 }
@@ -129,12 +121,16 @@ fn plane_under_a_mesh_occluder_matches_its_solid_angle() {
         point = [0.0, 0.0, 0.0]
         normal = [0.0, 1.0, 0.0]
     "#;
-    for device in devices() {
+    for options in all_options() {
         for hemisphere in Hemisphere::ALL {
             let mut scene = scene_from_toml(scene_text, dir.path());
             scene.settings.hemisphere = hemisphere;
-            let film = render_on(&scene, device);
-            assert_within_4_sigma(&film, 1.0 - view_factor, &format!("{device:?} {} square", hemisphere.name()));
+            let film = render_with(&scene, &options);
+            assert_within_4_sigma(
+                &film,
+                1.0 - view_factor,
+                &format!("{} {} square", label(&options), hemisphere.name()),
+            );
         }
     }
 }
@@ -158,14 +154,15 @@ fn inside_a_closed_sphere_is_black() {
         radius = 1.0
     "#;
     let dir = temp_dir();
-    for device in devices() {
+    for options in all_options() {
         for hemisphere in Hemisphere::ALL {
             let mut scene = scene_from_toml(scene_text, dir.path());
             scene.settings.hemisphere = hemisphere;
-            let film = render_on(&scene, device);
+            let film = render_with(&scene, &options);
             assert!(
                 film.mean().iter().all(|&v| v == 0.0),
-                "{device:?} {}: light inside a closed sphere",
+                "{} {}: light inside a closed sphere",
+                label(&options),
                 hemisphere.name()
             );
         }

@@ -83,13 +83,16 @@ fn check_scene(mut scene: Scene, what: &str) {
     if !gpu_available() {
         return;
     }
-    for hemisphere in Hemisphere::ALL {
+    for (hemisphere, options) in
+        Hemisphere::ALL.into_iter().flat_map(|h| gpu_options().into_iter().map(move |o| (h, o)))
+    {
+        let what = format!("{what}, {}, {}", hemisphere.name(), label(&options));
         scene.settings.hemisphere = hemisphere;
         scene.settings.seed = 1;
-        let gpu = render_on(&scene, Device::Gpu);
+        let gpu = render_with(&scene, &options);
         scene.settings.seed = 2;
         let cpu = render_on(&scene, Device::Cpu);
-        assert_statistical_agreement(&gpu, &cpu, &format!("{what}, {}", hemisphere.name()));
+        assert_statistical_agreement(&gpu, &cpu, &what);
 
         // Same seed: the same random numbers, so the same samples up to rounding in
         // traversal (different BVH layouts); a pixel may differ where a ray grazes an edge.
@@ -125,7 +128,9 @@ fn gpu_render_is_reproducible() {
     }
     let mut scene = aobench();
     scene.settings.spp = 8;
-    let a = render_on(&scene, Device::Gpu);
-    let b = render_on(&scene, Device::Gpu);
-    assert_eq!(a.sum, b.sum, "same seed, same adapter: identical accumulation");
+    for options in gpu_options() {
+        let a = render_with(&scene, &options);
+        let b = render_with(&scene, &options);
+        assert_eq!(a.sum, b.sum, "{}: same seed, same adapter: identical accumulation", label(&options));
+    }
 }

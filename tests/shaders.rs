@@ -1,9 +1,10 @@
 //! Every WGSL file parses and validates with naga (composed with its imports), and the
 //! host structs match the WGSL structs' sizes.
 
-use aorender::bvh::{GpuNode, GpuPrimitive};
+use aorender::bvh::{BvhLayout, GpuNode, GpuPrimitive};
 use aorender::gpu::{DispatchUniforms, FrameUniforms, GpuPlane};
 use aorender::shaders::compose_with;
+use obvhs::cwbvh::node::CwBvhNode;
 use std::collections::BTreeMap;
 
 fn shader_files() -> BTreeMap<String, String> {
@@ -19,8 +20,9 @@ fn shader_files() -> BTreeMap<String, String> {
     files
 }
 
-fn validate(name: &str, files: &BTreeMap<String, String>) -> naga::Module {
-    let lookup = |n: &str| files.get(n).map(|s| s.as_str());
+/// Parses and validates `name` with its imports; `trace.wgsl` stands for `traversal`.
+fn validate_with(name: &str, traversal: &str, files: &BTreeMap<String, String>) -> naga::Module {
+    let lookup = |n: &str| files.get(if n == "trace.wgsl" { traversal } else { n }).map(|s| s.as_str());
     let source = compose_with(name, &lookup).unwrap_or_else(|e| panic!("{name}: {e}"));
     let module =
         naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&source)));
@@ -30,12 +32,20 @@ fn validate(name: &str, files: &BTreeMap<String, String>) -> naga::Module {
     module
 }
 
+fn validate(name: &str, files: &BTreeMap<String, String>) -> naga::Module {
+    validate_with(name, "trace.wgsl", files)
+}
+
 #[test]
 fn every_shader_file_validates() {
     let files = shader_files();
     assert!(!files.is_empty(), "no .wgsl files found in shaders/");
     for name in files.keys() {
         validate(name, &files);
+    }
+    // The kernel as the renderer composes it for each layout.
+    for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
+        validate_with("ao.wgsl", aorender::shaders::traversal_file(layout), &files);
     }
 }
 
@@ -49,20 +59,26 @@ fn compiled_in_shaders_are_the_files_on_disk() {
 
 #[test]
 fn host_structs_match_wgsl_layout() {
-    let module = validate("ao.wgsl", &shader_files());
-    let mut layouter = naga::proc::Layouter::default();
-    layouter.update(module.to_ctx()).expect("layout");
-    let size_of = |name: &str| -> u32 {
-        let (handle, _) = module
-            .types
-            .iter()
-            .find(|(_, t)| t.name.as_deref() == Some(name))
-            .unwrap_or_else(|| panic!("WGSL struct {name} not found"));
-        layouter[handle].size
-    };
+    let files = shader_files();
+    let module = validate("ao.wgsl", &files);
+    let cw_module = validate_with("ao.wgsl", "trace_cwbvh.wgsl", &files);
+    assert_eq!(wgsl_size(&cw_module, "CwNode") as usize, std::mem::size_of::<CwBvhNode>());
+    let size_of = |name: &str| wgsl_size(&module, name);
     assert_eq!(size_of("Frame") as usize, size_of_val(&FrameUniforms::new(&aorender::Scene::default_scene(), 0)));
     assert_eq!(size_of("Dispatch") as usize, std::mem::size_of::<DispatchUniforms>());
     assert_eq!(size_of("Node") as usize, std::mem::size_of::<GpuNode>());
     assert_eq!(size_of("Primitive") as usize, std::mem::size_of::<GpuPrimitive>());
     assert_eq!(size_of("Plane") as usize, std::mem::size_of::<GpuPlane>());
+}
+
+/// naga's size of the WGSL struct `name`.
+fn wgsl_size(module: &naga::Module, name: &str) -> u32 {
+    let mut layouter = naga::proc::Layouter::default();
+    layouter.update(module.to_ctx()).expect("layout");
+    let (handle, _) = module
+        .types
+        .iter()
+        .find(|(_, t)| t.name.as_deref() == Some(name))
+        .unwrap_or_else(|| panic!("WGSL struct {name} not found"));
+    layouter[handle].size
 }

@@ -9,16 +9,19 @@
 //! are many, which the renderer refuses before it traces.)
 
 mod common;
-use aorender::{Device, Error, RenderOptions, Scene, render};
+use aorender::{Device, Error, Scene, render};
 use common::*;
 
 fn sliver_stack(slivers: usize, dir: &std::path::Path) -> Scene {
-    let tris: Vec<_> = (0..slivers)
+    let mut tris: Vec<_> = (0..slivers)
         .map(|i| {
             let z = i as f32 / slivers as f32;
             [[-1.0, -1.0, z], [1.0, 1.0, z], [-0.98, -1.0, z]]
         })
         .collect();
+    // The floor is a triangle in the same BVH, behind the slivers: a traversal cut short
+    // never reaches it and returns the background (0) instead of the floor's 0.5.
+    tris.push([[-4.0, -4.0, -2.0], [4.0, -4.0, -2.0], [0.0, 4.0, -2.0]]);
     let obj = dir.join("slivers.obj");
     write_obj(&obj, &tris);
     // The camera looks down at (0.5, -0.5), half a unit from the diagonal; the AO rays
@@ -38,10 +41,6 @@ fn sliver_stack(slivers: usize, dir: &std::path::Path) -> Scene {
         [[object]]
         type = "mesh"
         file = "slivers.obj"
-        [[object]]
-        type = "plane"
-        point = [0.0, 0.0, -2.0]
-        normal = [0.0, 0.0, 1.0]
         albedo = 0.5
     "#;
     scene_from_toml(text, dir)
@@ -54,10 +53,14 @@ fn a_traversal_over_budget_is_reported_not_truncated() {
     }
     let dir = temp_dir();
     let scene = sliver_stack(80_000, dir.path());
-    match render(&scene, &RenderOptions::default(), &mut |_| {}) {
-        Err(Error::TraversalBudget { count, .. }) => assert!(count > 0),
-        Err(e) => panic!("expected a traversal-budget error, got: {e}"),
-        Ok(out) => panic!("80,000 slivers rendered without an error (mean {})", out.film.image_mean()),
+    for options in gpu_options() {
+        match render(&scene, &options, &mut |_| {}) {
+            Err(Error::TraversalBudget { count, .. }) => assert!(count > 0),
+            Err(e) => panic!("{}: expected a traversal-budget error, got: {e}", label(&options)),
+            Ok(out) => {
+                panic!("{}: 80,000 slivers rendered without an error (mean {})", label(&options), out.film.image_mean())
+            }
+        }
     }
 }
 
@@ -70,11 +73,13 @@ fn a_traversal_near_the_budget_is_exact() {
     // About 40,000 primitive tests plus the inner nodes on the way: well past half of
     // lavapipe's cap, so a kernel that looped more than it counts would be cut short.
     let scene = sliver_stack(40_000, dir.path());
-    let out = render(&scene, &RenderOptions::default(), &mut |_| {}).expect("within budget");
-    // Every camera ray reaches the floor; no AO ray reaches anything: each sample is 0.5.
-    for v in out.film.mean() {
-        assert_eq!(v as f32, 0.5, "pixel value {v}: a traversal was cut short");
-    }
     let cpu = render_on(&scene, Device::Cpu);
-    assert_eq!(cpu.mean(), out.film.mean());
+    for options in gpu_options() {
+        let film = render_with(&scene, &options);
+        // Every camera ray reaches the floor; no AO ray reaches anything: each sample is 0.5.
+        for v in film.mean() {
+            assert_eq!(v as f32, 0.5, "{}: pixel value {v}: a traversal was cut short", label(&options));
+        }
+        assert_eq!(cpu.mean(), film.mean());
+    }
 }

@@ -4,7 +4,7 @@ mod layout;
 
 pub use layout::{DispatchUniforms, FrameUniforms, GpuPlane};
 
-use crate::bvh::{GpuBvh, STACK_SIZE};
+use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive, STACK_SIZE};
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::scene::Scene;
@@ -180,17 +180,15 @@ pub struct GpuRenderer<'a> {
     height: u32,
     /// Bytes of device memory the renderer allocated.
     pub device_bytes: u64,
+    /// The BVH layout the kernel traverses.
+    pub layout: BvhLayout,
 }
 
-fn storage<T: bytemuck::Pod + bytemuck::Zeroable>(
-    ctx: &GpuContext,
-    label: &'static str,
-    data: &[T],
-) -> Result<wgpu::Buffer> {
+/// A read-only storage buffer; `element` is the size of one array element in the shader.
+fn storage(ctx: &GpuContext, label: &'static str, bytes: &[u8], element: usize) -> Result<wgpu::Buffer> {
     // A binding may not be empty: upload one zeroed element for absent data.
-    let zero = [T::zeroed()];
-    let data = if data.is_empty() { &zero[..] } else { data };
-    let bytes: &[u8] = bytemuck::cast_slice(data);
+    let zero = vec![0u8; element];
+    let bytes = if bytes.is_empty() { &zero[..] } else { bytes };
     ctx.check_size(label, bytes.len() as u64)?;
     Ok(ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some(label),
@@ -211,7 +209,7 @@ impl<'a> GpuRenderer<'a> {
         let s = &scene.settings;
         let (width, height) = (s.width, s.height);
         let device = &ctx.device;
-        let frame = FrameUniforms::new(scene, bvh.nodes.len() as u32);
+        let frame = FrameUniforms::new(scene, bvh.node_count);
         let frame = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("frame"),
             contents: bytemuck::bytes_of(&frame),
@@ -223,10 +221,15 @@ impl<'a> GpuRenderer<'a> {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let nodes = storage(ctx, "BVH nodes", &bvh.nodes)?;
-        let primitives = storage(ctx, "primitives", &bvh.primitives)?;
+        let node_size = match bvh.layout {
+            BvhLayout::Bvh2 => std::mem::size_of::<crate::bvh::GpuNode>(),
+            BvhLayout::Cwbvh => std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>(),
+        };
+        let nodes = storage(ctx, "BVH nodes", &bvh.node_bytes, node_size)?;
+        let primitives =
+            storage(ctx, "primitives", bytemuck::cast_slice(&bvh.primitives), std::mem::size_of::<GpuPrimitive>())?;
         let planes: Vec<GpuPlane> = scene.planes.iter().map(GpuPlane::from).collect();
-        let planes = storage(ctx, "planes", &planes)?;
+        let planes = storage(ctx, "planes", bytemuck::cast_slice(&planes), std::mem::size_of::<GpuPlane>())?;
         let film_bytes = width as u64 * height as u64 * 16;
         ctx.check_size("film", film_bytes)?;
         let film = device.create_buffer(&wgpu::BufferDescriptor {
@@ -295,7 +298,7 @@ impl<'a> GpuRenderer<'a> {
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("ao.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(crate::shaders::compose("ao.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(crate::shaders::compose("ao.wgsl", bvh.layout).into()),
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("ao"),
@@ -310,6 +313,24 @@ impl<'a> GpuRenderer<'a> {
             compilation_options: Default::default(),
             cache: None,
         });
+        ctx.take_error()?;
+        // Some drivers (lavapipe) compile the kernel at its first dispatch: run one
+        // workgroup now, so compilation counts as setup rather than render time, then
+        // clear what it wrote.
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("warm-up") });
+        {
+            let mut pass = encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("warm-up"), timestamp_writes: None });
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &bind_group, &[0]);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+        encoder.clear_buffer(&film, 0, None);
+        encoder.clear_buffer(&counters, 0, None);
+        ctx.queue.submit([encoder.finish()]);
+        ctx.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
         ctx.take_error()?;
         let device_bytes =
             [&frame, &dispatch, &nodes, &primitives, &planes, &film, &film_readback, &counters, &counters_readback]
@@ -328,6 +349,7 @@ impl<'a> GpuRenderer<'a> {
             width,
             height,
             device_bytes,
+            layout: bvh.layout,
         })
     }
 

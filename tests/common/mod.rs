@@ -1,6 +1,7 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+use aorender::bvh::BvhLayout;
 use aorender::gpu::GpuContext;
 use aorender::{Device, Film, RenderOptions, Scene, render};
 use std::path::PathBuf;
@@ -20,10 +21,39 @@ pub fn gpu_available() -> bool {
 
 /// Renders on `device`, panicking with the error's text on failure.
 pub fn render_on(scene: &Scene, device: Device) -> Film {
-    let options = RenderOptions { device, ..Default::default() };
-    match render(scene, &options, &mut |_| {}) {
+    render_with(scene, &RenderOptions { device, ..Default::default() })
+}
+
+/// Renders with `options`, panicking with the error's text on failure.
+pub fn render_with(scene: &Scene, options: &RenderOptions) -> Film {
+    match render(scene, options, &mut |_| {}) {
         Ok(out) => out.film,
-        Err(e) => panic!("{device:?} render of {} failed: {e}", scene.name),
+        Err(e) => panic!("{} render of {} failed: {e}", label(options), scene.name),
+    }
+}
+
+/// The GPU configurations: one per BVH layout.
+pub fn gpu_options() -> Vec<RenderOptions> {
+    [BvhLayout::Bvh2, BvhLayout::Cwbvh]
+        .into_iter()
+        .map(|bvh_layout| RenderOptions { device: Device::Gpu, bvh_layout, ..Default::default() })
+        .collect()
+}
+
+/// The CPU reference, then every GPU configuration when an adapter exists.
+pub fn all_options() -> Vec<RenderOptions> {
+    let mut all = vec![RenderOptions { device: Device::Cpu, ..Default::default() }];
+    if gpu_available() {
+        all.extend(gpu_options());
+    }
+    all
+}
+
+/// "cpu", or "gpu/LAYOUT".
+pub fn label(options: &RenderOptions) -> String {
+    match options.device {
+        Device::Cpu => "cpu".into(),
+        Device::Gpu => format!("gpu/{}", options.bvh_layout.name()),
     }
 }
 

@@ -1,0 +1,56 @@
+//#import bindings.wgsl
+//#import intersect.wgsl
+// What both BVH traversals share: the hit record, the iteration budget, primitives and
+// planes. Every loop iteration of an invocation is counted in `steps` against
+// TRAVERSAL_BUDGET (lavapipe silently ends an invocation after 65,535 loop iterations).
+
+const HIT_NONE: u32 = 0u;
+const HIT_PRIMITIVE: u32 = 1u;
+const HIT_PLANE: u32 = 2u;
+
+struct Hit {
+    t: f32,
+    kind: u32,   // HIT_*
+    index: u32,  // primitive or plane index
+}
+
+// Loop iterations spent by this invocation so far.
+var<private> steps: u32 = 0u;
+// Set when a traversal ran out of budget: its answer is wrong and the sample is void.
+var<private> truncated: bool = false;
+
+// Counts one loop iteration; false (and `truncated` set) once the budget is spent.
+fn take_step() -> bool {
+    if (steps >= TRAVERSAL_BUDGET) {
+        truncated = true;
+        return false;
+    }
+    steps += 1u;
+    return true;
+}
+
+fn intersect_primitive(i: u32, o: vec3f, d: vec3f, t_max: f32) -> f32 {
+    let p = primitives[i];
+    if (bitcast<u32>(p.b.w) == PRIM_SPHERE) {
+        return intersect_sphere(o, d, 0.0, t_max, p.a.xyz, p.b.x);
+    }
+    return intersect_triangle(o, d, 0.0, t_max, p.a.xyz, p.b.xyz, p.c.xyz);
+}
+
+// The infinite planes, which stay outside the BVH.
+fn trace_planes(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
+    var hit = Hit(t_max, HIT_NONE, 0u);
+    for (var i = 0u; i < frame.plane_count; i++) {
+        if (!take_step()) {
+            break;
+        }
+        let t = intersect_plane(o, d, 0.0, hit.t, planes[i].normal, planes[i].d);
+        if (t < hit.t) {
+            hit = Hit(t, HIT_PLANE, i);
+            if (any_hit) {
+                break;
+            }
+        }
+    }
+    return hit;
+}

@@ -1,0 +1,130 @@
+//#import trace_common.wgsl
+// Traversal of obvhs's compressed 8-wide BVH (Ylitie, Karras & Laine, "Efficient
+// Incoherent Ray Traversal on GPUs Through Compressed Wide BVHs", HPG 2017), following
+// obvhs's node encoding and its `traverse!` macro, as one loop that visits a node or a
+// primitive per iteration.
+
+// obvhs::cwbvh::node::CwBvhNode, 80 bytes, as words:
+// n0 = (p.x, p.y, p.z, e.x | e.y << 8 | e.z << 16 | imask << 24)
+// n1 = (child_base_idx, primitive_base_idx, child_meta[0..4], child_meta[4..8])
+// n2 = (child_min_x[0..4], [4..8], child_max_x[0..4], [4..8]); n3: y; n4: z.
+struct CwNode {
+    n0: vec4u,
+    n1: vec4u,
+    n2: vec4u,
+    n3: vec4u,
+    n4: vec4u,
+}
+
+@group(0) @binding(2) var<storage, read> nodes: array<CwNode>;
+
+fn byte_at(word: u32, shift: u32) -> f32 {
+    return f32((word >> shift) & 0xffu);
+}
+
+// Hit bits of the four children whose bytes are in the given words: for an inner child
+// one bit at 24 + its traversal priority, for a leaf its primitives' unary count at their
+// offset (obvhs's CwBvhNode::intersect_ray).
+fn intersect_children4(
+    meta4: u32, lo: vec3u, hi: vec3u, scale: vec3f, origin: vec3f, neg: vec3<bool>,
+    oct_inv4: u32, t_max: f32,
+) -> u32 {
+    let is_inner4 = (meta4 & (meta4 << 1u)) & 0x10101010u;
+    let inner_mask4 = (is_inner4 >> 4u) * 0xffu;
+    let bit_index4 = (meta4 ^ (oct_inv4 & inner_mask4)) & 0x1f1f1f1fu;
+    let child_bits4 = (meta4 >> 5u) & 0x07070707u;
+    // Near and far planes swap where the ray runs toward -axis.
+    let near = select(lo, hi, neg);
+    let far = select(hi, lo, neg);
+    var mask = 0u;
+    // Unrolled by hand: a loop here would count against lavapipe's iteration cap.
+    mask |= child_hit(near, far, 0u, scale, origin, t_max, child_bits4, bit_index4);
+    mask |= child_hit(near, far, 8u, scale, origin, t_max, child_bits4, bit_index4);
+    mask |= child_hit(near, far, 16u, scale, origin, t_max, child_bits4, bit_index4);
+    mask |= child_hit(near, far, 24u, scale, origin, t_max, child_bits4, bit_index4);
+    return mask;
+}
+
+fn child_hit(
+    near: vec3u, far: vec3u, shift: u32, scale: vec3f, origin: vec3f, t_max: f32,
+    child_bits4: u32, bit_index4: u32,
+) -> u32 {
+    let tn3 = vec3f(byte_at(near.x, shift), byte_at(near.y, shift), byte_at(near.z, shift)) * scale + origin;
+    let tf3 = vec3f(byte_at(far.x, shift), byte_at(far.y, shift), byte_at(far.z, shift)) * scale + origin;
+    let tn = max(max(tn3.x, tn3.y), max(tn3.z, 0.0));
+    // Widened by 1 + 2 gamma(3) as in intersect_box.
+    let tf = min(min(tf3.x, tf3.y), min(tf3.z, t_max)) * 1.0000008;
+    if (tn <= tf) {
+        return ((child_bits4 >> shift) & 0xffu) << ((bit_index4 >> shift) & 0xffu);
+    }
+    return 0u;
+}
+
+fn intersect_node(node: CwNode, o: vec3f, inv_d: vec3f, oct_inv4: u32, t_max: f32) -> u32 {
+    let p = bitcast<vec3f>(node.n0.xyz);
+    let e = (vec3u(node.n0.w, node.n0.w >> 8u, node.n0.w >> 16u) & vec3u(0xffu)) << vec3u(23u);
+    let scale = bitcast<vec3f>(e) * inv_d;
+    let origin = (p - o) * inv_d;
+    let neg = inv_d < vec3f(0.0);
+    let lo_a = vec3u(node.n2.x, node.n3.x, node.n4.x);
+    let lo_b = vec3u(node.n2.y, node.n3.y, node.n4.y);
+    let hi_a = vec3u(node.n2.z, node.n3.z, node.n4.z);
+    let hi_b = vec3u(node.n2.w, node.n3.w, node.n4.w);
+    return intersect_children4(node.n1.z, lo_a, hi_a, scale, origin, neg, oct_inv4, t_max)
+        | intersect_children4(node.n1.w, lo_b, hi_b, scale, origin, neg, oct_inv4, t_max);
+}
+
+// Closest hit within (0, t_max) or, with any_hit, the first hit found.
+fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
+    var hit = trace_planes(o, d, t_max, any_hit);
+    if (frame.node_count == 0u || (any_hit && hit.kind != HIT_NONE)) {
+        return hit;
+    }
+    let inv_d = safe_inverse(d);
+    let oct_inv4 = select(0x04040404u, 0u, d.x < 0.0) | select(0x02020202u, 0u, d.y < 0.0)
+        | select(0x01010101u, 0u, d.z < 0.0);
+    var stack: array<vec2u, STACK_SIZE>;
+    var sp = 0u;
+    // (first child node, hit bits in 24..32 | imask), and (first primitive, hit bits).
+    var node_group = vec2u(0u, 0x80000000u);
+    var prim_group = vec2u(0u, 0u);
+    loop {
+        if (!take_step()) {
+            break;
+        }
+        if (prim_group.y != 0u) {
+            let local = firstLeadingBit(prim_group.y);
+            prim_group.y &= ~(1u << local);
+            let slot = prim_group.x + local;
+            let t = intersect_primitive(slot, o, d, hit.t);
+            if (t < hit.t) {
+                hit = Hit(t, HIT_PRIMITIVE, slot);
+                if (any_hit) {
+                    break;
+                }
+            }
+        } else if ((node_group.y & 0xff000000u) != 0u) {
+            let hits_imask = node_group.y;
+            let child_bit = firstLeadingBit(hits_imask);
+            node_group.y &= ~(1u << child_bit);
+            if ((node_group.y & 0xff000000u) != 0u) {
+                stack[sp] = node_group;
+                sp += 1u;
+            }
+            let slot_index = (child_bit - 24u) ^ (oct_inv4 & 0xffu);
+            let relative_index = countOneBits(hits_imask & ~(0xffffffffu << slot_index));
+            let node = nodes[node_group.x + relative_index];
+            let hitmask = intersect_node(node, o, inv_d, oct_inv4, hit.t);
+            node_group = vec2u(node.n1.x, (hitmask & 0xff000000u) | (node.n0.w >> 24u));
+            prim_group = vec2u(node.n1.y, hitmask & 0x00ffffffu);
+        }
+        if (prim_group.y == 0u && (node_group.y & 0xff000000u) == 0u) {
+            if (sp == 0u) {
+                break;
+            }
+            sp -= 1u;
+            node_group = stack[sp];
+        }
+    }
+    return hit;
+}
