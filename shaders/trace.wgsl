@@ -22,7 +22,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
         return hit;
     }
     let inv_d = safe_inverse(d);
-    var stack: array<vec2u, STACK_SIZE>;
+    var stack: array<vec2u, BVH2_STACK_SIZE>;
     var sp = 0u;
     // (index, count): count 0 is an inner node, count > 0 a run of primitives.
     var cur = vec2u(0u, 0u);

@@ -83,7 +83,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     let inv_d = safe_inverse(d);
     let oct_inv4 = select(0x04040404u, 0u, d.x < 0.0) | select(0x02020202u, 0u, d.y < 0.0)
         | select(0x01010101u, 0u, d.z < 0.0);
-    var stack: array<vec2u, STACK_SIZE>;
+    var stack: array<vec2u, CWBVH_STACK_SIZE>;
     var sp = 0u;
     // (first child node, hit bits in 24..32 | imask), and (first primitive, hit bits).
     var node_group = vec2u(0u, 0x80000000u);

@@ -2,7 +2,7 @@
 //! generated header that defines the constants Rust and WGSL share (so each is written
 //! once, in Rust).
 
-use crate::bvh::{BvhLayout, INVALID_INDEX, PRIM_SPHERE, PRIM_TRIANGLE, STACK_SIZE};
+use crate::bvh::{BVH2_STACK_SIZE, BvhLayout, CWBVH_STACK_SIZE, INVALID_INDEX, PRIM_SPHERE, PRIM_TRIANGLE};
 use crate::gpu::{COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, TRAVERSAL_BUDGET, WORKGROUP_SIZE};
 use crate::sampling::Hemisphere;
 
@@ -33,7 +33,8 @@ pub fn shared_constants() -> String {
         u("INVALID_INDEX", INVALID_INDEX),
         u("PRIM_TRIANGLE", PRIM_TRIANGLE),
         u("PRIM_SPHERE", PRIM_SPHERE),
-        u("STACK_SIZE", STACK_SIZE),
+        u("BVH2_STACK_SIZE", BVH2_STACK_SIZE),
+        u("CWBVH_STACK_SIZE", CWBVH_STACK_SIZE),
         u("TRAVERSAL_BUDGET", TRAVERSAL_BUDGET),
         u("WORKGROUP_WIDTH", WORKGROUP_SIZE[0]),
         u("WORKGROUP_HEIGHT", WORKGROUP_SIZE[1]),

@@ -4,7 +4,7 @@ mod layout;
 
 pub use layout::{DispatchUniforms, FrameUniforms, GpuPlane};
 
-use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive, STACK_SIZE};
+use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::scene::Scene;
@@ -200,10 +200,12 @@ fn storage(ctx: &GpuContext, label: &'static str, bytes: &[u8], element: usize) 
 impl<'a> GpuRenderer<'a> {
     /// Uploads the scene and builds the pipeline.
     pub fn new(ctx: &'a GpuContext, scene: &Scene, bvh: &GpuBvh) -> Result<GpuRenderer<'a>> {
-        if bvh.depth > STACK_SIZE {
+        if bvh.depth > bvh.layout.stack_size() {
             return Err(Error::Gpu(format!(
-                "the BVH is {} levels deep; the shader's traversal stack holds {STACK_SIZE}",
-                bvh.depth
+                "the {} BVH is {} levels deep; the shader's traversal stack holds {}",
+                bvh.layout.name(),
+                bvh.depth,
+                bvh.layout.stack_size()
             )));
         }
         let s = &scene.settings;
