@@ -5,7 +5,7 @@
 use crate::bvh::{GpuPrimitive, PRIM_SPHERE};
 use crate::camera::RayGen;
 use crate::film::Film;
-use crate::geometry::{intersect_plane, intersect_sphere, intersect_triangle};
+use crate::geometry::{intersect_plane, intersect_sphere, intersect_triangle, sphere_hit_point};
 use crate::sampling::{local_to_world, offset_ray_origin, sample_uniforms};
 use crate::scene::{Plane, Scene, Settings};
 use glam::{Vec3, Vec3A};
@@ -95,8 +95,8 @@ impl CpuTracer {
             HitKind::Primitive(slot) => {
                 let p = &self.primitives[slot];
                 if p.b[3].to_bits() == PRIM_SPHERE {
-                    let n = (o + t * d - v3(p.a)).normalize();
-                    (v3(p.a) + p.b[0] * n, n, p.a[3])
+                    let (point, n) = sphere_hit_point(o, d, t, v3(p.a), p.b[0]);
+                    (point, n, p.a[3])
                 } else {
                     (o + t * d, v3(p.b).cross(v3(p.c)).normalize(), p.a[3])
                 }

@@ -2,7 +2,7 @@
 //!
 //! Each function returns the hit distance `t` in `(t_min, t_max)` or `f32::INFINITY`.
 
-use crate::scene::{Plane, Sphere};
+use crate::scene::Plane;
 use glam::Vec3;
 
 /// Möller & Trumbore, "Fast, Minimum Storage Ray/Triangle Intersection" (JGT 1997), on
@@ -56,8 +56,9 @@ pub fn intersect_plane(o: Vec3, d: Vec3, t_min: f32, t_max: f32, plane: &Plane) 
     if t > t_min && t < t_max { t } else { f32::INFINITY }
 }
 
-/// Sphere hit point projected back onto the surface, so offsets start from the surface.
-pub fn sphere_hit_point(o: Vec3, d: Vec3, t: f32, s: &Sphere) -> (Vec3, Vec3) {
-    let n = (o + t * d - s.center).normalize();
-    (s.center + s.radius * n, n)
+/// Sphere hit point projected back onto the surface, so offsets start from the surface,
+/// and the outward normal there.
+pub fn sphere_hit_point(o: Vec3, d: Vec3, t: f32, center: Vec3, radius: f32) -> (Vec3, Vec3) {
+    let n = (o + t * d - center).normalize();
+    (center + radius * n, n)
 }

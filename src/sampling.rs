@@ -8,11 +8,6 @@
 use glam::{UVec4, Vec2, Vec3};
 use std::f32::consts::{FRAC_1_PI, FRAC_PI_2, FRAC_PI_4, PI};
 
-/// Per-sample random dimensions (one `pcg4d` call fills all four).
-pub const DIM_PIXEL: usize = 0;
-/// Index of the first of the two hemisphere dimensions.
-pub const DIM_HEMISPHERE: usize = 2;
-
 /// The 4-D PCG hash of Jarzynski & Olano, "Hash Functions for GPU Rendering" (JCGT 2020).
 pub fn pcg4d(v: UVec4) -> UVec4 {
     let mut v = v * 1664525u32 + UVec4::splat(1013904223u32);
