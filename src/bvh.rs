@@ -10,7 +10,6 @@ use crate::scene::Scene;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3A;
 use obvhs::{BvhBuildParams, aabb::Aabb, bvh2::Bvh2};
-use std::time::Instant;
 
 /// Marks an absent child (only when the root itself is a leaf).
 pub const INVALID_INDEX: u32 = u32::MAX;
@@ -132,26 +131,19 @@ pub fn primitive_aabbs(scene: &Scene) -> Vec<Aabb> {
     tris.chain(spheres).collect()
 }
 
-/// Builds obvhs's BVH2 over the scene's finite primitives; returns it with the seconds taken.
-pub fn build_bvh2(scene: &Scene, quality: BuildQuality) -> (Bvh2, f64) {
-    let start = Instant::now();
+/// Builds obvhs's BVH2 over the scene's finite primitives.
+pub fn build_bvh2(scene: &Scene, quality: BuildQuality) -> Bvh2 {
     let aabbs = primitive_aabbs(scene);
-    let bvh = if aabbs.is_empty() {
-        Bvh2::default()
-    } else {
-        obvhs::bvh2::builder::build_bvh2(&aabbs, quality.params(), &mut Default::default())
-    };
-    (bvh, start.elapsed().as_secs_f64())
+    if aabbs.is_empty() {
+        return Bvh2::default();
+    }
+    obvhs::bvh2::builder::build_bvh2(&aabbs, quality.params(), &mut Default::default())
 }
 
-/// Builds obvhs's compressed 8-wide BVH (used by the CPU reference); returns it with the
-/// seconds taken.
-pub fn build_cwbvh(scene: &Scene, quality: BuildQuality) -> (Option<obvhs::cwbvh::CwBvh>, f64) {
-    let start = Instant::now();
+/// Builds obvhs's compressed 8-wide BVH; `None` when the scene has no finite primitives.
+pub fn build_cwbvh(scene: &Scene, quality: BuildQuality) -> Option<obvhs::cwbvh::CwBvh> {
     let aabbs = primitive_aabbs(scene);
-    let bvh = (!aabbs.is_empty())
-        .then(|| obvhs::cwbvh::builder::build_cwbvh(&aabbs, quality.params(), &mut Default::default()));
-    (bvh, start.elapsed().as_secs_f64())
+    (!aabbs.is_empty()).then(|| obvhs::cwbvh::builder::build_cwbvh(&aabbs, quality.params(), &mut Default::default()))
 }
 
 /// The GPU form of a scene's BVH.
@@ -195,10 +187,8 @@ impl GpuBvh {
     /// Builds the BVH of `scene` in `layout`.
     pub fn build(scene: &Scene, layout: BvhLayout, quality: BuildQuality) -> GpuBvh {
         match layout {
-            BvhLayout::Bvh2 => GpuBvh::from_bvh2(scene, &build_bvh2(scene, quality).0),
-            BvhLayout::Cwbvh => {
-                build_cwbvh(scene, quality).0.map(|b| GpuBvh::from_cwbvh(scene, &b)).unwrap_or_default()
-            }
+            BvhLayout::Bvh2 => GpuBvh::from_bvh2(scene, &build_bvh2(scene, quality)),
+            BvhLayout::Cwbvh => build_cwbvh(scene, quality).map(|b| GpuBvh::from_cwbvh(scene, &b)).unwrap_or_default(),
         }
     }
 

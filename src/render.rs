@@ -195,7 +195,9 @@ pub fn render(scene: &Scene, options: &RenderOptions, progress: &mut dyn FnMut(&
                 )
             }
             Device::Cpu => {
-                let (cwbvh, build_seconds) = bvh::build_cwbvh(scene, options.bvh_quality);
+                let build = Instant::now();
+                let cwbvh = bvh::build_cwbvh(scene, options.bvh_quality);
+                let build_seconds = build.elapsed().as_secs_f64();
                 let tracer = CpuTracer::new(scene, cwbvh);
                 let mut film = Film::new(s.width, s.height);
                 let (done, ao, secs, passes) = progressive(scene, options, progress, |first, count| {
