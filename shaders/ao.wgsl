@@ -1,4 +1,4 @@
-//#import sampling.wgsl
+//#import sampler.wgsl
 //#import trace.wgsl
 // The AO kernel: one sample of one pixel per invocation (a camera ray, then one AO ray
 // from its hit), added to the pixel's compensated running sums.
@@ -70,7 +70,7 @@ fn shade_sample(px: vec2u, u: vec4f) -> f32 {
 @compute @workgroup_size(WORKGROUP_WIDTH, WORKGROUP_HEIGHT, 1)
 fn render_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
     if (gid.x < frame.width && gid.y < frame.height) {
-        let u = sample_uniforms(gid.x, gid.y, dispatch.sample_index, frame.seed);
+        let u = sample_point_uniforms(frame.point_sampler, gid.x, gid.y, dispatch.sample_index, frame.seed, frame.strata);
         let value = shade_sample(gid.xy, u);
         if (truncated) {
             atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);

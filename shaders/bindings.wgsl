@@ -15,9 +15,9 @@ struct Frame {
     hemisphere: u32,    // HEMISPHERE_*
     plane_count: u32,
     node_count: u32,    // 0 when the scene has no finite primitives
+    point_sampler: u32, // SAMPLER_*
+    strata: u32,        // cells per axis of the stratified and grid samplers
     _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
 }
 
 // Per-dispatch constants, bound with a dynamic offset.

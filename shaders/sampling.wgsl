@@ -48,6 +48,14 @@ fn uniform_hemisphere_pdf() -> f32 {
     return 0.5 * FRAC_1_PI;
 }
 
+fn invert_uniform_hemisphere_sample(w: vec3f) -> vec2f {
+    var phi = atan2(w.y, w.x);
+    if (phi < 0.0) {
+        phi += 2.0 * PI;
+    }
+    return vec2f(w.z, phi / (2.0 * PI));
+}
+
 // Shirley-Chiu concentric map from the square to the unit disk.
 fn sample_uniform_disk_concentric(u: vec2f) -> vec2f {
     let o = 2.0 * u - vec2f(1.0);
@@ -66,6 +74,39 @@ fn sample_uniform_disk_concentric(u: vec2f) -> vec2f {
     return r * vec2f(cos(theta), sin(theta));
 }
 
+fn invert_uniform_disk_concentric_sample(p: vec2f) -> vec2f {
+    let theta = atan2(p.y, p.x);
+    let r = sqrt(p.x * p.x + p.y * p.y);
+    // Fold theta into [-pi/4, 7pi/4) to find the square's wedge.
+    let t = select(theta, theta + 2.0 * PI, theta < -FRAC_PI_4);
+    var o: vec2f;
+    if (t < FRAC_PI_4) {
+        o = vec2f(r, r * t / FRAC_PI_4);
+    } else if (t < 3.0 * FRAC_PI_4) {
+        o = vec2f(r * (FRAC_PI_2 - t) / FRAC_PI_4, r);
+    } else if (t < 5.0 * FRAC_PI_4) {
+        o = vec2f(-r, r * (PI - t) / FRAC_PI_4);
+    } else {
+        o = vec2f(r * (t - 3.0 * FRAC_PI_2) / FRAC_PI_4, -r);
+    }
+    return (o + vec2f(1.0)) * 0.5;
+}
+
+// Polar map from the square to the unit disk: r = sqrt(u1), phi = 2 pi u2.
+fn sample_uniform_disk_polar(u: vec2f) -> vec2f {
+    let r = sqrt(u.x);
+    let theta = 2.0 * PI * u.y;
+    return r * vec2f(cos(theta), sin(theta));
+}
+
+fn invert_uniform_disk_polar_sample(p: vec2f) -> vec2f {
+    var theta = atan2(p.y, p.x);
+    if (theta < 0.0) {
+        theta += 2.0 * PI;
+    }
+    return vec2f(p.x * p.x + p.y * p.y, theta / (2.0 * PI));
+}
+
 // Cosine-weighted hemisphere: uniform disk point projected up; pdf cos(theta)/pi.
 fn sample_cosine_hemisphere(u: vec2f) -> vec3f {
     let d = sample_uniform_disk_concentric(u);
@@ -77,12 +118,49 @@ fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
     return cos_theta * FRAC_1_PI;
 }
 
+fn invert_cosine_hemisphere_sample(w: vec3f) -> vec2f {
+    return invert_uniform_disk_concentric_sample(w.xy);
+}
+
+// Cosine-weighted hemisphere through the polar disk map (the lecture's construction).
+fn sample_cosine_hemisphere_polar(u: vec2f) -> vec3f {
+    let d = sample_uniform_disk_polar(u);
+    let z = safe_sqrt(1.0 - d.x * d.x - d.y * d.y);
+    return vec3f(d.x, d.y, z);
+}
+
+fn invert_cosine_hemisphere_polar_sample(w: vec3f) -> vec2f {
+    return invert_uniform_disk_polar_sample(w.xy);
+}
+
 // Direction in the local frame (z = normal) for the hemisphere id (HEMISPHERE_*).
 fn sample_hemisphere(hemisphere: u32, u: vec2f) -> vec3f {
     if (hemisphere == HEMISPHERE_UNIFORM) {
         return sample_uniform_hemisphere(u);
     }
+    if (hemisphere == HEMISPHERE_COSINE_POLAR) {
+        return sample_cosine_hemisphere_polar(u);
+    }
     return sample_cosine_hemisphere(u);
+}
+
+// Solid-angle density of a local direction.
+fn hemisphere_pdf(hemisphere: u32, w: vec3f) -> f32 {
+    if (hemisphere == HEMISPHERE_UNIFORM) {
+        return uniform_hemisphere_pdf();
+    }
+    return cosine_hemisphere_pdf(w.z);
+}
+
+// The numbers that sample_hemisphere maps to w.
+fn invert_hemisphere(hemisphere: u32, w: vec3f) -> vec2f {
+    if (hemisphere == HEMISPHERE_UNIFORM) {
+        return invert_uniform_hemisphere_sample(w);
+    }
+    if (hemisphere == HEMISPHERE_COSINE_POLAR) {
+        return invert_cosine_hemisphere_polar_sample(w);
+    }
+    return invert_cosine_hemisphere_sample(w);
 }
 
 // cos(theta) / (pi pdf): the AO estimate of one unoccluded direction.

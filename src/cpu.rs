@@ -6,7 +6,8 @@ use crate::bvh::{GpuPrimitive, PRIM_SPHERE};
 use crate::camera::RayGen;
 use crate::film::Film;
 use crate::geometry::{intersect_plane, intersect_sphere, intersect_triangle, sphere_hit_point};
-use crate::sampling::{local_to_world, offset_ray_origin, sample_uniforms};
+use crate::sampler::PointSampler;
+use crate::sampling::{local_to_world, offset_ray_origin};
 use crate::scene::{Plane, Scene, Settings};
 use glam::{Vec3, Vec3A};
 use obvhs::cwbvh::CwBvh;
@@ -115,8 +116,16 @@ impl CpuTracer {
 
     /// One sample of pixel `(px, py)`: its value and whether an AO ray was traced. The
     /// twin of `shade_sample` in `shaders/ao.wgsl`.
-    pub fn shade_sample(&self, rg: &RayGen, settings: &Settings, px: u32, py: u32, sample_index: u32) -> (f32, bool) {
-        let u = sample_uniforms(px, py, sample_index, settings.seed);
+    pub fn shade_sample(
+        &self,
+        rg: &RayGen,
+        settings: &Settings,
+        sampler: &PointSampler,
+        px: u32,
+        py: u32,
+        sample_index: u32,
+    ) -> (f32, bool) {
+        let u = sampler.uniforms(px, py, sample_index);
         let (o, d) = rg.ray(px as f32 + u[0], py as f32 + u[1], settings.width, settings.height);
         let Some((t, kind)) = self.closest(o, d, f32::MAX) else {
             return (settings.background, false);
@@ -133,6 +142,7 @@ impl CpuTracer {
     pub fn render_pass(&self, scene: &Scene, film: &mut Film, first: u32, count: u32) -> u64 {
         let s = &scene.settings;
         let rg = scene.camera.ray_gen(s.width, s.height);
+        let sampler = PointSampler::new(s.sampler, s.seed, s.spp);
         let w = s.width as usize;
         let ao_rays: u64 = film
             .sum
@@ -143,7 +153,8 @@ impl CpuTracer {
                 let mut rays = 0u64;
                 for x in 0..w {
                     for k in 0..count {
-                        let (v, traced) = self.shade_sample(&rg, s, x as u32, y as u32, first.wrapping_add(k));
+                        let (v, traced) =
+                            self.shade_sample(&rg, s, &sampler, x as u32, y as u32, first.wrapping_add(k));
                         sum[x] += v as f64;
                         sum_sq[x] += (v as f64) * (v as f64);
                         rays += traced as u64;

@@ -2,7 +2,8 @@
 
 use anyhow::{Context, Result, bail};
 use aorender::bvh::{BuildQuality, BvhLayout};
-use aorender::{Device, Hemisphere, Progress, RenderOptions, Scene, render};
+use aorender::{Device, Hemisphere, Progress, RenderOptions, Sampler, Scene, render};
+use clap::builder::TypedValueParser as _;
 use clap::{Parser, Subcommand, ValueEnum};
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -22,10 +23,16 @@ enum Command {
     Adapters,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
-enum HemisphereArg {
-    Uniform,
-    Cosine,
+/// `--hemisphere` values: the library's names.
+fn hemisphere_parser() -> impl clap::builder::TypedValueParser<Value = Hemisphere> {
+    clap::builder::PossibleValuesParser::new(Hemisphere::ALL.map(Hemisphere::name))
+        .map(|name: String| Hemisphere::from_name(&name).expect("a listed name"))
+}
+
+/// `--sampler` values: the library's names.
+fn sampler_parser() -> impl clap::builder::TypedValueParser<Value = Sampler> {
+    clap::builder::PossibleValuesParser::new(Sampler::ALL.map(Sampler::name))
+        .map(|name: String| Sampler::from_name(&name).expect("a listed name"))
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -64,9 +71,12 @@ struct RenderArgs {
     /// Samples per pixel (default: the scene's).
     #[arg(long)]
     spp: Option<u32>,
-    /// AO direction distribution (default: the scene's).
-    #[arg(long, value_enum)]
-    hemisphere: Option<HemisphereArg>,
+    /// AO direction distribution (default: the scene's, else cosine).
+    #[arg(long, value_parser = hemisphere_parser())]
+    hemisphere: Option<Hemisphere>,
+    /// Placement of the pixel and hemisphere numbers (default: the scene's, else independent).
+    #[arg(long, value_parser = sampler_parser())]
+    sampler: Option<Sampler>,
     /// AO rays longer than this are unoccluded (default: the scene's, else unlimited).
     #[arg(long, allow_negative_numbers = true)]
     max_distance: Option<f32>,
@@ -148,10 +158,10 @@ fn render_command(args: RenderArgs) -> Result<()> {
         s.spp = n;
     }
     if let Some(h) = args.hemisphere {
-        s.hemisphere = match h {
-            HemisphereArg::Uniform => Hemisphere::Uniform,
-            HemisphereArg::Cosine => Hemisphere::Cosine,
-        };
+        s.hemisphere = h;
+    }
+    if let Some(p) = args.sampler {
+        s.sampler = p;
     }
     if args.max_distance.is_some() {
         s.max_distance = args.max_distance;

@@ -235,7 +235,7 @@ pub fn render(scene: &Scene, options: &RenderOptions, progress: &mut dyn FnMut(&
         device_type: device_info.device_type,
         driver: device_info.driver,
         hemisphere: s.hemisphere.name().into(),
-        sampler: "independent".into(),
+        sampler: s.sampler.name().into(),
         seed: s.seed,
         bvh_layout: layout.into(),
         device_bytes,

@@ -50,18 +50,27 @@ pub enum Hemisphere {
     Uniform,
     /// p(ω) = cos θ/π via the concentric disk mapping; estimator ρ V.
     Cosine,
+    /// p(ω) = cos θ/π via the polar disk mapping (r = √ξ₁, φ = 2πξ₂), the lecture's
+    /// literal method; same estimator as `Cosine`, but it stretches the square's strata.
+    CosinePolar,
 }
 
 impl Hemisphere {
     /// Every variant, in CLI order.
-    pub const ALL: [Hemisphere; 2] = [Hemisphere::Uniform, Hemisphere::Cosine];
+    pub const ALL: [Hemisphere; 3] = [Hemisphere::Uniform, Hemisphere::Cosine, Hemisphere::CosinePolar];
 
     /// The name used on the command line, in scene files and in stats.
     pub fn name(self) -> &'static str {
         match self {
             Hemisphere::Uniform => "uniform",
             Hemisphere::Cosine => "cosine",
+            Hemisphere::CosinePolar => "cosine-polar",
         }
+    }
+
+    /// The variant called `name`.
+    pub fn from_name(name: &str) -> Option<Hemisphere> {
+        Hemisphere::ALL.into_iter().find(|h| h.name() == name)
     }
 
     /// The id the shader switches on (`HEMISPHERE_*` in `sampling.wgsl`).
@@ -69,6 +78,7 @@ impl Hemisphere {
         match self {
             Hemisphere::Uniform => 0,
             Hemisphere::Cosine => 1,
+            Hemisphere::CosinePolar => 2,
         }
     }
 
@@ -77,6 +87,7 @@ impl Hemisphere {
         match self {
             Hemisphere::Uniform => sample_uniform_hemisphere(u),
             Hemisphere::Cosine => sample_cosine_hemisphere(u),
+            Hemisphere::CosinePolar => sample_cosine_hemisphere_polar(u),
         }
     }
 
@@ -84,7 +95,16 @@ impl Hemisphere {
     pub fn pdf(self, w: Vec3) -> f32 {
         match self {
             Hemisphere::Uniform => uniform_hemisphere_pdf(),
-            Hemisphere::Cosine => cosine_hemisphere_pdf(w.z),
+            Hemisphere::Cosine | Hemisphere::CosinePolar => cosine_hemisphere_pdf(w.z),
+        }
+    }
+
+    /// The numbers that `sample` maps to `w` (`w` a unit vector with z ≥ 0).
+    pub fn invert(self, w: Vec3) -> Vec2 {
+        match self {
+            Hemisphere::Uniform => invert_uniform_hemisphere_sample(w),
+            Hemisphere::Cosine => invert_cosine_hemisphere_sample(w),
+            Hemisphere::CosinePolar => invert_cosine_hemisphere_polar_sample(w),
         }
     }
 
@@ -93,7 +113,7 @@ impl Hemisphere {
     pub fn weight(self, w: Vec3) -> f32 {
         match self {
             Hemisphere::Uniform => 2.0 * w.z,
-            Hemisphere::Cosine => 1.0,
+            Hemisphere::Cosine | Hemisphere::CosinePolar => 1.0,
         }
     }
 }
@@ -149,6 +169,22 @@ pub fn invert_uniform_disk_concentric_sample(p: Vec2) -> Vec2 {
     (o + Vec2::ONE) * 0.5
 }
 
+/// The polar map from the square to the unit disk: r = √ξ₁, φ = 2πξ₂.
+pub fn sample_uniform_disk_polar(u: Vec2) -> Vec2 {
+    let r = u.x.sqrt();
+    let theta = 2.0 * PI * u.y;
+    r * Vec2::new(theta.cos(), theta.sin())
+}
+
+/// Inverse of [`sample_uniform_disk_polar`].
+pub fn invert_uniform_disk_polar_sample(p: Vec2) -> Vec2 {
+    let mut theta = p.y.atan2(p.x);
+    if theta < 0.0 {
+        theta += 2.0 * PI;
+    }
+    Vec2::new(p.x * p.x + p.y * p.y, theta / (2.0 * PI))
+}
+
 /// Cosine-weighted hemisphere: a point uniform on the disk projected up (Malley's method).
 pub fn sample_cosine_hemisphere(u: Vec2) -> Vec3 {
     let d = sample_uniform_disk_concentric(u);
@@ -164,6 +200,18 @@ pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
 /// Inverse of [`sample_cosine_hemisphere`].
 pub fn invert_cosine_hemisphere_sample(w: Vec3) -> Vec2 {
     invert_uniform_disk_concentric_sample(Vec2::new(w.x, w.y))
+}
+
+/// Cosine-weighted hemisphere through the polar disk map: the lecture's construction.
+pub fn sample_cosine_hemisphere_polar(u: Vec2) -> Vec3 {
+    let d = sample_uniform_disk_polar(u);
+    let z = safe_sqrt(1.0 - d.x * d.x - d.y * d.y);
+    Vec3::new(d.x, d.y, z)
+}
+
+/// Inverse of [`sample_cosine_hemisphere_polar`].
+pub fn invert_cosine_hemisphere_polar_sample(w: Vec3) -> Vec2 {
+    invert_uniform_disk_polar_sample(Vec2::new(w.x, w.y))
 }
 
 /// Orthonormal basis around a unit vector without a singularity: Duff et al.,
@@ -238,11 +286,14 @@ mod tests {
                 let dy = (a.y - b.y).abs().min(1.0 - (a.y - b.y).abs());
                 dx < 2e-4 && dy < 2e-4
             };
-            let back = invert_uniform_hemisphere_sample(sample_uniform_hemisphere(u));
+            let back = Hemisphere::Uniform.invert(Hemisphere::Uniform.sample(u));
             // At the pole (z = ξ₁ → 1) the circle shrinks to a point and φ is lost.
             assert!(close(u, back) || u.x == 1.0 - f32::EPSILON / 2.0, "uniform {u} -> {back}");
-            let back = invert_cosine_hemisphere_sample(sample_cosine_hemisphere(u));
+            let back = Hemisphere::Cosine.invert(Hemisphere::Cosine.sample(u));
             assert!((u - back).abs().max_element() < 2e-4, "cosine {u} -> {back}");
+            let back = Hemisphere::CosinePolar.invert(Hemisphere::CosinePolar.sample(u));
+            // At the centre (r = √ξ₁ = 0) φ is lost.
+            assert!(close(u, back) || u.x == 0.0, "cosine-polar {u} -> {back}");
         }
     }
 

@@ -4,6 +4,7 @@
 
 use crate::bvh::{BVH2_STACK_SIZE, BvhLayout, CWBVH_STACK_SIZE, INVALID_INDEX, PRIM_SPHERE, PRIM_TRIANGLE};
 use crate::gpu::{COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, TRAVERSAL_BUDGET, WORKGROUP_SIZE};
+use crate::sampler::{PERMUTE_WALK_LIMIT, Sampler};
 use crate::sampling::Hemisphere;
 
 /// Every shader file, by name, compiled into the binary.
@@ -11,6 +12,7 @@ pub const FILES: &[(&str, &str)] = &[
     ("ao.wgsl", include_str!("../shaders/ao.wgsl")),
     ("bindings.wgsl", include_str!("../shaders/bindings.wgsl")),
     ("intersect.wgsl", include_str!("../shaders/intersect.wgsl")),
+    ("sampler.wgsl", include_str!("../shaders/sampler.wgsl")),
     ("sampling.wgsl", include_str!("../shaders/sampling.wgsl")),
     ("trace.wgsl", include_str!("../shaders/trace.wgsl")),
     ("trace_common.wgsl", include_str!("../shaders/trace_common.wgsl")),
@@ -43,6 +45,12 @@ pub fn shared_constants() -> String {
         u("COUNTER_COUNT", COUNTER_COUNT),
         u("HEMISPHERE_UNIFORM", Hemisphere::Uniform.shader_id()),
         u("HEMISPHERE_COSINE", Hemisphere::Cosine.shader_id()),
+        u("HEMISPHERE_COSINE_POLAR", Hemisphere::CosinePolar.shader_id()),
+        u("SAMPLER_INDEPENDENT", Sampler::Independent.shader_id()),
+        u("SAMPLER_STRATIFIED", Sampler::Stratified.shader_id()),
+        u("SAMPLER_GRID", Sampler::Grid.shader_id()),
+        u("SAMPLER_SOBOL", Sampler::Sobol.shader_id()),
+        u("PERMUTE_WALK_LIMIT", PERMUTE_WALK_LIMIT),
     ]
     .concat()
 }

@@ -34,8 +34,12 @@ pub struct FrameUniforms {
     pub plane_count: u32,
     /// Number of BVH nodes (0: no finite primitives).
     pub node_count: u32,
+    /// Sampler id.
+    pub point_sampler: u32,
+    /// Cells per axis of the stratified and grid samplers.
+    pub strata: u32,
     /// Padding.
-    pub _pad: [u32; 3],
+    pub _pad: u32,
 }
 const _: () = assert!(std::mem::size_of::<FrameUniforms>() == 96);
 
@@ -58,7 +62,9 @@ impl FrameUniforms {
             hemisphere: s.hemisphere.shader_id(),
             plane_count: scene.planes.len() as u32,
             node_count,
-            _pad: [0; 3],
+            point_sampler: s.sampler.shader_id(),
+            strata: s.sampler.strata_per_axis(s.spp),
+            _pad: 0,
         }
     }
 }

@@ -15,6 +15,9 @@ use wgpu::util::DeviceExt;
 /// lavapipe silently ends an invocation after 65,535; a traversal that would pass this
 /// budget stops and voids its sample, and the pass reports [`Error::TraversalBudget`].
 pub const TRAVERSAL_BUDGET: u32 = 65_000;
+/// Mesa 22.3 lavapipe's per-invocation loop cap (`LP_MAX_TGSI_LOOP_ITERATIONS`).
+pub const LAVAPIPE_LOOP_CAP: u32 = 65_535;
+const _: () = assert!(TRAVERSAL_BUDGET + crate::sampler::SAMPLER_LOOP_BOUND <= LAVAPIPE_LOOP_CAP);
 /// Workgroup size of the AO kernel.
 pub const WORKGROUP_SIZE: [u32; 2] = [8, 8];
 /// Counter of AO rays traced in a pass.

@@ -3,6 +3,7 @@
 use super::{Plane, Scene, Settings, Sphere, Triangle, load_mesh};
 use crate::camera::{Camera, Projection};
 use crate::error::{Error, Result};
+use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use glam::{Mat4, Vec3};
 use serde::Deserialize;
@@ -38,6 +39,7 @@ struct ImageSection {
 struct SamplingSection {
     spp: Option<u32>,
     hemisphere: Option<Hemisphere>,
+    sampler: Option<Sampler>,
     max_distance: Option<f32>,
     seed: Option<u32>,
 }
@@ -185,6 +187,7 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
         background: file.image.background.unwrap_or(defaults.background),
         spp: file.sampling.spp.unwrap_or(defaults.spp),
         hemisphere: file.sampling.hemisphere.unwrap_or(defaults.hemisphere),
+        sampler: file.sampling.sampler.unwrap_or(defaults.sampler),
         max_distance: file.sampling.max_distance,
         seed: file.sampling.seed.unwrap_or(defaults.seed),
     };

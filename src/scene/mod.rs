@@ -9,6 +9,7 @@ pub use file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME};
 
 use crate::camera::{Camera, Projection};
 use crate::error::{Error, Result};
+use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use glam::Vec3;
 use std::path::Path;
@@ -55,6 +56,8 @@ pub struct Settings {
     pub spp: u32,
     /// AO direction distribution.
     pub hemisphere: Hemisphere,
+    /// Placement of the pixel-jitter and hemisphere numbers.
+    pub sampler: Sampler,
     /// AO rays longer than this are unoccluded; `None` is no limit.
     pub max_distance: Option<f32>,
     /// Value of camera rays that hit nothing.
@@ -70,6 +73,7 @@ impl Default for Settings {
             height: 512,
             spp: 64,
             hemisphere: Hemisphere::Cosine,
+            sampler: Sampler::Independent,
             max_distance: None,
             background: 0.0,
             seed: 0,
