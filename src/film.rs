@@ -33,7 +33,8 @@ impl Film {
         self.sum.iter().map(|s| s / n).collect()
     }
 
-    /// Per-pixel standard error of the mean, from the sample variance.
+    /// Per-pixel standard error of the mean, from the sample variance. It assumes
+    /// independent samples: for stratified and Sobol samples it is an overestimate.
     pub fn std_error(&self) -> Vec<f64> {
         let n = self.samples as f64;
         if self.samples < 2 {
