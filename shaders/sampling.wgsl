@@ -108,10 +108,12 @@ fn invert_uniform_disk_polar_sample(p: vec2f) -> vec2f {
 }
 
 // Cosine-weighted hemisphere: uniform disk point projected up; pdf cos(theta)/pi.
+// The height comes from the exact disk radius, not from 1 - x^2 - y^2.
 fn sample_cosine_hemisphere(u: vec2f) -> vec3f {
     let d = sample_uniform_disk_concentric(u);
-    let z = safe_sqrt(1.0 - d.x * d.x - d.y * d.y);
-    return vec3f(d.x, d.y, z);
+    let o = abs(2.0 * u - vec2f(1.0));
+    let r = max(o.x, o.y);
+    return vec3f(d.x, d.y, safe_sqrt((1.0 - r) * (1.0 + r)));
 }
 
 fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
@@ -125,8 +127,7 @@ fn invert_cosine_hemisphere_sample(w: vec3f) -> vec2f {
 // Cosine-weighted hemisphere through the polar disk map (the lecture's construction).
 fn sample_cosine_hemisphere_polar(u: vec2f) -> vec3f {
     let d = sample_uniform_disk_polar(u);
-    let z = safe_sqrt(1.0 - d.x * d.x - d.y * d.y);
-    return vec3f(d.x, d.y, z);
+    return vec3f(d.x, d.y, safe_sqrt(1.0 - u.x));
 }
 
 fn invert_cosine_hemisphere_polar_sample(w: vec3f) -> vec2f {

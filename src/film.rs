@@ -66,7 +66,7 @@ impl Film {
         let (w, h) = (self.width, self.height);
         let bytes = match ext.as_str() {
             "png" => {
-                let px: Vec<u8> = mean.iter().map(|&v| (linear_to_srgb(v) * 255.0 + 0.5) as u8).collect();
+                let px: Vec<u8> = mean.iter().map(|&v| linear_to_srgb8(v)).collect();
                 let img = image::GrayImage::from_raw(w, h, px).expect("buffer matches size");
                 encode(image::DynamicImage::ImageLuma8(img), image::ImageFormat::Png).map_err(out_err)?
             }
@@ -81,6 +81,11 @@ impl Film {
         };
         write_atomically(path, &bytes)
     }
+}
+
+/// A linear value as the 8-bit sRGB code `.png` images store.
+pub fn linear_to_srgb8(v: f32) -> u8 {
+    (linear_to_srgb(v) * 255.0 + 0.5) as u8
 }
 
 /// The sRGB transfer function (IEC 61966-2-1), on [0, 1].

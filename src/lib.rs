@@ -15,6 +15,7 @@
 
 pub mod bvh;
 pub mod camera;
+pub mod compare;
 pub mod cpu;
 pub mod error;
 pub mod film;

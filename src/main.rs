@@ -1,12 +1,13 @@
-//! The `aorender` command: render, list adapters.
+//! The `aorender` command: render, compare sample counts and samplers, list adapters.
 
 use anyhow::{Context, Result, bail};
 use aorender::bvh::{BuildQuality, BvhLayout};
+use aorender::compare::{self, CompareProgress};
 use aorender::{Device, Hemisphere, Progress, RenderOptions, Sampler, Scene, render};
 use clap::builder::TypedValueParser as _;
 use clap::{Parser, Subcommand, ValueEnum};
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
 #[command(name = "aorender", version, about = "GPU ambient-occlusion renderer")]
@@ -19,6 +20,8 @@ struct Cli {
 enum Command {
     /// Render a scene file (.toml) or a bare mesh (.obj); the built-in aobench scene by default.
     Render(RenderArgs),
+    /// Render a grid of sample counts (columns) by hemispheres and samplers (rows) into one labelled PNG.
+    Compare(CompareArgs),
     /// List the adapters wgpu finds.
     Adapters,
 }
@@ -55,40 +58,23 @@ enum LayoutArg {
     Cwbvh,
 }
 
+/// The scene and how to render it: options shared by `render` and `compare`.
 #[derive(clap::Args)]
-struct RenderArgs {
+struct SceneArgs {
     /// Scene file (.toml) or mesh (.obj). Default: the built-in aobench scene.
     scene: Option<PathBuf>,
-    /// Output image: .png (8-bit sRGB), .exr or .pfm (32-bit float, linear).
-    #[arg(short, long, default_value = "out.png")]
-    output: PathBuf,
     /// Image width (default: the scene's).
     #[arg(long)]
     width: Option<u32>,
     /// Image height (default: the scene's).
     #[arg(long)]
     height: Option<u32>,
-    /// Samples per pixel (default: the scene's).
-    #[arg(long)]
-    spp: Option<u32>,
-    /// AO direction distribution (default: the scene's, else cosine).
-    #[arg(long, value_parser = hemisphere_parser())]
-    hemisphere: Option<Hemisphere>,
-    /// Placement of the pixel and hemisphere numbers (default: the scene's, else independent).
-    #[arg(long, value_parser = sampler_parser())]
-    sampler: Option<Sampler>,
     /// AO rays longer than this are unoccluded (default: the scene's, else unlimited).
     #[arg(long, allow_negative_numbers = true)]
     max_distance: Option<f32>,
     /// Random seed (default: the scene's, else 0).
     #[arg(long)]
     seed: Option<u32>,
-    /// Stop after the pass that passes this many seconds, with the samples done so far.
-    #[arg(long, allow_negative_numbers = true)]
-    time_limit: Option<f64>,
-    /// Write render statistics as JSON.
-    #[arg(long)]
-    stats: Option<PathBuf>,
     /// GPU (wgpu compute) or the CPU reference renderer.
     #[arg(long, value_enum, default_value = "gpu")]
     device: DeviceArg,
@@ -101,6 +87,110 @@ struct RenderArgs {
     /// BVH node layout the GPU traverses.
     #[arg(long, value_enum, default_value = "cwbvh")]
     bvh_layout: LayoutArg,
+}
+
+impl SceneArgs {
+    /// The scene with the size, distance and seed options applied (not yet validated).
+    fn load(&self) -> Result<Scene> {
+        let mut scene = match &self.scene {
+            Some(path) => Scene::load(path)?,
+            None => Scene::default_scene(),
+        };
+        let s = &mut scene.settings;
+        if let Some(w) = self.width {
+            s.width = w;
+        }
+        if let Some(h) = self.height {
+            s.height = h;
+        }
+        if self.max_distance.is_some() {
+            s.max_distance = self.max_distance;
+        }
+        if let Some(seed) = self.seed {
+            s.seed = seed;
+        }
+        Ok(scene)
+    }
+
+    /// The device and BVH options.
+    fn options(&self, time_limit: Option<f64>) -> RenderOptions {
+        RenderOptions {
+            device: match self.device {
+                DeviceArg::Gpu => Device::Gpu,
+                DeviceArg::Cpu => Device::Cpu,
+            },
+            adapter: self.adapter.clone(),
+            time_limit,
+            bvh_quality: match self.bvh_quality {
+                QualityArg::Fastest => BuildQuality::Fastest,
+                QualityArg::Fast => BuildQuality::Fast,
+                QualityArg::Medium => BuildQuality::Medium,
+                QualityArg::Slow => BuildQuality::Slow,
+            },
+            bvh_layout: match self.bvh_layout {
+                LayoutArg::Bvh2 => BvhLayout::Bvh2,
+                LayoutArg::Cwbvh => BvhLayout::Cwbvh,
+            },
+        }
+    }
+}
+
+/// Refuses an output path whose extension is not one of `allowed` (lower case, no dot),
+/// before any time is spent rendering.
+fn check_output_extension(path: &Path, allowed: &[&str]) -> Result<()> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    if allowed.contains(&ext.as_str()) {
+        return Ok(());
+    }
+    let mut expected: Vec<String> = allowed.iter().map(|e| format!(".{e}")).collect();
+    let last = expected.pop().unwrap_or_default();
+    let expected = if expected.is_empty() { last } else { format!("{} or {last}", expected.join(", ")) };
+    bail!("{}: unsupported output format: expected {expected}", path.display());
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Output image: .png (8-bit sRGB), .exr or .pfm (32-bit float, linear).
+    #[arg(short, long, default_value = "out.png")]
+    output: PathBuf,
+    /// Samples per pixel (default: the scene's).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// AO direction distribution (default: the scene's, else cosine).
+    #[arg(long, value_parser = hemisphere_parser())]
+    hemisphere: Option<Hemisphere>,
+    /// Placement of the pixel and hemisphere numbers (default: the scene's, else independent).
+    #[arg(long, value_parser = sampler_parser())]
+    sampler: Option<Sampler>,
+    /// Stop after the pass that passes this many seconds, with the samples done so far.
+    #[arg(long, allow_negative_numbers = true)]
+    time_limit: Option<f64>,
+    /// Write render statistics as JSON.
+    #[arg(long)]
+    stats: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct CompareArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Output image (.png).
+    #[arg(short, long, default_value = "compare.png")]
+    output: PathBuf,
+    /// Samples per pixel of the columns, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "1,4,9,16,256,1024")]
+    spp: Vec<u32>,
+    /// Hemisphere distributions of the rows, comma-separated.
+    #[arg(long, value_delimiter = ',', value_parser = hemisphere_parser(), default_value = "uniform,cosine")]
+    hemisphere: Vec<Hemisphere>,
+    /// Point samplers, comma-separated; each gets one row per hemisphere.
+    #[arg(long, value_delimiter = ',', value_parser = sampler_parser(), default_value = "independent")]
+    sampler: Vec<Sampler>,
+    /// Write the statistics of every cell as JSON.
+    #[arg(long)]
+    stats: Option<PathBuf>,
 }
 
 fn main() {
@@ -139,21 +229,13 @@ fn run() -> Result<()> {
             Ok(())
         }
         Command::Render(args) => render_command(args),
+        Command::Compare(args) => compare_command(args),
     }
 }
 
 fn render_command(args: RenderArgs) -> Result<()> {
-    let mut scene = match &args.scene {
-        Some(path) => Scene::load(path)?,
-        None => Scene::default_scene(),
-    };
+    let mut scene = args.scene.load()?;
     let s = &mut scene.settings;
-    if let Some(w) = args.width {
-        s.width = w;
-    }
-    if let Some(h) = args.height {
-        s.height = h;
-    }
     if let Some(n) = args.spp {
         s.spp = n;
     }
@@ -163,42 +245,14 @@ fn render_command(args: RenderArgs) -> Result<()> {
     if let Some(p) = args.sampler {
         s.sampler = p;
     }
-    if args.max_distance.is_some() {
-        s.max_distance = args.max_distance;
-    }
-    if let Some(seed) = args.seed {
-        s.seed = seed;
-    }
     s.validate().map_err(anyhow::Error::msg).context("invalid option")?;
     if let Some(t) = args.time_limit
         && (t.is_nan() || t <= 0.0)
     {
         bail!("invalid option: --time-limit must be positive, got {t}");
     }
-    // Refuse a bad output path before spending time on the render.
-    let ext = args.output.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-    if !matches!(ext.as_str(), "png" | "exr" | "pfm") {
-        bail!("{}: unsupported output format: expected .png, .exr or .pfm", args.output.display());
-    }
-
-    let options = RenderOptions {
-        device: match args.device {
-            DeviceArg::Gpu => Device::Gpu,
-            DeviceArg::Cpu => Device::Cpu,
-        },
-        adapter: args.adapter.clone(),
-        time_limit: args.time_limit,
-        bvh_quality: match args.bvh_quality {
-            QualityArg::Fastest => BuildQuality::Fastest,
-            QualityArg::Fast => BuildQuality::Fast,
-            QualityArg::Medium => BuildQuality::Medium,
-            QualityArg::Slow => BuildQuality::Slow,
-        },
-        bvh_layout: match args.bvh_layout {
-            LayoutArg::Bvh2 => BvhLayout::Bvh2,
-            LayoutArg::Cwbvh => BvhLayout::Cwbvh,
-        },
-    };
+    check_output_extension(&args.output, &["png", "exr", "pfm"])?;
+    let options = args.scene.options(args.time_limit);
 
     let bar = std::io::stderr().is_terminal().then(|| {
         let bar = indicatif::ProgressBar::new(scene.settings.spp as u64);
@@ -241,5 +295,57 @@ fn render_command(args: RenderArgs) -> Result<()> {
         eprintln!("time limit reached after {} of {} samples per pixel", st.samples_per_pixel, st.samples_requested);
     }
     println!("{json}");
+    Ok(())
+}
+
+fn compare_command(args: CompareArgs) -> Result<()> {
+    let mut scene = args.scene.load()?;
+    compare::validate(&args.spp, &args.hemisphere, &args.sampler)
+        .map_err(anyhow::Error::msg)
+        .context("invalid option")?;
+    scene.settings.spp = args.spp.iter().copied().max().unwrap_or(1);
+    scene.settings.validate().map_err(anyhow::Error::msg).context("invalid option")?;
+    check_output_extension(&args.output, &["png"])?;
+    let options = args.scene.options(None);
+
+    let mut on_progress = |p: &CompareProgress| {
+        if p.render.is_none() {
+            eprintln!(
+                "rendering {}/{} at {} spp ({} of {})",
+                p.hemisphere.name(),
+                p.sampler.name(),
+                p.spp,
+                p.cell + 1,
+                p.cells
+            );
+        }
+    };
+    let grid = compare::run(&scene, &options, &args.spp, &args.hemisphere, &args.sampler, &mut on_progress)?;
+    grid.write_png(&args.output)?;
+    if let Some(path) = &args.stats {
+        let json = serde_json::to_string_pretty(&grid)?;
+        aorender::film::write_atomically(path, format!("{json}\n").as_bytes())?;
+    }
+    println!("{:<12} {:<12} {:>6} {:>8} {:>8}", "sampler", "hemisphere", "spp", "mean", "seconds");
+    for c in &grid.cells {
+        println!(
+            "{:<12} {:<12} {:>6} {:>8.4} {:>8.2}",
+            c.sampler.name(),
+            c.hemisphere.name(),
+            c.spp,
+            c.image_mean,
+            c.render_seconds
+        );
+    }
+    eprintln!(
+        "{}: {} cells of {}x{} in {:.1} s on {} ({})",
+        args.output.display(),
+        grid.cells.len(),
+        grid.width,
+        grid.height,
+        grid.total_seconds,
+        grid.adapter,
+        grid.backend
+    );
     Ok(())
 }

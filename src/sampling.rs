@@ -186,10 +186,13 @@ pub fn invert_uniform_disk_polar_sample(p: Vec2) -> Vec2 {
 }
 
 /// Cosine-weighted hemisphere: a point uniform on the disk projected up (Malley's method).
+/// The height comes from the exact disk radius, √((1 − r)(1 + r)), not from 1 − x² − y²,
+/// whose rounding in sin and cos would dominate near the horizon.
 pub fn sample_cosine_hemisphere(u: Vec2) -> Vec3 {
     let d = sample_uniform_disk_concentric(u);
-    let z = safe_sqrt(1.0 - d.x * d.x - d.y * d.y);
-    Vec3::new(d.x, d.y, z)
+    let o = (2.0 * u - Vec2::ONE).abs();
+    let r = o.x.max(o.y);
+    Vec3::new(d.x, d.y, safe_sqrt((1.0 - r) * (1.0 + r)))
 }
 
 /// Density of [`sample_cosine_hemisphere`]: cos θ / π.
@@ -203,10 +206,10 @@ pub fn invert_cosine_hemisphere_sample(w: Vec3) -> Vec2 {
 }
 
 /// Cosine-weighted hemisphere through the polar disk map: the lecture's construction.
+/// The height is √(1 − ξ₁), exact up to one rounding.
 pub fn sample_cosine_hemisphere_polar(u: Vec2) -> Vec3 {
     let d = sample_uniform_disk_polar(u);
-    let z = safe_sqrt(1.0 - d.x * d.x - d.y * d.y);
-    Vec3::new(d.x, d.y, z)
+    Vec3::new(d.x, d.y, safe_sqrt(1.0 - u.x))
 }
 
 /// Inverse of [`sample_cosine_hemisphere_polar`].

@@ -5,16 +5,6 @@
 mod common;
 use common::*;
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn aorender(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_aorender"))
-        .args(args)
-        .current_dir(cwd)
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .expect("aorender runs")
-}
 
 /// Runs a render that must fail; checks exit, message and that `out` is untouched.
 fn assert_rejected(args: &[&str], cwd: &Path, expect_in_message: &[&str]) {

@@ -91,3 +91,13 @@ pub fn write_obj(path: &std::path::Path, triangles: &[[[f32; 3]; 3]]) {
     }
     std::fs::write(path, text).expect("write OBJ");
 }
+
+/// Runs the `aorender` binary with `args` in `cwd`.
+pub fn aorender(args: &[&str], cwd: &std::path::Path) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_aorender"))
+        .args(args)
+        .current_dir(cwd)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("aorender runs")
+}
