@@ -28,6 +28,19 @@ fn camera_ray(pixel: vec2f) -> array<vec3f, 2> {
     return array<vec3f, 2>(frame.eye, normalize(frame.forward + sx * frame.right + sy * frame.up));
 }
 
+// The hemisphere estimate at p with normal n for hemisphere numbers u: one AO ray, then
+// 0 or cos(theta) / (pi pdf). The twin of CpuTracer::ao_at.
+fn ao_value(p: vec3f, n: vec3f, u: vec2f) -> f32 {
+    let w_local = sample_hemisphere(frame.hemisphere, u);
+    let w = local_to_world(w_local, n);
+    atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], 1u);
+    let shadow = trace(offset_ray_origin(p, n), w, frame.max_distance, true);
+    if (shadow.kind != HIT_NONE) {
+        return 0.0;
+    }
+    return hemisphere_weight(frame.hemisphere, w_local);
+}
+
 // AO value of one sample: albedo x the hemisphere estimate, or the background.
 fn shade_sample(px: vec2u, u: vec4f) -> f32 {
     let ray = camera_ray(vec2f(px) + u.xy);
@@ -50,40 +63,63 @@ fn shade_sample(px: vec2u, u: vec4f) -> f32 {
             n = normalize(p - prim.a.xyz);
             p = prim.a.xyz + prim.b.x * n;
         } else {
-            n = normalize(cross(prim.b.xyz, prim.c.xyz));
+            // The record holds the vertices (v0, v1, v2).
+            n = normalize(cross(prim.b.xyz - prim.a.xyz, prim.c.xyz - prim.a.xyz));
         }
     }
     // The hemisphere faces the side the camera ray came from.
     if (dot(n, d) > 0.0) {
         n = -n;
     }
-    let w_local = sample_hemisphere(frame.hemisphere, u.zw);
-    let w = local_to_world(w_local, n);
-    atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], 1u);
-    let shadow = trace(offset_ray_origin(p, n), w, frame.max_distance, true);
-    if (shadow.kind != HIT_NONE) {
-        return 0.0;
+    return albedo * ao_value(p, n, u.zw);
+}
+
+// Adds one sample's value to film slot i, or counts it void when its traversal ran out
+// of budget.
+fn accumulate(i: u32, value: f32) {
+    if (truncated) {
+        atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
+    } else {
+        let acc = film[i];
+        film[i] = vec4f(add_compensated(acc.xy, value), add_compensated(acc.zw, value * value));
     }
-    return albedo * hemisphere_weight(frame.hemisphere, w_local);
+}
+
+// Adds the workgroup's counts to the global counters (after a barrier).
+fn flush_counters(lid: u32) {
+    if (lid == 0u) {
+        // Written out rather than looped: every loop counts against lavapipe's cap.
+        atomicAdd(&counters[COUNTER_AO_RAYS], atomicLoad(&workgroup_counters[COUNTER_AO_RAYS]));
+        atomicAdd(&counters[COUNTER_TRUNCATED], atomicLoad(&workgroup_counters[COUNTER_TRUNCATED]));
+    }
 }
 
 @compute @workgroup_size(WORKGROUP_WIDTH, WORKGROUP_HEIGHT, 1)
 fn render_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
     if (gid.x < frame.width && gid.y < frame.height) {
         let u = sample_point_uniforms(frame.point_sampler, gid.x, gid.y, dispatch.sample_index, frame.seed, frame.strata);
-        let value = shade_sample(gid.xy, u);
-        if (truncated) {
-            atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
-        } else {
-            let i = gid.y * frame.width + gid.x;
-            let acc = film[i];
-            film[i] = vec4f(add_compensated(acc.xy, value), add_compensated(acc.zw, value * value));
+        accumulate(gid.y * frame.width + gid.x, shade_sample(gid.xy, u));
+    }
+    workgroupBarrier();
+    flush_counters(lid);
+}
+
+// AO at given points (aorender probe). The film holds frame.width lanes per point for
+// frame.height points; lane l of point k takes sample indices l, l + lanes, l + 2 lanes, ...
+// below frame.probe_samples, one per dispatch (dispatch.sample_index is the round).
+@compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
+fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+    let lanes = frame.width;
+    let slot = gid.x;
+    if (slot < lanes * frame.height) {
+        let point = slot / lanes;
+        let index = dispatch.sample_index * lanes + slot % lanes;
+        if (index < frame.probe_samples) {
+            let u = sample_point_uniforms(frame.point_sampler, point, 0u, index, frame.seed, frame.strata);
+            let q = probe_points[point];
+            accumulate(slot, ao_value(q.position, q.normal, u.zw));
         }
     }
     workgroupBarrier();
-    if (lid == 0u) {
-        // Written out rather than looped: every loop counts against lavapipe's cap.
-        atomicAdd(&counters[COUNTER_AO_RAYS], atomicLoad(&workgroup_counters[COUNTER_AO_RAYS]));
-        atomicAdd(&counters[COUNTER_TRUNCATED], atomicLoad(&workgroup_counters[COUNTER_TRUNCATED]));
-    }
+    flush_counters(lid);
 }

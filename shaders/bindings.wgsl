@@ -17,7 +17,7 @@ struct Frame {
     node_count: u32,    // 0 when the scene has no finite primitives
     point_sampler: u32, // SAMPLER_*
     strata: u32,        // cells per axis of the stratified and grid samplers
-    _pad0: u32,
+    probe_samples: u32, // samples per point of probe_sample
 }
 
 // Per-dispatch constants, bound with a dynamic offset.
@@ -28,11 +28,19 @@ struct Dispatch {
     _pad2: u32,
 }
 
-// Triangle: (v0, albedo), (e1, tag), (e2, 0). Sphere: (centre, albedo), (radius, 0, 0, tag).
+// Triangle: (v0, albedo), (v1, tag), (v2, 0), the vertices exactly as loaded (shared
+// vertices are bit-identical, which the watertight test needs). Sphere: (centre, albedo),
+// (radius, 0, 0, tag).
 struct Primitive {
     a: vec4f,
     b: vec4f,
     c: vec4f,
+}
+
+// A point and the normal of its hemisphere (probe_sample).
+struct ProbePoint {
+    position: vec3f,
+    normal: vec3f,
 }
 
 struct Plane {
@@ -53,3 +61,5 @@ struct Plane {
 @group(0) @binding(5) var<storage, read_write> film: array<vec4f>;
 // COUNTER_AO_RAYS, COUNTER_TRUNCATED.
 @group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>, COUNTER_COUNT>;
+// The points of probe_sample (one zeroed element for images).
+@group(0) @binding(7) var<storage, read> probe_points: array<ProbePoint>;

@@ -29,6 +29,7 @@ fn take_step() -> bool {
     return true;
 }
 
+// Primitive i of the leaf-ordered array against the ray (bindings.wgsl gives the record).
 fn intersect_primitive(i: u32, o: vec3f, d: vec3f, t_max: f32) -> f32 {
     let p = primitives[i];
     if (bitcast<u32>(p.b.w) == PRIM_SPHERE) {

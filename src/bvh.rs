@@ -102,17 +102,19 @@ pub struct GpuNode {
 }
 const _: () = assert!(std::mem::size_of::<GpuNode>() == 64);
 
-/// A primitive in leaf order. Triangle: `a = (v0, albedo)`, `b = (v1 - v0, tag)`,
-/// `c = (v2 - v0, 0)`. Sphere: `a = (centre, albedo)`, `b = (radius, 0, 0, tag)`, `c = 0`.
-/// The tag is stored as the bits of `b[3]`.
+/// A primitive in leaf order. Triangle: `a = (v0, albedo)`, `b = (v1, tag)`, `c = (v2, 0)`,
+/// the vertices exactly as the scene holds them: triangles that share a vertex store the
+/// same bits for it, which the watertight intersection test needs (edge vectors would
+/// round differently in each triangle). Sphere: `a = (centre, albedo)`,
+/// `b = (radius, 0, 0, tag)`, `c = 0`. The tag is stored as the bits of `b[3]`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
 pub struct GpuPrimitive {
     /// First vertex or centre, and albedo.
     pub a: [f32; 4],
-    /// First edge or radius, and the tag bits.
+    /// Second vertex or radius, and the tag bits.
     pub b: [f32; 4],
-    /// Second edge.
+    /// Third vertex.
     pub c: [f32; 4],
 }
 const _: () = assert!(std::mem::size_of::<GpuPrimitive>() == 48);
@@ -167,11 +169,11 @@ pub(crate) fn gpu_primitive(scene: &Scene, id: usize) -> GpuPrimitive {
     let n_tri = scene.triangles.len();
     if id < n_tri {
         let t = &scene.triangles[id];
-        let (v0, e1, e2) = (t.v[0], t.v[1] - t.v[0], t.v[2] - t.v[0]);
+        let [v0, v1, v2] = t.v;
         GpuPrimitive {
             a: [v0.x, v0.y, v0.z, t.albedo],
-            b: [e1.x, e1.y, e1.z, f32::from_bits(PRIM_TRIANGLE)],
-            c: [e2.x, e2.y, e2.z, 0.0],
+            b: [v1.x, v1.y, v1.z, f32::from_bits(PRIM_TRIANGLE)],
+            c: [v2.x, v2.y, v2.z, 0.0],
         }
     } else {
         let s = &scene.spheres[id - n_tri];

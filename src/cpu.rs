@@ -6,6 +6,7 @@ use crate::bvh::{GpuPrimitive, PRIM_SPHERE};
 use crate::camera::RayGen;
 use crate::film::Film;
 use crate::geometry::{intersect_plane, intersect_sphere, intersect_triangle, sphere_hit_point};
+use crate::probe::Probe;
 use crate::sampler::PointSampler;
 use crate::sampling::{local_to_world, offset_ray_origin};
 use crate::scene::{Plane, Scene, Settings};
@@ -30,6 +31,12 @@ pub struct CpuTracer {
     primitives: Vec<GpuPrimitive>,
     planes: Vec<Plane>,
 }
+
+/// obvhs's CWBVH node test skips boxes nearer than its `EPSILON` (1e-4) along the ray, so
+/// geometry closer than that to an AO ray's origin would be missed. The BVH is traversed
+/// from an origin moved back by this much, and the primitives are intersected with the
+/// real ray; hit distances are reported to obvhs in the moved ray's terms.
+const TRAVERSAL_BACKOFF: f32 = 2e-4;
 
 fn v3(a: [f32; 4]) -> Vec3 {
     Vec3::new(a[0], a[1], a[2])
@@ -67,9 +74,19 @@ impl CpuTracer {
         }
         if let Some(bvh) = &self.bvh {
             let mut hit = RayHit::none();
-            let ray = Ray::new(Vec3A::from(o), Vec3A::from(d), 0.0, t_best);
-            if bvh.ray_traverse(ray, &mut hit, |r, slot| self.intersect_primitive(slot, o, d, r.tmax)) {
-                best = Some((hit.t, HitKind::Primitive(hit.primitive_id as usize)));
+            let mut t_exact = t_best;
+            let ray = Ray::new(Vec3A::from(o - TRAVERSAL_BACKOFF * d), Vec3A::from(d), 0.0, t_best + TRAVERSAL_BACKOFF);
+            let found = bvh.ray_traverse(ray, &mut hit, |_, slot| {
+                let t = self.intersect_primitive(slot, o, d, t_exact);
+                if t < t_exact {
+                    t_exact = t;
+                    t + TRAVERSAL_BACKOFF
+                } else {
+                    f32::INFINITY
+                }
+            });
+            if found {
+                best = Some((t_exact, HitKind::Primitive(hit.primitive_id as usize)));
             }
         }
         best
@@ -82,8 +99,12 @@ impl CpuTracer {
         }
         match &self.bvh {
             Some(bvh) => {
-                let ray = Ray::new(Vec3A::from(o), Vec3A::from(d), 0.0, t_max);
-                !bvh.ray_traverse_miss(ray, |r, slot| self.intersect_primitive(slot, o, d, r.tmax))
+                let ray =
+                    Ray::new(Vec3A::from(o - TRAVERSAL_BACKOFF * d), Vec3A::from(d), 0.0, t_max + TRAVERSAL_BACKOFF);
+                !bvh.ray_traverse_miss(ray, |_, slot| {
+                    let t = self.intersect_primitive(slot, o, d, t_max);
+                    if t < t_max { t + TRAVERSAL_BACKOFF } else { f32::INFINITY }
+                })
             }
             None => false,
         }
@@ -99,7 +120,9 @@ impl CpuTracer {
                     let (point, n) = sphere_hit_point(o, d, t, v3(p.a), p.b[0]);
                     (point, n, p.a[3])
                 } else {
-                    (o + t * d, v3(p.b).cross(v3(p.c)).normalize(), p.a[3])
+                    // The record holds the vertices (v0, v1, v2).
+                    let n = (v3(p.b) - v3(p.a)).cross(v3(p.c) - v3(p.a)).normalize();
+                    (o + t * d, n, p.a[3])
                 }
             }
         }
@@ -135,6 +158,27 @@ impl CpuTracer {
             n = -n;
         }
         (albedo * self.ao_at(p, n, glam::Vec2::new(u[2], u[3]), settings), true)
+    }
+
+    /// Sums (Σv, Σv²) of the probe samples in `lanes` slots per probe: lane `l` of probe
+    /// `k` takes sample indices `l, l + lanes, …` below `samples`, as on the GPU.
+    pub fn probe_lanes(&self, settings: &Settings, probes: &[Probe], lanes: u32, samples: u32) -> Vec<(f64, f64)> {
+        let sampler = PointSampler::new(settings.sampler, settings.seed, samples);
+        (0..probes.len() * lanes as usize)
+            .into_par_iter()
+            .map(|slot| {
+                let (k, lane) = (slot / lanes as usize, slot as u32 % lanes);
+                let p = &probes[k];
+                let (mut sum, mut sum_sq) = (0.0f64, 0.0f64);
+                for index in (lane..samples).step_by(lanes as usize) {
+                    let u = sampler.uniforms(k as u32, 0, index);
+                    let v = self.ao_at(p.position, p.normal, glam::Vec2::new(u[2], u[3]), settings) as f64;
+                    sum += v;
+                    sum_sq += v * v;
+                }
+                (sum, sum_sq)
+            })
+            .collect()
     }
 
     /// Adds samples `first .. first + count` of every pixel to `film`; returns the number

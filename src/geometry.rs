@@ -5,21 +5,109 @@
 use crate::scene::Plane;
 use glam::Vec3;
 
-/// Möller & Trumbore, "Fast, Minimum Storage Ray/Triangle Intersection" (JGT 1997), on
-/// the precomputed edges `e1 = v1 - v0`, `e2 = v2 - v0`. Both sides are hit.
-pub fn intersect_triangle(o: Vec3, d: Vec3, t_min: f32, t_max: f32, v0: Vec3, e1: Vec3, e2: Vec3) -> f32 {
-    let p = d.cross(e2);
-    let det = e1.dot(p);
+/// The ray-dependent part of the watertight triangle test: the axis permutation and the
+/// shear that maps the ray to the +z axis. A pure function of `d`, so every triangle a ray
+/// meets sees its shared vertices transformed by exactly the same operations.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Shear {
+    /// Axes that become x, y and z (`kz` is the axis of largest |d|).
+    k: [usize; 3],
+    /// `(d[kx] / d[kz], d[ky] / d[kz], 1 / d[kz])`.
+    s: Vec3,
+}
+
+impl Shear {
+    fn new(d: Vec3) -> Shear {
+        let a = d.abs();
+        // Ties go to the lower axis; `intersect.wgsl` breaks them the same way.
+        let kz = if a.x >= a.y && a.x >= a.z {
+            0
+        } else if a.y >= a.z {
+            1
+        } else {
+            2
+        };
+        let mut kx = if kz == 2 { 0 } else { kz + 1 };
+        let mut ky = if kx == 2 { 0 } else { kx + 1 };
+        // Swapping x and y when the ray runs toward -z keeps the winding, so the edge
+        // functions of a triangle seen from its front are positive.
+        if d[kz] < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        let k = [kx, ky, kz];
+        let dz = d[kz];
+        Shear { k, s: Vec3::new(d[kx] / dz, d[ky] / dz, 1.0 / dz) }
+    }
+
+    fn permute(&self, v: Vec3) -> Vec3 {
+        Vec3::new(v[self.k[0]], v[self.k[1]], v[self.k[2]])
+    }
+}
+
+/// Woop, Benthin & Wald, "Watertight Ray/Triangle Intersection" (JCGT 2(1), 2013), in
+/// single precision, on the vertices as stored. Both sides are hit; `d` need not be unit
+/// length (`t` is in units of `d`). `shaders/intersect.wgsl` performs the same IEEE
+/// operations in the same order, so the two agree bit for bit on an IEEE platform.
+///
+/// The vertices are translated to the ray origin, permuted and sheared so the ray is the
+/// +z axis, and the signs of the three 2-D edge functions `U, V, W` decide the hit.
+/// Watertightness: the shear is a pure function of `d` and a vertex has the same bits in
+/// every triangle (`bvh::GpuPrimitive` stores vertices, not edges), so each vertex lands
+/// on the same rounded 2-D point in every triangle: a slightly moved but still closed
+/// mesh. The edge from P to Q has the function `E(P, Q) = Q.x·P.y − Q.y·P.x`; the
+/// neighbour that runs the edge from Q to P computes `P.x·Q.y − P.y·Q.x`, exactly
+/// `−E(P, Q)` because IEEE products commute and `x − y = −(y − x)`. Rounding is monotone,
+/// so `fl(fl(a·b) − fl(c·d))` has the sign of `a·b − c·d` or is 0 (flushing denormals to
+/// zero is monotone too): an edge function is never wrong in sign, only sometimes 0, and
+/// then 0 on both sides of the edge.
+///
+/// Zeros, and why there is no f64 fallback: the paper, and pbrt-v4 on the CPU, recompute
+/// an edge function that is exactly 0 in f64 to recover its sign; WGSL has no f64 on most
+/// adapters and both sides must agree, so here a 0 counts as either sign instead (a hit
+/// is all three edge functions ≥ 0 or all ≤ 0). That is conservative: a ray on, or within
+/// rounding of, an edge or vertex hits every triangle there, where the f64 fallback would
+/// pick one of them — which changes neither the occlusion test nor, beyond rounding, the
+/// closest `t`. `det = U + V + W == 0` (all three 0: a triangle seen edge-on, or a
+/// repeated vertex, whose `U, V, W` cancel exactly) is a miss. Distinct but collinear
+/// vertices can still be hit once the shear has rounded them; the scene loader drops
+/// triangles whose normal is degenerate, so no such triangle reaches this test.
+///
+/// The exact antisymmetry needs `a·b − c·d` evaluated as two rounded products and a
+/// subtraction. Rust never contracts it into an FMA and lavapipe does not either
+/// (`tests/robustness.rs` finds every `t` bit-identical); a shader compiler that did would
+/// void the guarantee on its adapter.
+///
+/// `t > t_min` is exact rather than widened by pbrt-v4's error bound on `t`: callers
+/// offset their origins off the surface instead.
+pub fn intersect_triangle(o: Vec3, d: Vec3, t_min: f32, t_max: f32, v0: Vec3, v1: Vec3, v2: Vec3) -> f32 {
+    let sh = Shear::new(d);
+    // Vertices relative to the origin, in the permuted axes.
+    let a = sh.permute(v0 - o);
+    let b = sh.permute(v1 - o);
+    let c = sh.permute(v2 - o);
+    // Sheared to the ray's frame: the ray is the z axis.
+    let ax = a.x - sh.s.x * a.z;
+    let ay = a.y - sh.s.y * a.z;
+    let bx = b.x - sh.s.x * b.z;
+    let by = b.y - sh.s.y * b.z;
+    let cx = c.x - sh.s.x * c.z;
+    let cy = c.y - sh.s.y * c.z;
+    // Scaled barycentrics: twice the signed areas seen from the ray.
+    let u = cx * by - cy * bx;
+    let v = ax * cy - ay * cx;
+    let w = bx * ay - by * ax;
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return f32::INFINITY;
+    }
+    let det = u + v + w;
     if det == 0.0 {
         return f32::INFINITY;
     }
-    let inv_det = 1.0 / det;
-    let s = o - v0;
-    let u = s.dot(p) * inv_det;
-    let q = s.cross(e1);
-    let v = d.dot(q) * inv_det;
-    let t = e2.dot(q) * inv_det;
-    if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > t_min && t < t_max { t } else { f32::INFINITY }
+    let az = sh.s.z * a.z;
+    let bz = sh.s.z * b.z;
+    let cz = sh.s.z * c.z;
+    let t = (u * az + v * bz + w * cz) / det;
+    if t > t_min && t < t_max { t } else { f32::INFINITY }
 }
 
 /// Ray–sphere with the cancellation-free quadratic of Haines et al., "Precision
@@ -61,4 +149,335 @@ pub fn intersect_plane(o: Vec3, d: Vec3, t_min: f32, t_max: f32, plane: &Plane) 
 pub fn sphere_hit_point(o: Vec3, d: Vec3, t: f32, center: Vec3, radius: f32) -> (Vec3, Vec3) {
     let n = (o + t * d - center).normalize();
     (center + radius * n, n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::{pcg4d, u32_to_unit_float};
+    use glam::{DVec3, UVec4};
+    use std::collections::{BTreeSet, HashMap};
+
+    /// An indexed triangle mesh of unit size around the origin, in f64.
+    struct Mesh {
+        vertices: Vec<DVec3>,
+        triangles: Vec<[usize; 3]>,
+    }
+
+    impl Mesh {
+        /// Every edge once, as (lower index, higher index).
+        fn edges(&self) -> Vec<[usize; 2]> {
+            let mut set = BTreeSet::new();
+            for t in &self.triangles {
+                for k in 0..3 {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    set.insert([a.min(b), a.max(b)]);
+                }
+            }
+            set.into_iter().collect()
+        }
+    }
+
+    /// The icosahedron subdivided `levels` times, vertices on the unit sphere, outward
+    /// winding; shared vertices are shared indices.
+    fn icosphere(levels: u32) -> Mesh {
+        let p = (1.0 + 5f64.sqrt()) / 2.0;
+        let mut vertices: Vec<DVec3> = [
+            [-1.0, p, 0.0],
+            [1.0, p, 0.0],
+            [-1.0, -p, 0.0],
+            [1.0, -p, 0.0],
+            [0.0, -1.0, p],
+            [0.0, 1.0, p],
+            [0.0, -1.0, -p],
+            [0.0, 1.0, -p],
+            [p, 0.0, -1.0],
+            [p, 0.0, 1.0],
+            [-p, 0.0, -1.0],
+            [-p, 0.0, 1.0],
+        ]
+        .iter()
+        .map(|v| DVec3::from(*v).normalize())
+        .collect();
+        let mut triangles = vec![
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ];
+        for _ in 0..levels {
+            let mut midpoints: HashMap<[usize; 2], usize> = HashMap::new();
+            let mut midpoint = |a: usize, b: usize, vertices: &mut Vec<DVec3>| {
+                *midpoints.entry([a.min(b), a.max(b)]).or_insert_with(|| {
+                    vertices.push((0.5 * (vertices[a] + vertices[b])).normalize());
+                    vertices.len() - 1
+                })
+            };
+            triangles = triangles
+                .iter()
+                .flat_map(|&[a, b, c]| {
+                    let ab = midpoint(a, b, &mut vertices);
+                    let bc = midpoint(b, c, &mut vertices);
+                    let ca = midpoint(c, a, &mut vertices);
+                    [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
+                })
+                .collect();
+        }
+        Mesh { vertices, triangles }
+    }
+
+    /// The cube [-1, 1]³ as 12 triangles, outward winding.
+    fn cube() -> Mesh {
+        let vertices =
+            (0..8).map(|i| DVec3::new([-1.0, 1.0][i & 1], [-1.0, 1.0][(i >> 1) & 1], [-1.0, 1.0][i >> 2])).collect();
+        // Corner i has x = bit 0, y = bit 1, z = bit 2.
+        let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+        let triangles = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
+        Mesh { vertices, triangles }
+    }
+
+    /// `(scale, translation)` of the meshes. At a translation of 1e6 the f32 spacing is
+    /// 1/16, so the 1e-4 mesh is translated by 1 instead (spacing 1.2e-7, still a
+    /// thousandth of its size); translated by 1e6 it would collapse to a point.
+    const PLACEMENTS: [(f32, f32); 6] = [(1e-4, 0.0), (1e-4, 1.0), (1.0, 0.0), (1.0, 1e6), (1e6, 0.0), (1e6, 1e6)];
+
+    /// A point of [0, 1)³, a pure function of `(i, salt)`.
+    fn random3(i: u32, salt: u32) -> DVec3 {
+        let h = pcg4d(UVec4::new(i, salt, 0x51ed_270b, 0x2545_f491));
+        DVec3::new(u32_to_unit_float(h.x) as f64, u32_to_unit_float(h.y) as f64, u32_to_unit_float(h.z) as f64)
+    }
+
+    /// Interior points (unit coordinates): the centre, then random points inside radius
+    /// `r` (the ball for the sphere, the cube of half-width `r` for the box).
+    fn interior_points(n: u32, r: f64, ball: bool, salt: u32) -> Vec<DVec3> {
+        let mut points = vec![DVec3::ZERO];
+        let mut i = 0;
+        while points.len() < n as usize + 1 {
+            let p = (2.0 * random3(i, salt) - DVec3::ONE) * r;
+            i += 1;
+            if !ball || p.length() < r {
+                points.push(p);
+            }
+        }
+        points
+    }
+
+    /// The intersector the renderer had before: Möller–Trumbore on the record
+    /// `(v0, v1 - v0, v2 - v0)`, whose edge vectors each triangle rounds on its own.
+    fn moller_trumbore_on_edges(o: Vec3, d: Vec3, v0: Vec3, v1: Vec3, v2: Vec3) -> f32 {
+        let (e1, e2) = (v1 - v0, v2 - v0);
+        let p = d.cross(e2);
+        let det = e1.dot(p);
+        if det == 0.0 {
+            return f32::INFINITY;
+        }
+        let inv_det = 1.0 / det;
+        let s = o - v0;
+        let u = s.dot(p) * inv_det;
+        let q = s.cross(e1);
+        let v = d.dot(q) * inv_det;
+        let t = e2.dot(q) * inv_det;
+        if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > 0.0 { t } else { f32::INFINITY }
+    }
+
+    /// Rays that leaked (hit nothing) through one placed mesh.
+    #[derive(Default)]
+    struct Tally {
+        rays: usize,
+        leaks: Vec<String>,
+        old_leaks: Vec<String>,
+    }
+
+    /// Rays from each interior point at every vertex and every edge midpoint of `mesh`
+    /// placed at `(scale, offset)`, with the direction as computed and normalized. A ray
+    /// hits when any triangle (brute force) returns a finite `t`.
+    fn shoot(mesh: &Mesh, interior: &[DVec3], scale: f32, offset: f32, tally: &mut Tally) {
+        let place = |v: DVec3| v.as_vec3() * scale + Vec3::splat(offset);
+        let vertices: Vec<Vec3> = mesh.vertices.iter().map(|&v| place(v)).collect();
+        let tris: Vec<[Vec3; 3]> = mesh.triangles.iter().map(|t| t.map(|i| vertices[i])).collect();
+        let mut targets: Vec<(Vec3, String)> =
+            vertices.iter().enumerate().map(|(i, &v)| (v, format!("vertex {i}"))).collect();
+        for [a, b] in mesh.edges() {
+            targets.push((0.5 * (vertices[a] + vertices[b]), format!("midpoint of edge {a}-{b}")));
+        }
+        for &p in interior {
+            let o = place(p);
+            for (target, what) in &targets {
+                let d0 = *target - o;
+                for d in [d0, d0.normalize()] {
+                    tally.rays += 1;
+                    let case = || format!("scale {scale}, offset {offset}: o {o:?} d {d:?} at {what}");
+                    if !tris.iter().any(|t| intersect_triangle(o, d, 0.0, f32::INFINITY, t[0], t[1], t[2]).is_finite())
+                    {
+                        tally.leaks.push(case());
+                    }
+                    if !tris.iter().any(|t| moller_trumbore_on_edges(o, d, t[0], t[1], t[2]).is_finite()) {
+                        tally.old_leaks.push(case());
+                    }
+                }
+            }
+        }
+    }
+
+    /// Every ray hits. The same rays through the old intersector must leak somewhere, so
+    /// the rays are shown to probe the cracks it had.
+    fn assert_watertight(name: &str, mesh: &Mesh, interior: &[DVec3]) {
+        let mut old_leaks = 0;
+        for (scale, offset) in PLACEMENTS {
+            let mut tally = Tally::default();
+            shoot(mesh, interior, scale, offset, &mut tally);
+            eprintln!(
+                "{name} scale {scale} offset {offset}: {} rays, {} leaked (Möller–Trumbore on edges: {} leaked{})",
+                tally.rays,
+                tally.leaks.len(),
+                tally.old_leaks.len(),
+                tally.old_leaks.first().map(|c| format!(", e.g. {c}")).unwrap_or_default()
+            );
+            assert!(tally.leaks.is_empty(), "{name}: {} rays leaked, e.g. {}", tally.leaks.len(), tally.leaks[0]);
+            old_leaks += tally.old_leaks.len();
+        }
+        assert!(old_leaks > 0, "{name}: the old Möller–Trumbore test leaks nowhere: the rays test nothing");
+    }
+
+    #[test]
+    fn no_ray_leaks_through_the_shared_vertices_and_edges_of_an_icosphere() {
+        let mesh = icosphere(2);
+        assert_eq!((mesh.vertices.len(), mesh.triangles.len(), mesh.edges().len()), (162, 320, 480));
+        assert_watertight("icosphere", &mesh, &interior_points(6, 0.8, true, 1));
+    }
+
+    #[test]
+    fn no_ray_leaks_through_the_shared_vertices_and_edges_of_a_box() {
+        let mesh = cube();
+        assert_eq!((mesh.triangles.len(), mesh.edges().len()), (12, 18));
+        assert_watertight("box", &mesh, &interior_points(64, 0.9, false, 2));
+    }
+
+    #[test]
+    fn random_rays_from_inside_always_hit() {
+        for (name, mesh, interior) in [
+            ("icosphere", icosphere(2), interior_points(8, 0.8, true, 3)),
+            ("box", cube(), interior_points(8, 0.9, false, 4)),
+        ] {
+            for (scale, offset) in PLACEMENTS {
+                let place = |v: DVec3| v.as_vec3() * scale + Vec3::splat(offset);
+                let tris: Vec<[Vec3; 3]> = mesh.triangles.iter().map(|t| t.map(|i| place(mesh.vertices[i]))).collect();
+                for (j, &p) in interior.iter().enumerate() {
+                    let o = place(p);
+                    for i in 0..2000 {
+                        let d = (2.0 * random3(i, 100 + j as u32) - DVec3::ONE).as_vec3();
+                        let hit =
+                            tris.iter().any(|t| intersect_triangle(o, d, 0.0, f32::INFINITY, t[0], t[1], t[2]) > 0.0);
+                        let hit = hit
+                            && tris
+                                .iter()
+                                .all(|t| !intersect_triangle(o, d, 0.0, f32::INFINITY, t[0], t[1], t[2]).is_nan());
+                        assert!(hit, "{name} scale {scale} offset {offset}: o {o:?} d {d:?} leaked");
+                    }
+                }
+            }
+        }
+    }
+
+    /// Axis-aligned rays from the centre of the box through a face centre (the shared
+    /// diagonal of its two triangles), an edge midpoint and a corner: exact zeros of the
+    /// edge functions, ties in the axis choice.
+    #[test]
+    fn exact_hits_on_the_box_diagonals_edges_and_corners() {
+        let mesh = cube();
+        let tris: Vec<[Vec3; 3]> = mesh.triangles.iter().map(|t| t.map(|i| mesh.vertices[i].as_vec3())).collect();
+        for x in [-1.0f32, 0.0, 1.0] {
+            for y in [-1.0f32, 0.0, 1.0] {
+                for z in [-1.0f32, 0.0, 1.0] {
+                    let d = Vec3::new(x, y, z);
+                    if d == Vec3::ZERO {
+                        continue;
+                    }
+                    let hits: Vec<f32> = tris
+                        .iter()
+                        .map(|t| intersect_triangle(Vec3::ZERO, d, 0.0, f32::INFINITY, t[0], t[1], t[2]))
+                        .filter(|t| t.is_finite())
+                        .collect();
+                    assert!(!hits.is_empty(), "d {d}: no hit");
+                    // The hit point is the target itself: t = 1 exactly.
+                    assert!(hits.iter().all(|&t| t == 1.0), "d {d}: t {hits:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn degenerate_triangles_are_never_hit() {
+        let (a, b) = (Vec3::new(0.3, -0.2, 1.0), Vec3::new(-0.4, 0.5, 1.2));
+        let degenerate = [[a, a, b], [a, b, a], [b, a, a], [a, a, a]];
+        for (k, tri) in degenerate.iter().enumerate() {
+            for i in 0..4000 {
+                let o = (2.0 * random3(i, 200 + k as u32) - DVec3::ONE).as_vec3();
+                // Aimed at a vertex, at the segment's midpoint, or anywhere.
+                let target = match i % 3 {
+                    0 => a,
+                    1 => 0.5 * (a + b),
+                    _ => (2.0 * random3(i, 300) - DVec3::ONE).as_vec3(),
+                };
+                let t = intersect_triangle(o, target - o, 0.0, f32::INFINITY, tri[0], tri[1], tri[2]);
+                assert_eq!(t, f32::INFINITY, "triangle {tri:?} hit from {o} toward {target}");
+            }
+        }
+    }
+
+    #[test]
+    fn both_sides_are_hit_at_the_exact_distance() {
+        let mut worst = 0.0f64;
+        for i in 0..20_000 {
+            let v = [random3(i, 400), random3(i, 401), random3(i, 402)].map(|p| 4.0 * p - DVec3::splat(2.0));
+            let n = (v[1] - v[0]).cross(v[2] - v[0]);
+            // Keep triangles that are not slivers and rays that are not grazing.
+            let area = 0.5 * n.length();
+            let longest = (v[1] - v[0]).length().max((v[2] - v[1]).length()).max((v[0] - v[2]).length());
+            if area < 0.05 * longest * longest {
+                continue;
+            }
+            let bary = random3(i, 403);
+            let (s, t) = (bary.x, bary.y);
+            let (s, t) = if s + t > 1.0 { (1.0 - s, 1.0 - t) } else { (s, t) };
+            // Inside by a margin, so rounding cannot move it out.
+            let (s, t) = (0.02 + 0.96 * s, 0.02 + 0.96 * t);
+            let (s, t) = (s * 0.98, t * 0.98);
+            let target = v[0] + s * (v[1] - v[0]) + t * (v[2] - v[0]);
+            let o = 6.0 * random3(i, 404) - DVec3::splat(3.0);
+            let d = (target - o).normalize();
+            if (d.dot(n) / n.length()).abs() < 0.1 {
+                continue;
+            }
+            let (vf, of, df) = (v.map(|p| p.as_vec3()), o.as_vec3(), d.as_vec3());
+            let exact = (target - o).length();
+            let got = intersect_triangle(of, df, 0.0, f32::INFINITY, vf[0], vf[1], vf[2]);
+            assert!(got.is_finite(), "missed {v:?} from {o} along {d}");
+            worst = worst.max((got as f64 - exact).abs() / exact);
+            // The reverse ray through the same point hits the other side.
+            let back = intersect_triangle(of + 2.0 * exact as f32 * df, -df, 0.0, f32::INFINITY, vf[0], vf[1], vf[2]);
+            assert!(back.is_finite(), "back side of {v:?} missed");
+            // Beyond t_max, or before t_min: a miss.
+            assert_eq!(intersect_triangle(of, df, 0.0, got, vf[0], vf[1], vf[2]), f32::INFINITY);
+            assert_eq!(intersect_triangle(of, df, got, f32::INFINITY, vf[0], vf[1], vf[2]), f32::INFINITY);
+        }
+        eprintln!("largest relative error of t: {worst:.2e}");
+        assert!(worst < 1e-5, "relative error of t {worst}");
+    }
 }

@@ -21,6 +21,7 @@ pub mod error;
 pub mod film;
 pub mod geometry;
 pub mod gpu;
+pub mod probe;
 pub mod render;
 pub mod sampler;
 pub mod sampling;

@@ -22,6 +22,8 @@ enum Command {
     Render(RenderArgs),
     /// Render a grid of sample counts (columns) by hemispheres and samplers (rows) into one labelled PNG.
     Compare(CompareArgs),
+    /// AO at points and normals read from a file (x y z nx ny nz per line), written as CSV.
+    Probe(ProbeArgs),
     /// List the adapters wgpu finds.
     Adapters,
 }
@@ -58,17 +60,34 @@ enum LayoutArg {
     Cwbvh,
 }
 
-/// The scene and how to render it: options shared by `render` and `compare`.
+/// Image size options shared by `render` and `compare`.
 #[derive(clap::Args)]
-struct SceneArgs {
-    /// Scene file (.toml) or mesh (.obj). Default: the built-in aobench scene.
-    scene: Option<PathBuf>,
+struct SizeArgs {
     /// Image width (default: the scene's).
     #[arg(long)]
     width: Option<u32>,
     /// Image height (default: the scene's).
     #[arg(long)]
     height: Option<u32>,
+}
+
+impl SizeArgs {
+    fn apply(&self, scene: &mut Scene) {
+        let s = &mut scene.settings;
+        if let Some(w) = self.width {
+            s.width = w;
+        }
+        if let Some(h) = self.height {
+            s.height = h;
+        }
+    }
+}
+
+/// The scene and how to trace it: options shared by `render`, `compare` and `probe`.
+#[derive(clap::Args)]
+struct SceneArgs {
+    /// Scene file (.toml) or mesh (.obj). Default: the built-in aobench scene.
+    scene: Option<PathBuf>,
     /// AO rays longer than this are unoccluded (default: the scene's, else unlimited).
     #[arg(long, allow_negative_numbers = true)]
     max_distance: Option<f32>,
@@ -90,19 +109,13 @@ struct SceneArgs {
 }
 
 impl SceneArgs {
-    /// The scene with the size, distance and seed options applied (not yet validated).
+    /// The scene with the distance and seed options applied (not yet validated).
     fn load(&self) -> Result<Scene> {
         let mut scene = match &self.scene {
             Some(path) => Scene::load(path)?,
             None => Scene::default_scene(),
         };
         let s = &mut scene.settings;
-        if let Some(w) = self.width {
-            s.width = w;
-        }
-        if let Some(h) = self.height {
-            s.height = h;
-        }
         if self.max_distance.is_some() {
             s.max_distance = self.max_distance;
         }
@@ -152,6 +165,8 @@ fn check_output_extension(path: &Path, allowed: &[&str]) -> Result<()> {
 struct RenderArgs {
     #[command(flatten)]
     scene: SceneArgs,
+    #[command(flatten)]
+    size: SizeArgs,
     /// Output image: .png (8-bit sRGB), .exr or .pfm (32-bit float, linear).
     #[arg(short, long, default_value = "out.png")]
     output: PathBuf,
@@ -176,6 +191,8 @@ struct RenderArgs {
 struct CompareArgs {
     #[command(flatten)]
     scene: SceneArgs,
+    #[command(flatten)]
+    size: SizeArgs,
     /// Output image (.png).
     #[arg(short, long, default_value = "compare.png")]
     output: PathBuf,
@@ -191,6 +208,27 @@ struct CompareArgs {
     /// Write the statistics of every cell as JSON.
     #[arg(long)]
     stats: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct ProbeArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Probe points: one `x y z nx ny nz` per line (spaces or commas; `#` comments).
+    #[arg(long)]
+    points: PathBuf,
+    /// Output CSV (x,y,z,nx,ny,nz,ao,std_error,samples); `-` for standard output.
+    #[arg(short, long, default_value = "-")]
+    output: PathBuf,
+    /// Samples per probe.
+    #[arg(long, default_value_t = 4096)]
+    samples: u32,
+    /// AO direction distribution (default: the scene's, else cosine).
+    #[arg(long, value_parser = hemisphere_parser())]
+    hemisphere: Option<Hemisphere>,
+    /// Placement of the hemisphere numbers (default: the scene's, else independent).
+    #[arg(long, value_parser = sampler_parser())]
+    sampler: Option<Sampler>,
 }
 
 fn main() {
@@ -230,11 +268,49 @@ fn run() -> Result<()> {
         }
         Command::Render(args) => render_command(args),
         Command::Compare(args) => compare_command(args),
+        Command::Probe(args) => probe_command(args),
     }
+}
+
+fn probe_command(args: ProbeArgs) -> Result<()> {
+    let mut scene = args.scene.load()?;
+    let s = &mut scene.settings;
+    if let Some(h) = args.hemisphere {
+        s.hemisphere = h;
+    }
+    if let Some(p) = args.sampler {
+        s.sampler = p;
+    }
+    s.validate().map_err(anyhow::Error::msg).context("invalid option")?;
+    if args.samples == 0 {
+        bail!("invalid option: --samples must be at least 1");
+    }
+    let to_stdout = args.output.as_os_str() == "-";
+    if !to_stdout {
+        check_output_extension(&args.output, &["csv"])?;
+    }
+    let probes = aorender::probe::read_probes(&args.points)?;
+    let out = aorender::probe::probe(&scene, &args.scene.options(None), &probes, args.samples)?;
+    let csv = aorender::probe::to_csv(&probes, &out.values);
+    if to_stdout {
+        print!("{csv}");
+    } else {
+        aorender::film::write_atomically(&args.output, csv.as_bytes())?;
+    }
+    eprintln!(
+        "{} probes × {} samples in {:.2} s ({:.1} M AO rays/s) on {}",
+        probes.len(),
+        args.samples,
+        out.seconds,
+        out.rays as f64 / out.seconds.max(1e-9) / 1e6,
+        out.adapter
+    );
+    Ok(())
 }
 
 fn render_command(args: RenderArgs) -> Result<()> {
     let mut scene = args.scene.load()?;
+    args.size.apply(&mut scene);
     let s = &mut scene.settings;
     if let Some(n) = args.spp {
         s.spp = n;
@@ -300,6 +376,7 @@ fn render_command(args: RenderArgs) -> Result<()> {
 
 fn compare_command(args: CompareArgs) -> Result<()> {
     let mut scene = args.scene.load()?;
+    args.size.apply(&mut scene);
     compare::validate(&args.spp, &args.hemisphere, &args.sampler)
         .map_err(anyhow::Error::msg)
         .context("invalid option")?;

@@ -2,7 +2,7 @@
 //! host structs match the WGSL structs' sizes.
 
 use aorender::bvh::{BvhLayout, GpuNode, GpuPrimitive};
-use aorender::gpu::{DispatchUniforms, FrameUniforms, GpuPlane};
+use aorender::gpu::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint};
 use aorender::shaders::compose_with;
 use obvhs::cwbvh::node::CwBvhNode;
 use std::collections::BTreeMap;
@@ -69,6 +69,7 @@ fn host_structs_match_wgsl_layout() {
     assert_eq!(size_of("Node") as usize, std::mem::size_of::<GpuNode>());
     assert_eq!(size_of("Primitive") as usize, std::mem::size_of::<GpuPrimitive>());
     assert_eq!(size_of("Plane") as usize, std::mem::size_of::<GpuPlane>());
+    assert_eq!(size_of("ProbePoint") as usize, std::mem::size_of::<GpuProbePoint>());
 }
 
 /// naga's size of the WGSL struct `name`.

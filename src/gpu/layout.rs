@@ -38,8 +38,8 @@ pub struct FrameUniforms {
     pub point_sampler: u32,
     /// Cells per axis of the stratified and grid samplers.
     pub strata: u32,
-    /// Padding.
-    pub _pad: u32,
+    /// Samples per point of the probe kernel.
+    pub probe_samples: u32,
 }
 const _: () = assert!(std::mem::size_of::<FrameUniforms>() == 96);
 
@@ -64,7 +64,7 @@ impl FrameUniforms {
             node_count,
             point_sampler: s.sampler.shader_id(),
             strata: s.sampler.strata_per_axis(s.spp),
-            _pad: 0,
+            probe_samples: 0,
         }
     }
 }
@@ -79,6 +79,21 @@ pub struct DispatchUniforms {
     pub _pad: [u32; 3],
 }
 const _: () = assert!(std::mem::size_of::<DispatchUniforms>() == 16);
+
+/// Mirror of WGSL `ProbePoint`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct GpuProbePoint {
+    /// Position.
+    pub position: [f32; 3],
+    /// Padding.
+    pub _pad0: f32,
+    /// Unit normal of the hemisphere.
+    pub normal: [f32; 3],
+    /// Padding.
+    pub _pad1: f32,
+}
+const _: () = assert!(std::mem::size_of::<GpuProbePoint>() == 32);
 
 /// Mirror of WGSL `Plane`.
 #[repr(C)]

@@ -2,7 +2,7 @@
 
 mod layout;
 
-pub use layout::{DispatchUniforms, FrameUniforms, GpuPlane};
+pub use layout::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint};
 
 use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
@@ -20,6 +20,8 @@ pub const LAVAPIPE_LOOP_CAP: u32 = 65_535;
 const _: () = assert!(TRAVERSAL_BUDGET + crate::sampler::SAMPLER_LOOP_BOUND <= LAVAPIPE_LOOP_CAP);
 /// Workgroup size of the AO kernel.
 pub const WORKGROUP_SIZE: [u32; 2] = [8, 8];
+/// Workgroup size of the probe kernel (one dimension: point × lane slots).
+pub const PROBE_WORKGROUP_SIZE: u32 = 64;
 /// Counter of AO rays traced in a pass.
 pub const COUNTER_AO_RAYS: u32 = 0;
 /// Counter of samples voided by the traversal budget in a pass.
@@ -169,7 +171,16 @@ pub struct PassCounters {
     pub ao_rays: u64,
 }
 
-/// The AO pipeline bound to one scene and image size.
+/// What the AO pipeline computes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kernel {
+    /// An image: one film slot per pixel, one sample per pixel per dispatch.
+    Image,
+    /// Probe points: `width` lanes for each of `height` points, one sample per lane per dispatch.
+    Probe,
+}
+
+/// The AO pipeline bound to one scene and image size (or one set of probe points).
 pub struct GpuRenderer<'a> {
     ctx: &'a GpuContext,
     pipeline: wgpu::ComputePipeline,
@@ -181,6 +192,7 @@ pub struct GpuRenderer<'a> {
     counters_readback: wgpu::Buffer,
     width: u32,
     height: u32,
+    kernel: Kernel,
     /// Bytes of device memory the renderer allocated.
     pub device_bytes: u64,
     /// The BVH layout the kernel traverses.
@@ -201,8 +213,48 @@ fn storage(ctx: &GpuContext, label: &'static str, bytes: &[u8], element: usize) 
 }
 
 impl<'a> GpuRenderer<'a> {
-    /// Uploads the scene and builds the pipeline.
+    /// Uploads the scene and builds the image pipeline.
     pub fn new(ctx: &'a GpuContext, scene: &Scene, bvh: &GpuBvh) -> Result<GpuRenderer<'a>> {
+        let s = &scene.settings;
+        let frame = FrameUniforms::new(scene, bvh.node_count);
+        GpuRenderer::build(ctx, scene, bvh, Kernel::Image, frame, &[], [s.width, s.height])
+    }
+
+    /// Uploads the scene and `points`, and builds the probe pipeline: `lanes` film slots
+    /// per point share the point's `samples` sample indices (see [`GpuRenderer::render_pass`]).
+    pub fn for_probes(
+        ctx: &'a GpuContext,
+        scene: &Scene,
+        bvh: &GpuBvh,
+        points: &[GpuProbePoint],
+        lanes: u32,
+        samples: u32,
+    ) -> Result<GpuRenderer<'a>> {
+        let slots = lanes as u64 * points.len() as u64;
+        let max_slots = ctx.device.limits().max_compute_workgroups_per_dimension as u64 * PROBE_WORKGROUP_SIZE as u64;
+        if slots > max_slots {
+            return Err(Error::Gpu(format!(
+                "{} probe points × {lanes} lanes need {slots} invocations per dispatch; the adapter allows {max_slots}",
+                points.len()
+            )));
+        }
+        let mut frame = FrameUniforms::new(scene, bvh.node_count);
+        frame.width = lanes;
+        frame.height = points.len() as u32;
+        frame.probe_samples = samples;
+        frame.strata = scene.settings.sampler.strata_per_axis(samples);
+        GpuRenderer::build(ctx, scene, bvh, Kernel::Probe, frame, points, [lanes, points.len() as u32])
+    }
+
+    fn build(
+        ctx: &'a GpuContext,
+        scene: &Scene,
+        bvh: &GpuBvh,
+        kernel: Kernel,
+        frame: FrameUniforms,
+        points: &[GpuProbePoint],
+        [width, height]: [u32; 2],
+    ) -> Result<GpuRenderer<'a>> {
         if bvh.depth > bvh.layout.stack_size() {
             return Err(Error::Gpu(format!(
                 "the {} BVH is {} levels deep; the shader's traversal stack holds {}",
@@ -211,10 +263,7 @@ impl<'a> GpuRenderer<'a> {
                 bvh.layout.stack_size()
             )));
         }
-        let s = &scene.settings;
-        let (width, height) = (s.width, s.height);
         let device = &ctx.device;
-        let frame = FrameUniforms::new(scene, bvh.node_count);
         let frame = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("frame"),
             contents: bytemuck::bytes_of(&frame),
@@ -235,6 +284,8 @@ impl<'a> GpuRenderer<'a> {
             storage(ctx, "primitives", bytemuck::cast_slice(&bvh.primitives), std::mem::size_of::<GpuPrimitive>())?;
         let planes: Vec<GpuPlane> = scene.planes.iter().map(GpuPlane::from).collect();
         let planes = storage(ctx, "planes", bytemuck::cast_slice(&planes), std::mem::size_of::<GpuPlane>())?;
+        let probe_points =
+            storage(ctx, "probe points", bytemuck::cast_slice(points), std::mem::size_of::<GpuProbePoint>())?;
         let film_bytes = width as u64 * height as u64 * 16;
         ctx.check_size("film", film_bytes)?;
         let film = device.create_buffer(&wgpu::BufferDescriptor {
@@ -281,6 +332,7 @@ impl<'a> GpuRenderer<'a> {
                 entry(4, read_only, false),
                 entry(5, read_write, false),
                 entry(6, read_write, false),
+                entry(7, read_only, false),
             ],
         });
         let dispatch_binding = wgpu::BufferBinding {
@@ -299,6 +351,7 @@ impl<'a> GpuRenderer<'a> {
                 wgpu::BindGroupEntry { binding: 4, resource: planes.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 5, resource: film.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 6, resource: counters.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 7, resource: probe_points.as_entire_binding() },
             ],
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -314,7 +367,10 @@ impl<'a> GpuRenderer<'a> {
             label: Some("ao"),
             layout: Some(&pipeline_layout),
             module: &module,
-            entry_point: Some("render_sample"),
+            entry_point: Some(match kernel {
+                Kernel::Image => "render_sample",
+                Kernel::Probe => "probe_sample",
+            }),
             compilation_options: Default::default(),
             cache: None,
         });
@@ -337,11 +393,21 @@ impl<'a> GpuRenderer<'a> {
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
         ctx.take_error()?;
-        let device_bytes =
-            [&frame, &dispatch, &nodes, &primitives, &planes, &film, &film_readback, &counters, &counters_readback]
-                .iter()
-                .map(|b| b.size())
-                .sum();
+        let device_bytes = [
+            &frame,
+            &dispatch,
+            &nodes,
+            &primitives,
+            &planes,
+            &probe_points,
+            &film,
+            &film_readback,
+            &counters,
+            &counters_readback,
+        ]
+        .iter()
+        .map(|b| b.size())
+        .sum();
         Ok(GpuRenderer {
             ctx,
             pipeline,
@@ -353,13 +419,15 @@ impl<'a> GpuRenderer<'a> {
             counters_readback,
             width,
             height,
+            kernel,
             device_bytes,
             layout: bvh.layout,
         })
     }
 
     /// Adds samples `first .. first + count` of every pixel to the film (one dispatch per
-    /// sample) and waits for them.
+    /// sample) and waits for them. For probes, `first .. first + count` are rounds: round
+    /// r gives lane l of every point the sample index r × lanes + l.
     pub fn render_pass(&mut self, first: u32, count: u32) -> Result<PassCounters> {
         assert!((1..=MAX_PASS_SAMPLES).contains(&count), "pass of {count} samples");
         let mut uniforms = vec![0u8; (DISPATCH_STRIDE * count as u64) as usize];
@@ -376,8 +444,10 @@ impl<'a> GpuRenderer<'a> {
             let mut pass =
                 encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("ao"), timestamp_writes: None });
             pass.set_pipeline(&self.pipeline);
-            let groups_x = self.width.div_ceil(WORKGROUP_SIZE[0]);
-            let groups_y = self.height.div_ceil(WORKGROUP_SIZE[1]);
+            let (groups_x, groups_y) = match self.kernel {
+                Kernel::Image => (self.width.div_ceil(WORKGROUP_SIZE[0]), self.height.div_ceil(WORKGROUP_SIZE[1])),
+                Kernel::Probe => ((self.width * self.height).div_ceil(PROBE_WORKGROUP_SIZE), 1),
+            };
             for k in 0..count {
                 pass.set_bind_group(0, &self.bind_group, &[(DISPATCH_STRIDE * k as u64) as u32]);
                 pass.dispatch_workgroups(groups_x, groups_y, 1);

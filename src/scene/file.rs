@@ -1,6 +1,6 @@
 //! The TOML scene format (documented in the README). Unknown fields are errors.
 
-use super::{Plane, Scene, Settings, Sphere, Triangle, load_mesh};
+use super::{Plane, Scene, Settings, Sphere, Triangle, load_mesh, non_finite_coordinate};
 use crate::camera::{Camera, Projection};
 use crate::error::{Error, Result};
 use crate::sampler::Sampler;
@@ -129,8 +129,28 @@ struct Transform {
     matrix: Option<[[f32; 4]; 4]>,
 }
 
+/// "has a non-finite entry (NaN)" for the first NaN or infinity in `values`.
+fn non_finite_entry(values: &[f32]) -> Option<String> {
+    values.iter().find(|v| !v.is_finite()).map(|v| format!("has a non-finite entry ({v})"))
+}
+
 impl Transform {
     fn matrix(&self) -> Result<Mat4, String> {
+        let scale: Option<Vec<f32>> = self.scale.as_ref().map(|s| match s {
+            Scale::Uniform(s) => vec![*s],
+            Scale::Axes(a) => a.to_vec(),
+        });
+        let fields = [
+            ("scale", scale),
+            ("rotate", self.rotate.map(|r| r.to_vec())),
+            ("translate", self.translate.map(|t| t.to_vec())),
+            ("matrix", self.matrix.map(|m| m.concat())),
+        ];
+        for (name, values) in fields {
+            if let Some(e) = values.and_then(|v| non_finite_entry(&v)) {
+                return Err(format!("transform: {name} {e}"));
+            }
+        }
         let m = if let Some(rows) = self.matrix {
             if self.scale.is_some() || self.rotate.is_some() || self.translate.is_some() {
                 return Err("transform: give either matrix or scale/rotate/translate, not both".into());
@@ -210,6 +230,11 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
             }
         }
     };
+    for (name, p) in [("eye", c.eye), ("look_at", c.look_at), ("up", c.up)] {
+        if let Some(coordinate) = non_finite_coordinate(p.into()) {
+            return Err(err(format!("camera: {name} has a non-finite coordinate ({coordinate})")));
+        }
+    }
     let camera = Camera { eye: c.eye.into(), look_at: c.look_at.into(), up: c.up.into(), projection };
     camera.validate().map_err(err)?;
 
@@ -217,54 +242,69 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
     let mut spheres = Vec::new();
     let mut planes = Vec::new();
     for (i, object) in file.objects.iter().enumerate() {
-        let name = |kind: &str| format!("object {} ({kind})", i + 1);
-        let (albedo, transform) = match object {
-            Object::Mesh(m) => (m.albedo, &m.transform),
-            Object::Sphere(s) => (s.albedo, &s.transform),
-            Object::Plane(p) => (p.albedo, &p.transform),
+        // Names the object in errors: `object 3 (mesh "bunny.obj")`, `object 1 (sphere)`.
+        let (kind, albedo, transform) = match object {
+            Object::Mesh(m) => (format!("mesh {:?}", m.file), m.albedo, &m.transform),
+            Object::Sphere(s) => ("sphere".to_string(), s.albedo, &s.transform),
+            Object::Plane(p) => ("plane".to_string(), p.albedo, &p.transform),
         };
+        let object_name = format!("object {} ({kind})", i + 1);
+        let fail = |message: String| err(format!("{object_name}: {message}"));
         if !(albedo.is_finite() && albedo >= 0.0) {
-            return Err(err(format!("object {}: albedo must be finite and non-negative, got {albedo}", i + 1)));
+            return Err(fail(format!("albedo must be finite and non-negative, got {albedo}")));
         }
         let m = match transform {
-            Some(t) => t.matrix().map_err(|e| err(format!("object {}: {e}", i + 1)))?,
+            Some(t) => t.matrix().map_err(fail)?,
             None => Mat4::IDENTITY,
         };
         match object {
             Object::Mesh(mesh) => {
-                triangles.extend(load_mesh(&base_dir.join(&mesh.file), albedo, &m)?);
+                // Errors in the mesh file name the scene file, the object and the mesh.
+                let loaded = load_mesh(&base_dir.join(&mesh.file), albedo, &m).map_err(|e| match e {
+                    Error::Scene { message, .. } => fail(message),
+                    e => e,
+                })?;
+                triangles.extend(loaded);
             }
             Object::Sphere(s) => {
                 let (center, radius) = (Vec3::from(s.center), s.radius);
-                if !(center.is_finite() && radius.is_finite() && radius > 0.0) {
-                    return Err(err(format!("{}: needs a finite centre and a positive radius", name("sphere"))));
+                if let Some(c) = non_finite_coordinate(center) {
+                    return Err(fail(format!("centre has a non-finite coordinate ({c})")));
+                }
+                if !(radius.is_finite() && radius > 0.0) {
+                    return Err(fail(format!("radius must be finite and positive, got {radius}")));
                 }
                 // Spheres stay exact: only similarity transforms keep them spheres.
                 let (scale, _, _) = m.to_scale_rotation_translation();
                 let max_rel = (scale.abs().max_element() - scale.abs().min_element()) / scale.abs().max_element();
                 if max_rel > 1e-5 || m.row(3) != glam::Vec4::W {
-                    return Err(err(format!(
-                        "{}: transform must be a similarity (uniform scale, rotation, translation) to keep a sphere exact",
-                        name("sphere")
-                    )));
+                    return Err(fail(
+                        "transform must be a similarity (uniform scale, rotation, translation) to keep a sphere exact"
+                            .into(),
+                    ));
                 }
                 let center = m.transform_point3(center);
                 let radius = radius * scale.abs().x;
                 if !center.is_finite() || !radius.is_finite() {
-                    return Err(err(format!("{}: transformed sphere is not finite", name("sphere"))));
+                    return Err(fail("the transformed sphere is not finite".into()));
                 }
                 spheres.push(Sphere { center, radius, albedo });
             }
             Object::Plane(p) => {
                 let (point, normal) = (Vec3::from(p.point), Vec3::from(p.normal));
-                if !point.is_finite() || !normal.is_finite() || normal.length_squared() == 0.0 {
-                    return Err(err(format!("{}: needs a finite point and a non-zero normal", name("plane"))));
+                for (what, v) in [("point", point), ("normal", normal)] {
+                    if let Some(c) = non_finite_coordinate(v) {
+                        return Err(fail(format!("{what} has a non-finite coordinate ({c})")));
+                    }
+                }
+                if normal.length_squared() == 0.0 {
+                    return Err(fail("normal must be non-zero".into()));
                 }
                 let point = m.transform_point3(point);
                 // Normals transform by the inverse transpose.
                 let normal = m.inverse().transpose().transform_vector3(normal).normalize();
                 if !point.is_finite() || !normal.is_finite() {
-                    return Err(err(format!("{}: transformed plane is not finite", name("plane"))));
+                    return Err(fail("the transformed plane is not finite".into()));
                 }
                 planes.push(Plane { normal, d: normal.dot(point), albedo });
             }

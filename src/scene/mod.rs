@@ -210,25 +210,66 @@ impl Scene {
     }
 }
 
-/// Loads a triangle mesh (`.obj`), applying `transform`; rejects empty meshes and
-/// non-finite coordinates.
+/// Smallest squared length of `(v1 - v0) × (v2 - v0)` of a triangle that is kept: below
+/// it the geometric normal is zero or too small to normalize in f32 (on the GPU, where
+/// denormals may flush to zero, too), so the triangle is dropped. Such a triangle has no
+/// area to hit (twice its area is below 2^-60 ≈ 8.7e-19 world units²).
+pub const MIN_NORMAL_LENGTH_SQUARED: f32 = f32::from_bits((127 - 120) << 23); // 2^-120
+/// Largest squared normal length accepted: above it normalizing could overflow.
+pub const MAX_NORMAL_LENGTH_SQUARED: f32 = f32::from_bits((127 + 120) << 23); // 2^120
+
+/// "x = NaN", naming the first non-finite coordinate of `p`; `None` when it is finite.
+pub(crate) fn non_finite_coordinate(p: Vec3) -> Option<String> {
+    let axes = ["x", "y", "z"];
+    p.to_array().iter().zip(axes).find(|(c, _)| !c.is_finite()).map(|(c, axis)| format!("{axis} = {c}"))
+}
+
+/// Loads a triangle mesh (`.obj`), applying `transform`. Rejects empty meshes, vertices
+/// with a NaN or infinite coordinate (in the file, or after the transform) and triangles
+/// too large to normalize; drops degenerate triangles (zero area, a repeated vertex),
+/// which no ray can hit and whose normal is undefined. Errors name the vertex or triangle.
 pub fn load_mesh(path: &Path, albedo: f32, transform: &glam::Mat4) -> Result<Vec<Triangle>> {
-    let triangles = match extension(path).as_str() {
+    let mesh = match extension(path).as_str() {
         "obj" => obj::load_obj(path)?,
         ext => {
             return Err(Error::scene(path, format!("unsupported mesh format '.{ext}': expected .obj")));
         }
     };
-    if triangles.is_empty() {
+    if mesh.triangles.is_empty() {
         return Err(Error::scene(path, "mesh has no triangles"));
     }
-    let mut out = Vec::with_capacity(triangles.len());
-    for (i, v) in triangles.into_iter().enumerate() {
-        let v = v.map(|p| transform.transform_point3(p));
-        if !v.iter().all(|p| p.is_finite()) {
-            return Err(Error::scene(path, format!("triangle {i} has a NaN or infinite coordinate")));
+    // Each distinct vertex goes through the transform once here and identically in every
+    // triangle below, so shared vertices stay bit-identical.
+    for (k, v) in mesh.vertices.iter().enumerate() {
+        let p = transform.transform_point3(v.position);
+        if let Some(c) = non_finite_coordinate(p) {
+            return Err(Error::scene(
+                path,
+                format!("vertex {} (line {}) has a non-finite coordinate after the transform ({c})", k + 1, v.line),
+            ));
         }
-        out.push(Triangle { v, albedo });
+    }
+    let mut out = Vec::with_capacity(mesh.triangles.len());
+    for (i, v) in mesh.triangles.into_iter().enumerate() {
+        let v = v.map(|p| transform.transform_point3(p));
+        if let Some(c) = v.iter().find_map(|&p| non_finite_coordinate(p)) {
+            return Err(Error::scene(path, format!("triangle {} has a non-finite coordinate ({c})", i + 1)));
+        }
+        // The normal as the renderers compute it (src/cpu.rs, shaders/ao.wgsl).
+        let n = (v[1] - v[0]).cross(v[2] - v[0]);
+        let l2 = n.dot(n);
+        if l2.is_nan() || l2 > MAX_NORMAL_LENGTH_SQUARED {
+            return Err(Error::scene(
+                path,
+                format!("triangle {} is too large for f32: its normal has squared length {l2}", i + 1),
+            ));
+        }
+        if l2 >= MIN_NORMAL_LENGTH_SQUARED {
+            out.push(Triangle { v, albedo });
+        }
+    }
+    if out.is_empty() {
+        return Err(Error::scene(path, "mesh has no triangles of non-zero area"));
     }
     Ok(out)
 }
@@ -239,4 +280,15 @@ fn extension(path: &Path) -> String {
 
 fn stem(path: &Path) -> String {
     path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn normal_length_bounds_are_powers_of_two() {
+        assert_eq!(MIN_NORMAL_LENGTH_SQUARED as f64, 2f64.powi(-120));
+        assert_eq!(MAX_NORMAL_LENGTH_SQUARED as f64, 2f64.powi(120));
+    }
 }

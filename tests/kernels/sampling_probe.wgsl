@@ -19,12 +19,12 @@ struct Params {
 // Two entries per invocation: outputs[2i] and outputs[2i + 1].
 @group(0) @binding(2) var<storage, read_write> outputs: array<vec4f>;
 
-const PROBE_WORKGROUP_SIZE: u32 = 64u;
+const SAMPLING_PROBE_GROUP: u32 = 64u;
 
 // Linear invocation index over a 2-D grid of workgroups (the host splits large
 // dispatches so no dimension passes the workgroup-count limit).
 fn probe_index(gid: vec3u, groups: vec3u) -> u32 {
-    return gid.x + gid.y * groups.x * PROBE_WORKGROUP_SIZE;
+    return gid.x + gid.y * groups.x * SAMPLING_PROBE_GROUP;
 }
 
 // Input (bits of u1, bits of u2, -, -); output (direction, pdf), (inverse of the direction, 0, 0).

@@ -1,0 +1,156 @@
+//! `aorender probe`: AO at exact points against closed forms (albedo 1, cosine-weighted
+//! visibility), on the CPU reference and the adapter, for every hemisphere and unbiased
+//! sampler; the same numbers on both; and the command's input checks.
+
+mod common;
+use aorender::probe::{Probe, probe};
+use aorender::{Device, Hemisphere, RenderOptions, Sampler, Scene};
+use common::*;
+use glam::Vec3;
+
+const SAMPLES: u32 = 1 << 14;
+
+fn devices() -> Vec<RenderOptions> {
+    let mut all = vec![RenderOptions { device: Device::Cpu, ..Default::default() }];
+    if gpu_available() {
+        all.push(RenderOptions { device: Device::Gpu, ..Default::default() });
+    }
+    all
+}
+
+/// A scene of `objects` (TOML `[[object]]` tables); the camera is unused by probes.
+fn scene(objects: &str, max_distance: Option<f32>) -> Scene {
+    let dir = temp_dir();
+    let mut scene = scene_from_toml(
+        &format!(
+            "[camera]\ntype = \"orthographic\"\neye = [0.0, 5.0, 5.0]\nlook_at = [0.0, 0.0, 0.0]\nheight = 1.0\n{objects}"
+        ),
+        dir.path(),
+    );
+    scene.settings.max_distance = max_distance;
+    scene
+}
+
+fn plane(point: [f64; 3], normal: [f64; 3]) -> String {
+    format!("[[object]]\ntype = \"plane\"\npoint = {point:?}\nnormal = {normal:?}\n")
+}
+
+fn sphere(center: [f64; 3], radius: f64) -> String {
+    format!("[[object]]\ntype = \"sphere\"\ncenter = {center:?}\nradius = {radius}\n")
+}
+
+/// Probes `probes` of `scene` with every hemisphere, unbiased sampler and device, and
+/// checks each value against `expected` within 4 standard errors. A zero standard error
+/// demands the exact value.
+fn check(what: &str, scene: &mut Scene, probes: &[Probe], expected: &[f64]) {
+    for options in devices() {
+        for hemisphere in Hemisphere::ALL {
+            for sampler in Sampler::ALL.into_iter().filter(|s| s.is_unbiased()) {
+                scene.settings.hemisphere = hemisphere;
+                scene.settings.sampler = sampler;
+                let out = probe(scene, &options, probes, SAMPLES).expect("probe runs");
+                for (k, (v, &e)) in out.values.iter().zip(expected).enumerate() {
+                    let tag = format!("{what} probe {k}, {} {} {}", label(&options), hemisphere.name(), sampler.name());
+                    assert_eq!(v.samples, SAMPLES as u64, "{tag}");
+                    assert!(
+                        (v.mean - e).abs() <= 4.0 * v.std_error,
+                        "{tag}: {} is not {e} ± 4·{:.2e}",
+                        v.mean,
+                        v.std_error
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn unoccluded_plane_is_one() {
+    let mut s = scene(&plane([0.0; 3], [0.0, 1.0, 0.0]), None);
+    let probes = [Probe::new(Vec3::ZERO, Vec3::Y).unwrap(), Probe::new(Vec3::new(3.0, 0.0, -7.0), Vec3::Y).unwrap()];
+    check("open plane", &mut s, &probes, &[1.0, 1.0]);
+}
+
+#[test]
+fn plane_under_a_sphere_is_one_minus_cos_beta_r2_over_d2() {
+    // Spheres wholly above the floor at distance d, angle β from the normal.
+    for (r, d, beta_deg, scale) in [(0.5f64, 1.0f64, 30.0f64, 1.0f64), (0.3, 2.0, 60.0, 1.0), (0.5, 1.0, 0.0, 1e6)] {
+        let beta = beta_deg.to_radians();
+        let center = [d * beta.sin() * scale, d * beta.cos() * scale, 0.0];
+        let mut s = scene(&(plane([0.0; 3], [0.0, 1.0, 0.0]) + &sphere(center, r * scale)), None);
+        let expected = 1.0 - beta.cos() * (r / d).powi(2);
+        check(
+            &format!("sphere r {r} d {d} β {beta_deg}° ×{scale}"),
+            &mut s,
+            &[Probe::new(Vec3::ZERO, Vec3::Y).unwrap()],
+            &[expected],
+        );
+    }
+}
+
+#[test]
+fn floor_in_front_of_a_wall_is_one_half_at_any_distance() {
+    for a in [1e-2f64, 1.0, 1e3] {
+        let mut s = scene(&(plane([0.0; 3], [0.0, 1.0, 0.0]) + &plane([a, 0.0, 0.0], [-1.0, 0.0, 0.0])), None);
+        check(&format!("wall at {a}"), &mut s, &[Probe::new(Vec3::ZERO, Vec3::Y).unwrap()], &[0.5]);
+    }
+}
+
+#[test]
+fn point_under_a_ceiling_is_h_over_r_squared() {
+    for (h, r) in [(1.0f64, 2.0f64), (0.5, 4.0), (3.0, 3.0)] {
+        let mut s = scene(&plane([0.0, h, 0.0], [0.0, -1.0, 0.0]), Some(r as f32));
+        check(&format!("ceiling h {h} R {r}"), &mut s, &[Probe::new(Vec3::ZERO, Vec3::Y).unwrap()], &[(h / r).powi(2)]);
+    }
+}
+
+#[test]
+fn gpu_and_cpu_take_the_same_samples() {
+    if !gpu_available() {
+        return;
+    }
+    let mut s = scene(&(plane([0.0; 3], [0.0, 1.0, 0.0]) + &sphere([0.3, 0.8, 0.1], 0.4)), None);
+    let probes: Vec<Probe> =
+        (0..50).map(|i| Probe::new(Vec3::new(i as f32 * 0.05 - 1.0, 0.0, 0.2), Vec3::Y).unwrap()).collect();
+    for sampler in Sampler::ALL {
+        s.settings.sampler = sampler;
+        let cpu = probe(&s, &RenderOptions { device: Device::Cpu, ..Default::default() }, &probes, 1000).unwrap();
+        let gpu = probe(&s, &RenderOptions { device: Device::Gpu, ..Default::default() }, &probes, 1000).unwrap();
+        for (k, (c, g)) in cpu.values.iter().zip(&gpu.values).enumerate() {
+            assert!((c.mean - g.mean).abs() < 1e-6, "{} probe {k}: cpu {} gpu {}", sampler.name(), c.mean, g.mean);
+        }
+    }
+}
+
+#[test]
+fn command_writes_csv_and_rejects_bad_points() {
+    let dir = temp_dir();
+    let d = dir.path();
+    std::fs::write(d.join("points.txt"), "# x y z nx ny nz\n0 0 0 0 1 0\n5 0 0 0 2 0\n").unwrap();
+    let out = aorender(&["probe", "--points", "points.txt", "-o", "ao.csv", "--samples", "64", "--device", "cpu"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let csv = std::fs::read_to_string(d.join("ao.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines[0], "x,y,z,nx,ny,nz,ao,std_error,samples");
+    assert_eq!(lines.len(), 3);
+    assert!(lines[2].starts_with("5,0,0,0,1,0,"), "normal normalised: {}", lines[2]);
+    assert!(lines[2].ends_with(",64"));
+
+    for (points, message) in [
+        ("0 0 0 0 1\n", "points.txt: line 1: expected 6 numbers"),
+        ("0 0 0 0 0 0\n", "points.txt: line 1: zero normal"),
+        ("0 0 nan 0 1 0\n", "points.txt: line 1: non-finite"),
+        ("", "points.txt: no probes"),
+    ] {
+        std::fs::write(d.join("points.txt"), points).unwrap();
+        let out = aorender(&["probe", "--points", "points.txt", "-o", "bad.csv", "--device", "cpu"], d);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{points:?}: {err}");
+        assert!(err.contains(message) && err.lines().count() == 1, "{points:?}: {err}");
+        assert!(!d.join("bad.csv").exists(), "{points:?}: output written");
+    }
+    let out = aorender(&["probe", "--points", "missing.txt", "--device", "cpu"], d);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("missing.txt: cannot read"));
+    let out = aorender(&["probe", "--points", "points.txt", "--samples", "0", "--device", "cpu"], d);
+    assert!(!out.status.success());
+}
