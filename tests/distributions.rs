@@ -11,14 +11,13 @@
 //!   invocation) give the same directions, pdfs, inverses and sampler numbers as Rust.
 
 mod common;
+use common::kernel::{self, TestKernel};
 
-use aorender::gpu::GpuContext;
 use aorender::sampler::{PointSampler, Sampler, sample_point_uniforms};
 use aorender::sampling::{Hemisphere, pcg4d, u32_to_unit_float};
 use glam::{UVec4, Vec2, Vec3};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use std::f64::consts::PI;
-use wgpu::util::DeviceExt;
 
 /// The probe kernel's file name and text.
 const PROBE_NAME: &str = "sampling_probe.wgsl";
@@ -277,147 +276,22 @@ fn assert_passes(r: &Chi2) {
 // ---------------------------------------------------------------------------------------
 // The probe kernel on the adapter.
 
-/// The probe kernel composed with the library's shaders.
-fn probe_source() -> String {
-    let lookup = |n: &str| {
-        if n == PROBE_NAME {
-            Some(PROBE)
-        } else {
-            aorender::shaders::FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t)
-        }
-    };
-    aorender::shaders::compose_with(PROBE_NAME, &lookup).expect("the probe's imports resolve")
-}
-
-/// The probe kernel's three pipelines on one device.
-struct Probe {
-    ctx: GpuContext,
-    layout: wgpu::BindGroupLayout,
-    pipelines: Vec<(&'static str, wgpu::ComputePipeline)>,
-}
+/// The probe kernel's entry points on the adapter.
+struct Probe(TestKernel);
 
 /// One invocation's two output vectors.
 type ProbeOut = [[f32; 4]; 2];
 
 impl Probe {
     fn new() -> Probe {
-        let ctx = GpuContext::new(None).expect("adapter opens");
-        eprintln!("probe adapter: {} ({}, {})", ctx.description.name, ctx.description.backend, ctx.description.driver);
-        let device = &ctx.device;
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(PROBE_NAME),
-            source: wgpu::ShaderSource::Wgsl(probe_source().into()),
-        });
-        let entry = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("probe"),
-            entries: &[
-                entry(0, wgpu::BufferBindingType::Uniform),
-                entry(1, wgpu::BufferBindingType::Storage { read_only: true }),
-                entry(2, wgpu::BufferBindingType::Storage { read_only: false }),
-            ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("probe"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipelines = ["warp", "pdf_at", "points"]
-            .into_iter()
-            .map(|name| {
-                let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(name),
-                    layout: Some(&pipeline_layout),
-                    module: &module,
-                    entry_point: Some(name),
-                    compilation_options: Default::default(),
-                    cache: None,
-                });
-                (name, pipeline)
-            })
-            .collect();
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            panic!("the probe kernel does not build: {e}");
-        }
-        Probe { ctx, layout, pipelines }
+        Probe(TestKernel::new(PROBE_NAME, PROBE, &["warp", "pdf_at", "points"], 1))
     }
 
     /// Runs entry point `entry` once per input with the uniforms (`id`, `seed`,
     /// `strata`) and reads back each invocation's two output vectors.
     fn run(&self, entry: &str, id: u32, seed: u32, strata: u32, inputs: &[[u32; 4]]) -> Vec<ProbeOut> {
-        const WORKGROUP: u32 = 64;
-        assert!(!inputs.is_empty());
-        let device = &self.ctx.device;
-        let pipeline = &self.pipelines.iter().find(|(n, _)| *n == entry).expect("known entry point").1;
         let count = u32::try_from(inputs.len()).expect("fewer than 2^32 inputs");
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("probe params"),
-            contents: bytemuck::cast_slice(&[id, seed, strata, count]),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        let input = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("probe inputs"),
-            contents: bytemuck::cast_slice(inputs),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
-        let bytes = inputs.len() as u64 * std::mem::size_of::<ProbeOut>() as u64;
-        let output = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("probe outputs"),
-            size: bytes,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let readback = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("probe readback"),
-            size: bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("probe"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: params.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: input.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: output.as_entire_binding() },
-            ],
-        });
-        // A 2-D grid of workgroups keeps each dimension under the per-dimension limit.
-        let groups = count.div_ceil(WORKGROUP);
-        let groups_x = groups.min(device.limits().max_compute_workgroups_per_dimension);
-        let groups_y = groups.div_ceil(groups_x);
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("probe") });
-        {
-            let mut pass = encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("probe"), timestamp_writes: None });
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, &bind_group, &[]);
-            pass.dispatch_workgroups(groups_x, groups_y, 1);
-        }
-        encoder.copy_buffer_to_buffer(&output, 0, &readback, 0, None);
-        self.ctx.queue.submit([encoder.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        readback.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        device.poll(wgpu::PollType::wait_indefinitely()).expect("waiting for the GPU");
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            panic!("probe entry point '{entry}' failed on the adapter: {e}");
-        }
-        rx.recv().expect("map callback").expect("readback maps");
-        let data = {
-            let view = readback.get_mapped_range(..).expect("mapped range");
-            bytemuck::cast_slice::<u8, ProbeOut>(&view).to_vec()
-        };
-        readback.unmap();
-        data
+        self.0.run(entry, [id, seed, strata, count], &[bytemuck::cast_slice(inputs)], count, 1)
     }
 
     /// The WGSL warp of `h` at each point: (direction, pdf, inverse of the direction).
@@ -447,12 +321,7 @@ fn chi2_salt(h: Hemisphere) -> u32 {
 
 #[test]
 fn probe_kernel_validates() {
-    let source = probe_source();
-    let module =
-        naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("probe: {}", e.emit_to_string(&source)));
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("probe: {}", e.emit_to_string(&source)));
+    let module = kernel::validate(PROBE_NAME, &kernel::compose(PROBE_NAME, PROBE));
     for name in ["warp", "pdf_at", "points"] {
         assert!(module.entry_points.iter().any(|e| e.name == name), "entry point {name} missing");
     }

@@ -12,16 +12,15 @@
 //!   one line naming the file and the object.
 
 mod common;
+use common::kernel::{self, TestKernel};
 
 use aorender::geometry::intersect_triangle;
-use aorender::gpu::GpuContext;
 use aorender::sampling::{pcg4d, u32_to_unit_float};
 use aorender::{Device, Film, Hemisphere, RenderOptions, Scene};
 use common::*;
 use glam::{DVec3, UVec4, Vec3};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
-use wgpu::util::DeviceExt;
 
 /// The probe kernel's file name and text.
 const PROBE_NAME: &str = "intersect_probe.wgsl";
@@ -186,142 +185,144 @@ fn aimed_rays(mesh: &Mesh, interior: &[DVec3], scale: f32, offset: f32) -> Vec<R
 const PLACEMENTS: [(f32, f32); 6] = [(1e-4, 0.0), (1e-4, 1.0), (1.0, 0.0), (1.0, 1e6), (1e6, 0.0), (1e6, 1e6)];
 
 // ---------------------------------------------------------------------------------------
+// Watertightness of the Rust intersector.
+
+/// The intersector the renderer had before: Möller–Trumbore on the record
+/// `(v0, v1 - v0, v2 - v0)`, whose edge vectors each triangle rounds on its own.
+fn moller_trumbore_on_edges(o: Vec3, d: Vec3, v0: Vec3, v1: Vec3, v2: Vec3) -> f32 {
+    let (e1, e2) = (v1 - v0, v2 - v0);
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    if det == 0.0 {
+        return f32::INFINITY;
+    }
+    let inv_det = 1.0 / det;
+    let s = o - v0;
+    let u = s.dot(p) * inv_det;
+    let q = s.cross(e1);
+    let v = d.dot(q) * inv_det;
+    let t = e2.dot(q) * inv_det;
+    if u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > 0.0 { t } else { f32::INFINITY }
+}
+
+/// Every aimed ray hits some triangle (brute force). The same rays through the old
+/// intersector must leak somewhere, so the rays are shown to probe the cracks it had.
+fn assert_watertight(name: &str, mesh: &Mesh, interior: &[DVec3]) {
+    let mut old_leaks = 0;
+    for (scale, offset) in PLACEMENTS {
+        let tris = mesh.triangles_at(scale, offset);
+        let rays = aimed_rays(mesh, interior, scale, offset);
+        let leaks = |f: &dyn Fn(&Ray, &[Vec3; 3]) -> f32| -> Vec<String> {
+            rays.iter()
+                .filter(|r| !tris.iter().any(|t| f(r, t).is_finite()))
+                .map(|r| format!("scale {scale}, offset {offset}: o {:?} d {:?}", r.o, r.d))
+                .collect()
+        };
+        let new = leaks(&|r, t| intersect_triangle(r.o, r.d, 0.0, f32::INFINITY, t[0], t[1], t[2]));
+        let old = leaks(&|r, t| moller_trumbore_on_edges(r.o, r.d, t[0], t[1], t[2]));
+        eprintln!(
+            "{name} scale {scale} offset {offset}: {} rays, {} leaked (Möller–Trumbore on edges: {} leaked{})",
+            rays.len(),
+            new.len(),
+            old.len(),
+            old.first().map(|c| format!(", e.g. {c}")).unwrap_or_default()
+        );
+        assert!(new.is_empty(), "{name}: {} rays leaked, e.g. {}", new.len(), new[0]);
+        old_leaks += old.len();
+    }
+    assert!(old_leaks > 0, "{name}: the old Möller–Trumbore test leaks nowhere: the rays test nothing");
+}
+
+#[test]
+fn no_ray_leaks_through_the_shared_vertices_and_edges_of_an_icosphere() {
+    let mesh = icosphere(2);
+    assert_eq!((mesh.vertices.len(), mesh.triangles.len(), mesh.edges().len()), (162, 320, 480));
+    assert_watertight("icosphere", &mesh, &interior_points(6, 0.8, true, 11));
+}
+
+#[test]
+fn no_ray_leaks_through_the_shared_vertices_and_edges_of_a_box() {
+    let mesh = cube();
+    assert_eq!((mesh.triangles.len(), mesh.edges().len()), (12, 18));
+    assert_watertight("box", &mesh, &interior_points(64, 0.9, false, 12));
+}
+
+#[test]
+fn random_rays_from_inside_always_hit() {
+    for (name, mesh, interior) in [
+        ("icosphere", icosphere(2), interior_points(8, 0.8, true, 13)),
+        ("box", cube(), interior_points(8, 0.9, false, 14)),
+    ] {
+        for (scale, offset) in PLACEMENTS {
+            let place = |v: DVec3| v.as_vec3() * scale + Vec3::splat(offset);
+            let tris: Vec<[Vec3; 3]> = mesh.triangles.iter().map(|t| t.map(|i| place(mesh.vertices[i]))).collect();
+            for (j, &p) in interior.iter().enumerate() {
+                let o = place(p);
+                for i in 0..2000 {
+                    let d = (2.0 * random3(i, 100 + j as u32) - DVec3::ONE).as_vec3();
+                    let hit = tris.iter().any(|t| intersect_triangle(o, d, 0.0, f32::INFINITY, t[0], t[1], t[2]) > 0.0);
+                    let hit = hit
+                        && tris
+                            .iter()
+                            .all(|t| !intersect_triangle(o, d, 0.0, f32::INFINITY, t[0], t[1], t[2]).is_nan());
+                    assert!(hit, "{name} scale {scale} offset {offset}: o {o:?} d {d:?} leaked");
+                }
+            }
+        }
+    }
+}
+
+/// Axis-aligned rays from the centre of the box through a face centre (the shared
+/// diagonal of its two triangles), an edge midpoint and a corner: exact zeros of the
+/// edge functions, ties in the axis choice.
+#[test]
+fn exact_hits_on_the_box_diagonals_edges_and_corners() {
+    let mesh = cube();
+    let tris: Vec<[Vec3; 3]> = mesh.triangles.iter().map(|t| t.map(|i| mesh.vertices[i].as_vec3())).collect();
+    for x in [-1.0f32, 0.0, 1.0] {
+        for y in [-1.0f32, 0.0, 1.0] {
+            for z in [-1.0f32, 0.0, 1.0] {
+                let d = Vec3::new(x, y, z);
+                if d == Vec3::ZERO {
+                    continue;
+                }
+                let hits: Vec<f32> = tris
+                    .iter()
+                    .map(|t| intersect_triangle(Vec3::ZERO, d, 0.0, f32::INFINITY, t[0], t[1], t[2]))
+                    .filter(|t| t.is_finite())
+                    .collect();
+                assert!(!hits.is_empty(), "d {d}: no hit");
+                // The hit point is the target itself: t = 1 exactly.
+                assert!(hits.iter().all(|&t| t == 1.0), "d {d}: t {hits:?}");
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------
 // The probe kernel on the adapter.
 
-/// The probe kernel composed with the library's shaders.
-fn probe_source() -> String {
-    let lookup = |n: &str| {
-        if n == PROBE_NAME {
-            Some(PROBE)
-        } else {
-            aorender::shaders::FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t)
-        }
-    };
-    aorender::shaders::compose_with(PROBE_NAME, &lookup).expect("the probe's imports resolve")
-}
-
-struct Probe {
-    ctx: GpuContext,
-    layout: wgpu::BindGroupLayout,
-    pipeline: wgpu::ComputePipeline,
-}
+/// The probe kernel on the adapter.
+struct Probe(TestKernel);
 
 impl Probe {
     fn new() -> Probe {
-        let ctx = GpuContext::new(None).expect("adapter opens");
-        eprintln!("probe adapter: {} ({}, {})", ctx.description.name, ctx.description.backend, ctx.description.driver);
-        let device = &ctx.device;
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(PROBE_NAME),
-            source: wgpu::ShaderSource::Wgsl(probe_source().into()),
-        });
-        let entry = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("intersect probe"),
-            entries: &[
-                entry(0, wgpu::BufferBindingType::Uniform),
-                entry(1, wgpu::BufferBindingType::Storage { read_only: true }),
-                entry(2, wgpu::BufferBindingType::Storage { read_only: true }),
-                entry(3, wgpu::BufferBindingType::Storage { read_only: false }),
-            ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("intersect probe"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("intersect probe"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("intersect"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            panic!("the intersect probe does not build: {e}");
-        }
-        Probe { ctx, layout, pipeline }
+        Probe(TestKernel::new(PROBE_NAME, PROBE, &["intersect"], 2))
     }
 
     /// The WGSL `intersect_triangle` of every ray against every triangle, ray-major.
     fn run(&self, rays: &[Ray], triangles: &[[Vec3; 3]]) -> Vec<f32> {
-        const WORKGROUP: u32 = 64;
-        let device = &self.ctx.device;
         let count = u32::try_from(rays.len() * triangles.len()).expect("fewer than 2^32 pairs");
-        assert!(count > 0);
         let bits = |v: Vec3, w: f32| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits(), w.to_bits()];
         let ray_words: Vec<[u32; 4]> = rays.iter().flat_map(|r| [bits(r.o, r.t_min), bits(r.d, r.t_max)]).collect();
         let tri_words: Vec<[u32; 4]> = triangles.iter().flat_map(|t| t.map(|v| bits(v, 0.0))).collect();
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let init = |label: &str, contents: &[u8], usage: wgpu::BufferUsages| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: Some(label), contents, usage })
-        };
-        let params = init(
-            "probe params",
-            bytemuck::cast_slice(&[triangles.len() as u32, count, 0, 0]),
-            wgpu::BufferUsages::UNIFORM,
-        );
-        let ray_buffer = init("probe rays", bytemuck::cast_slice(&ray_words), wgpu::BufferUsages::STORAGE);
-        let tri_buffer = init("probe triangles", bytemuck::cast_slice(&tri_words), wgpu::BufferUsages::STORAGE);
-        let bytes = count as u64 * 4;
-        let output = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("probe outputs"),
-            size: bytes,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let readback = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("probe readback"),
-            size: bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("intersect probe"),
-            layout: &self.layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: params.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: ray_buffer.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: tri_buffer.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: output.as_entire_binding() },
-            ],
-        });
-        // A 2-D grid of workgroups keeps each dimension under the per-dimension limit.
-        let groups = count.div_ceil(WORKGROUP);
-        let groups_x = groups.min(device.limits().max_compute_workgroups_per_dimension);
-        let groups_y = groups.div_ceil(groups_x);
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("probe") });
-        {
-            let mut pass = encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("probe"), timestamp_writes: None });
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bind_group, &[]);
-            pass.dispatch_workgroups(groups_x, groups_y, 1);
-        }
-        encoder.copy_buffer_to_buffer(&output, 0, &readback, 0, None);
-        self.ctx.queue.submit([encoder.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        readback.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        device.poll(wgpu::PollType::wait_indefinitely()).expect("waiting for the GPU");
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            panic!("the intersect probe failed on the adapter: {e}");
-        }
-        rx.recv().expect("map callback").expect("readback maps");
-        let data = {
-            let view = readback.get_mapped_range(..).expect("mapped range");
-            bytemuck::cast_slice::<u8, f32>(&view).to_vec()
-        };
-        readback.unmap();
-        data
+        self.0.run(
+            "intersect",
+            [triangles.len() as u32, count, 0, 0],
+            &[bytemuck::cast_slice(&ray_words), bytemuck::cast_slice(&tri_words)],
+            count,
+            1,
+        )
     }
 }
 
@@ -420,12 +421,7 @@ fn random_rays(n: u32, triangles: &[[Vec3; 3]]) -> Vec<Ray> {
 
 #[test]
 fn probe_kernel_validates() {
-    let source = probe_source();
-    let module =
-        naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("probe: {}", e.emit_to_string(&source)));
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("probe: {}", e.emit_to_string(&source)));
+    kernel::validate(PROBE_NAME, &kernel::compose(PROBE_NAME, PROBE));
 }
 
 #[test]

@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+pub mod kernel;
+
 use aorender::bvh::BvhLayout;
 use aorender::gpu::GpuContext;
 use aorender::{Device, Film, RenderOptions, Scene, render};
