@@ -28,13 +28,14 @@ fn camera_ray(pixel: vec2f) -> array<vec3f, 2> {
     return array<vec3f, 2>(frame.eye, normalize(frame.forward + sx * frame.right + sy * frame.up));
 }
 
-// The hemisphere estimate at p with normal n for hemisphere numbers u: one AO ray, then
-// 0 or cos(theta) / (pi pdf). The twin of CpuTracer::ao_at.
-fn ao_value(p: vec3f, n: vec3f, u: vec2f) -> f32 {
+// The hemisphere estimate at p with normal n, p within `error` of its surface along n,
+// for hemisphere numbers u: one AO ray, then 0 or cos(theta) / (pi pdf). The twin of
+// CpuTracer::ao_at.
+fn ao_value(p: vec3f, n: vec3f, error: f32, u: vec2f) -> f32 {
     let w_local = sample_hemisphere(frame.hemisphere, u);
     let w = local_to_world(w_local, n);
     atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], 1u);
-    let shadow = trace(offset_ray_origin(p, n), w, frame.max_distance, true);
+    let shadow = trace(offset_ray_origin(p, n, error), w, frame.max_distance, true);
     if (shadow.kind != HIT_NONE) {
         return 0.0;
     }
@@ -50,28 +51,25 @@ fn shade_sample(px: vec2u, u: vec4f) -> f32 {
     if (hit.kind == HIT_NONE) {
         return frame.background;
     }
-    var p = o + hit.t * d;
-    var n: vec3f;
+    var surface: SurfacePoint;
     var albedo: f32;
     if (hit.kind == HIT_PLANE) {
-        n = planes[hit.index].normal;
-        albedo = planes[hit.index].albedo;
+        let plane = planes[hit.index];
+        surface = plane_hit_point(o, d, hit.t, plane.normal, plane.point);
+        albedo = plane.albedo;
     } else {
         let prim = primitives[hit.index];
         albedo = prim.a.w;
         if (bitcast<u32>(prim.b.w) == PRIM_SPHERE) {
-            n = normalize(p - prim.a.xyz);
-            p = prim.a.xyz + prim.b.x * n;
+            surface = sphere_hit_point(o, d, hit.t, prim.a.xyz, prim.b.x);
         } else {
             // The record holds the vertices (v0, v1, v2).
-            n = normalize(cross(prim.b.xyz - prim.a.xyz, prim.c.xyz - prim.a.xyz));
+            surface = triangle_hit_point(o, d, hit.t, prim.a.xyz, prim.b.xyz, prim.c.xyz);
         }
     }
     // The hemisphere faces the side the camera ray came from.
-    if (dot(n, d) > 0.0) {
-        n = -n;
-    }
-    return albedo * ao_value(p, n, u.zw);
+    let n = select(surface.n, -surface.n, dot(surface.n, d) > 0.0);
+    return albedo * ao_value(surface.p, n, surface.error, u.zw);
 }
 
 // Adds one sample's value to film slot i, or counts it void when its traversal ran out
@@ -117,7 +115,8 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
         if (index < frame.probe_samples) {
             let u = sample_point_uniforms(frame.point_sampler, point, 0u, index, frame.seed, frame.strata);
             let q = probe_points[point];
-            accumulate(slot, ao_value(q.position, q.normal, u.zw));
+            // A probe point is exact as given: no offset.
+            accumulate(slot, ao_value(q.position, q.normal, 0.0, u.zw));
         }
     }
     workgroupBarrier();

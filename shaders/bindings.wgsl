@@ -43,13 +43,12 @@ struct ProbePoint {
     normal: vec3f,
 }
 
+// An infinite plane through `point` (src/scene/mod.rs Plane).
 struct Plane {
     normal: vec3f,
-    d: f32,
     albedo: f32,
-    _pad0: f32,
-    _pad1: f32,
-    _pad2: f32,
+    point: vec3f,
+    _pad: f32,
 }
 
 @group(0) @binding(0) var<uniform> frame: Frame;

@@ -3,6 +3,15 @@
 
 const INF: f32 = 0x1.fffffep+127f;
 
+// gamma(n) = n eps / (1 - n eps), eps = 2^-24: the bound on the relative error of n
+// rounded operations (src/geometry.rs `gamma`).
+const GAMMA1: f32 = 0x1p-24f / (1.0 - 0x1p-24f);
+const GAMMA2: f32 = 2.0 * 0x1p-24f / (1.0 - 2.0 * 0x1p-24f);
+const GAMMA3: f32 = 3.0 * 0x1p-24f / (1.0 - 3.0 * 0x1p-24f);
+const GAMMA5: f32 = 5.0 * 0x1p-24f / (1.0 - 5.0 * 0x1p-24f);
+const GAMMA6: f32 = 6.0 * 0x1p-24f / (1.0 - 6.0 * 0x1p-24f);
+const GAMMA8: f32 = 8.0 * 0x1p-24f / (1.0 - 8.0 * 0x1p-24f);
+
 // Watertight ray-triangle test of Woop, Benthin & Wald (JCGT 2013) on the stored
 // vertices; both sides are hit and d need not be unit length. The twin of
 // intersect_triangle in src/geometry.rs (whose comment has the full argument), operation
@@ -14,8 +23,14 @@ const INF: f32 = 0x1.fffffep+127f;
 // function has the right sign or is 0, and a 0 counts as either sign. That keeps the
 // test conservative (a ray on an edge or vertex hits every triangle there) without f64,
 // which most adapters lack. det == 0 (all three zero: edge-on, or a repeated vertex) is
-// a miss.
+// a miss, and so is a t within pbrt-v4's bound on its rounding error.
 fn intersect_triangle(o: vec3f, d: vec3f, t_min: f32, t_max: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> f32 {
+    return triangle_test(o, d, t_min, t_max, v0, v1, v2).x;
+}
+
+// The test of intersect_triangle as (t, U, V, W): t is INF on a miss; U, V, W are the
+// scaled barycentrics (weights of v0, v1, v2 times det = U + V + W).
+fn triangle_test(o: vec3f, d: vec3f, t_min: f32, t_max: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> vec4f {
     // The shear, a pure function of d: kz is the axis of largest |d| (ties to the lower
     // axis), and x and y swap when the ray runs toward -z to keep the winding.
     let ad = abs(d);
@@ -54,24 +69,40 @@ fn intersect_triangle(o: vec3f, d: vec3f, t_min: f32, t_max: f32, v0: vec3f, v1:
     let u = cx * by - cy * bx;
     let v = ax * cy - ay * cx;
     let w = bx * ay - by * ax;
+    let miss = vec4f(INF, u, v, w);
     if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0)) {
-        return INF;
+        return miss;
     }
     let det = u + v + w;
     if (det == 0.0) {
-        return INF;
+        return miss;
     }
     let az = sz * a.z;
     let bz = sz * b.z;
     let cz = sz * c.z;
     let t = (u * az + v * bz + w * cz) / det;
-    if (t > t_min && t < t_max) {
-        return t;
+    if (!(t > t_min && t < t_max)) {
+        return miss;
     }
-    return INF;
+    // pbrt-v4's bound on the error of t (src/geometry.rs, operation for operation).
+    let max_zt = max(max(abs(az), abs(bz)), abs(cz));
+    let max_xt = max(max(abs(ax), abs(bx)), abs(cx));
+    let max_yt = max(max(abs(ay), abs(by)), abs(cy));
+    let delta_x = GAMMA5 * (max_xt + max_zt);
+    let delta_y = GAMMA5 * (max_yt + max_zt);
+    let delta_z = GAMMA3 * max_zt;
+    let delta_e = 2.0 * (GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+    let max_e = max(max(abs(u), abs(v)), abs(w));
+    let delta_t = 3.0 * (GAMMA3 * max_e * max_zt + delta_e * max_zt + delta_z * max_e) / abs(det);
+    if (t > delta_t) {
+        return vec4f(t, u, v, w);
+    }
+    return miss;
 }
 
 // Cancellation-free ray-sphere (Haines et al., Ray Tracing Gems ch. 7); d is unit length.
+// When c is within its rounding error the origin is on the sphere and the root c / q
+// near 0 is that contact, not a hit (src/geometry.rs).
 fn intersect_sphere(o: vec3f, d: vec3f, t_min: f32, t_max: f32, center: vec3f, radius: f32) -> f32 {
     let f = o - center;
     let b = -dot(f, d);
@@ -80,14 +111,14 @@ fn intersect_sphere(o: vec3f, d: vec3f, t_min: f32, t_max: f32, center: vec3f, r
     if (disc < 0.0) {
         return INF;
     }
-    let c = dot(f, f) - radius * radius;
+    let ff = dot(f, f);
+    let c = ff - radius * radius;
     let q = b + select(-sqrt(disc), sqrt(disc), b >= 0.0);
-    var t0 = 0.0;
-    var t1 = 0.0;
-    if (q != 0.0) {
-        t0 = c / q;
-        t1 = q;
+    if (q == 0.0) {
+        return INF;
     }
+    let t0 = select(c / q, -INF, abs(c) <= GAMMA6 * (ff + radius * radius));
+    let t1 = q;
     let near = min(t0, t1);
     let far = max(t0, t1);
     if (near > t_min && near < t_max) {
@@ -99,17 +130,71 @@ fn intersect_sphere(o: vec3f, d: vec3f, t_min: f32, t_max: f32, center: vec3f, r
     return INF;
 }
 
-// Infinite plane n.x = d, both sides.
-fn intersect_plane(o: vec3f, d: vec3f, t_min: f32, t_max: f32, n: vec3f, plane_d: f32) -> f32 {
+// Infinite plane through `point` with normal n, both sides; an origin within rounding
+// of the plane does not hit it (src/geometry.rs).
+fn intersect_plane(o: vec3f, d: vec3f, t_min: f32, t_max: f32, n: vec3f, point: vec3f) -> f32 {
     let denom = dot(n, d);
     if (denom == 0.0) {
         return INF;
     }
-    let t = (plane_d - dot(n, o)) / denom;
+    let to_plane = point - o;
+    let num = dot(n, to_plane);
+    if (abs(num) <= GAMMA5 * dot(abs(n), abs(to_plane))) {
+        return INF;
+    }
+    let t = num / denom;
     if (t > t_min && t < t_max) {
         return t;
     }
     return INF;
+}
+
+// A hit point as exact as the hit allows, its unit geometric normal (either side) and a
+// bound on its distance from the surface along the normal (src/geometry.rs SurfacePoint).
+struct SurfacePoint {
+    p: vec3f,
+    n: vec3f,
+    error: f32,
+}
+
+// By barycentric interpolation of the vertices: within GAMMA8 sum |b_i v_i| of the
+// triangle however far the ray came (src/geometry.rs triangle_hit_point).
+fn triangle_hit_point(o: vec3f, d: vec3f, t: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> SurfacePoint {
+    let n = normalize(cross(v1 - v0, v2 - v0));
+    let r = triangle_test(o, d, 0.0, INF, v0, v1, v2);
+    let det = r.y + r.z + r.w;
+    var p: vec3f;
+    var p_error: vec3f;
+    if (det != 0.0) {
+        let b = r.yzw * (1.0 / det);
+        let b0 = b.x * v0;
+        let b1 = b.y * v1;
+        let b2 = b.z * v2;
+        p = b0 + b1 + b2;
+        p_error = GAMMA8 * (abs(b0) + abs(b1) + abs(b2));
+    } else {
+        p = o + t * d;
+        p_error = GAMMA8 * abs(p);
+    }
+    return SurfacePoint(p, n, dot(abs(n), p_error));
+}
+
+// Projected back onto the sphere (src/geometry.rs sphere_hit_point).
+fn sphere_hit_point(o: vec3f, d: vec3f, t: f32, center: vec3f, radius: f32) -> SurfacePoint {
+    let n = normalize(o + t * d - center);
+    let offset = radius * n;
+    let p = center + offset;
+    let p_error = GAMMA8 * abs(offset) + GAMMA1 * abs(p);
+    return SurfacePoint(p, n, dot(abs(n), p_error));
+}
+
+// Projected onto the plane through `point` (src/geometry.rs plane_hit_point).
+fn plane_hit_point(o: vec3f, d: vec3f, t: f32, n: vec3f, point: vec3f) -> SurfacePoint {
+    let q = o + t * d;
+    let from_point = q - point;
+    let p = q - n * dot(n, from_point);
+    let error = GAMMA6 * dot(abs(n), abs(from_point)) + GAMMA1 * dot(abs(n), abs(p));
+    return SurfacePoint(p, n, error);
 }
 
 // Slab test; returns the entry distance or INF. The exit distance is widened by

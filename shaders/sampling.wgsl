@@ -187,10 +187,21 @@ fn local_to_world(w: vec3f, n: vec3f) -> vec3f {
     return ts[0] * w.x + ts[1] * w.y + n * w.z;
 }
 
-// Offset along the geometric normal scaled to the position's magnitude
-// (Waechter & Binder, Ray Tracing Gems ch. 6).
-fn offset_ray_origin(p: vec3f, n: vec3f) -> vec3f {
-    let of_i = vec3i(256.0 * n);
-    let p_i = bitcast<vec3f>(bitcast<vec3i>(p) + select(of_i, -of_i, p < vec3f(0.0)));
-    return select(p_i, p + (1.0 / 65536.0) * n, abs(p) < vec3f(1.0 / 32.0));
+// Moves p, within `error` of its surface along the unit normal n, past every point that
+// rounding allows: by `error` along n, then one float further in each coordinate the
+// offset moves (pbrt-v4's OffsetRayOrigin). The twin of offset_ray_origin in
+// src/sampling.rs; error 0 leaves p as it is.
+fn offset_ray_origin(p: vec3f, n: vec3f, error: f32) -> vec3f {
+    let offset = error * n;
+    let moved = p + offset;
+    let up = next_float_up(moved);
+    let down = -next_float_up(-moved);
+    return select(select(moved, down, offset < vec3f(0.0)), up, offset > vec3f(0.0));
+}
+
+// The next float above each (finite) component; -0 counts as +0.
+fn next_float_up(x: vec3f) -> vec3f {
+    let v = select(x, vec3f(0.0), x == vec3f(0.0));
+    let bits = bitcast<vec3u>(v);
+    return bitcast<vec3f>(select(bits - vec3u(1u), bits + vec3u(1u), v >= vec3f(0.0)));
 }

@@ -45,7 +45,7 @@ fn trace_planes(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
         if (!take_step()) {
             break;
         }
-        let t = intersect_plane(o, d, 0.0, hit.t, planes[i].normal, planes[i].d);
+        let t = intersect_plane(o, d, 0.0, hit.t, planes[i].normal, planes[i].point);
         if (t < hit.t) {
             hit = Hit(t, HIT_PLANE, i);
             if (any_hit) {

@@ -5,7 +5,10 @@
 use crate::bvh::{GpuPrimitive, PRIM_SPHERE};
 use crate::camera::RayGen;
 use crate::film::Film;
-use crate::geometry::{intersect_plane, intersect_sphere, intersect_triangle, sphere_hit_point};
+use crate::geometry::{
+    SurfacePoint, intersect_plane, intersect_sphere, intersect_triangle, plane_hit_point, sphere_hit_point,
+    triangle_hit_point,
+};
 use crate::probe::Probe;
 use crate::sampler::PointSampler;
 use crate::sampling::{local_to_world, offset_ray_origin};
@@ -32,10 +35,17 @@ pub struct CpuTracer {
     planes: Vec<Plane>,
 }
 
-/// obvhs's CWBVH node test skips boxes nearer than its `EPSILON` (1e-4) along the ray, so
-/// geometry closer than that to an AO ray's origin would be missed. The BVH is traversed
-/// from an origin moved back by this much, and the primitives are intersected with the
-/// real ray; hit distances are reported to obvhs in the moved ray's terms.
+/// obvhs's CWBVH node test skips boxes that end nearer than its `EPSILON` (1e-4) along
+/// the ray, so geometry closer than that to an AO ray's origin would be missed. The BVH is
+/// traversed from an origin moved back by this much, and the primitives are intersected
+/// with the real ray; hit distances are reported to obvhs in the moved ray's terms.
+///
+/// The distance is fixed rather than relative to the origin: the moved origin is rounded,
+/// which displaces the traversal ray sideways by up to half an ulp of its coordinates, and
+/// a displaced ray can pass beside a box the real ray touches (a relative distance of 16
+/// ulps let rays escape a closed box 1e6 from the origin). Beyond |o| ≈ 2^12, 2e-4 is
+/// under half an ulp and the origin does not move at all; there only geometry within 1e-4
+/// of the origin, closer than an ulp, can be skipped.
 const TRAVERSAL_BACKOFF: f32 = 2e-4;
 
 fn v3(a: [f32; 4]) -> Vec3 {
@@ -75,12 +85,13 @@ impl CpuTracer {
         if let Some(bvh) = &self.bvh {
             let mut hit = RayHit::none();
             let mut t_exact = t_best;
-            let ray = Ray::new(Vec3A::from(o - TRAVERSAL_BACKOFF * d), Vec3A::from(d), 0.0, t_best + TRAVERSAL_BACKOFF);
+            let backoff = TRAVERSAL_BACKOFF;
+            let ray = Ray::new(Vec3A::from(o - backoff * d), Vec3A::from(d), 0.0, t_best + backoff);
             let found = bvh.ray_traverse(ray, &mut hit, |_, slot| {
                 let t = self.intersect_primitive(slot, o, d, t_exact);
                 if t < t_exact {
                     t_exact = t;
-                    t + TRAVERSAL_BACKOFF
+                    t + backoff
                 } else {
                     f32::INFINITY
                 }
@@ -99,42 +110,40 @@ impl CpuTracer {
         }
         match &self.bvh {
             Some(bvh) => {
-                let ray =
-                    Ray::new(Vec3A::from(o - TRAVERSAL_BACKOFF * d), Vec3A::from(d), 0.0, t_max + TRAVERSAL_BACKOFF);
+                let backoff = TRAVERSAL_BACKOFF;
+                let ray = Ray::new(Vec3A::from(o - backoff * d), Vec3A::from(d), 0.0, t_max + backoff);
                 !bvh.ray_traverse_miss(ray, |_, slot| {
                     let t = self.intersect_primitive(slot, o, d, t_max);
-                    if t < t_max { t + TRAVERSAL_BACKOFF } else { f32::INFINITY }
+                    if t < t_max { t + backoff } else { f32::INFINITY }
                 })
             }
             None => false,
         }
     }
 
-    /// Surface point, geometric normal and albedo of a hit.
-    pub fn surface(&self, o: Vec3, d: Vec3, t: f32, kind: HitKind) -> (Vec3, Vec3, f32) {
+    /// The surface point of a hit (with its error bound and geometric normal) and its albedo.
+    pub fn surface(&self, o: Vec3, d: Vec3, t: f32, kind: HitKind) -> (SurfacePoint, f32) {
         match kind {
-            HitKind::Plane(i) => (o + t * d, self.planes[i].normal, self.planes[i].albedo),
+            HitKind::Plane(i) => (plane_hit_point(o, d, t, &self.planes[i]), self.planes[i].albedo),
             HitKind::Primitive(slot) => {
                 let p = &self.primitives[slot];
                 if p.b[3].to_bits() == PRIM_SPHERE {
-                    let (point, n) = sphere_hit_point(o, d, t, v3(p.a), p.b[0]);
-                    (point, n, p.a[3])
+                    (sphere_hit_point(o, d, t, v3(p.a), p.b[0]), p.a[3])
                 } else {
                     // The record holds the vertices (v0, v1, v2).
-                    let n = (v3(p.b) - v3(p.a)).cross(v3(p.c) - v3(p.a)).normalize();
-                    (o + t * d, n, p.a[3])
+                    (triangle_hit_point(o, d, t, v3(p.a), v3(p.b), v3(p.c)), p.a[3])
                 }
             }
         }
     }
 
-    /// AO value at a surface point with normal `n` for hemisphere numbers `u`; the twin of
-    /// the shader's tail of `shade_sample`.
-    pub fn ao_at(&self, p: Vec3, n: Vec3, u: glam::Vec2, settings: &Settings) -> f32 {
+    /// AO value at a surface point `p` with normal `n`, within `error` of its surface along
+    /// `n`, for hemisphere numbers `u`; the twin of the shader's `ao_value`.
+    pub fn ao_at(&self, p: Vec3, n: Vec3, error: f32, u: glam::Vec2, settings: &Settings) -> f32 {
         let w_local = settings.hemisphere.sample(u);
         let w = local_to_world(w_local, n);
         let t_max = settings.max_distance.unwrap_or(f32::MAX);
-        if self.occluded(offset_ray_origin(p, n), w, t_max) { 0.0 } else { settings.hemisphere.weight(w_local) }
+        if self.occluded(offset_ray_origin(p, n, error), w, t_max) { 0.0 } else { settings.hemisphere.weight(w_local) }
     }
 
     /// One sample of pixel `(px, py)`: its value and whether an AO ray was traced. The
@@ -153,11 +162,10 @@ impl CpuTracer {
         let Some((t, kind)) = self.closest(o, d, f32::MAX) else {
             return (settings.background, false);
         };
-        let (p, mut n, albedo) = self.surface(o, d, t, kind);
-        if n.dot(d) > 0.0 {
-            n = -n;
-        }
-        (albedo * self.ao_at(p, n, glam::Vec2::new(u[2], u[3]), settings), true)
+        let (hit, albedo) = self.surface(o, d, t, kind);
+        // The hemisphere faces the side the camera ray came from.
+        let n = if hit.n.dot(d) > 0.0 { -hit.n } else { hit.n };
+        (albedo * self.ao_at(hit.p, n, hit.error, glam::Vec2::new(u[2], u[3]), settings), true)
     }
 
     /// Sums (Σv, Σv²) of the probe samples in `lanes` slots per probe: lane `l` of probe
@@ -172,7 +180,8 @@ impl CpuTracer {
                 let (mut sum, mut sum_sq) = (0.0f64, 0.0f64);
                 for index in (lane..samples).step_by(lanes as usize) {
                     let u = sampler.uniforms(k as u32, 0, index);
-                    let v = self.ao_at(p.position, p.normal, glam::Vec2::new(u[2], u[3]), settings) as f64;
+                    // A probe point is exact as given: no offset.
+                    let v = self.ao_at(p.position, p.normal, 0.0, glam::Vec2::new(u[2], u[3]), settings) as f64;
                     sum += v;
                     sum_sq += v * v;
                 }

@@ -77,9 +77,25 @@ impl Shear {
 /// (`tests/robustness.rs` finds every `t` bit-identical); a shader compiler that did would
 /// void the guarantee on its adapter.
 ///
-/// `t > t_min` is exact rather than widened by pbrt-v4's error bound on `t`: callers
-/// offset their origins off the surface instead.
+/// A candidate hit must also lie beyond pbrt-v4's bound on the rounding error of `t`
+/// (Pharr, Jakob & Humphreys, *Physically Based Rendering*, 4th ed., §6.8.7): a `t` that
+/// rounding alone could have made positive is not a hit. A ray that starts on the
+/// triangle, or within that error of it, therefore never hits it, at every scale.
 pub fn intersect_triangle(o: Vec3, d: Vec3, t_min: f32, t_max: f32, v0: Vec3, v1: Vec3, v2: Vec3) -> f32 {
+    triangle_test(o, d, t_min, t_max, v0, v1, v2).0
+}
+
+/// γ(n) = nε / (1 − nε), ε = 2⁻²⁴: the bound on the relative error of n rounded
+/// operations (pbrt-v4's `gamma`).
+pub const fn gamma(n: u32) -> f32 {
+    let ne = n as f32 * f32::EPSILON * 0.5;
+    ne / (1.0 - ne)
+}
+
+/// The watertight test of [`intersect_triangle`], also returning its scaled barycentrics
+/// `(U, V, W)` (the weights of `v0, v1, v2` times `det = U + V + W`); `t` is infinite on a miss.
+pub fn triangle_test(o: Vec3, d: Vec3, t_min: f32, t_max: f32, v0: Vec3, v1: Vec3, v2: Vec3) -> (f32, Vec3) {
+    const MISS: f32 = f32::INFINITY;
     let sh = Shear::new(d);
     // Vertices relative to the origin, in the permuted axes.
     let a = sh.permute(v0 - o);
@@ -96,22 +112,94 @@ pub fn intersect_triangle(o: Vec3, d: Vec3, t_min: f32, t_max: f32, v0: Vec3, v1
     let u = cx * by - cy * bx;
     let v = ax * cy - ay * cx;
     let w = bx * ay - by * ax;
+    let uvw = Vec3::new(u, v, w);
     if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
-        return f32::INFINITY;
+        return (MISS, uvw);
     }
     let det = u + v + w;
     if det == 0.0 {
-        return f32::INFINITY;
+        return (MISS, uvw);
     }
     let az = sh.s.z * a.z;
     let bz = sh.s.z * b.z;
     let cz = sh.s.z * c.z;
     let t = (u * az + v * bz + w * cz) / det;
-    if t > t_min && t < t_max { t } else { f32::INFINITY }
+    if !(t > t_min && t < t_max) {
+        return (MISS, uvw);
+    }
+    // pbrt-v4's bound on the error of t; shaders/intersect.wgsl repeats it operation for operation.
+    let max_zt = az.abs().max(bz.abs()).max(cz.abs());
+    let max_xt = ax.abs().max(bx.abs()).max(cx.abs());
+    let max_yt = ay.abs().max(by.abs()).max(cy.abs());
+    let delta_x = gamma(5) * (max_xt + max_zt);
+    let delta_y = gamma(5) * (max_yt + max_zt);
+    let delta_z = gamma(3) * max_zt;
+    let delta_e = 2.0 * (gamma(2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+    let max_e = u.abs().max(v.abs()).max(w.abs());
+    let delta_t = 3.0 * (gamma(3) * max_e * max_zt + delta_e * max_zt + delta_z * max_e) / det.abs();
+    if t > delta_t { (t, uvw) } else { (MISS, uvw) }
+}
+
+/// A point on a surface, as exact as the hit allows, and a bound on its distance from the
+/// true surface along the normal: what [`crate::sampling::offset_ray_origin`] moves it by.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfacePoint {
+    /// The point.
+    pub p: Vec3,
+    /// Unit geometric normal (either side).
+    pub n: Vec3,
+    /// Bound on |(p − surface) · n|.
+    pub error: f32,
+}
+
+/// The hit point of a ray on a triangle it hits, by barycentric interpolation of the
+/// vertices (pbrt-v4 §6.8.6), whose error is γ(7)·Σ|bᵢvᵢ| componentwise however far the
+/// ray came; one more γ for WGSL's division, which is within 2.5 ulp rather than exact.
+/// Falls back to `o + t d` if the test no longer sees the hit.
+pub fn triangle_hit_point(o: Vec3, d: Vec3, t: f32, v0: Vec3, v1: Vec3, v2: Vec3) -> SurfacePoint {
+    let n = (v1 - v0).cross(v2 - v0).normalize();
+    let (_, uvw) = triangle_test(o, d, 0.0, f32::INFINITY, v0, v1, v2);
+    let det = uvw.x + uvw.y + uvw.z;
+    let (p, p_error) = if det != 0.0 {
+        let b = uvw * (1.0 / det);
+        let (b0, b1, b2) = (b.x * v0, b.y * v1, b.z * v2);
+        (b0 + b1 + b2, gamma(8) * (b0.abs() + b1.abs() + b2.abs()))
+    } else {
+        let p = o + t * d;
+        (p, gamma(8) * p.abs())
+    };
+    SurfacePoint { p, n, error: n.abs().dot(p_error) }
+}
+
+/// The hit point of a ray on a sphere, projected back onto the surface (pbrt-v4 §6.8.5):
+/// within γ(8)·|p − c| of it, plus the rounding of adding the centre.
+pub fn sphere_hit_point(o: Vec3, d: Vec3, t: f32, center: Vec3, radius: f32) -> SurfacePoint {
+    let n = (o + t * d - center).normalize();
+    let offset = radius * n;
+    let p = center + offset;
+    let p_error = gamma(8) * offset.abs() + gamma(1) * p.abs();
+    SurfacePoint { p, n, error: n.abs().dot(p_error) }
+}
+
+/// The hit point of a ray on a plane, projected onto it: `q − n (n·(q − point))`. Its
+/// distance from the plane is within γ(6)·|n|·|q − point| (the projection) plus γ(1)·|n|·|p|
+/// (the rounding of the result's coordinates).
+pub fn plane_hit_point(o: Vec3, d: Vec3, t: f32, plane: &Plane) -> SurfacePoint {
+    let n = plane.normal;
+    let q = o + t * d;
+    let from_point = q - plane.point;
+    let p = q - n * n.dot(from_point);
+    let error = gamma(6) * n.abs().dot(from_point.abs()) + gamma(1) * n.abs().dot(p.abs());
+    SurfacePoint { p, n, error }
 }
 
 /// Ray–sphere with the cancellation-free quadratic of Haines et al., "Precision
 /// Improvements for Ray/Sphere Intersection", Ray Tracing Gems ch. 7. `d` is unit length.
+///
+/// `c = |o − centre|² − r²` says where the origin is: outside, on or inside. When |c| is
+/// within its rounding error, γ(6)·(|o − centre|² + r²), the origin is on the sphere as far
+/// as f32 can tell, and the root `c / q` near 0 is that contact, not a hit; only the
+/// other root `q` can be.
 pub fn intersect_sphere(o: Vec3, d: Vec3, t_min: f32, t_max: f32, center: Vec3, radius: f32) -> f32 {
     let f = o - center;
     let b = -f.dot(d);
@@ -121,9 +209,14 @@ pub fn intersect_sphere(o: Vec3, d: Vec3, t_min: f32, t_max: f32, center: Vec3, 
     if disc < 0.0 {
         return f32::INFINITY;
     }
-    let c = f.dot(f) - radius * radius;
+    let ff = f.dot(f);
+    let c = ff - radius * radius;
     let q = b + disc.sqrt().copysign(b);
-    let (t0, t1) = if q == 0.0 { (0.0, 0.0) } else { (c / q, q) };
+    if q == 0.0 {
+        return f32::INFINITY;
+    }
+    let t0 = if c.abs() <= gamma(6) * (ff + radius * radius) { f32::NEG_INFINITY } else { c / q };
+    let t1 = q;
     let (near, far) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
     if near > t_min && near < t_max {
         near
@@ -134,21 +227,22 @@ pub fn intersect_sphere(o: Vec3, d: Vec3, t_min: f32, t_max: f32, center: Vec3, 
     }
 }
 
-/// Ray–plane, both sides.
+/// Ray–plane, both sides. The sign of `n·(point − o)` decides which side the origin is
+/// on; within its rounding error, γ(5)·|n|·|point − o|, the origin is on the plane and the
+/// ray does not hit it. The error scales with the distance to `point`, not with |o|: for
+/// an axis normal it is that of one subtraction of nearby coordinates, usually none.
 pub fn intersect_plane(o: Vec3, d: Vec3, t_min: f32, t_max: f32, plane: &Plane) -> f32 {
     let denom = plane.normal.dot(d);
     if denom == 0.0 {
         return f32::INFINITY;
     }
-    let t = (plane.d - plane.normal.dot(o)) / denom;
+    let to_plane = plane.point - o;
+    let num = plane.normal.dot(to_plane);
+    if num.abs() <= gamma(5) * plane.normal.abs().dot(to_plane.abs()) {
+        return f32::INFINITY;
+    }
+    let t = num / denom;
     if t > t_min && t < t_max { t } else { f32::INFINITY }
-}
-
-/// Sphere hit point projected back onto the surface, so offsets start from the surface,
-/// and the outward normal there.
-pub fn sphere_hit_point(o: Vec3, d: Vec3, t: f32, center: Vec3, radius: f32) -> (Vec3, Vec3) {
-    let n = (o + t * d - center).normalize();
-    (center + radius * n, n)
 }
 
 #[cfg(test)]

@@ -13,6 +13,7 @@
 //! println!("{} rays/s", out.stats.rays_per_second);
 //! ```
 
+pub mod accuracy;
 pub mod bvh;
 pub mod camera;
 pub mod compare;

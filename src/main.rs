@@ -24,8 +24,30 @@ enum Command {
     Compare(CompareArgs),
     /// AO at points and normals read from a file (x y z nx ny nz per line), written as CSV.
     Probe(ProbeArgs),
+    /// Run the closed-form accuracy suite on the CPU reference and the adapter and write its
+    /// table as Markdown (docs/accuracy.md).
+    Accuracy(AccuracyArgs),
     /// List the adapters wgpu finds.
     Adapters,
+}
+
+#[derive(clap::Args)]
+struct AccuracyArgs {
+    /// Output Markdown file.
+    #[arg(short, long, default_value = "docs/accuracy.md")]
+    output: PathBuf,
+    /// Samples per point, comma-separated: one column each.
+    #[arg(long, value_delimiter = ',', default_value = "100,10000,1000000")]
+    samples: Vec<u32>,
+    /// Skip the CPU reference.
+    #[arg(long)]
+    no_cpu: bool,
+    /// Skip the adapter.
+    #[arg(long)]
+    no_gpu: bool,
+    /// Substring of the adapter's name to use.
+    #[arg(long)]
+    adapter: Option<String>,
 }
 
 /// `--hemisphere` values: the library's names.
@@ -269,7 +291,47 @@ fn run() -> Result<()> {
         Command::Render(args) => render_command(args),
         Command::Compare(args) => compare_command(args),
         Command::Probe(args) => probe_command(args),
+        Command::Accuracy(args) => accuracy_command(args),
     }
+}
+
+fn accuracy_command(args: AccuracyArgs) -> Result<()> {
+    use aorender::accuracy;
+    if args.samples.is_empty() || args.samples.contains(&0) {
+        bail!("--samples: every count must be at least 1");
+    }
+    check_output_extension(&args.output, &["md"])?;
+    let mut devices = Vec::new();
+    if !args.no_cpu {
+        devices.push(Device::Cpu);
+    }
+    let ctx = if args.no_gpu { None } else { Some(aorender::gpu::GpuContext::new(args.adapter.as_deref())?) };
+    if ctx.is_some() {
+        devices.push(Device::Gpu);
+    }
+    if devices.is_empty() {
+        bail!("--no-cpu and --no-gpu leave nothing to run");
+    }
+    let runs = accuracy::report_runs(args.samples.len()) * devices.len();
+    let bar = indicatif::ProgressBar::new(runs as u64).with_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} probe runs  {msg}  eta {eta}")
+            .expect("a valid template"),
+    );
+    let mut reports = Vec::new();
+    for device in devices {
+        bar.set_message(format!("{device:?}"));
+        reports.push(accuracy::report(ctx.as_ref(), device, &args.samples, &mut || bar.inc(1))?);
+    }
+    bar.finish_and_clear();
+    let counts = args.samples.iter().map(u32::to_string).collect::<Vec<_>>().join(",");
+    let command = format!("aorender accuracy --samples {counts}");
+    let md = accuracy::markdown(&reports, &args.samples, &command);
+    aorender::film::write_atomically(&args.output, md.as_bytes())?;
+    for r in &reports {
+        let pass = r.rows.iter().filter(|row| row.pass()).count();
+        eprintln!("{}: {pass} of {} points pass", r.adapter, r.rows.len());
+    }
+    Ok(())
 }
 
 fn probe_command(args: ProbeArgs) -> Result<()> {

@@ -11,13 +11,16 @@
 use crate::bvh::{self, GpuBvh};
 use crate::cpu::CpuTracer;
 use crate::error::{Error, Result};
-use crate::gpu::{GpuContext, GpuProbePoint, GpuRenderer, MAX_PASS_SAMPLES};
+use crate::gpu::{GpuContext, GpuProbePoint, GpuRenderer};
 use crate::render::{Device, RenderOptions};
 use crate::scene::Scene;
 use glam::Vec3;
 use std::path::Path;
 use std::time::Instant;
 
+/// Rounds per GPU pass: each round is up to `TARGET_SLOTS` AO rays, so a pass stays far
+/// below a second even on lavapipe and GPU watchdogs never fire.
+const PROBE_PASS_ROUNDS: u32 = 64;
 /// Film slots the probe kernel aims to keep busy per dispatch: points × lanes.
 const TARGET_SLOTS: u32 = 1 << 16;
 
@@ -128,6 +131,18 @@ fn value_from_sums(sum: f64, sum_sq: f64, n: u64) -> ProbeValue {
 /// Estimates AO at every probe with `samples` samples each, using the scene's hemisphere,
 /// sampler, seed and maximum distance (its camera, image size and spp are ignored).
 pub fn probe(scene: &Scene, options: &RenderOptions, probes: &[Probe], samples: u32) -> Result<ProbeOutput> {
+    probe_with(None, scene, options, probes, samples)
+}
+
+/// [`probe`] on an already open adapter (`None` opens the one `options` names), so many
+/// small probe runs share one device.
+pub fn probe_with(
+    ctx: Option<&GpuContext>,
+    scene: &Scene,
+    options: &RenderOptions,
+    probes: &[Probe],
+    samples: u32,
+) -> Result<ProbeOutput> {
     let s = &scene.settings;
     s.validate().map_err(|m| Error::scene(&scene.name, m))?;
     if samples == 0 {
@@ -141,14 +156,21 @@ pub fn probe(scene: &Scene, options: &RenderOptions, probes: &[Probe], samples: 
         .collect();
     let (sums, rays, seconds, adapter) = match options.device {
         Device::Gpu => {
-            let ctx = GpuContext::new(options.adapter.as_deref())?;
+            let owned;
+            let ctx = match ctx {
+                Some(c) => c,
+                None => {
+                    owned = GpuContext::new(options.adapter.as_deref())?;
+                    &owned
+                }
+            };
             let gpu_bvh = GpuBvh::build(scene, options.bvh_layout, options.bvh_quality);
-            let mut renderer = GpuRenderer::for_probes(&ctx, scene, &gpu_bvh, &points, lanes, samples)?;
+            let mut renderer = GpuRenderer::for_probes(ctx, scene, &gpu_bvh, &points, lanes, samples)?;
             drop(gpu_bvh);
             let start = Instant::now();
             let (mut done, mut rays) = (0u32, 0u64);
             while done < rounds {
-                let count = (rounds - done).min(MAX_PASS_SAMPLES);
+                let count = (rounds - done).min(PROBE_PASS_ROUNDS);
                 rays += renderer.render_pass(done, count)?.ao_rays;
                 done += count;
             }
@@ -157,7 +179,7 @@ pub fn probe(scene: &Scene, options: &RenderOptions, probes: &[Probe], samples: 
                 film.sum.into_iter().zip(film.sum_sq).collect::<Vec<_>>(),
                 rays,
                 start.elapsed().as_secs_f64(),
-                ctx.description.name,
+                ctx.description.name.clone(),
             )
         }
         Device::Cpu => {

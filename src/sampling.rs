@@ -235,19 +235,39 @@ pub fn local_to_world(w: Vec3, n: Vec3) -> Vec3 {
     t * w.x + s * w.y + n * w.z
 }
 
-/// Moves a surface point off its surface along the geometric normal by a few ulps of its
-/// own magnitude, so the offset scales with the position: Wächter & Binder, "A Fast and
-/// Robust Method for Avoiding Self-Intersection", Ray Tracing Gems ch. 6.
-pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
-    const ORIGIN: f32 = 1.0 / 32.0;
-    const FLOAT_SCALE: f32 = 1.0 / 65536.0;
-    const INT_SCALE: f32 = 256.0;
-    let offset = |p: f32, n: f32| -> f32 {
-        let of_i = (INT_SCALE * n) as i32;
-        let p_i = f32::from_bits((p.to_bits() as i32).wrapping_add(if p < 0.0 { -of_i } else { of_i }) as u32);
-        if p.abs() < ORIGIN { p + FLOAT_SCALE * n } else { p_i }
+/// Moves a surface point `p`, which lies within `error` of its surface along the unit
+/// normal `n`, to the normal's side of every point that rounding allows (pbrt-v4's
+/// `OffsetRayOrigin`, §6.8.6): by `error` along `n`, then one float further in each
+/// coordinate the offset moves. The offset scales with the point's own error bound, so it
+/// is a few ulps at any scale and exactly 0 for a point given as exact (`error` 0).
+pub fn offset_ray_origin(p: Vec3, n: Vec3, error: f32) -> Vec3 {
+    let offset = error * n;
+    let moved = p + offset;
+    let step = |x: f32, o: f32| -> f32 {
+        if o > 0.0 {
+            next_float_up(x)
+        } else if o < 0.0 {
+            next_float_down(x)
+        } else {
+            x
+        }
     };
-    Vec3::new(offset(p.x, n.x), offset(p.y, n.y), offset(p.z, n.z))
+    Vec3::new(step(moved.x, offset.x), step(moved.y, offset.y), step(moved.z, offset.z))
+}
+
+/// The next float above `x` (−0 is treated as +0); +∞ stays.
+pub fn next_float_up(x: f32) -> f32 {
+    if x == f32::INFINITY {
+        return x;
+    }
+    let x = if x == 0.0 { 0.0 } else { x };
+    let bits = x.to_bits();
+    f32::from_bits(if x >= 0.0 { bits + 1 } else { bits - 1 })
+}
+
+/// The next float below `x` (+0 is treated as −0); −∞ stays.
+pub fn next_float_down(x: f32) -> f32 {
+    -next_float_up(-x)
 }
 
 #[cfg(test)]
@@ -352,16 +372,27 @@ mod tests {
     }
 
     #[test]
-    fn offset_moves_to_the_normal_side_at_every_scale() {
+    fn offset_moves_past_the_error_bound_at_every_scale() {
         for scale in [1e-6f32, 1e-4, 1e-2, 1.0, 1e3, 1e6] {
             for n in [Vec3::X, -Vec3::Y, Vec3::new(0.6, 0.0, 0.8), Vec3::new(-0.48, 0.6, -0.64)] {
                 for p in [Vec3::new(1.0, -2.0, 0.5), Vec3::new(-3.0, 0.25, 7.0), Vec3::ZERO] {
                     let p = p * scale;
-                    let q = offset_ray_origin(p, n);
-                    assert!((q - p).dot(n) > 0.0, "scale {scale}, p {p}, n {n}: {q}");
-                    assert!((q - p).length() <= 1e-3 * (1.0 + p.abs().max_element()), "offset too large at {p}");
+                    let error = crate::geometry::gamma(8) * n.abs().dot(p.abs());
+                    let q = offset_ray_origin(p, n, error);
+                    // In f64: at least the error bound along n, at most it plus an ulp or two per coordinate.
+                    let moved = (q.as_dvec3() - p.as_dvec3()).dot(n.as_dvec3());
+                    assert!(moved >= error as f64, "scale {scale}, p {p}, n {n}: moved {moved} < {error}");
+                    let ulps = 3.0 * f32::EPSILON as f64 * (p.abs().max_element() as f64 + error as f64);
+                    assert!(moved <= error as f64 + ulps + 1e-44, "offset too large at {p}: {moved}");
+                    assert_eq!(offset_ray_origin(p, n, 0.0), p, "an exact point stays put");
                 }
             }
         }
+        assert_eq!(next_float_up(1.0), 1.0 + f32::EPSILON);
+        assert_eq!(next_float_down(1.0), 1.0 - f32::EPSILON / 2.0);
+        assert_eq!(next_float_up(-0.0), f32::from_bits(1));
+        assert_eq!(next_float_down(0.0), -f32::from_bits(1));
+        assert_eq!(next_float_up(-1.0), -1.0 + f32::EPSILON / 2.0);
+        assert_eq!(next_float_up(f32::INFINITY), f32::INFINITY);
     }
 }

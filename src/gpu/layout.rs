@@ -101,17 +101,17 @@ const _: () = assert!(std::mem::size_of::<GpuProbePoint>() == 32);
 pub struct GpuPlane {
     /// Unit normal.
     pub normal: [f32; 3],
-    /// Offset: the plane is n·x = d.
-    pub d: f32,
     /// Albedo.
     pub albedo: f32,
+    /// A point of the plane.
+    pub point: [f32; 3],
     /// Padding.
-    pub _pad: [f32; 3],
+    pub _pad: f32,
 }
 const _: () = assert!(std::mem::size_of::<GpuPlane>() == 32);
 
 impl From<&Plane> for GpuPlane {
     fn from(p: &Plane) -> Self {
-        GpuPlane { normal: p.normal.to_array(), d: p.d, albedo: p.albedo, _pad: [0.0; 3] }
+        GpuPlane { normal: p.normal.to_array(), albedo: p.albedo, point: p.point.to_array(), _pad: 0.0 }
     }
 }

@@ -29,7 +29,7 @@ pub const COUNTER_TRUNCATED: u32 = 1;
 /// Number of counters.
 pub const COUNTER_COUNT: u32 = 2;
 /// Most samples (dispatches) in one pass.
-pub const MAX_PASS_SAMPLES: u32 = 64;
+pub const MAX_PASS_SAMPLES: u32 = 1024;
 /// Stride of the per-dispatch uniforms (the largest `min_uniform_buffer_offset_alignment`).
 const DISPATCH_STRIDE: u64 = 256;
 
@@ -81,6 +81,9 @@ pub struct GpuContext {
     /// The adapter's description.
     pub description: AdapterDescription,
     errors: Arc<Mutex<Vec<String>>>,
+    /// Compiled pipelines by BVH layout and kernel: many renderers on one context (probe
+    /// batches, the accuracy suite) compile each once.
+    pipelines: Mutex<Vec<(BvhLayout, Kernel, wgpu::BindGroupLayout, wgpu::ComputePipeline)>>,
 }
 
 impl GpuContext {
@@ -129,7 +132,60 @@ impl GpuContext {
             sink.lock().expect("error sink").push(format!("device lost ({reason:?}): {message}"));
         });
         let description = AdapterDescription::new(&adapter.get_info());
-        Ok(GpuContext { adapter, device, queue, description, errors })
+        Ok(GpuContext { adapter, device, queue, description, errors, pipelines: Mutex::new(Vec::new()) })
+    }
+
+    /// The bind group layout and pipeline of `kernel` over `layout`, compiled on first use.
+    /// The bool is true when it was compiled just now.
+    fn pipeline(&self, layout: BvhLayout, kernel: Kernel) -> (wgpu::BindGroupLayout, wgpu::ComputePipeline, bool) {
+        let mut cache = self.pipelines.lock().expect("pipeline cache");
+        if let Some((_, _, l, p)) = cache.iter().find(|(bl, k, _, _)| *bl == layout && *k == kernel) {
+            return (l.clone(), p.clone(), false);
+        }
+        let device = &self.device;
+        let entry = |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: dynamic, min_binding_size: None },
+            count: None,
+        };
+        let read_only = wgpu::BufferBindingType::Storage { read_only: true };
+        let read_write = wgpu::BufferBindingType::Storage { read_only: false };
+        let bind_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("ao bindings"),
+            entries: &[
+                entry(0, wgpu::BufferBindingType::Uniform, false),
+                entry(1, wgpu::BufferBindingType::Uniform, true),
+                entry(2, read_only, false),
+                entry(3, read_only, false),
+                entry(4, read_only, false),
+                entry(5, read_write, false),
+                entry(6, read_write, false),
+                entry(7, read_only, false),
+            ],
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("ao.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(crate::shaders::compose("ao.wgsl", layout).into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("ao"),
+            bind_group_layouts: &[Some(&bind_group_layout)],
+            immediate_size: 0,
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("ao"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some(match kernel {
+                Kernel::Image => "render_sample",
+                Kernel::Probe => "probe_sample",
+            }),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        cache.push((layout, kernel, bind_group_layout.clone(), pipeline.clone()));
+        (bind_group_layout, pipeline, true)
     }
 
     /// The first device error since the last call, if any.
@@ -172,7 +228,7 @@ pub struct PassCounters {
 }
 
 /// What the AO pipeline computes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Kernel {
     /// An image: one film slot per pixel, one sample per pixel per dispatch.
     Image,
@@ -314,27 +370,7 @@ impl<'a> GpuRenderer<'a> {
             mapped_at_creation: false,
         });
 
-        let entry = |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: dynamic, min_binding_size: None },
-            count: None,
-        };
-        let read_only = wgpu::BufferBindingType::Storage { read_only: true };
-        let read_write = wgpu::BufferBindingType::Storage { read_only: false };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("ao bindings"),
-            entries: &[
-                entry(0, wgpu::BufferBindingType::Uniform, false),
-                entry(1, wgpu::BufferBindingType::Uniform, true),
-                entry(2, read_only, false),
-                entry(3, read_only, false),
-                entry(4, read_only, false),
-                entry(5, read_write, false),
-                entry(6, read_write, false),
-                entry(7, read_only, false),
-            ],
-        });
+        let (layout, pipeline, fresh) = ctx.pipeline(bvh.layout, kernel);
         let dispatch_binding = wgpu::BufferBinding {
             buffer: &dispatch,
             offset: 0,
@@ -354,44 +390,28 @@ impl<'a> GpuRenderer<'a> {
                 wgpu::BindGroupEntry { binding: 7, resource: probe_points.as_entire_binding() },
             ],
         });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("ao.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(crate::shaders::compose("ao.wgsl", bvh.layout).into()),
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("ao"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("ao"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some(match kernel {
-                Kernel::Image => "render_sample",
-                Kernel::Probe => "probe_sample",
-            }),
-            compilation_options: Default::default(),
-            cache: None,
-        });
         ctx.take_error()?;
         // Some drivers (lavapipe) compile the kernel at its first dispatch: run one
-        // workgroup now, so compilation counts as setup rather than render time, then
-        // clear what it wrote.
-        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("warm-up") });
-        {
-            let mut pass = encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("warm-up"), timestamp_writes: None });
-            pass.set_pipeline(&pipeline);
-            pass.set_bind_group(0, &bind_group, &[0]);
-            pass.dispatch_workgroups(1, 1, 1);
+        // workgroup of a new pipeline now, so compilation counts as setup rather than
+        // render time, then clear what it wrote.
+        if fresh {
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("warm-up") });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("warm-up"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&pipeline);
+                pass.set_bind_group(0, &bind_group, &[0]);
+                pass.dispatch_workgroups(1, 1, 1);
+            }
+            encoder.clear_buffer(&film, 0, None);
+            encoder.clear_buffer(&counters, 0, None);
+            ctx.queue.submit([encoder.finish()]);
+            ctx.device
+                .poll(wgpu::PollType::wait_indefinitely())
+                .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
         }
-        encoder.clear_buffer(&film, 0, None);
-        encoder.clear_buffer(&counters, 0, None);
-        ctx.queue.submit([encoder.finish()]);
-        ctx.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
         ctx.take_error()?;
         let device_bytes = [
             &frame,

@@ -306,7 +306,7 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
                 if !point.is_finite() || !normal.is_finite() {
                     return Err(fail("the transformed plane is not finite".into()));
                 }
-                planes.push(Plane { normal, d: normal.dot(point), albedo });
+                planes.push(Plane { normal, point, albedo });
             }
         }
     }

@@ -34,13 +34,16 @@ pub struct Sphere {
     pub albedo: f32,
 }
 
-/// An infinite plane `{x : n·x = d}`, hit from both sides.
+/// An infinite plane through `point` with unit `normal`, hit from both sides. Kept as a
+/// point rather than `n·x = d`: a ray's distance to it is then `n·(point − o)`, whose
+/// rounding error scales with the distance rather than with |o| (exact for an axis
+/// normal), so planes stay exact far from the origin.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Plane {
     /// Unit normal.
     pub normal: Vec3,
-    /// Signed distance of the plane from the origin along `normal`.
-    pub d: f32,
+    /// A point of the plane.
+    pub point: Vec3,
     /// Diffuse reflectance ρ.
     pub albedo: f32,
 }
@@ -249,13 +252,24 @@ pub fn load_mesh(path: &Path, albedo: f32, transform: &glam::Mat4) -> Result<Vec
             ));
         }
     }
-    let mut out = Vec::with_capacity(mesh.triangles.len());
-    for (i, v) in mesh.triangles.into_iter().enumerate() {
-        let v = v.map(|p| transform.transform_point3(p));
+    mesh_triangles(path, mesh.triangles.into_iter().map(|v| v.map(|p| transform.transform_point3(p))), albedo)
+}
+
+/// The triangles of a mesh in world space, as the scene keeps them: rejects a non-finite
+/// coordinate and triangles too large to normalize, drops degenerate triangles (zero
+/// area, a repeated vertex), which no ray can hit and whose normal is undefined, and
+/// rejects a mesh left empty. `path` names the mesh in errors.
+pub fn mesh_triangles(
+    path: &Path,
+    triangles: impl IntoIterator<Item = [Vec3; 3]>,
+    albedo: f32,
+) -> Result<Vec<Triangle>> {
+    let mut out = Vec::new();
+    for (i, v) in triangles.into_iter().enumerate() {
         if let Some(c) = v.iter().find_map(|&p| non_finite_coordinate(p)) {
             return Err(Error::scene(path, format!("triangle {} has a non-finite coordinate ({c})", i + 1)));
         }
-        // The normal as the renderers compute it (src/cpu.rs, shaders/ao.wgsl).
+        // The normal as the renderers compute it (src/geometry.rs, shaders/intersect.wgsl).
         let n = (v[1] - v[0]).cross(v[2] - v[0]);
         let l2 = n.dot(n);
         if l2.is_nan() || l2 > MAX_NORMAL_LENGTH_SQUARED {

@@ -1,0 +1,556 @@
+//! Closed-form ambient occlusion at the extremes: scenes whose AO at given points is known
+//! exactly (albedo 1, cosine-weighted visibility), each built in every variant of scale,
+//! position and orientation. `tests/accuracy.rs` checks them on every device and unbiased
+//! sampler; `aorender accuracy` tabulates them (`docs/accuracy.md`).
+//!
+//! Cases are stated in a frame where the surface normal is +y and the probe sits at or near
+//! the origin, in f64; a [`Variant`] maps them to world space and rounds to f32. Expected
+//! values are computed from the rounded world geometry, so rounding at 1e6 from the origin
+//! changes the question rather than the answer's tolerance.
+
+use crate::camera::{Camera, Projection};
+use crate::error::Result;
+use crate::gpu::GpuContext;
+use crate::probe::{Probe, ProbeValue, probe_with};
+use crate::render::{Device, RenderOptions};
+use crate::sampler::Sampler;
+use crate::sampling::Hemisphere;
+use crate::scene::{Plane, Scene, Settings, Sphere, Triangle, mesh_triangles};
+use glam::{DVec3, Vec3};
+use std::path::Path;
+
+/// Where a case is placed: `world = scale · R(p) + (offset, offset, offset)`, with `R` the
+/// signed axis permutation that takes the case's +y to `±axis`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Variant {
+    /// Uniform scale.
+    pub scale: f64,
+    /// Translation along each axis.
+    pub offset: f64,
+    /// The world axis (0 x, 1 y, 2 z) that the case's +y becomes.
+    pub axis: usize,
+    /// Whether it becomes −axis.
+    pub negative: bool,
+}
+
+impl Variant {
+    /// The case as stated: unit scale, at the origin, normal +y.
+    pub const BASE: Variant = Variant { scale: 1.0, offset: 0.0, axis: 1, negative: false };
+
+    /// Scale 1, 1e-4 and 1e6, and translation by 1e6, each with the normal along each ±axis.
+    pub fn all() -> Vec<Variant> {
+        let mut out = Vec::new();
+        for (scale, offset) in [(1.0, 0.0), (1e-4, 0.0), (1e6, 0.0), (1.0, 1e6)] {
+            for axis in [1, 0, 2] {
+                for negative in [false, true] {
+                    out.push(Variant { scale, offset, axis, negative });
+                }
+            }
+        }
+        out
+    }
+
+    /// "×1e-4 −x", "+1e6 +z", "×1 +y".
+    pub fn name(&self) -> String {
+        let place = if self.offset != 0.0 { format!("+{:e}", self.offset) } else { format!("×{:e}", self.scale) };
+        format!("{place} {}{}", if self.negative { "−" } else { "+" }, ["x", "y", "z"][self.axis])
+    }
+
+    /// A direction of the case frame in world space (exact: a signed permutation).
+    fn vector(&self, v: DVec3) -> DVec3 {
+        let mut w = DVec3::ZERO;
+        w[self.axis] = if self.negative { -v.y } else { v.y };
+        w[(self.axis + 1) % 3] = v.z;
+        w[(self.axis + 2) % 3] = v.x;
+        w
+    }
+
+    /// A point of the case frame in world space, rounded to f32.
+    fn point(&self, p: DVec3) -> Vec3 {
+        (self.vector(p) * self.scale + DVec3::splat(self.offset)).as_vec3()
+    }
+
+    fn normal(&self, n: DVec3) -> Vec3 {
+        self.vector(n).normalize().as_vec3()
+    }
+
+    fn length(&self, l: f64) -> f32 {
+        (l * self.scale) as f32
+    }
+}
+
+/// A scene, points in it and the AO each must have.
+#[derive(Clone, Debug)]
+pub struct Case {
+    /// What the case is, without its variant.
+    pub name: String,
+    /// The variant it was built in.
+    pub variant: Variant,
+    /// The scene (its camera is unused).
+    pub scene: Scene,
+    /// The points.
+    pub probes: Vec<Probe>,
+    /// The exact AO at each point.
+    pub expected: Vec<f64>,
+}
+
+fn empty_scene(name: &str, v: &Variant) -> Scene {
+    Scene {
+        name: name.into(),
+        camera: Camera {
+            eye: v.point(DVec3::new(0.0, 2.0, 0.0)),
+            look_at: v.point(DVec3::ZERO),
+            up: v.normal(DVec3::Z),
+            projection: Projection::Orthographic { height: v.length(1.0) },
+        },
+        settings: Settings::default(),
+        triangles: Vec::new(),
+        spheres: Vec::new(),
+        planes: Vec::new(),
+    }
+}
+
+/// The plane through case point `p` with case normal `n`.
+fn plane(v: &Variant, p: DVec3, n: DVec3) -> Plane {
+    Plane { normal: v.normal(n), point: v.point(p), albedo: 1.0 }
+}
+
+fn probe_at(v: &Variant, p: DVec3, n: DVec3) -> Probe {
+    Probe::new(v.point(p), v.normal(n)).expect("case normals are non-zero")
+}
+
+/// 1 − h r² / d³ = 1 − cos β (r/d)²: a point on a plane under a sphere wholly above it,
+/// from the rounded world values.
+fn sphere_cap(p: &Probe, s: &Sphere) -> f64 {
+    let to_centre = s.center.as_dvec3() - p.position.as_dvec3();
+    let h = to_centre.dot(p.normal.as_dvec3());
+    let d = to_centre.length();
+    let r = s.radius as f64;
+    assert!(h >= r, "the sphere must lie wholly above the plane");
+    1.0 - h * r * r / (d * d * d)
+}
+
+/// Triangles of the cube [-1, 1]³ (each face from its own copies of the corners), plus two
+/// degenerate triangles on an edge: a repeated vertex and three collinear vertices.
+fn cube(v: &Variant) -> Vec<[Vec3; 3]> {
+    let corner = |i: usize| {
+        v.point(DVec3::new(
+            if i & 1 != 0 { 1.0 } else { -1.0 },
+            if i & 2 != 0 { 1.0 } else { -1.0 },
+            if i & 4 != 0 { 1.0 } else { -1.0 },
+        ))
+    };
+    let faces = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+    let mut tris = Vec::new();
+    for f in faces {
+        tris.push([corner(f[0]), corner(f[1]), corner(f[2])]);
+        tris.push([corner(f[0]), corner(f[2]), corner(f[3])]);
+    }
+    let mid = v.point(DVec3::new(0.0, -1.0, -1.0));
+    tris.push([corner(0), corner(0), corner(1)]);
+    tris.push([corner(0), mid, corner(1)]);
+    tris
+}
+
+/// A unit icosphere (an icosahedron subdivided `levels` times), built from shared vertices.
+fn icosphere(v: &Variant, levels: u32) -> Vec<[Vec3; 3]> {
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut verts: Vec<DVec3> = [
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ]
+    .iter()
+    .map(|&p| DVec3::from_array(p).normalize())
+    .collect();
+    let mut faces: Vec<[usize; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..levels {
+        let mut midpoints = std::collections::HashMap::new();
+        let mut mid = |a: usize, b: usize, verts: &mut Vec<DVec3>| -> usize {
+            *midpoints.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                verts.push((0.5 * (verts[a] + verts[b])).normalize());
+                verts.len() - 1
+            })
+        };
+        let mut next = Vec::with_capacity(faces.len() * 4);
+        for [a, b, c] in faces {
+            let (ab, bc, ca) = (mid(a, b, &mut verts), mid(b, c, &mut verts), mid(c, a, &mut verts));
+            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        faces = next;
+    }
+    let world: Vec<Vec3> = verts.iter().map(|&p| v.point(p)).collect();
+    faces.iter().map(|f| f.map(|i| world[i])).collect()
+}
+
+/// A floor of `count` slivers fanned around the origin out to `radius`, in the plane y = 0.
+fn sliver_fan(v: &Variant, count: usize, radius: f64) -> Vec<[Vec3; 3]> {
+    let rim: Vec<Vec3> = (0..count)
+        .map(|k| {
+            let phi = std::f64::consts::TAU * k as f64 / count as f64;
+            v.point(DVec3::new(radius * phi.cos(), 0.0, radius * phi.sin()))
+        })
+        .collect();
+    let apex = v.point(DVec3::ZERO);
+    (0..count).map(|k| [apex, rim[k], rim[(k + 1) % count]]).collect()
+}
+
+fn mesh(name: &str, tris: Vec<[Vec3; 3]>) -> Vec<Triangle> {
+    mesh_triangles(Path::new(name), tris, 1.0).expect("case meshes have triangles")
+}
+
+/// Every case in variant `v`. A case whose rounded geometry no longer poses its question
+/// (a wall rounded onto the point) is left out of that variant.
+pub fn cases(v: &Variant) -> Vec<Case> {
+    let up = DVec3::Y;
+    let mut out = Vec::new();
+    let mut push = |name: String, scene: Scene, probes: Vec<Probe>, expected: Vec<f64>| {
+        out.push(Case { name, variant: *v, scene, probes, expected });
+    };
+
+    // An unoccluded plane: 1.
+    let mut s = empty_scene("open plane", v);
+    s.planes.push(plane(v, DVec3::ZERO, up));
+    let probes = vec![probe_at(v, DVec3::ZERO, up), probe_at(v, DVec3::new(3.0, 0.0, -7.0), up)];
+    push("open plane".into(), s, probes, vec![1.0, 1.0]);
+
+    // A plane under a sphere wholly above it: 1 − cos β (r/d)².
+    for (r, d, beta_deg) in [(0.5f64, 1.0f64, 30.0f64), (0.3, 2.0, 60.0), (0.5, 1.0, 0.0)] {
+        let beta = beta_deg.to_radians();
+        let centre = DVec3::new(d * beta.sin(), d * beta.cos(), 0.0);
+        let mut s = empty_scene("sphere cap", v);
+        s.planes.push(plane(v, DVec3::ZERO, up));
+        let sphere = Sphere { center: v.point(centre), radius: v.length(r), albedo: 1.0 };
+        s.spheres.push(sphere);
+        let probes = vec![probe_at(v, DVec3::ZERO, up)];
+        let expected = probes.iter().map(|p| sphere_cap(p, &sphere)).collect();
+        push(format!("plane under sphere r {r} d {d} β {beta_deg}°"), s, probes, expected);
+    }
+
+    // The same over a floor of 1,000 slivers fanned around the point (a shared vertex) and
+    // a point inside a sliver near its tip.
+    {
+        let centre = DVec3::new(0.5, 0.875, 0.0);
+        let mut s = empty_scene("sliver floor", v);
+        s.triangles = mesh("sliver floor", sliver_fan(v, 1000, 10.0));
+        let sphere = Sphere { center: v.point(centre), radius: v.length(0.5), albedo: 1.0 };
+        s.spheres.push(sphere);
+        let probes = vec![probe_at(v, DVec3::ZERO, up), probe_at(v, DVec3::new(2.5, 0.0, 0.0625), up)];
+        let expected = probes.iter().map(|p| sphere_cap(p, &sphere)).collect();
+        push("1,000-sliver floor under sphere r 0.5".into(), s, probes, expected);
+    }
+
+    // A floor in front of an infinite wall: 1/2 at any distance.
+    for a in [0.0625f64, 1.0, 1024.0] {
+        let mut s = empty_scene("wall", v);
+        s.planes.push(plane(v, DVec3::ZERO, up));
+        let wall = plane(v, DVec3::new(a, 0.0, 0.0), -DVec3::X);
+        let p = probe_at(v, DVec3::ZERO, up);
+        let distance = wall.normal.as_dvec3().dot(wall.point.as_dvec3() - p.position.as_dvec3());
+        s.planes.push(wall);
+        if distance != 0.0 {
+            push(format!("floor before wall at {a}"), s, vec![p], vec![0.5]);
+        }
+    }
+
+    // Under an infinite ceiling at height h with maximum distance R: (h/R)² for R ≥ h, 1
+    // for R < h (0 and the smallest positive float included), 0 with no limit.
+    for (h, r) in [(1.0f64, Some(2.0f64)), (0.5, Some(4.0)), (3.0, Some(3.0)), (1.0, None), (1.0, Some(0.0))] {
+        let mut s = empty_scene("ceiling", v);
+        let ceiling = plane(v, DVec3::new(0.0, h, 0.0), -up);
+        s.planes.push(ceiling);
+        s.settings.max_distance = r.map(|r| v.length(r));
+        let p = probe_at(v, DVec3::ZERO, up);
+        let height = ceiling.normal.as_dvec3().dot(ceiling.point.as_dvec3() - p.position.as_dvec3()).abs();
+        let expected = match s.settings.max_distance {
+            None => 0.0,
+            Some(r) if (r as f64) < height => 1.0,
+            Some(r) => (height / r as f64).powi(2),
+        };
+        let limit = r.map_or("∞".to_string(), |r| format!("{r}"));
+        push(format!("ceiling h {h} R {limit}"), s, vec![p], vec![expected]);
+    }
+    {
+        let mut s = empty_scene("ceiling", v);
+        s.planes.push(plane(v, DVec3::new(0.0, 1.0, 0.0), -up));
+        s.settings.max_distance = Some(f32::from_bits(1));
+        push("ceiling h 1 R 1e-45".into(), s, vec![probe_at(v, DVec3::ZERO, up)], vec![1.0]);
+    }
+
+    // Inside closed meshes: 0 — nothing leaks through shared edges or vertices — and 1
+    // with maximum distance 0.
+    let inside = [
+        (DVec3::ZERO, up),
+        (DVec3::new(0.5, -0.25, 0.375), -DVec3::X),
+        (DVec3::new(0.9375, 0.9375, 0.9375), DVec3::Z),
+        (DVec3::new(-0.9375, 0.0, 0.5), -DVec3::X),
+        (DVec3::new(0.25, -0.5, -0.125), DVec3::new(1.0, 1.0, 1.0)),
+    ];
+    for limit in [None, Some(0.0)] {
+        let mut s = empty_scene("closed box", v);
+        s.triangles = mesh("closed box", cube(v));
+        s.settings.max_distance = limit;
+        let probes: Vec<Probe> = inside.iter().map(|&(p, n)| probe_at(v, p, n)).collect();
+        let value = if limit.is_some() { 1.0 } else { 0.0 };
+        let name = if limit.is_some() { "inside a closed box, R 0" } else { "inside a closed box" };
+        push(name.into(), s, probes.clone(), vec![value; probes.len()]);
+    }
+    {
+        let mut s = empty_scene("icosphere", v);
+        s.triangles = mesh("icosphere", icosphere(v, 2));
+        let probes: Vec<Probe> = inside[..3]
+            .iter()
+            .map(|&(p, n)| (p * 0.5, n))
+            .chain([(DVec3::new(0.0, 0.875, 0.0), up), (DVec3::new(0.0, -0.875, 0.0), up)])
+            .map(|(p, n)| probe_at(v, p, n))
+            .collect();
+        push("inside a 320-triangle icosphere".into(), s, probes.clone(), vec![0.0; probes.len()]);
+    }
+    out
+}
+
+/// Whether an estimate agrees with the exact value: within 4 standard errors, plus the
+/// f32 rounding of the sample values (when every sample is equal the standard error is 0).
+pub fn agrees(value: &ProbeValue, expected: f64) -> bool {
+    (value.mean - expected).abs() <= 4.0 * value.std_error + 4.0 * f32::EPSILON as f64 * expected.abs().max(1.0)
+}
+
+/// The configurations the suite runs: every hemisphere with every unbiased sampler.
+pub fn configurations() -> Vec<(Hemisphere, Sampler)> {
+    let mut out = Vec::new();
+    for h in Hemisphere::ALL {
+        for s in Sampler::ALL.into_iter().filter(|s| s.is_unbiased()) {
+            out.push((h, s));
+        }
+    }
+    out
+}
+
+/// Estimates of one case: its probes with `samples` samples each.
+pub fn run(
+    ctx: Option<&GpuContext>,
+    case: &Case,
+    device: Device,
+    (hemisphere, sampler): (Hemisphere, Sampler),
+    seed: u32,
+    samples: u32,
+) -> Result<Vec<ProbeValue>> {
+    let mut scene = case.scene.clone();
+    scene.settings.hemisphere = hemisphere;
+    scene.settings.sampler = sampler;
+    scene.settings.seed = seed;
+    let options = RenderOptions { device, ..Default::default() };
+    Ok(probe_with(ctx, &scene, &options, &case.probes, samples)?.values)
+}
+
+/// The configuration of the table's rows.
+pub const TABLE_CONFIGURATION: (Hemisphere, Sampler) = (Hemisphere::Cosine, Sampler::Independent);
+
+/// One point of one case in one variant, estimated at each of the table's sample counts.
+#[derive(Clone, Debug)]
+pub struct TableRow {
+    /// The case.
+    pub case: String,
+    /// The variant's name.
+    pub variant: String,
+    /// Index of the point in the case.
+    pub point: usize,
+    /// The exact value.
+    pub expected: f64,
+    /// The estimates, one per sample count.
+    pub estimates: Vec<ProbeValue>,
+}
+
+impl TableRow {
+    /// Whether every estimate agrees with the exact value. A small count's own standard
+    /// error can be 0 by chance (a hundred samples of a point that sees 1.6% of the sky
+    /// all miss a fifth of the time), so each estimate is judged with the larger of its own
+    /// and σ/√n, σ from the largest count.
+    pub fn pass(&self) -> bool {
+        let sigma =
+            self.estimates.iter().max_by_key(|e| e.samples).map_or(0.0, |e| e.std_error * (e.samples as f64).sqrt());
+        self.estimates.iter().all(|e| {
+            let se = e.std_error.max(sigma / (e.samples as f64).sqrt());
+            agrees(&ProbeValue { std_error: se, ..*e }, self.expected)
+        })
+    }
+}
+
+/// One hemisphere and sampler over every case of the base variant.
+#[derive(Clone, Debug)]
+pub struct ConfigurationRow {
+    /// Hemisphere.
+    pub hemisphere: Hemisphere,
+    /// Point sampler.
+    pub sampler: Sampler,
+    /// Estimates made.
+    pub estimates: usize,
+    /// Estimates that agree.
+    pub agreeing: usize,
+    /// Largest |mean − exact| / standard error (0 where both are 0).
+    pub largest_z: f64,
+}
+
+/// The accuracy table of one device.
+#[derive(Clone, Debug)]
+pub struct DeviceReport {
+    /// Adapter name, or "cpu".
+    pub adapter: String,
+    /// Every point of every case in every variant, with [`TABLE_CONFIGURATION`].
+    pub rows: Vec<TableRow>,
+    /// Every configuration over the base variant's cases at the largest count.
+    pub configurations: Vec<ConfigurationRow>,
+}
+
+/// Number of probe runs [`report`] makes for `counts` sample counts (for progress bars).
+pub fn report_runs(counts: usize) -> usize {
+    let per_variant = cases(&Variant::BASE).len();
+    Variant::all().len() * per_variant * counts + configurations().len() * per_variant
+}
+
+/// Runs the whole suite on one device; `tick` is called after each probe run.
+pub fn report(
+    ctx: Option<&GpuContext>,
+    device: Device,
+    counts: &[u32],
+    tick: &mut dyn FnMut(),
+) -> Result<DeviceReport> {
+    let mut rows = Vec::new();
+    for (vi, v) in Variant::all().iter().enumerate() {
+        for (ci, case) in cases(v).iter().enumerate() {
+            let mut per_count = Vec::new();
+            for (k, &n) in counts.iter().enumerate() {
+                let seed = (vi * 1000 + ci * 10 + k) as u32;
+                per_count.push(run(ctx, case, device, TABLE_CONFIGURATION, seed, n)?);
+                tick();
+            }
+            for (point, &expected) in case.expected.iter().enumerate() {
+                rows.push(TableRow {
+                    case: case.name.clone(),
+                    variant: v.name(),
+                    point,
+                    expected,
+                    estimates: per_count.iter().map(|values| values[point]).collect(),
+                });
+            }
+        }
+    }
+    let n = counts.iter().copied().max().unwrap_or(1);
+    let mut configs = Vec::new();
+    for (k, config) in configurations().into_iter().enumerate() {
+        let mut row =
+            ConfigurationRow { hemisphere: config.0, sampler: config.1, estimates: 0, agreeing: 0, largest_z: 0.0 };
+        for (ci, case) in cases(&Variant::BASE).iter().enumerate() {
+            let values = run(ctx, case, device, config, (50_000 + ci * 10 + k) as u32, n)?;
+            tick();
+            for (value, &expected) in values.iter().zip(&case.expected) {
+                row.estimates += 1;
+                row.agreeing += agrees(value, expected) as usize;
+                let error = (value.mean - expected).abs();
+                let z = if error == 0.0 { 0.0 } else { error / value.std_error };
+                row.largest_z = row.largest_z.max(z);
+            }
+        }
+        configs.push(row);
+    }
+    let adapter = match (device, ctx) {
+        (Device::Gpu, Some(c)) => c.description.name.clone(),
+        (Device::Gpu, None) => "gpu".into(),
+        (Device::Cpu, _) => "cpu (obvhs CWBVH reference)".into(),
+    };
+    Ok(DeviceReport { adapter, rows, configurations: configs })
+}
+
+fn count_label(n: u32) -> String {
+    let e = (n as f64).log10();
+    if e.fract() == 0.0 && n >= 100 {
+        let sup = ["⁰", "¹", "²", "³", "⁴", "⁵", "⁶", "⁷", "⁸", "⁹"];
+        format!("10{}", e.to_string().chars().map(|c| sup[c.to_digit(10).unwrap() as usize]).collect::<String>())
+    } else {
+        n.to_string()
+    }
+}
+
+/// The reports as Markdown (`docs/accuracy.md`).
+pub fn markdown(reports: &[DeviceReport], counts: &[u32], command: &str) -> String {
+    let labels: Vec<String> = counts.iter().map(|&n| count_label(n)).collect();
+    let last = labels.last().cloned().unwrap_or_default();
+    let mut md = String::new();
+    md += "# Accuracy at the extremes\n\n";
+    md += &format!("Generated by `{command}`; the cases are defined in `src/accuracy.rs`.\n\n");
+    md += "Each row is one point of a scene whose ambient occlusion has a closed form (albedo 1): \
+           the exact value and the estimate with ";
+    md += &labels.join(", ");
+    md += &format!(
+        " samples (cosine-weighted hemisphere, independent sampler), and the standard error at {last}. \
+         A row passes when every estimate is within 4 standard errors of the exact value (plus 4 f32 \
+         ulps, for estimates whose samples are all equal and whose standard error is 0); a count's \
+         standard error is the larger of its own and σ/√n, with σ from the largest count, because a \
+         hundred samples of a rarely occluded point can all agree by chance. Variants: \
+         ×s scales the case about the origin, +1e6 translates it by 10⁶ along each axis, and ±x/y/z \
+         is the axis the surface normal points along.\n\n"
+    );
+    for r in reports {
+        let pass = r.rows.iter().filter(|row| row.pass()).count();
+        md += &format!("## {}\n\n{pass} of {} points pass.\n\n", r.adapter, r.rows.len());
+        md += "| hemisphere | sampler | estimates | within 4 SE | largest |z| |\n|---|---|---|---|---|\n";
+        for c in &r.configurations {
+            md += &format!(
+                "| {} | {} | {} | {} | {:.2} |\n",
+                c.hemisphere.name(),
+                c.sampler.name(),
+                c.estimates,
+                c.agreeing,
+                c.largest_z
+            );
+        }
+        md += &format!("\n(Every case of the ×1 +y variant at {last} samples.)\n\n");
+        md += "| case | variant | point | expected |";
+        for l in &labels {
+            md += &format!(" {l} |");
+        }
+        md += &format!(" SE at {last} | pass |\n|---|---|---|---|");
+        md += &"---|".repeat(labels.len() + 2);
+        md += "\n";
+        for row in &r.rows {
+            md += &format!("| {} | {} | {} | {:.6} |", row.case, row.variant, row.point, row.expected);
+            for e in &row.estimates {
+                md += &format!(" {:.6} |", e.mean);
+            }
+            let se = row.estimates.last().map_or(0.0, |e| e.std_error);
+            md += &format!(" {se:.1e} | {} |\n", if row.pass() { "pass" } else { "**FAIL**" });
+        }
+        md += "\n";
+    }
+    md
+}

@@ -1,0 +1,163 @@
+//! The extremes that need the camera path (hit points computed from rays, then offset):
+//! 2^20 samples per pixel accumulated in passes, and grazing camera rays, at every scale
+//! and position of `aorender::accuracy::Variant`.
+
+mod common;
+use aorender::accuracy::Variant;
+use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
+use aorender::camera::{Camera, Projection};
+use aorender::cpu::CpuTracer;
+use aorender::gpu::{GpuContext, GpuRenderer, MAX_PASS_SAMPLES};
+use aorender::scene::{Plane, Settings, Sphere};
+use aorender::{Device, Film, Hemisphere, RenderOptions, Sampler, Scene};
+use common::*;
+use glam::{DVec3, Vec3};
+
+fn scene(camera: Camera, planes: Vec<Plane>, spheres: Vec<Sphere>, width: u32, spp: u32) -> Scene {
+    Scene {
+        name: "extreme".into(),
+        camera,
+        settings: Settings { width, height: width, spp, ..Default::default() },
+        triangles: Vec::new(),
+        spheres,
+        planes,
+    }
+}
+
+/// Mean over the image of per-pixel means, and its standard error from the per-pixel
+/// sample variances (every pixel estimates the same value).
+fn mean_and_error(film: &Film) -> (f64, f64) {
+    let n = film.samples as f64;
+    let pixels = film.sum.len() as f64;
+    let mean = film.sum.iter().sum::<f64>() / (n * pixels);
+    let var: f64 =
+        film.sum.iter().zip(&film.sum_sq).map(|(s, q)| ((q - s * s / n) / (n - 1.0)).max(0.0)).sum::<f64>() / pixels;
+    (mean, (var / (n * pixels)).sqrt())
+}
+
+/// 2^20 samples per pixel of a 4×4 view, a few nanometres wide, of one point on a floor
+/// under a sphere (1 − cos β (r/d)²), on the CPU reference: at every power of 4 from 2^10
+/// the image mean is within 4 standard errors of the closed form and the standard error
+/// times √N stays put (the error shrinks as 1/√N over the whole range). On the adapter the
+/// same samples up to 2^12 per pixel: the same checks, and its compensated f32 running
+/// sums equal the reference's f64 sums. (Lavapipe spends about 7 ms and 1.2 MB per
+/// dispatch, one dispatch per sample, so 2^20 dispatches do not fit in CI.)
+#[test]
+fn two_to_the_twenty_samples_converge_to_the_closed_form() {
+    const SPP: u32 = 1 << 20;
+    const GPU_SPP: u32 = 1 << 12;
+    // Seen obliquely from the side away from the sphere, so no view ray comes near it.
+    let camera = Camera {
+        eye: Vec3::new(-3.0, 3.0, 0.0),
+        look_at: Vec3::ZERO,
+        up: Vec3::Y,
+        projection: Projection::Orthographic { height: 1e-6 },
+    };
+    let floor = Plane { normal: Vec3::Y, point: Vec3::ZERO, albedo: 1.0 };
+    let sphere = Sphere { center: Vec3::new(0.5, 0.875, 0.0), radius: 0.5, albedo: 1.0 };
+    let mut s = scene(camera, vec![floor], vec![sphere], 4, SPP);
+    s.settings.sampler = Sampler::Independent;
+    s.settings.hemisphere = Hemisphere::Cosine;
+    let to_centre = sphere.center.as_dvec3();
+    let (h, d, r) = (to_centre.y, to_centre.length(), 0.5f64);
+    let expected = 1.0 - h * r * r / (d * d * d);
+    let checkpoints: Vec<u32> = (10..=20).step_by(2).map(|k| 1u32 << k).collect();
+
+    // The CPU reference, f64 sums.
+    let tracer = CpuTracer::new(&s, build_cwbvh(&s, BuildQuality::default()));
+    let mut cpu = Film::new(4, 4);
+    let mut cpu_at = Vec::new();
+    let mut done = 0;
+    for &target in &checkpoints {
+        while done < target {
+            let count = (target - done).min(1 << 14);
+            tracer.render_pass(&s, &mut cpu, done, count);
+            done += count;
+        }
+        cpu_at.push(cpu.clone());
+    }
+
+    let check = |film: &Film, what: &str, scaled: &mut Vec<f64>| {
+        let (mean, se) = mean_and_error(film);
+        let n = film.samples;
+        eprintln!("{what} N = 2^{}: {mean:.7} ± {se:.2e}, expected {expected:.7}", n.trailing_zeros());
+        assert!(se > 0.0);
+        assert!((mean - expected).abs() <= 4.0 * se, "{what} at N = {n}: {mean} is not {expected} ± 4·{se}");
+        scaled.push(se * (n as f64).sqrt());
+    };
+    let mut cpu_scaled = Vec::new();
+    for film in &cpu_at {
+        check(film, "cpu", &mut cpu_scaled);
+    }
+    // σ = SE·√N is a property of the estimator: within 5% from 2^10 to 2^20 (its own
+    // relative standard error at 2^10 × 16 pixels is under 1%).
+    let (lo, hi) = cpu_scaled.iter().fold((f64::MAX, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+    assert!(hi / lo < 1.05, "cpu: σ·√N drifts: {cpu_scaled:?}");
+
+    if !gpu_available() {
+        return;
+    }
+    let ctx = GpuContext::new(None).unwrap();
+    let bvh = GpuBvh::build(&s, BvhLayout::Cwbvh, BuildQuality::default());
+    let mut renderer = GpuRenderer::new(&ctx, &s, &bvh).unwrap();
+    let mut gpu_scaled = Vec::new();
+    let mut done = 0;
+    for (k, &target) in checkpoints.iter().enumerate().filter(|(_, n)| **n <= GPU_SPP) {
+        while done < target {
+            let count = (target - done).min(MAX_PASS_SAMPLES);
+            renderer.render_pass(done, count).unwrap();
+            done += count;
+        }
+        let film = renderer.read_film(target as u64).unwrap();
+        check(&film, "gpu", &mut gpu_scaled);
+        // The same samples: the compensated f32 running sums hold the f64 sum to f32 precision.
+        for (i, (g, c)) in film.sum.iter().zip(&cpu_at[k].sum).enumerate() {
+            let rel = (g - c).abs() / c.abs();
+            assert!(rel < 1e-6, "pixel {i} at N = {target}: gpu sum {g}, cpu sum {c} ({rel:.1e} apart)");
+        }
+    }
+    let (lo, hi) = gpu_scaled.iter().fold((f64::MAX, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+    assert!(hi / lo < 1.05, "gpu: σ·√N drifts: {gpu_scaled:?}");
+}
+
+/// Orthographic views of a floor in front of an infinite wall, the rays `angle` radians
+/// above the floor: every hit, on the floor or on the wall, has AO 1/2. Self-intersection
+/// at grazing hit points would pull the mean down; a leak would push it up. Every scale
+/// and position, both devices.
+#[test]
+fn grazing_camera_rays_see_one_half_everywhere() {
+    let mut devices = vec![Device::Cpu];
+    if gpu_available() {
+        devices.push(Device::Gpu);
+    }
+    for v in Variant::all().into_iter().filter(|v| v.axis == 1 && !v.negative) {
+        // At 1e6 from the origin an ulp is 1/16, and a hit within half an ulp of the floor–
+        // wall corner rounds onto it, where neither plane can occlude the other: the
+        // translated view is made 64 times larger, so that its features span a thousand
+        // ulps and such hits are a negligible fraction.
+        let unit = if v.offset != 0.0 { 64.0 } else { 1.0 };
+        let at = |p: DVec3| (p * v.scale * unit + DVec3::splat(v.offset)).as_vec3();
+        for angle in [1e-2f64, 1e-4, 1e-6] {
+            // Looking toward +x at the wall x = 4, down at `angle`, through the floor point
+            // (0, 0, 0) from 1 above the floor (so that no view ray starts on the floor at 1e6
+            // from the origin, where an ulp is 1/16), 1/sin(angle) away.
+            let dir = DVec3::new(angle.cos(), -angle.sin(), 0.0);
+            let camera = Camera {
+                eye: at(-dir / angle.sin()),
+                look_at: at(DVec3::ZERO),
+                up: Vec3::Y,
+                projection: Projection::Orthographic { height: (0.5 * v.scale * unit) as f32 },
+            };
+            let floor = Plane { normal: Vec3::Y, point: at(DVec3::ZERO), albedo: 1.0 };
+            let wall = Plane { normal: -Vec3::X, point: at(DVec3::new(4.0, 0.0, 0.0)), albedo: 1.0 };
+            let s = scene(camera, vec![floor, wall], Vec::new(), 16, 64);
+            for &device in &devices {
+                let film = render_with(&s, &RenderOptions { device, ..Default::default() });
+                let (mean, se) = mean_and_error(&film);
+                let what = format!("{} angle {angle:e} {device:?}", v.name());
+                eprintln!("{what}: {mean:.5} ± {se:.1e}");
+                assert!((mean - 0.5).abs() <= 4.0 * se, "{what}: {mean} is not 0.5 ± 4·{se}");
+            }
+        }
+    }
+}
