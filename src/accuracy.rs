@@ -130,32 +130,37 @@ fn sphere_cap(p: &Probe, s: &Sphere) -> f64 {
     1.0 - h * r * r / (d * d * d)
 }
 
-/// Triangles of the cube [-1, 1]³ (each face from its own copies of the corners), plus two
-/// degenerate triangles on an edge: a repeated vertex and three collinear vertices.
-fn cube(v: &Variant) -> Vec<[Vec3; 3]> {
-    let corner = |i: usize| {
-        v.point(DVec3::new(
-            if i & 1 != 0 { 1.0 } else { -1.0 },
-            if i & 2 != 0 { 1.0 } else { -1.0 },
-            if i & 4 != 0 { 1.0 } else { -1.0 },
-        ))
-    };
-    let faces = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
-    let mut tris = Vec::new();
-    for f in faces {
-        tris.push([corner(f[0]), corner(f[1]), corner(f[2])]);
-        tris.push([corner(f[0]), corner(f[2]), corner(f[3])]);
-    }
-    let mid = v.point(DVec3::new(0.0, -1.0, -1.0));
-    tris.push([corner(0), corner(0), corner(1)]);
-    tris.push([corner(0), mid, corner(1)]);
-    tris
+/// A mesh of shared vertices, in f64 (before any placement and rounding).
+#[derive(Clone, Debug, PartialEq)]
+pub struct IndexedMesh {
+    /// Vertex positions.
+    pub vertices: Vec<DVec3>,
+    /// Triangles as indices into `vertices`, wound outward.
+    pub triangles: Vec<[usize; 3]>,
 }
 
-/// A unit icosphere (an icosahedron subdivided `levels` times), built from shared vertices.
-fn icosphere(v: &Variant, levels: u32) -> Vec<[Vec3; 3]> {
+impl IndexedMesh {
+    /// The triangles in world space: each vertex placed by `v` once, so that every
+    /// triangle sharing it reads the same f32 value.
+    fn place(&self, v: &Variant) -> Vec<[Vec3; 3]> {
+        let world: Vec<Vec3> = self.vertices.iter().map(|&p| v.point(p)).collect();
+        self.triangles.iter().map(|t| t.map(|i| world[i])).collect()
+    }
+}
+
+/// The cube [-1, 1]³ as 12 triangles; corner i has x = bit 0, y = bit 1, z = bit 2.
+pub fn unit_cube() -> IndexedMesh {
+    let vertices =
+        (0..8).map(|i| DVec3::new([-1.0, 1.0][i & 1], [-1.0, 1.0][(i >> 1) & 1], [-1.0, 1.0][i >> 2])).collect();
+    let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+    let triangles = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
+    IndexedMesh { vertices, triangles }
+}
+
+/// The icosahedron subdivided `levels` times, vertices on the unit sphere.
+pub fn unit_icosphere(levels: u32) -> IndexedMesh {
     let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut verts: Vec<DVec3> = [
+    let mut vertices: Vec<DVec3> = [
         [-1.0, t, 0.0],
         [1.0, t, 0.0],
         [-1.0, -t, 0.0],
@@ -172,7 +177,7 @@ fn icosphere(v: &Variant, levels: u32) -> Vec<[Vec3; 3]> {
     .iter()
     .map(|&p| DVec3::from_array(p).normalize())
     .collect();
-    let mut faces: Vec<[usize; 3]> = vec![
+    let mut triangles: Vec<[usize; 3]> = vec![
         [0, 11, 5],
         [0, 5, 1],
         [0, 1, 7],
@@ -196,21 +201,31 @@ fn icosphere(v: &Variant, levels: u32) -> Vec<[Vec3; 3]> {
     ];
     for _ in 0..levels {
         let mut midpoints = std::collections::HashMap::new();
-        let mut mid = |a: usize, b: usize, verts: &mut Vec<DVec3>| -> usize {
+        let mut mid = |a: usize, b: usize, vertices: &mut Vec<DVec3>| -> usize {
             *midpoints.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                verts.push((0.5 * (verts[a] + verts[b])).normalize());
-                verts.len() - 1
+                vertices.push((0.5 * (vertices[a] + vertices[b])).normalize());
+                vertices.len() - 1
             })
         };
-        let mut next = Vec::with_capacity(faces.len() * 4);
-        for [a, b, c] in faces {
-            let (ab, bc, ca) = (mid(a, b, &mut verts), mid(b, c, &mut verts), mid(c, a, &mut verts));
+        let mut next = Vec::with_capacity(triangles.len() * 4);
+        for [a, b, c] in triangles {
+            let (ab, bc, ca) = (mid(a, b, &mut vertices), mid(b, c, &mut vertices), mid(c, a, &mut vertices));
             next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
         }
-        faces = next;
+        triangles = next;
     }
-    let world: Vec<Vec3> = verts.iter().map(|&p| v.point(p)).collect();
-    faces.iter().map(|f| f.map(|i| world[i])).collect()
+    IndexedMesh { vertices, triangles }
+}
+
+/// The placed unit cube plus two degenerate triangles on an edge: a repeated vertex and
+/// three collinear vertices.
+fn cube(v: &Variant) -> Vec<[Vec3; 3]> {
+    let mut tris = unit_cube().place(v);
+    let (c0, c1) = (v.point(DVec3::splat(-1.0)), v.point(DVec3::new(1.0, -1.0, -1.0)));
+    let mid = v.point(DVec3::new(0.0, -1.0, -1.0));
+    tris.push([c0, c0, c1]);
+    tris.push([c0, mid, c1]);
+    tris
 }
 
 /// A floor of `count` slivers fanned around the origin out to `radius`, in the plane y = 0.
@@ -327,7 +342,7 @@ pub fn cases(v: &Variant) -> Vec<Case> {
     }
     {
         let mut s = empty_scene("icosphere", v);
-        s.triangles = mesh("icosphere", icosphere(v, 2));
+        s.triangles = mesh("icosphere", unit_icosphere(2).place(v));
         let probes: Vec<Probe> = inside[..3]
             .iter()
             .map(|&(p, n)| (p * 0.5, n))

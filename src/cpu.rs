@@ -85,13 +85,12 @@ impl CpuTracer {
         if let Some(bvh) = &self.bvh {
             let mut hit = RayHit::none();
             let mut t_exact = t_best;
-            let backoff = TRAVERSAL_BACKOFF;
-            let ray = Ray::new(Vec3A::from(o - backoff * d), Vec3A::from(d), 0.0, t_best + backoff);
+            let ray = Ray::new(Vec3A::from(o - TRAVERSAL_BACKOFF * d), Vec3A::from(d), 0.0, t_best + TRAVERSAL_BACKOFF);
             let found = bvh.ray_traverse(ray, &mut hit, |_, slot| {
                 let t = self.intersect_primitive(slot, o, d, t_exact);
                 if t < t_exact {
                     t_exact = t;
-                    t + backoff
+                    t + TRAVERSAL_BACKOFF
                 } else {
                     f32::INFINITY
                 }
@@ -110,11 +109,11 @@ impl CpuTracer {
         }
         match &self.bvh {
             Some(bvh) => {
-                let backoff = TRAVERSAL_BACKOFF;
-                let ray = Ray::new(Vec3A::from(o - backoff * d), Vec3A::from(d), 0.0, t_max + backoff);
+                let ray =
+                    Ray::new(Vec3A::from(o - TRAVERSAL_BACKOFF * d), Vec3A::from(d), 0.0, t_max + TRAVERSAL_BACKOFF);
                 !bvh.ray_traverse_miss(ray, |_, slot| {
                     let t = self.intersect_primitive(slot, o, d, t_max);
-                    if t < t_max { t + backoff } else { f32::INFINITY }
+                    if t < t_max { t + TRAVERSAL_BACKOFF } else { f32::INFINITY }
                 })
             }
             None => false,

@@ -24,15 +24,10 @@ fn scene(camera: Camera, planes: Vec<Plane>, spheres: Vec<Sphere>, width: u32, s
     }
 }
 
-/// Mean over the image of per-pixel means, and its standard error from the per-pixel
-/// sample variances (every pixel estimates the same value).
+/// Mean over the image of per-pixel means, and its standard error (every pixel estimates
+/// the same value).
 fn mean_and_error(film: &Film) -> (f64, f64) {
-    let n = film.samples as f64;
-    let pixels = film.sum.len() as f64;
-    let mean = film.sum.iter().sum::<f64>() / (n * pixels);
-    let var: f64 =
-        film.sum.iter().zip(&film.sum_sq).map(|(s, q)| ((q - s * s / n) / (n - 1.0)).max(0.0)).sum::<f64>() / pixels;
-    (mean, (var / (n * pixels)).sqrt())
+    (film.image_mean(), image_mean_std_error(film))
 }
 
 /// 2^20 samples per pixel of a 4×4 view, a few nanometres wide, of one point on a floor

@@ -14,12 +14,13 @@
 mod common;
 use common::kernel::{self, TestKernel};
 
+use aorender::accuracy::{unit_cube, unit_icosphere};
 use aorender::geometry::intersect_triangle;
 use aorender::sampling::{pcg4d, u32_to_unit_float};
 use aorender::{Device, Film, Hemisphere, RenderOptions, Scene};
 use common::*;
 use glam::{DVec3, UVec4, Vec3};
-use std::collections::{BTreeSet, HashMap};
+use std::collections::BTreeSet;
 use std::path::Path;
 
 /// The probe kernel's file name and text.
@@ -63,73 +64,14 @@ impl Mesh {
 
 /// The icosahedron subdivided `levels` times, vertices on the unit sphere, outward winding.
 fn icosphere(levels: u32) -> Mesh {
-    let p = (1.0 + 5f64.sqrt()) / 2.0;
-    let corners = [
-        [-1.0, p, 0.0],
-        [1.0, p, 0.0],
-        [-1.0, -p, 0.0],
-        [1.0, -p, 0.0],
-        [0.0, -1.0, p],
-        [0.0, 1.0, p],
-        [0.0, -1.0, -p],
-        [0.0, 1.0, -p],
-        [p, 0.0, -1.0],
-        [p, 0.0, 1.0],
-        [-p, 0.0, -1.0],
-        [-p, 0.0, 1.0],
-    ];
-    let mut vertices: Vec<DVec3> = corners.iter().map(|v| DVec3::from(*v).normalize()).collect();
-    let mut triangles = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut midpoints: HashMap<[usize; 2], usize> = HashMap::new();
-        let mut midpoint = |a: usize, b: usize, vertices: &mut Vec<DVec3>| {
-            *midpoints.entry([a.min(b), a.max(b)]).or_insert_with(|| {
-                vertices.push((0.5 * (vertices[a] + vertices[b])).normalize());
-                vertices.len() - 1
-            })
-        };
-        triangles = triangles
-            .iter()
-            .flat_map(|&[a, b, c]| {
-                let ab = midpoint(a, b, &mut vertices);
-                let bc = midpoint(b, c, &mut vertices);
-                let ca = midpoint(c, a, &mut vertices);
-                [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
-            })
-            .collect();
-    }
-    Mesh { vertices, triangles }
+    let m = unit_icosphere(levels);
+    Mesh { vertices: m.vertices, triangles: m.triangles }
 }
 
 /// The cube [-1, 1]³ as 12 triangles, outward winding.
 fn cube() -> Mesh {
-    let vertices =
-        (0..8).map(|i| DVec3::new([-1.0, 1.0][i & 1], [-1.0, 1.0][(i >> 1) & 1], [-1.0, 1.0][i >> 2])).collect();
-    // Corner i has x = bit 0, y = bit 1, z = bit 2.
-    let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
-    let triangles = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
-    Mesh { vertices, triangles }
+    let m = unit_cube();
+    Mesh { vertices: m.vertices, triangles: m.triangles }
 }
 
 /// A point of [0, 1)³, a pure function of `(i, salt)`.
