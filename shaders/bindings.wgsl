@@ -51,8 +51,12 @@ struct Plane {
     _pad: f32,
 }
 
-@group(0) @binding(0) var<uniform> frame: Frame;
-@group(0) @binding(1) var<uniform> dispatch: Dispatch;
+// Every binding is a storage buffer, none a uniform buffer: Mesa's lavapipe (22.x) inlines
+// the uniform-buffer values a shader branches on and recompiles the kernel each time a
+// bind group is set, which is every dispatch here (7 ms and 1.2 MB that is never freed,
+// per dispatch). tests/shaders.rs keeps uniform buffers out.
+@group(0) @binding(0) var<storage, read> frame: Frame;
+@group(0) @binding(1) var<storage, read> dispatch: Dispatch;
 // Binding 2 holds the BVH nodes; their type is the traversal's (trace.wgsl, trace_cwbvh.wgsl).
 @group(0) @binding(3) var<storage, read> primitives: array<Primitive>;
 @group(0) @binding(4) var<storage, read> planes: array<Plane>;

@@ -72,6 +72,27 @@ fn host_structs_match_wgsl_layout() {
     assert_eq!(size_of("ProbePoint") as usize, std::mem::size_of::<GpuProbePoint>());
 }
 
+/// The kernel binds no uniform buffer (see shaders/bindings.wgsl): lavapipe would
+/// recompile it at every dispatch.
+#[test]
+fn kernel_binds_no_uniform_buffer() {
+    let files = shader_files();
+    for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
+        let module = validate_with("ao.wgsl", aorender::shaders::traversal_file(layout), &files);
+        let bound: Vec<_> = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).collect();
+        assert!(bound.len() >= 8, "{} bindings found", bound.len());
+        for (_, g) in bound {
+            assert!(
+                !matches!(g.space, naga::AddressSpace::Uniform | naga::AddressSpace::Immediate),
+                "binding {:?} ({:?}) is in the {:?} address space",
+                g.binding,
+                g.name,
+                g.space
+            );
+        }
+    }
+}
+
 /// naga's size of the WGSL struct `name`.
 fn wgsl_size(module: &naga::Module, name: &str) -> u32 {
     let mut layouter = naga::proc::Layouter::default();

@@ -1,4 +1,4 @@
-//! Host mirrors of the uniform and storage structs in `shaders/bindings.wgsl`. The layout
+//! Host mirrors of the structs in `shaders/bindings.wgsl` (all bound as storage buffers). The layout
 //! test compares each size with naga's.
 
 use crate::scene::{Plane, Scene};
@@ -75,7 +75,7 @@ impl FrameUniforms {
 pub struct DispatchUniforms {
     /// Index of the sample this dispatch renders.
     pub sample_index: u32,
-    /// Padding to WGSL's 16-byte uniform struct size.
+    /// Padding to 16 bytes.
     pub _pad: [u32; 3],
 }
 const _: () = assert!(std::mem::size_of::<DispatchUniforms>() == 16);

@@ -30,7 +30,7 @@ pub const COUNTER_TRUNCATED: u32 = 1;
 pub const COUNTER_COUNT: u32 = 2;
 /// Most samples (dispatches) in one pass.
 pub const MAX_PASS_SAMPLES: u32 = 1024;
-/// Stride of the per-dispatch uniforms (the largest `min_uniform_buffer_offset_alignment`).
+/// Stride of the per-dispatch constants (the largest `min_storage_buffer_offset_alignment`).
 const DISPATCH_STRIDE: u64 = 256;
 
 /// What `aorender adapters` prints about an adapter.
@@ -154,8 +154,8 @@ impl GpuContext {
         let bind_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("ao bindings"),
             entries: &[
-                entry(0, wgpu::BufferBindingType::Uniform, false),
-                entry(1, wgpu::BufferBindingType::Uniform, true),
+                entry(0, read_only, false),
+                entry(1, read_only, true),
                 entry(2, read_only, false),
                 entry(3, read_only, false),
                 entry(4, read_only, false),
@@ -323,12 +323,12 @@ impl<'a> GpuRenderer<'a> {
         let frame = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("frame"),
             contents: bytemuck::bytes_of(&frame),
-            usage: wgpu::BufferUsages::UNIFORM,
+            usage: wgpu::BufferUsages::STORAGE,
         });
         let dispatch = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("dispatch"),
             size: DISPATCH_STRIDE * MAX_PASS_SAMPLES as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let node_size = match bvh.layout {
