@@ -1,7 +1,9 @@
 //#import sampler.wgsl
 //#import trace.wgsl
-// The AO kernel: one sample of one pixel per invocation (a camera ray, then one AO ray
-// from its hit), added to the pixel's compensated running sums.
+// The AO kernel: one pixel per invocation, dispatch.sample_count samples of it in order
+// (each a camera ray, then one AO ray from its hit), added one by one to the pixel's
+// compensated running sums: the same additions, in the same order, as one sample per
+// dispatch.
 
 // Per-workgroup counts, added to the global counters once per workgroup: one global
 // atomic per invocation costs lavapipe's two worker threads a contended cache line.
@@ -72,15 +74,14 @@ fn shade_sample(px: vec2u, u: vec4f) -> f32 {
     return albedo * ao_value(surface.p, n, surface.error, u.zw);
 }
 
-// Adds one sample's value to film slot i, or counts it void when its traversal ran out
-// of budget.
-fn accumulate(i: u32, value: f32) {
+// Adds one sample's value to the running sums `acc` (a film slot), or counts it void
+// when its traversal ran out of budget.
+fn accumulate(acc: vec4f, value: f32) -> vec4f {
     if (truncated) {
         atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
-    } else {
-        let acc = film[i];
-        film[i] = vec4f(add_compensated(acc.xy, value), add_compensated(acc.zw, value * value));
+        return acc;
     }
+    return vec4f(add_compensated(acc.xy, value), add_compensated(acc.zw, value * value));
 }
 
 // Adds the workgroup's counts to the global counters (after a barrier).
@@ -95,8 +96,14 @@ fn flush_counters(lid: u32) {
 @compute @workgroup_size(WORKGROUP_WIDTH, WORKGROUP_HEIGHT, 1)
 fn render_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
     if (gid.x < frame.width && gid.y < frame.height) {
-        let u = sample_point_uniforms(frame.point_sampler, gid.x, gid.y, dispatch.sample_index, frame.seed, frame.strata);
-        accumulate(gid.y * frame.width + gid.x, shade_sample(gid.xy, u));
+        let i = gid.y * frame.width + gid.x;
+        var acc = film[i];
+        for (var k = 0u; k < dispatch.sample_count; k++) {
+            let index = dispatch.first_sample + k;
+            let u = sample_point_uniforms(frame.point_sampler, gid.x, gid.y, index, frame.seed, frame.strata);
+            acc = accumulate(acc, shade_sample(gid.xy, u));
+        }
+        film[i] = acc;
     }
     workgroupBarrier();
     flush_counters(lid);
@@ -104,20 +111,26 @@ fn render_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoc
 
 // AO at given points (aorender probe). The film holds frame.width lanes per point for
 // frame.height points; lane l of point k takes sample indices l, l + lanes, l + 2 lanes, ...
-// below frame.probe_samples, one per dispatch (dispatch.sample_index is the round).
+// below frame.probe_samples: round r is the sample r × lanes + l, and an invocation adds
+// rounds dispatch.first_sample .. + dispatch.sample_count in order.
 @compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
 fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
     let lanes = frame.width;
     let slot = gid.x;
     if (slot < lanes * frame.height) {
         let point = slot / lanes;
-        let index = dispatch.sample_index * lanes + slot % lanes;
-        if (index < frame.probe_samples) {
+        let q = probe_points[point];
+        var acc = film[slot];
+        for (var k = 0u; k < dispatch.sample_count; k++) {
+            let index = (dispatch.first_sample + k) * lanes + slot % lanes;
+            if (index >= frame.probe_samples) {
+                break;
+            }
             let u = sample_point_uniforms(frame.point_sampler, point, 0u, index, frame.seed, frame.strata);
-            let q = probe_points[point];
             // A probe point is exact as given: no offset.
-            accumulate(slot, ao_value(q.position, q.normal, 0.0, u.zw));
+            acc = accumulate(acc, ao_value(q.position, q.normal, 0.0, u.zw));
         }
+        film[slot] = acc;
     }
     workgroupBarrier();
     flush_counters(lid);

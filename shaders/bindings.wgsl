@@ -22,10 +22,10 @@ struct Frame {
 
 // Per-dispatch constants, bound with a dynamic offset.
 struct Dispatch {
-    sample_index: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
+    first_sample: u32,      // first sample index (image) or round (probes)
+    sample_count: u32,      // samples or rounds each invocation adds, in order
+    traversal_budget: u32,  // traversal loop iterations for all of them together
+    _pad: u32,
 }
 
 // Triangle: (v0, albedo), (v1, tag), (v2, 0), the vertices exactly as loaded (shared

@@ -1,8 +1,9 @@
 //#import bindings.wgsl
 //#import intersect.wgsl
 // What both BVH traversals share: the hit record, the iteration budget, primitives and
-// planes. Every loop iteration of an invocation is counted in `steps` against
-// TRAVERSAL_BUDGET (lavapipe silently ends an invocation after 65,535 loop iterations).
+// planes. Every traversal loop iteration of an invocation is counted in `steps` against
+// dispatch.traversal_budget (lavapipe silently ends an invocation after 65,535 loop
+// iterations; the host leaves room in that cap for the other loops of the kernel).
 
 const HIT_NONE: u32 = 0u;
 const HIT_PRIMITIVE: u32 = 1u;
@@ -21,7 +22,7 @@ var<private> truncated: bool = false;
 
 // Counts one loop iteration; false (and `truncated` set) once the budget is spent.
 fn take_step() -> bool {
-    if (steps >= TRAVERSAL_BUDGET) {
+    if (steps >= dispatch.traversal_budget) {
         truncated = true;
         return false;
     }

@@ -3,6 +3,8 @@
 //! seed they trace the same random numbers and agree pixel by pixel.
 
 mod common;
+use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
+use aorender::gpu::{GpuContext, GpuRenderer};
 use aorender::{Device, Film, Hemisphere, Sampler, Scene};
 use common::*;
 
@@ -135,5 +137,39 @@ fn gpu_render_is_reproducible() {
         let a = render_with(&scene, &options);
         let b = render_with(&scene, &options);
         assert_eq!(a.sum, b.sum, "{}: same seed, same adapter: identical accumulation", label(&options));
+    }
+}
+
+/// An invocation that renders several samples adds them to the running sums in the same
+/// order as one dispatch per sample: the film is the same bit for bit, whatever the
+/// samples per invocation, with passes that they do not divide. The uniform hemisphere
+/// gives every sample its own value (cosine-weighted ones are 0 or the albedo, whose sums
+/// do not depend on the order).
+#[test]
+fn samples_per_invocation_leave_the_film_unchanged() {
+    if !gpu_available() {
+        return;
+    }
+    let ctx = GpuContext::new(None).unwrap();
+    let dir = temp_dir();
+    for (mut scene, what) in [(aobench(), "aobench"), (mesh_scene(dir.path()), "mesh")] {
+        scene.settings.hemisphere = Hemisphere::Uniform;
+        for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
+            let bvh = GpuBvh::build(&scene, layout, BuildQuality::default());
+            let mut films = Vec::new();
+            for per in [1, 3, u32::MAX] {
+                let mut renderer = GpuRenderer::new(&ctx, &scene, &bvh).unwrap();
+                let per = renderer.set_samples_per_invocation(per);
+                renderer.render_pass(0, 7).unwrap();
+                renderer.render_pass(7, 57).unwrap();
+                films.push((per, renderer.read_film(64).unwrap()));
+            }
+            let (most, _) = films[2];
+            assert!(most > 7, "{what} {layout:?}: only {most} samples per invocation are safe");
+            for (per, film) in &films[1..] {
+                assert_eq!(film.sum, films[0].1.sum, "{what} {layout:?}: {per} samples per invocation");
+                assert_eq!(film.sum_sq, films[0].1.sum_sq, "{what} {layout:?}: {per} samples per invocation");
+            }
+        }
     }
 }

@@ -3,6 +3,8 @@
 //! sampler; the same numbers on both; and the command's input checks.
 
 mod common;
+use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
+use aorender::gpu::{GpuContext, GpuProbePoint, GpuRenderer};
 use aorender::probe::{Probe, probe};
 use aorender::{Device, Hemisphere, RenderOptions, Sampler, Scene};
 use common::*;
@@ -153,4 +155,44 @@ fn command_writes_csv_and_rejects_bad_points() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("missing.txt: cannot read"));
     let out = aorender(&["probe", "--points", "points.txt", "--samples", "0", "--device", "cpu"], d);
     assert!(!out.status.success());
+}
+
+/// Probe invocations that render several rounds add them in the same order as one
+/// dispatch per round: the sums are the same bit for bit (uniform hemisphere, so that
+/// every sample has its own value), with passes that the rounds per invocation do not
+/// divide and a last round that only some lanes take.
+#[test]
+fn rounds_per_invocation_leave_the_sums_unchanged() {
+    if !gpu_available() {
+        return;
+    }
+    let mut s = scene(&(plane([0.0; 3], [0.0, 1.0, 0.0]) + &sphere([0.3, 1.5, 0.0], 0.6)), None);
+    s.settings.hemisphere = Hemisphere::Uniform;
+    let points: Vec<GpuProbePoint> = [[0.0, 0.0, 0.0], [1.0, 0.0, -0.5], [-2.0, 0.0, 3.0]]
+        .iter()
+        .map(|&p| GpuProbePoint { position: p, _pad0: 0.0, normal: [0.0, 1.0, 0.0], _pad1: 0.0 })
+        .collect();
+    let (lanes, samples) = (4u32, 1001u32);
+    let rounds = samples.div_ceil(lanes);
+    let ctx = GpuContext::new(None).unwrap();
+    for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
+        let bvh = GpuBvh::build(&s, layout, BuildQuality::default());
+        let mut sums = Vec::new();
+        for per in [1, 5, u32::MAX] {
+            let mut renderer = GpuRenderer::for_probes(&ctx, &s, &bvh, &points, lanes, samples).unwrap();
+            let per = renderer.set_samples_per_invocation(per);
+            let mut done = 0;
+            while done < rounds {
+                let count = (rounds - done).min(37);
+                renderer.render_pass(done, count).unwrap();
+                done += count;
+            }
+            sums.push((per, renderer.read_film(0).unwrap()));
+        }
+        assert!(sums[2].0 > 37, "{layout:?}: only {} rounds per invocation are safe", sums[2].0);
+        for (per, film) in &sums[1..] {
+            assert_eq!(film.sum, sums[0].1.sum, "{layout:?}: {per} rounds per invocation");
+            assert_eq!(film.sum_sq, sums[0].1.sum_sq, "{layout:?}: {per} rounds per invocation");
+        }
+    }
 }

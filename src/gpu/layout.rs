@@ -73,10 +73,14 @@ impl FrameUniforms {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct DispatchUniforms {
-    /// Index of the sample this dispatch renders.
-    pub sample_index: u32,
+    /// Index of the first sample (image) or round (probes) this dispatch renders.
+    pub first_sample: u32,
+    /// Samples or rounds each invocation renders, one after another.
+    pub sample_count: u32,
+    /// Traversal loop iterations each invocation may spend on all its samples.
+    pub traversal_budget: u32,
     /// Padding to 16 bytes.
-    pub _pad: [u32; 3],
+    pub _pad: u32,
 }
 const _: () = assert!(std::mem::size_of::<DispatchUniforms>() == 16);
 

@@ -11,13 +11,41 @@ use crate::scene::Scene;
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
-/// Loop iterations one invocation may spend on all its rays together. Mesa 22.3's
-/// lavapipe silently ends an invocation after 65,535; a traversal that would pass this
-/// budget stops and voids its sample, and the pass reports [`Error::TraversalBudget`].
+/// Traversal loop iterations one invocation may spend on all its rays together. Mesa
+/// 22.3's lavapipe silently ends an invocation after 65,535 loop iterations; a traversal
+/// that would pass the budget stops and voids its sample, and the pass reports
+/// [`Error::TraversalBudget`].
 pub const TRAVERSAL_BUDGET: u32 = 65_000;
 /// Mesa 22.3 lavapipe's per-invocation loop cap (`LP_MAX_TGSI_LOOP_ITERATIONS`).
 pub const LAVAPIPE_LOOP_CAP: u32 = 65_535;
-const _: () = assert!(TRAVERSAL_BUDGET + crate::sampler::SAMPLER_LOOP_BOUND <= LAVAPIPE_LOOP_CAP);
+/// Loop iterations a sample may take outside the traversal loops: its turn of the
+/// kernel's sample loop, the sampler's permutation walks, and the exits of bounded loops.
+const SAMPLE_LOOP_OVERHEAD: u32 = crate::sampler::SAMPLER_LOOP_BOUND + 8;
+/// Iterations of an invocation outside its samples.
+const INVOCATION_LOOP_OVERHEAD: u32 = 8;
+const _: () = assert!(TRAVERSAL_BUDGET + SAMPLE_LOOP_OVERHEAD + INVOCATION_LOOP_OVERHEAD <= LAVAPIPE_LOOP_CAP);
+
+/// The traversal budget of an invocation that renders `samples` samples: what lavapipe's
+/// cap leaves after their other loops, and at most [`TRAVERSAL_BUDGET`].
+fn traversal_budget(samples: u32) -> u32 {
+    let other = samples.saturating_mul(SAMPLE_LOOP_OVERHEAD).saturating_add(INVOCATION_LOOP_OVERHEAD);
+    TRAVERSAL_BUDGET.min(LAVAPIPE_LOOP_CAP.saturating_sub(other))
+}
+
+/// How many samples one invocation can render in turn without any chance of running out
+/// of budget, given a bound on one sample's traversal iterations: every traversal loop
+/// iteration visits a BVH node, tests a primitive reference or a plane, and a ray visits
+/// each at most once, so one sample's rays take at most `rays` × (nodes + primitive
+/// references + planes). At least 1: a sample that alone could exceed the budget is
+/// rendered one per invocation, where running out is detected and reported.
+pub fn safe_samples_per_invocation(rays: u32, nodes: usize, references: usize, planes: usize) -> u32 {
+    let steps = (rays as u64) * (nodes + references + planes) as u64;
+    let mut s = 1;
+    while s < MAX_PASS_SAMPLES && (s as u64 + 1) * steps <= traversal_budget(s + 1) as u64 {
+        s += 1;
+    }
+    s
+}
 /// Workgroup size of the AO kernel.
 pub const WORKGROUP_SIZE: [u32; 2] = [8, 8];
 /// Workgroup size of the probe kernel (one dimension: point × lane slots).
@@ -249,6 +277,10 @@ pub struct GpuRenderer<'a> {
     width: u32,
     height: u32,
     kernel: Kernel,
+    /// Samples (or probe rounds) each invocation renders in turn.
+    samples_per_invocation: u32,
+    /// The most that cannot run out of traversal budget.
+    safe_samples_per_invocation: u32,
     /// Bytes of device memory the renderer allocated.
     pub device_bytes: u64,
     /// The BVH layout the kernel traverses.
@@ -428,6 +460,16 @@ impl<'a> GpuRenderer<'a> {
         .iter()
         .map(|b| b.size())
         .sum();
+        let rays_per_sample = match kernel {
+            Kernel::Image => 2,
+            Kernel::Probe => 1,
+        };
+        let safe_samples_per_invocation = safe_samples_per_invocation(
+            rays_per_sample,
+            bvh.node_count as usize,
+            bvh.primitives.len(),
+            scene.planes.len(),
+        );
         Ok(GpuRenderer {
             ctx,
             pipeline,
@@ -440,19 +482,43 @@ impl<'a> GpuRenderer<'a> {
             width,
             height,
             kernel,
+            samples_per_invocation: safe_samples_per_invocation,
+            safe_samples_per_invocation,
             device_bytes,
             layout: bvh.layout,
         })
     }
 
-    /// Adds samples `first .. first + count` of every pixel to the film (one dispatch per
-    /// sample) and waits for them. For probes, `first .. first + count` are rounds: round
-    /// r gives lane l of every point the sample index r × lanes + l.
+    /// Samples (or probe rounds) each invocation renders in turn.
+    pub fn samples_per_invocation(&self) -> u32 {
+        self.samples_per_invocation
+    }
+
+    /// Sets the samples each invocation renders in turn, at most
+    /// [`safe_samples_per_invocation`] for this scene; returns the value set. The film
+    /// is the same, bit for bit, whatever the setting: each invocation adds its samples
+    /// in order, as one dispatch per sample would.
+    pub fn set_samples_per_invocation(&mut self, samples: u32) -> u32 {
+        self.samples_per_invocation = samples.clamp(1, self.safe_samples_per_invocation);
+        self.samples_per_invocation
+    }
+
+    /// Adds samples `first .. first + count` of every pixel to the film, in order, and
+    /// waits for them. For probes, `first .. first + count` are rounds: round r gives lane
+    /// l of every point the sample index r × lanes + l.
     pub fn render_pass(&mut self, first: u32, count: u32) -> Result<PassCounters> {
         assert!((1..=MAX_PASS_SAMPLES).contains(&count), "pass of {count} samples");
-        let mut uniforms = vec![0u8; (DISPATCH_STRIDE * count as u64) as usize];
-        for k in 0..count {
-            let u = DispatchUniforms { sample_index: first.wrapping_add(k), _pad: [0; 3] };
+        let per = self.samples_per_invocation;
+        let dispatches = count.div_ceil(per);
+        let mut uniforms = vec![0u8; (DISPATCH_STRIDE * dispatches as u64) as usize];
+        for k in 0..dispatches {
+            let n = per.min(count - k * per);
+            let u = DispatchUniforms {
+                first_sample: first.wrapping_add(k * per),
+                sample_count: n,
+                traversal_budget: traversal_budget(n),
+                _pad: 0,
+            };
             let at = (DISPATCH_STRIDE * k as u64) as usize;
             uniforms[at..at + std::mem::size_of::<DispatchUniforms>()].copy_from_slice(bytemuck::bytes_of(&u));
         }
@@ -468,7 +534,7 @@ impl<'a> GpuRenderer<'a> {
                 Kernel::Image => (self.width.div_ceil(WORKGROUP_SIZE[0]), self.height.div_ceil(WORKGROUP_SIZE[1])),
                 Kernel::Probe => ((self.width * self.height).div_ceil(PROBE_WORKGROUP_SIZE), 1),
             };
-            for k in 0..count {
+            for k in 0..dispatches {
                 pass.set_bind_group(0, &self.bind_group, &[(DISPATCH_STRIDE * k as u64) as u32]);
                 pass.dispatch_workgroups(groups_x, groups_y, 1);
             }
@@ -478,7 +544,7 @@ impl<'a> GpuRenderer<'a> {
         let words: Vec<u32> = self.read(&self.counters_readback)?;
         let truncated = words[COUNTER_TRUNCATED as usize] as u64;
         if truncated > 0 {
-            return Err(Error::TraversalBudget { count: truncated, budget: TRAVERSAL_BUDGET });
+            return Err(Error::TraversalBudget { count: truncated, budget: traversal_budget(per) });
         }
         Ok(PassCounters { ao_rays: words[COUNTER_AO_RAYS as usize] as u64 })
     }
@@ -520,5 +586,70 @@ impl<'a> GpuRenderer<'a> {
         };
         buffer.unmap();
         Ok(data)
+    }
+
+    /// The film's raw words, one `[Σv, compensation, Σv², compensation]` per slot, as
+    /// the kernel left them: with [`GpuRenderer::set_film_words`], a render can stop and
+    /// go on later from the same bits.
+    pub fn film_words(&self) -> Result<Vec<[f32; 4]>> {
+        let mut encoder =
+            self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("film words") });
+        encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, None);
+        self.ctx.queue.submit([encoder.finish()]);
+        self.read(&self.film_readback)
+    }
+
+    /// Replaces the film with `words` (as [`GpuRenderer::film_words`] returned them).
+    pub fn set_film_words(&mut self, words: &[[f32; 4]]) -> Result<()> {
+        let slots = self.width as usize * self.height as usize;
+        if words.len() != slots {
+            return Err(Error::Gpu(format!("{} film slots given for a film of {slots}", words.len())));
+        }
+        self.ctx.queue.write_buffer(&self.film, 0, bytemuck::cast_slice(words));
+        self.ctx.queue.submit([]);
+        self.ctx
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
+        self.ctx.take_error()
+    }
+
+    /// Zeroes the film.
+    pub fn clear_film(&mut self) -> Result<()> {
+        let mut encoder =
+            self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("clear film") });
+        encoder.clear_buffer(&self.film, 0, None);
+        self.ctx.queue.submit([encoder.finish()]);
+        self.ctx.take_error()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The chosen count fits: its worst-case traversal within the budget, the budget and
+    /// the other loops within lavapipe's cap; one more would not fit.
+    #[test]
+    fn safe_samples_per_invocation_fill_the_loop_cap() {
+        for (rays, nodes, refs, planes) in
+            [(2, 1, 1, 1), (2, 0, 0, 1), (2, 5, 3, 1), (1, 600, 1162, 0), (2, 600, 1162, 0), (2, 20_000, 40_000, 0)]
+        {
+            let steps = rays as u64 * (nodes + refs + planes) as u64;
+            let s = safe_samples_per_invocation(rays, nodes, refs, planes);
+            let budget = traversal_budget(s);
+            assert!(
+                budget as u64 + (s * SAMPLE_LOOP_OVERHEAD + INVOCATION_LOOP_OVERHEAD) as u64
+                    <= LAVAPIPE_LOOP_CAP as u64
+            );
+            if s > 1 {
+                assert!(s as u64 * steps <= budget as u64, "{s} × {steps} steps > {budget}");
+            }
+            if s < MAX_PASS_SAMPLES {
+                assert!((s as u64 + 1) * steps > traversal_budget(s + 1) as u64, "{} would fit too", s + 1);
+            }
+        }
+        assert_eq!(safe_samples_per_invocation(2, 20_000, 40_000, 0), 1);
+        assert_eq!(traversal_budget(1), TRAVERSAL_BUDGET);
     }
 }
