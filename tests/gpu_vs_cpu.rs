@@ -173,3 +173,25 @@ fn samples_per_invocation_leave_the_film_unchanged() {
         }
     }
 }
+
+/// Where the adapter has timestamp queries, a pass reports its GPU time: positive and no
+/// longer than the pass took on the clock.
+#[test]
+fn passes_report_gpu_time_from_timestamps() {
+    if !gpu_available() {
+        return;
+    }
+    let ctx = GpuContext::new(None).unwrap();
+    let scene = aobench();
+    let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
+    let mut renderer = GpuRenderer::new(&ctx, &scene, &bvh).unwrap();
+    let start = std::time::Instant::now();
+    let pass = renderer.render_pass(0, 16).unwrap();
+    let wall = start.elapsed().as_secs_f64();
+    let has_timestamps = ctx.device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+    assert_eq!(pass.gpu_seconds.is_some(), has_timestamps);
+    if let Some(gpu) = pass.gpu_seconds {
+        eprintln!("pass of 16 spp at 64²: {gpu:.6} s on the GPU, {wall:.6} s on the clock");
+        assert!(gpu > 0.0 && gpu <= wall, "GPU time {gpu} s, wall {wall} s");
+    }
+}

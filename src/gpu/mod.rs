@@ -58,6 +58,8 @@ pub const COUNTER_TRUNCATED: u32 = 1;
 pub const COUNTER_COUNT: u32 = 2;
 /// Most samples (dispatches) in one pass.
 pub const MAX_PASS_SAMPLES: u32 = 1024;
+/// Offset of the pass timestamps in the counters' readback buffer.
+const TIMESTAMPS_AT: u64 = 256;
 /// Stride of the per-dispatch constants (the largest `min_storage_buffer_offset_alignment`).
 const DISPATCH_STRIDE: u64 = 256;
 
@@ -144,7 +146,8 @@ impl GpuContext {
         };
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("aorender"),
-            required_features: wgpu::Features::empty(),
+            // Pass times from timestamp queries where the adapter has them.
+            required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
             // wgpu's defaults cap a storage binding at 128 MiB: ask for what the adapter has.
             required_limits: adapter.limits(),
             ..Default::default()
@@ -253,6 +256,9 @@ impl GpuContext {
 pub struct PassCounters {
     /// AO rays traced.
     pub ao_rays: u64,
+    /// Seconds between the pass's first and last GPU timestamps, where the adapter has
+    /// timestamp queries.
+    pub gpu_seconds: Option<f64>,
 }
 
 /// What the AO pipeline computes.
@@ -274,6 +280,9 @@ pub struct GpuRenderer<'a> {
     dispatch: wgpu::Buffer,
     counters: wgpu::Buffer,
     counters_readback: wgpu::Buffer,
+    /// Start and end timestamps of a pass, resolved into `timestamps_resolved`, where
+    /// the adapter has timestamp queries.
+    timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
     width: u32,
     height: u32,
     kernel: Kernel,
@@ -389,15 +398,30 @@ impl<'a> GpuRenderer<'a> {
             mapped_at_creation: false,
         });
         let counter_bytes = 4 * COUNTER_COUNT as u64;
+        let timestamps = ctx.device.features().contains(wgpu::Features::TIMESTAMP_QUERY).then(|| {
+            let set = device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("pass timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            });
+            let resolved = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("pass timestamps"),
+                size: 2 * wgpu::QUERY_SIZE as u64,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            (set, resolved)
+        });
         let counters = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("counters"),
             size: counter_bytes,
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        // The counters, then the timestamps at TIMESTAMPS_AT.
         let counters_readback = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("counters readback"),
-            size: counter_bytes,
+            size: TIMESTAMPS_AT + 2 * wgpu::QUERY_SIZE as u64,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -479,6 +503,7 @@ impl<'a> GpuRenderer<'a> {
             dispatch,
             counters,
             counters_readback,
+            timestamps,
             width,
             height,
             kernel,
@@ -527,8 +552,13 @@ impl<'a> GpuRenderer<'a> {
             self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("pass") });
         encoder.clear_buffer(&self.counters, 0, None);
         {
+            let timestamp_writes = self.timestamps.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
+                query_set: set,
+                beginning_of_pass_write_index: Some(0),
+                end_of_pass_write_index: Some(1),
+            });
             let mut pass =
-                encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("ao"), timestamp_writes: None });
+                encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("ao"), timestamp_writes });
             pass.set_pipeline(&self.pipeline);
             let (groups_x, groups_y) = match self.kernel {
                 Kernel::Image => (self.width.div_ceil(WORKGROUP_SIZE[0]), self.height.div_ceil(WORKGROUP_SIZE[1])),
@@ -539,14 +569,23 @@ impl<'a> GpuRenderer<'a> {
                 pass.dispatch_workgroups(groups_x, groups_y, 1);
             }
         }
-        encoder.copy_buffer_to_buffer(&self.counters, 0, &self.counters_readback, 0, None);
+        encoder.copy_buffer_to_buffer(&self.counters, 0, &self.counters_readback, 0, Some(4 * COUNTER_COUNT as u64));
+        if let Some((set, resolved)) = &self.timestamps {
+            encoder.resolve_query_set(set, 0..2, resolved, 0);
+            encoder.copy_buffer_to_buffer(resolved, 0, &self.counters_readback, TIMESTAMPS_AT, None);
+        }
         self.ctx.queue.submit([encoder.finish()]);
         let words: Vec<u32> = self.read(&self.counters_readback)?;
+        let gpu_seconds = self.timestamps.as_ref().map(|_| {
+            let at = (TIMESTAMPS_AT / 4) as usize;
+            let tick = |k: usize| words[at + 2 * k] as u64 | (words[at + 2 * k + 1] as u64) << 32;
+            tick(1).wrapping_sub(tick(0)) as f64 * self.ctx.queue.get_timestamp_period() as f64 * 1e-9
+        });
         let truncated = words[COUNTER_TRUNCATED as usize] as u64;
         if truncated > 0 {
             return Err(Error::TraversalBudget { count: truncated, budget: traversal_budget(per) });
         }
-        Ok(PassCounters { ao_rays: words[COUNTER_AO_RAYS as usize] as u64 })
+        Ok(PassCounters { ao_rays: words[COUNTER_AO_RAYS as usize] as u64, gpu_seconds })
     }
 
     /// Copies the film back: per-pixel compensated sums as f64.
