@@ -60,7 +60,7 @@ fn shade_sample(px: vec2u, u: vec4f) -> f32 {
         surface = plane_hit_point(o, d, hit.t, plane.normal, plane.point);
         albedo = plane.albedo;
     } else {
-        let prim = primitives[hit.index];
+        let prim = load_primitive(hit.index);
         albedo = prim.a.w;
         if (bitcast<u32>(prim.b.w) == PRIM_SPHERE) {
             surface = sphere_hit_point(o, d, hit.t, prim.a.xyz, prim.b.x);

@@ -57,8 +57,9 @@ struct Plane {
 // per dispatch). tests/shaders.rs keeps uniform buffers out.
 @group(0) @binding(0) var<storage, read> frame: Frame;
 @group(0) @binding(1) var<storage, read> dispatch: Dispatch;
-// Binding 2 holds the BVH nodes; their type is the traversal's (trace.wgsl, trace_cwbvh.wgsl).
-@group(0) @binding(3) var<storage, read> primitives: array<Primitive>;
+// Bindings 2 and 3, and 8 and up, hold the BVH nodes and the primitives, split into
+// chunks that each fit one binding: the composer generates them with load_node and
+// load_primitive (src/shaders.rs, node_bindings.wgsl and primitive_bindings.wgsl).
 @group(0) @binding(4) var<storage, read> planes: array<Plane>;
 // Per pixel: (sum, compensation, sum of squares, compensation).
 @group(0) @binding(5) var<storage, read_write> film: array<vec4f>;

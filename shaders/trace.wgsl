@@ -13,7 +13,7 @@ struct Node {
     b_count: u32,
 }
 
-@group(0) @binding(2) var<storage, read> nodes: array<Node>;
+//#import node_bindings.wgsl
 
 // Closest hit within (0, t_max) or, with any_hit, the first hit found.
 fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
@@ -43,7 +43,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
                 continue;
             }
         } else {
-            let node = nodes[cur.x];
+            let node = load_node(cur.x);
             let ta = intersect_box(node.a_min, node.a_max, o, inv_d, hit.t);
             var tb = INF;
             if (node.b_index != INVALID_INDEX) {

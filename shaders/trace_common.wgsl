@@ -1,5 +1,6 @@
 //#import bindings.wgsl
 //#import intersect.wgsl
+//#import primitive_bindings.wgsl
 // What both BVH traversals share: the hit record, the iteration budget, primitives and
 // planes. Every traversal loop iteration of an invocation is counted in `steps` against
 // dispatch.traversal_budget (lavapipe silently ends an invocation after 65,535 loop
@@ -32,7 +33,7 @@ fn take_step() -> bool {
 
 // Primitive i of the leaf-ordered array against the ray (bindings.wgsl gives the record).
 fn intersect_primitive(i: u32, o: vec3f, d: vec3f, t_max: f32) -> f32 {
-    let p = primitives[i];
+    let p = load_primitive(i);
     if (bitcast<u32>(p.b.w) == PRIM_SPHERE) {
         return intersect_sphere(o, d, 0.0, t_max, p.a.xyz, p.b.x);
     }

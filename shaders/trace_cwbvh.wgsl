@@ -16,7 +16,7 @@ struct CwNode {
     n4: vec4u,
 }
 
-@group(0) @binding(2) var<storage, read> nodes: array<CwNode>;
+//#import node_bindings.wgsl
 
 fn byte_at(word: u32, shift: u32) -> f32 {
     return f32((word >> shift) & 0xffu);
@@ -113,7 +113,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             }
             let slot_index = (child_bit - 24u) ^ (oct_inv4 & 0xffu);
             let relative_index = countOneBits(hits_imask & ~(0xffffffffu << slot_index));
-            let node = nodes[node_group.x + relative_index];
+            let node = load_node(node_group.x + relative_index);
             let hitmask = intersect_node(node, o, inv_d, oct_inv4, hit.t);
             node_group = vec2u(node.n1.x, (hitmask & 0xff000000u) | (node.n0.w >> 24u));
             prim_group = vec2u(node.n1.y, hitmask & 0x00ffffffu);

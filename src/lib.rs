@@ -14,8 +14,10 @@
 //! ```
 
 pub mod accuracy;
+pub mod bench;
 pub mod bvh;
 pub mod camera;
+pub mod checkpoint;
 pub mod compare;
 pub mod cpu;
 pub mod error;

@@ -2,12 +2,17 @@
 
 use anyhow::{Context, Result, bail};
 use aorender::bvh::{BuildQuality, BvhLayout};
+use aorender::checkpoint::{self, Accumulation};
 use aorender::compare::{self, CompareProgress};
-use aorender::{Device, Hemisphere, Progress, RenderOptions, Sampler, Scene, render};
+use aorender::render::{Checkpointing, render_resumable};
+use aorender::{Device, Hemisphere, Progress, RenderOptions, Sampler, Scene};
 use clap::builder::TypedValueParser as _;
 use clap::{Parser, Subcommand, ValueEnum};
-use std::io::IsTerminal;
+use std::io::{IsTerminal, Write};
+use std::ops::Range;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 
 #[derive(Parser)]
 #[command(name = "aorender", version, about = "GPU ambient-occlusion renderer")]
@@ -27,8 +32,26 @@ enum Command {
     /// Run the closed-form accuracy suite on the CPU reference and the adapter and write its
     /// table as Markdown (docs/accuracy.md).
     Accuracy(AccuracyArgs),
+    /// Combine the accumulations (checkpoint files) of disjoint sample ranges of one render
+    /// into its image.
+    Merge(MergeArgs),
+    /// Measure convergence, speed and scaling of every sampler on real scenes, GPU and CPU.
+    Bench(aorender::bench::BenchArgs),
     /// List the adapters wgpu finds.
     Adapters,
+}
+
+#[derive(clap::Args)]
+struct MergeArgs {
+    /// Checkpoint files of the shards (`render --sample-range START..END --checkpoint FILE`).
+    #[arg(required = true)]
+    inputs: Vec<PathBuf>,
+    /// Output image: .png (8-bit sRGB), .exr or .pfm (32-bit float, linear).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Write the merge's statistics as JSON.
+    #[arg(long)]
+    stats: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -166,6 +189,8 @@ impl SceneArgs {
                 LayoutArg::Bvh2 => BvhLayout::Bvh2,
                 LayoutArg::Cwbvh => BvhLayout::Cwbvh,
             },
+            sample_range: None,
+            stop: None,
         }
     }
 }
@@ -207,6 +232,32 @@ struct RenderArgs {
     /// Write render statistics as JSON.
     #[arg(long)]
     stats: Option<PathBuf>,
+    /// Save the raw accumulation to this file every --checkpoint-interval seconds and at
+    /// exit (atomically); an existing file is refused unless it is the one --resume names.
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Continue the accumulation saved in this checkpoint (and keep saving to it unless
+    /// --checkpoint names another file).
+    #[arg(long)]
+    resume: Option<PathBuf>,
+    /// Seconds between checkpoints (stretched so that saving takes at most a tenth of the time).
+    #[arg(long, default_value_t = 5.0, allow_negative_numbers = true)]
+    checkpoint_interval: f64,
+    /// Render only the sample indices START..END of the --spp samples (a shard for
+    /// `aorender merge`; needs --checkpoint).
+    #[arg(long, value_name = "START..END", value_parser = parse_sample_range)]
+    sample_range: Option<Range<u32>>,
+}
+
+/// `START..END` with START < END.
+fn parse_sample_range(text: &str) -> Result<Range<u32>, String> {
+    let (a, b) = text.split_once("..").ok_or_else(|| format!("expected START..END, got '{text}'"))?;
+    let number = |t: &str| t.trim().parse::<u32>().map_err(|e| format!("'{t}' in '{text}': {e}"));
+    let (a, b) = (number(a)?, number(b)?);
+    if a >= b {
+        return Err(format!("'{text}' is empty: START must be below END"));
+    }
+    Ok(a..b)
 }
 
 #[derive(clap::Args)]
@@ -292,6 +343,8 @@ fn run() -> Result<()> {
         Command::Compare(args) => compare_command(args),
         Command::Probe(args) => probe_command(args),
         Command::Accuracy(args) => accuracy_command(args),
+        Command::Merge(args) => merge_command(args),
+        Command::Bench(args) => aorender::bench::command(args),
     }
 }
 
@@ -370,8 +423,77 @@ fn probe_command(args: ProbeArgs) -> Result<()> {
     Ok(())
 }
 
+/// The signal that asked the render to stop (0 for none).
+static STOP_SIGNAL: AtomicI32 = AtomicI32::new(0);
+
+/// Name of a signal number.
+fn signal_name(signal: i32) -> String {
+    #[cfg(unix)]
+    {
+        use signal_hook::consts::{SIGINT, SIGTERM};
+        match signal {
+            SIGINT => return "SIGINT".into(),
+            SIGTERM => return "SIGTERM".into(),
+            _ => {}
+        }
+    }
+    format!("signal {signal}")
+}
+
+/// On SIGINT or SIGTERM, sets `stop`: the render finishes its pass and the outputs are
+/// written. A second signal removes the temporary files of writes in progress (their
+/// targets are untouched) and exits at once with status 128 + signal.
+#[cfg(unix)]
+fn install_signal_handlers(stop: Arc<AtomicBool>) -> Result<()> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]).context("cannot handle signals")?;
+    std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(move || {
+            for signal in signals.forever() {
+                if STOP_SIGNAL.compare_exchange(0, signal, Ordering::SeqCst, Ordering::SeqCst).is_ok() {
+                    stop.store(true, Ordering::SeqCst);
+                    eprintln!("{}: finishing the current pass (a second signal stops at once)", signal_name(signal));
+                } else {
+                    aorender::film::remove_temporary_files();
+                    eprintln!(
+                        "aorender: stopped at once by a second {}; files being written were left as they were",
+                        signal_name(signal)
+                    );
+                    signal_hook::low_level::exit(128 + signal);
+                }
+            }
+        })
+        .context("cannot start the signal thread")?;
+    Ok(())
+}
+
+#[cfg(not(unix))]
+fn install_signal_handlers(_stop: Arc<AtomicBool>) -> Result<()> {
+    Ok(())
+}
+
+/// Fails when no file can be created beside `path` (before any time is spent rendering).
+fn check_writable(path: &Path) -> Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let name = path.file_name().with_context(|| format!("{}: not a file path", path.display()))?;
+    let probe = dir.join(format!(".{}.{}.probe", name.to_string_lossy(), std::process::id()));
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .with_context(|| format!("{}: cannot write beside it", path.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
 fn render_command(args: RenderArgs) -> Result<()> {
+    let load_start = std::time::Instant::now();
     let mut scene = args.scene.load()?;
+    let load_seconds = load_start.elapsed().as_secs_f64();
     args.size.apply(&mut scene);
     let s = &mut scene.settings;
     if let Some(n) = args.spp {
@@ -389,8 +511,43 @@ fn render_command(args: RenderArgs) -> Result<()> {
     {
         bail!("invalid option: --time-limit must be positive, got {t}");
     }
+    let interval = args.checkpoint_interval;
+    if !(interval.is_finite() && interval > 0.0) {
+        bail!("invalid option: --checkpoint-interval must be positive, got {interval}");
+    }
+    if let Some(r) = &args.sample_range
+        && r.end > s.spp
+    {
+        bail!("invalid option: --sample-range {}..{} ends past the {} samples per pixel", r.start, r.end, s.spp);
+    }
     check_output_extension(&args.output, &["png", "exr", "pfm"])?;
-    let options = args.scene.options(args.time_limit);
+    let checkpoint_path = args.checkpoint.clone().or_else(|| args.resume.clone());
+    if args.sample_range.is_some() && checkpoint_path.is_none() {
+        bail!("invalid option: --sample-range needs --checkpoint FILE, the shard's accumulation that `aorender merge` combines");
+    }
+    if let Some(path) = &args.checkpoint
+        && args.resume.as_ref() != Some(path)
+        && path.exists()
+    {
+        bail!(
+            "{}: a checkpoint already exists: continue it with --resume {}, or remove it",
+            path.display(),
+            path.display()
+        );
+    }
+    let resume = match &args.resume {
+        Some(path) => Some(Accumulation::read(path)?),
+        None => None,
+    };
+    if let Some(path) = &checkpoint_path {
+        check_writable(path)?;
+    }
+    let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
+    let stop = Arc::new(AtomicBool::new(false));
+    install_signal_handlers(stop.clone())?;
+    let mut options = args.scene.options(args.time_limit);
+    options.sample_range = args.sample_range.clone();
+    options.stop = Some(stop);
 
     let bar = std::io::stderr().is_terminal().then(|| {
         let bar = indicatif::ProgressBar::new(scene.settings.spp as u64);
@@ -402,35 +559,134 @@ fn render_command(args: RenderArgs) -> Result<()> {
     });
     let mut on_progress = |p: &Progress| {
         if let Some(bar) = &bar {
+            bar.set_length(p.samples_total as u64);
             bar.set_position(p.samples_done as u64);
             bar.set_message(format!("{:.1} M rays/s", p.rays as f64 / p.elapsed.max(1e-9) / 1e6));
         }
     };
-    let out = render(&scene, &options, &mut on_progress)?;
+    let mut save_to = |acc: &Accumulation| -> aorender::Result<()> {
+        match &checkpoint_path {
+            Some(path) => acc.write(path),
+            None => Ok(()),
+        }
+    };
+    let checkpointing = Checkpointing {
+        resume,
+        interval,
+        save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None },
+    };
+    let mut out = render_resumable(&scene, &options, checkpointing, &mut on_progress)?;
+    out.stats.load_seconds = load_seconds;
     if let Some(bar) = bar {
         bar.finish_and_clear();
+    }
+    let st = &out.stats;
+    let signal = STOP_SIGNAL.load(Ordering::SeqCst);
+    if st.samples_per_pixel == 0 {
+        bail!("interrupted by {} before any sample was rendered; nothing was written", signal_name(signal));
     }
     out.film.write_image(&args.output)?;
     let json = serde_json::to_string_pretty(&out.stats)?;
     if let Some(path) = &args.stats {
         aorender::film::write_atomically(path, format!("{json}\n").as_bytes())?;
     }
-    let st = &out.stats;
     eprintln!(
-        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s, BVH {:.2} s) on {} ({}); mean {:.4}",
+        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s, load {:.2} s, BVH {:.2} s) on {} ({}); mean {:.4}",
         args.output.display(),
         st.width,
         st.height,
         st.samples_per_pixel,
         st.render_seconds,
         st.rays_per_second / 1e6,
+        st.load_seconds,
         st.bvh_build_seconds,
         st.adapter,
         st.backend,
         st.image_mean
     );
+    if let Some(adapter) = resumed_adapter
+        && adapter != st.adapter
+    {
+        eprintln!(
+            "note: the checkpoint was rendered on {adapter} and continued on {}: the sums equal an uninterrupted \
+             render's within float rounding, not bit for bit",
+            st.adapter
+        );
+    }
+    println!("{json}");
+    if st.interrupted {
+        let mut written = vec![args.output.display().to_string()];
+        written.extend(args.stats.as_ref().map(|p| p.display().to_string()));
+        let mut message = format!(
+            "interrupted by {} after {} of {} samples per pixel; {} hold them",
+            signal_name(signal),
+            st.samples_per_pixel,
+            st.samples_requested,
+            written.join(" and ")
+        );
+        if let Some(path) = &checkpoint_path {
+            message += &format!("; continue with --resume {}", path.display());
+        }
+        eprintln!("aorender: {message}");
+        std::io::stdout().flush()?;
+        std::process::exit(128 + signal);
+    }
     if st.samples_per_pixel < st.samples_requested {
         eprintln!("time limit reached after {} of {} samples per pixel", st.samples_per_pixel, st.samples_requested);
+    }
+    Ok(())
+}
+
+/// What `aorender merge` reports.
+#[derive(serde::Serialize)]
+struct MergeStats {
+    samples_per_pixel: u32,
+    first_sample: u32,
+    width: u32,
+    height: u32,
+    image_mean: f64,
+    same_as_single_run: bool,
+    shards: Vec<checkpoint::MergedShard>,
+}
+
+fn merge_command(args: MergeArgs) -> Result<()> {
+    check_output_extension(&args.output, &["png", "exr", "pfm"])?;
+    let mut shards = Vec::with_capacity(args.inputs.len());
+    for path in &args.inputs {
+        shards.push((path.clone(), Accumulation::read(path)?));
+    }
+    let merged = checkpoint::merge(&shards)?;
+    merged.film.write_image(&args.output)?;
+    let stats = MergeStats {
+        samples_per_pixel: merged.end - merged.first,
+        first_sample: merged.first,
+        width: merged.film.width,
+        height: merged.film.height,
+        image_mean: merged.film.image_mean(),
+        same_as_single_run: merged.same_as_single_run,
+        shards: merged.shards,
+    };
+    let json = serde_json::to_string_pretty(&stats)?;
+    if let Some(path) = &args.stats {
+        aorender::film::write_atomically(path, format!("{json}\n").as_bytes())?;
+    }
+    eprintln!(
+        "{}: {}x{}, samples {}..{} from {} shards; mean {:.4}",
+        args.output.display(),
+        stats.width,
+        stats.height,
+        merged.first,
+        merged.end,
+        stats.shards.len(),
+        stats.image_mean
+    );
+    if !stats.same_as_single_run {
+        eprintln!(
+            "note: a shard boundary is not a multiple of {} samples, a shard was continued past an unaligned end, \
+             or the shards come from different adapters: the sums equal a single render's within float rounding, \
+             not bit for bit",
+            aorender::film::BLOCK_SAMPLES
+        );
     }
     println!("{json}");
     Ok(())

@@ -116,8 +116,22 @@ fn render_writes_image_and_stats() {
                 "hemisphere",
                 "sampler",
                 "seed",
+                "load_seconds",
+                "scene_bytes",
+                "host_peak_bytes",
+                "device_bytes",
             ] {
                 assert!(json.get(key).is_some(), "{device}: stats lack {key}");
+            }
+            // Three spheres and a plane, and a process that holds them.
+            let scene_bytes = json["scene_bytes"].as_u64().unwrap();
+            let expected = 3 * std::mem::size_of::<aorender::scene::Sphere>() + std::mem::size_of::<aorender::scene::Plane>();
+            assert_eq!(scene_bytes, expected as u64, "{device}");
+            let peak = json["host_peak_bytes"].as_u64().unwrap();
+            assert!(peak > 1 << 20, "{device}: peak resident memory {peak} bytes");
+            assert!(json["load_seconds"].as_f64().unwrap() > 0.0, "{device}");
+            if device == "gpu" {
+                assert!(json["device_bytes"].as_u64().unwrap() > 0, "{device}");
             }
             assert_eq!(json["samples_per_pixel"], 4);
             assert_eq!(json["width"], 32);
@@ -125,5 +139,21 @@ fn render_writes_image_and_stats() {
             let rays = json["rays_traced"].as_u64().unwrap();
             assert!(rays > 32 * 24 * 4 && rays < 2 * 32 * 24 * 4, "{device}: {rays} rays");
         }
+    }
+}
+
+/// Every file of the malformed-mesh corpus (`tests/malformed/`), rendered as a bare mesh:
+/// one error line naming the file, a non-zero exit, no panic and no output.
+#[test]
+fn malformed_meshes_are_one_line_errors() {
+    let dir = temp_dir();
+    let corpus = repo().join("tests/malformed");
+    let mut files: Vec<String> =
+        std::fs::read_dir(&corpus).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    files.sort();
+    assert!(files.len() >= 10, "the corpus has only {} files", files.len());
+    for file in &files {
+        let path = corpus.join(file);
+        assert_rejected(&["render", path.to_str().unwrap(), "-o", "out.png"], dir.path(), &[file]);
     }
 }

@@ -195,3 +195,37 @@ fn passes_report_gpu_time_from_timestamps() {
         assert!(gpu > 0.0 && gpu <= wall, "GPU time {gpu} s, wall {wall} s");
     }
 }
+
+/// Nodes and primitives split across several bindings (chunks capped at 8,000 bytes, so
+/// this small scene takes several) render the same film, bit for bit, as in one binding
+/// each; a cap too small for the adapter's bindings is an error with the numbers.
+#[test]
+fn geometry_split_across_bindings_renders_the_same_film() {
+    if !gpu_available() {
+        return;
+    }
+    let dir = temp_dir();
+    let mut scene = mesh_scene(dir.path());
+    scene.settings.hemisphere = Hemisphere::Uniform;
+    let whole = GpuContext::new(None).unwrap();
+    let mut split = GpuContext::new(None).unwrap();
+    split.limit_chunk_bytes(8_000);
+    for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
+        let bvh = GpuBvh::build(&scene, layout, BuildQuality::default());
+        assert!(bvh.primitives.len() * std::mem::size_of::<aorender::bvh::GpuPrimitive>() > 3 * 8_000);
+        let render = |ctx: &GpuContext| {
+            let mut renderer = GpuRenderer::new(ctx, &scene, &bvh).unwrap();
+            renderer.render_pass(0, 16).unwrap();
+            renderer.read_film(16).unwrap()
+        };
+        let (a, b) = (render(&whole), render(&split));
+        assert!(a.image_mean() > 0.0);
+        assert_eq!(a.sum, b.sum, "{layout:?}");
+        assert_eq!(a.sum_sq, b.sum_sq, "{layout:?}");
+    }
+    let mut tiny = GpuContext::new(None).unwrap();
+    tiny.limit_chunk_bytes(64);
+    let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
+    let e = GpuRenderer::new(&tiny, &scene, &bvh).err().expect("too many chunks for the adapter").to_string();
+    assert!(e.contains("max_storage_buffers_per_shader_stage"), "{e}");
+}

@@ -3,7 +3,7 @@
 
 use aorender::bvh::{BvhLayout, GpuNode, GpuPrimitive};
 use aorender::gpu::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint};
-use aorender::shaders::compose_with;
+use aorender::shaders::{GeometryChunks, compose_with, geometry_files};
 use obvhs::cwbvh::node::CwBvhNode;
 use std::collections::BTreeMap;
 
@@ -20,9 +20,22 @@ fn shader_files() -> BTreeMap<String, String> {
     files
 }
 
-/// Parses and validates `name` with its imports; `trace.wgsl` stands for `traversal`.
-fn validate_with(name: &str, traversal: &str, files: &BTreeMap<String, String>) -> naga::Module {
-    let lookup = |n: &str| files.get(if n == "trace.wgsl" { traversal } else { n }).map(|s| s.as_str());
+/// Parses and validates `name` with its imports; `trace.wgsl` stands for `traversal`, and
+/// the generated geometry bindings are those of `traversal`'s layout split as `chunks`.
+fn validate_chunked(
+    name: &str,
+    traversal: &str,
+    chunks: GeometryChunks,
+    files: &BTreeMap<String, String>,
+) -> naga::Module {
+    let layout = if traversal == "trace_cwbvh.wgsl" { BvhLayout::Cwbvh } else { BvhLayout::Bvh2 };
+    let generated = geometry_files(layout, chunks);
+    let lookup = |n: &str| {
+        if let Some((_, text)) = generated.iter().find(|(f, _)| *f == n) {
+            return Some(text.as_str());
+        }
+        files.get(if n == "trace.wgsl" { traversal } else { n }).map(|s| s.as_str())
+    };
     let source = compose_with(name, &lookup).unwrap_or_else(|e| panic!("{name}: {e}"));
     let module =
         naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&source)));
@@ -32,8 +45,13 @@ fn validate_with(name: &str, traversal: &str, files: &BTreeMap<String, String>) 
     module
 }
 
+fn validate_with(name: &str, traversal: &str, files: &BTreeMap<String, String>) -> naga::Module {
+    validate_chunked(name, traversal, GeometryChunks::SINGLE, files)
+}
+
 fn validate(name: &str, files: &BTreeMap<String, String>) -> naga::Module {
-    validate_with(name, "trace.wgsl", files)
+    // Each traversal file with its own node type.
+    validate_with(name, if name == "trace_cwbvh.wgsl" { name } else { "trace.wgsl" }, files)
 }
 
 #[test]
@@ -43,9 +61,15 @@ fn every_shader_file_validates() {
     for name in files.keys() {
         validate(name, &files);
     }
-    // The kernel as the renderer composes it for each layout.
+    // The kernel as the renderer composes it for each layout, with the geometry in one
+    // binding each and split into chunks.
+    let split = GeometryChunks { node_chunks: 3, nodes_per_chunk: 1000, primitive_chunks: 2, primitives_per_chunk: 700 };
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
-        validate_with("ao.wgsl", aorender::shaders::traversal_file(layout), &files);
+        for chunks in [GeometryChunks::SINGLE, split] {
+            let module = validate_chunked("ao.wgsl", aorender::shaders::traversal_file(layout), chunks, &files);
+            let bound = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).count() as u32;
+            assert_eq!(bound, aorender::gpu::OTHER_STORAGE_BINDINGS + chunks.node_chunks + chunks.primitive_chunks, "{layout:?} {chunks:?}");
+        }
     }
 }
 

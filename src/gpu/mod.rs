@@ -8,6 +8,7 @@ use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::scene::Scene;
+use crate::shaders::GeometryChunks;
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
@@ -113,7 +114,9 @@ pub struct GpuContext {
     errors: Arc<Mutex<Vec<String>>>,
     /// Compiled pipelines by BVH layout and kernel: many renderers on one context (probe
     /// batches, the accuracy suite) compile each once.
-    pipelines: Mutex<Vec<(BvhLayout, Kernel, wgpu::BindGroupLayout, wgpu::ComputePipeline)>>,
+    pipelines: Mutex<Vec<(PipelineKey, wgpu::BindGroupLayout, wgpu::ComputePipeline)>>,
+    /// Largest chunk of nodes or primitives in one binding, in bytes.
+    max_chunk_bytes: u64,
 }
 
 impl GpuContext {
@@ -163,14 +166,59 @@ impl GpuContext {
             sink.lock().expect("error sink").push(format!("device lost ({reason:?}): {message}"));
         });
         let description = AdapterDescription::new(&adapter.get_info());
-        Ok(GpuContext { adapter, device, queue, description, errors, pipelines: Mutex::new(Vec::new()) })
+        let limits = device.limits();
+        let max_chunk_bytes = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        Ok(GpuContext {
+            adapter,
+            device,
+            queue,
+            description,
+            errors,
+            pipelines: Mutex::new(Vec::new()),
+            max_chunk_bytes,
+        })
+    }
+
+    /// Caps the bytes of nodes or primitives in one binding below the adapter's limit, so
+    /// that small scenes are split into chunks as large ones are (for testing the split).
+    pub fn limit_chunk_bytes(&mut self, bytes: u64) {
+        self.max_chunk_bytes = self.max_chunk_bytes.min(bytes);
+    }
+
+    /// How `nodes` nodes of `node_size` bytes and `primitives` primitives split into
+    /// chunks of at most one binding each, or an error with the numbers when the adapter
+    /// has too few storage bindings per shader stage for them.
+    fn geometry_chunks(&self, nodes: usize, node_size: usize, primitives: usize) -> Result<GeometryChunks> {
+        let prim_size = std::mem::size_of::<GpuPrimitive>();
+        let per_chunk = |size: usize| (self.max_chunk_bytes / size as u64).clamp(1, u32::MAX as u64) as u32;
+        let (nodes_per_chunk, primitives_per_chunk) = (per_chunk(node_size), per_chunk(prim_size));
+        let chunks = GeometryChunks {
+            node_chunks: (nodes.div_ceil(nodes_per_chunk as usize) as u32).max(1),
+            nodes_per_chunk,
+            primitive_chunks: (primitives.div_ceil(primitives_per_chunk as usize) as u32).max(1),
+            primitives_per_chunk,
+        };
+        let allowed = self.device.limits().max_storage_buffers_per_shader_stage;
+        let needed = OTHER_STORAGE_BINDINGS + chunks.node_chunks + chunks.primitive_chunks;
+        if needed > allowed {
+            let geometry_chunks = allowed.saturating_sub(OTHER_STORAGE_BINDINGS) as u64;
+            return Err(Error::TooLarge {
+                what: "the BVH nodes and primitives",
+                needed: (nodes * node_size + primitives * prim_size) as u64,
+                limit: geometry_chunks * self.max_chunk_bytes,
+                limit_name: "max_storage_buffers_per_shader_stage (less the kernel's other bindings) \
+                             × max_storage_buffer_binding_size",
+            });
+        }
+        Ok(chunks)
     }
 
     /// The bind group layout and pipeline of `kernel` over `layout`, compiled on first use.
     /// The bool is true when it was compiled just now.
-    fn pipeline(&self, layout: BvhLayout, kernel: Kernel) -> (wgpu::BindGroupLayout, wgpu::ComputePipeline, bool) {
+    fn pipeline(&self, key: PipelineKey) -> (wgpu::BindGroupLayout, wgpu::ComputePipeline, bool) {
+        let PipelineKey { layout, kernel, chunks } = key;
         let mut cache = self.pipelines.lock().expect("pipeline cache");
-        if let Some((_, _, l, p)) = cache.iter().find(|(bl, k, _, _)| *bl == layout && *k == kernel) {
+        if let Some((_, l, p)) = cache.iter().find(|(k, _, _)| *k == key) {
             return (l.clone(), p.clone(), false);
         }
         let device = &self.device;
@@ -182,22 +230,23 @@ impl GpuContext {
         };
         let read_only = wgpu::BufferBindingType::Storage { read_only: true };
         let read_write = wgpu::BufferBindingType::Storage { read_only: false };
-        let bind_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("ao bindings"),
-            entries: &[
-                entry(0, read_only, false),
-                entry(1, read_only, true),
-                entry(2, read_only, false),
-                entry(3, read_only, false),
-                entry(4, read_only, false),
-                entry(5, read_write, false),
-                entry(6, read_write, false),
-                entry(7, read_only, false),
-            ],
-        });
+        let mut entries = vec![
+            entry(0, read_only, false),
+            entry(1, read_only, true),
+            entry(4, read_only, false),
+            entry(5, read_write, false),
+            entry(6, read_write, false),
+            entry(7, read_only, false),
+        ];
+        entries.extend((0..chunks.node_chunks).map(|k| entry(GeometryChunks::node_binding(k), read_only, false)));
+        entries.extend(
+            (0..chunks.primitive_chunks).map(|k| entry(GeometryChunks::primitive_binding(k), read_only, false)),
+        );
+        let bind_group_layout = device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("ao bindings"), entries: &entries });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("ao.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(crate::shaders::compose("ao.wgsl", layout).into()),
+            source: wgpu::ShaderSource::Wgsl(crate::shaders::compose("ao.wgsl", layout, chunks).into()),
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("ao"),
@@ -215,7 +264,7 @@ impl GpuContext {
             compilation_options: Default::default(),
             cache: None,
         });
-        cache.push((layout, kernel, bind_group_layout.clone(), pipeline.clone()));
+        cache.push((key, bind_group_layout.clone(), pipeline.clone()));
         (bind_group_layout, pipeline, true)
     }
 
@@ -261,6 +310,18 @@ pub struct PassCounters {
     pub gpu_seconds: Option<f64>,
 }
 
+/// What a compiled pipeline is specialised for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct PipelineKey {
+    layout: BvhLayout,
+    kernel: Kernel,
+    chunks: GeometryChunks,
+}
+
+/// Storage bindings of the kernel besides the node and primitive chunks: frame,
+/// dispatch, planes, film, counters, probe points.
+pub const OTHER_STORAGE_BINDINGS: u32 = 6;
+
 /// What the AO pipeline computes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 enum Kernel {
@@ -294,6 +355,15 @@ pub struct GpuRenderer<'a> {
     pub device_bytes: u64,
     /// The BVH layout the kernel traverses.
     pub layout: BvhLayout,
+}
+
+/// `bytes` in chunks of `per_chunk` elements of `element` bytes; one empty chunk when
+/// `bytes` is empty.
+fn chunk_bytes(bytes: &[u8], element: usize, per_chunk: u32) -> impl Iterator<Item = &[u8]> {
+    let chunk = (element * per_chunk as usize).max(1);
+    let empty: &[u8] = &[];
+    let first = bytes.is_empty().then_some(empty);
+    first.into_iter().chain(bytes.chunks(chunk))
 }
 
 /// A read-only storage buffer; `element` is the size of one array element in the shader.
@@ -376,9 +446,15 @@ impl<'a> GpuRenderer<'a> {
             BvhLayout::Bvh2 => std::mem::size_of::<crate::bvh::GpuNode>(),
             BvhLayout::Cwbvh => std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>(),
         };
-        let nodes = storage(ctx, "BVH nodes", &bvh.node_bytes, node_size)?;
-        let primitives =
-            storage(ctx, "primitives", bytemuck::cast_slice(&bvh.primitives), std::mem::size_of::<GpuPrimitive>())?;
+        let chunks = ctx.geometry_chunks(bvh.node_count as usize, node_size, bvh.primitives.len())?;
+        let nodes: Vec<wgpu::Buffer> = chunk_bytes(&bvh.node_bytes, node_size, chunks.nodes_per_chunk)
+            .map(|bytes| storage(ctx, "BVH nodes", bytes, node_size))
+            .collect::<Result<_>>()?;
+        let prim_size = std::mem::size_of::<GpuPrimitive>();
+        let primitives: Vec<wgpu::Buffer> =
+            chunk_bytes(bytemuck::cast_slice(&bvh.primitives), prim_size, chunks.primitives_per_chunk)
+                .map(|bytes| storage(ctx, "primitives", bytes, prim_size))
+                .collect::<Result<_>>()?;
         let planes: Vec<GpuPlane> = scene.planes.iter().map(GpuPlane::from).collect();
         let planes = storage(ctx, "planes", bytemuck::cast_slice(&planes), std::mem::size_of::<GpuPlane>())?;
         let probe_points =
@@ -426,26 +502,34 @@ impl<'a> GpuRenderer<'a> {
             mapped_at_creation: false,
         });
 
-        let (layout, pipeline, fresh) = ctx.pipeline(bvh.layout, kernel);
+        let (layout, pipeline, fresh) = ctx.pipeline(PipelineKey { layout: bvh.layout, kernel, chunks });
         let dispatch_binding = wgpu::BufferBinding {
             buffer: &dispatch,
             offset: 0,
             size: wgpu::BufferSize::new(std::mem::size_of::<DispatchUniforms>() as u64),
         };
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("ao bindings"),
-            layout: &layout,
-            entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: frame.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Buffer(dispatch_binding) },
-                wgpu::BindGroupEntry { binding: 2, resource: nodes.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 3, resource: primitives.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: planes.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 5, resource: film.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 6, resource: counters.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 7, resource: probe_points.as_entire_binding() },
-            ],
-        });
+        let mut entries = vec![
+            wgpu::BindGroupEntry { binding: 0, resource: frame.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Buffer(dispatch_binding) },
+            wgpu::BindGroupEntry { binding: 4, resource: planes.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 5, resource: film.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 6, resource: counters.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 7, resource: probe_points.as_entire_binding() },
+        ];
+        for (k, b) in nodes.iter().enumerate() {
+            entries.push(wgpu::BindGroupEntry {
+                binding: GeometryChunks::node_binding(k as u32),
+                resource: b.as_entire_binding(),
+            });
+        }
+        for (k, b) in primitives.iter().enumerate() {
+            entries.push(wgpu::BindGroupEntry {
+                binding: GeometryChunks::primitive_binding(k as u32),
+                resource: b.as_entire_binding(),
+            });
+        }
+        let bind_group =
+            device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("ao bindings"), layout: &layout, entries: &entries });
         ctx.take_error()?;
         // Some drivers (lavapipe) compile the kernel at its first dispatch: run one
         // workgroup of a new pipeline now, so compilation counts as setup rather than
@@ -469,19 +553,18 @@ impl<'a> GpuRenderer<'a> {
                 .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
         }
         ctx.take_error()?;
-        let device_bytes = [
-            &frame,
-            &dispatch,
-            &nodes,
-            &primitives,
+        let device_bytes = [&frame, &dispatch]
+            .into_iter()
+            .chain(&nodes)
+            .chain(&primitives)
+            .chain([
             &planes,
             &probe_points,
             &film,
             &film_readback,
             &counters,
             &counters_readback,
-        ]
-        .iter()
+        ])
         .map(|b| b.size())
         .sum();
         let rays_per_sample = match kernel {

@@ -3,7 +3,11 @@
 //! parsed into it by the submodules.
 
 mod file;
+mod gltf;
+mod input;
+mod mesh;
 mod obj;
+mod ply;
 
 pub use file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME};
 
@@ -135,13 +139,15 @@ pub struct Bounds {
 }
 
 impl Scene {
-    /// Loads a scene file (`.toml`) or a bare mesh (`.obj`), framed automatically.
+    /// Loads a scene file (`.toml`) or a bare mesh (`.obj`, `.ply`, `.gltf`, `.glb`, each
+    /// also gzipped as `.gz`), framed automatically.
     pub fn load(path: &Path) -> Result<Scene> {
         match extension(path).as_str() {
+            "toml" if input::is_gzip(path) => Err(Error::scene(path, "a scene file cannot be gzipped")),
             "toml" => file::load_scene_file(path),
-            "obj" => Scene::from_mesh_file(path),
-            "" => Err(Error::scene(path, "no file extension: expected .toml or .obj")),
-            ext => Err(Error::scene(path, format!("unsupported file type '.{ext}': expected .toml or .obj"))),
+            ext if MESH_EXTENSIONS.contains(&ext) => Scene::from_mesh_file(path),
+            "" => Err(Error::scene(path, format!("no file extension: expected .toml or {MESH_FORMATS}"))),
+            ext => Err(Error::scene(path, format!("unsupported file type '.{ext}': expected .toml or {MESH_FORMATS}"))),
         }
     }
 
@@ -190,6 +196,13 @@ impl Scene {
         }
     }
 
+    /// Bytes of the geometry held on the host: triangles, spheres and planes.
+    pub fn geometry_bytes(&self) -> u64 {
+        (self.triangles.len() * std::mem::size_of::<Triangle>()
+            + self.spheres.len() * std::mem::size_of::<Sphere>()
+            + self.planes.len() * std::mem::size_of::<Plane>()) as u64
+    }
+
     /// Bounds of triangles and spheres; `None` when the scene has neither.
     pub fn bounds(&self) -> Option<Bounds> {
         let mut min = Vec3::splat(f32::INFINITY);
@@ -227,32 +240,38 @@ pub(crate) fn non_finite_coordinate(p: Vec3) -> Option<String> {
     p.to_array().iter().zip(axes).find(|(c, _)| !c.is_finite()).map(|(c, axis)| format!("{axis} = {c}"))
 }
 
-/// Loads a triangle mesh (`.obj`), applying `transform`. Rejects empty meshes, vertices
-/// with a NaN or infinite coordinate (in the file, or after the transform) and triangles
-/// too large to normalize; drops degenerate triangles (zero area, a repeated vertex),
-/// which no ray can hit and whose normal is undefined. Errors name the vertex or triangle.
+/// Loads a triangle mesh (`.obj`, `.ply`, `.gltf` or `.glb`, each optionally gzipped as
+/// `.gz`), applying `transform`. Rejects empty meshes, vertices with a NaN or infinite
+/// coordinate (in the file, or after the transform) and triangles too large to normalize;
+/// drops degenerate triangles (zero area, a repeated vertex), which no ray can hit and
+/// whose normal is undefined. Errors name the vertex or triangle.
 pub fn load_mesh(path: &Path, albedo: f32, transform: &glam::Mat4) -> Result<Vec<Triangle>> {
     let mesh = match extension(path).as_str() {
         "obj" => obj::load_obj(path)?,
+        "ply" => ply::load_ply(path)?,
+        "gltf" | "glb" => gltf::load_gltf(path)?,
         ext => {
-            return Err(Error::scene(path, format!("unsupported mesh format '.{ext}': expected .obj")));
+            return Err(Error::scene(path, format!("unsupported mesh format '.{ext}': expected {MESH_FORMATS}")));
         }
     };
-    if mesh.triangles.is_empty() {
+    let mesh::IndexedMesh { mut positions, triangles, names } = mesh;
+    if triangles.is_empty() {
         return Err(Error::scene(path, "mesh has no triangles"));
     }
-    // Each distinct vertex goes through the transform once here and identically in every
-    // triangle below, so shared vertices stay bit-identical.
-    for (k, v) in mesh.vertices.iter().enumerate() {
-        let p = transform.transform_point3(v.position);
-        if let Some(c) = non_finite_coordinate(p) {
-            return Err(Error::scene(
-                path,
-                format!("vertex {} (line {}) has a non-finite coordinate after the transform ({c})", k + 1, v.line),
-            ));
-        }
+    if let Some(i) = triangles.iter().flatten().find(|&&i| i as usize >= positions.len()) {
+        return Err(Error::scene(path, format!("vertex index {i} is out of range ({} vertices)", positions.len())));
     }
-    mesh_triangles(path, mesh.triangles.into_iter().map(|v| v.map(|p| transform.transform_point3(p))), albedo)
+    // Each distinct vertex goes through the transform once, in place, and every triangle
+    // below takes its corners from it, so shared vertices stay bit-identical.
+    for (k, p) in positions.iter_mut().enumerate() {
+        let q = transform.transform_point3(*p);
+        if let Some(c) = non_finite_coordinate(q) {
+            let name = names.name(k, *p);
+            return Err(Error::scene(path, format!("{name} has a non-finite coordinate after the transform ({c})")));
+        }
+        *p = q;
+    }
+    mesh_triangles(path, triangles.iter().map(|t| t.map(|i| positions[i as usize])), albedo)
 }
 
 /// The triangles of a mesh in world space, as the scene keeps them: rejects a non-finite
@@ -264,8 +283,10 @@ pub fn mesh_triangles(
     triangles: impl IntoIterator<Item = [Vec3; 3]>,
     albedo: f32,
 ) -> Result<Vec<Triangle>> {
-    let mut out = Vec::new();
-    for (i, v) in triangles.into_iter().enumerate() {
+    let triangles = triangles.into_iter();
+    // One allocation of the final size when the count is known: no copy while growing.
+    let mut out = Vec::with_capacity(triangles.size_hint().0);
+    for (i, v) in triangles.enumerate() {
         if let Some(c) = v.iter().find_map(|&p| non_finite_coordinate(p)) {
             return Err(Error::scene(path, format!("triangle {} has a non-finite coordinate ({c})", i + 1)));
         }
@@ -288,12 +309,21 @@ pub fn mesh_triangles(
     Ok(out)
 }
 
+/// Extensions of the mesh formats, before an optional `.gz`.
+const MESH_EXTENSIONS: [&str; 4] = ["obj", "ply", "gltf", "glb"];
+/// The mesh formats, for error messages.
+const MESH_FORMATS: &str = "a mesh (.obj, .ply, .gltf or .glb, optionally gzipped as .gz)";
+
+/// The file's extension in lower case; for a gzipped file (`.gz`), the one before it.
 fn extension(path: &Path) -> String {
-    path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
+    let inner = if input::is_gzip(path) { path.file_stem().map(Path::new) } else { Some(path) };
+    inner.and_then(Path::extension).and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
 }
 
+/// The file's name without its extension (and without `.gz`).
 fn stem(path: &Path) -> String {
-    path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string()
+    let inner = if input::is_gzip(path) { path.file_stem().map(Path::new) } else { Some(path) };
+    inner.and_then(Path::file_stem).and_then(|s| s.to_str()).unwrap_or("scene").to_string()
 }
 
 #[cfg(test)]
