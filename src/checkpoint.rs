@@ -246,7 +246,8 @@ fn quality_name(q: BuildQuality) -> &'static str {
     }
 }
 
-const QUALITIES: [BuildQuality; 4] = [BuildQuality::Fastest, BuildQuality::Fast, BuildQuality::Medium, BuildQuality::Slow];
+const QUALITIES: [BuildQuality; 4] =
+    [BuildQuality::Fastest, BuildQuality::Fast, BuildQuality::Medium, BuildQuality::Slow];
 const LAYOUTS: [BvhLayout; 2] = [BvhLayout::Bvh2, BvhLayout::Cwbvh];
 const DEVICES: [Device; 2] = [Device::Gpu, Device::Cpu];
 
@@ -354,7 +355,10 @@ impl Accumulation {
             ));
         }
         if self.next > end {
-            return Err(format!("checkpoint already holds samples {}..{}, past the end {end} asked for", self.first, self.next));
+            return Err(format!(
+                "checkpoint already holds samples {}..{}, past the end {end} asked for",
+                self.first, self.next
+            ));
         }
         Ok(())
     }
@@ -495,7 +499,9 @@ impl Accumulation {
         if !(first <= next && next <= end && end <= spp) {
             return Err(format!("invalid sample range: first {first}, next {next}, end {end}, of {spp}"));
         }
-        if partial_samples > next - first || partial_samples > BLOCK_SAMPLES || (partial_samples > 0) != (has_partial == 1)
+        if partial_samples > next - first
+            || partial_samples > BLOCK_SAMPLES
+            || (partial_samples > 0) != (has_partial == 1)
         {
             return Err(format!("invalid block in progress of {partial_samples} samples"));
         }
@@ -506,10 +512,7 @@ impl Accumulation {
         let pixels = width as u64 * height as u64;
         let expected = r.at as u64 + 32 * pixels + if has_partial == 1 { 16 * pixels } else { 0 } + 32;
         if bytes.len() as u64 != expected {
-            return Err(format!(
-                "truncated or corrupt: {} bytes, but its header describes {expected}",
-                bytes.len()
-            ));
+            return Err(format!("truncated or corrupt: {} bytes, but its header describes {expected}", bytes.len()));
         }
         let (body, hash) = bytes.split_at(bytes.len() - 32);
         if blake3::hash(body).as_bytes() != hash {
@@ -530,13 +533,18 @@ impl Accumulation {
             Some(match device {
                 Device::Gpu => BlockSums::Gpu(
                     b.chunks_exact(16)
-                        .map(|c| std::array::from_fn(|k| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4"))))
+                        .map(|c| {
+                            std::array::from_fn(|k| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4")))
+                        })
                         .collect(),
                 ),
                 Device::Cpu => {
                     let f = |c: &[u8]| f64::from_le_bytes(c.try_into().expect("8 bytes"));
                     let (s, q) = b.split_at(8 * n);
-                    BlockSums::Cpu { sum: s.chunks_exact(8).map(f).collect(), sum_sq: q.chunks_exact(8).map(f).collect() }
+                    BlockSums::Cpu {
+                        sum: s.chunks_exact(8).map(f).collect(),
+                        sum_sq: q.chunks_exact(8).map(f).collect(),
+                    }
                 }
             })
         };

@@ -523,7 +523,9 @@ fn render_command(args: RenderArgs) -> Result<()> {
     check_output_extension(&args.output, &["png", "exr", "pfm"])?;
     let checkpoint_path = args.checkpoint.clone().or_else(|| args.resume.clone());
     if args.sample_range.is_some() && checkpoint_path.is_none() {
-        bail!("invalid option: --sample-range needs --checkpoint FILE, the shard's accumulation that `aorender merge` combines");
+        bail!(
+            "invalid option: --sample-range needs --checkpoint FILE, the shard's accumulation that `aorender merge` combines"
+        );
     }
     if let Some(path) = &args.checkpoint
         && args.resume.as_ref() != Some(path)
@@ -570,11 +572,8 @@ fn render_command(args: RenderArgs) -> Result<()> {
             None => Ok(()),
         }
     };
-    let checkpointing = Checkpointing {
-        resume,
-        interval,
-        save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None },
-    };
+    let checkpointing =
+        Checkpointing { resume, interval, save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None } };
     let mut out = render_resumable(&scene, &options, checkpointing, &mut on_progress)?;
     out.stats.load_seconds = load_seconds;
     if let Some(bar) = bar {

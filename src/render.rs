@@ -162,7 +162,6 @@ pub struct Checkpointing<'a> {
     pub save: Option<&'a mut dyn FnMut(&Accumulation) -> Result<()>>,
 }
 
-
 /// Seconds a pass aims for: long enough to amortise the round trip, short enough for
 /// progress, time limits and GPU watchdogs.
 const PASS_TARGET_SECONDS: f64 = 0.25;
@@ -360,9 +359,8 @@ pub fn render_resumable(
     let Checkpointing { resume, interval, mut save } = checkpointing;
     let mut acc = match resume {
         Some(mut acc) => {
-            acc.check_resume(scene, options.device, layout, options.bvh_quality, range.start, range.end).map_err(
-                |m| Error::scene(acc.source.clone().unwrap_or_else(|| "checkpoint".into()), m),
-            )?;
+            acc.check_resume(scene, options.device, layout, options.bvh_quality, range.start, range.end)
+                .map_err(|m| Error::scene(acc.source.clone().unwrap_or_else(|| "checkpoint".into()), m))?;
             if acc.end != range.end {
                 // A last block cut short by the old end was summed as a block of its own.
                 if acc.next == acc.end && acc.end % BLOCK_SAMPLES != 0 {
@@ -407,7 +405,8 @@ pub fn render_resumable(
                 driver: format!("obvhs cwbvh, {} threads", rayon::current_num_threads()),
             };
             acc.adapter = d.name.clone();
-            let mut device = CpuBlocks { tracer: CpuTracer::new(scene, cwbvh), scene, film: Film::new(s.width, s.height) };
+            let mut device =
+                CpuBlocks { tracer: CpuTracer::new(scene, cwbvh), scene, film: Film::new(s.width, s.height) };
             if let Some(block) = &partial {
                 device.load(block)?;
             }

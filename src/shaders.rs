@@ -100,8 +100,12 @@ pub struct GeometryChunks {
 
 impl GeometryChunks {
     /// Everything in one binding each.
-    pub const SINGLE: GeometryChunks =
-        GeometryChunks { node_chunks: 1, nodes_per_chunk: u32::MAX, primitive_chunks: 1, primitives_per_chunk: u32::MAX };
+    pub const SINGLE: GeometryChunks = GeometryChunks {
+        node_chunks: 1,
+        nodes_per_chunk: u32::MAX,
+        primitive_chunks: 1,
+        primitives_per_chunk: u32::MAX,
+    };
 
     /// The binding of node chunk `k`: 2, then 8, 10, 12, …
     pub fn node_binding(k: u32) -> u32 {
@@ -125,7 +129,9 @@ fn chunked_array(name: &str, ty: &str, load: &str, count: u32, per_chunk: u32, b
         s += &format!("fn {load}(i: u32) -> {ty} {{\n    return {name}_0[i];\n}}\n");
         return s;
     }
-    s += &format!("fn {load}(i: u32) -> {ty} {{\n    let chunk = i / {per_chunk}u;\n    let j = i - chunk * {per_chunk}u;\n");
+    s += &format!(
+        "fn {load}(i: u32) -> {ty} {{\n    let chunk = i / {per_chunk}u;\n    let j = i - chunk * {per_chunk}u;\n"
+    );
     for k in 0..count - 1 {
         s += &format!("    if (chunk == {k}u) {{\n        return {name}_{k}[j];\n    }}\n");
     }

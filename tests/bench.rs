@@ -100,7 +100,13 @@ fn quick_mode_writes_complete_results_and_reuses_its_references() {
             let (dev, h, smp) = (s(run, "device"), s(run, "hemisphere"), s(run, "sampler"));
             check_checkpoints(name, run, n);
             for c in run["checkpoints"].as_array().unwrap() {
-                json_rows.insert((name.to_string(), dev.to_string(), h.to_string(), smp.to_string(), c["spp"].as_u64().unwrap()));
+                json_rows.insert((
+                    name.to_string(),
+                    dev.to_string(),
+                    h.to_string(),
+                    smp.to_string(),
+                    c["spp"].as_u64().unwrap(),
+                ));
             }
             if dev == "gpu" {
                 configs.insert((h, smp));
@@ -206,9 +212,10 @@ fn quick_mode_writes_complete_results_and_reuses_its_references() {
         assert_eq!(a["reference"]["rmse_floor"], b["reference"]["rmse_floor"]);
         let runs = b["runs"].as_array().unwrap();
         assert_eq!(runs.len(), 1);
-        let first = a["runs"].as_array().unwrap().iter().find(|r| {
-            s(r, "device") == "gpu" && s(r, "hemisphere") == "cosine" && s(r, "sampler") == "independent"
-        });
+        let first =
+            a["runs"].as_array().unwrap().iter().find(|r| {
+                s(r, "device") == "gpu" && s(r, "hemisphere") == "cosine" && s(r, "sampler") == "independent"
+            });
         let last = |r: &Value| r["checkpoints"].as_array().unwrap().last().unwrap()["mse"].clone();
         assert_eq!(last(first.expect("cosine/independent")), last(&runs[0]), "{}", s(b, "name"));
     }

@@ -125,7 +125,8 @@ fn render_writes_image_and_stats() {
             }
             // Three spheres and a plane, and a process that holds them.
             let scene_bytes = json["scene_bytes"].as_u64().unwrap();
-            let expected = 3 * std::mem::size_of::<aorender::scene::Sphere>() + std::mem::size_of::<aorender::scene::Plane>();
+            let expected =
+                3 * std::mem::size_of::<aorender::scene::Sphere>() + std::mem::size_of::<aorender::scene::Plane>();
             assert_eq!(scene_bytes, expected as u64, "{device}");
             let peak = json["host_peak_bytes"].as_u64().unwrap();
             assert!(peak > 1 << 20, "{device}: peak resident memory {peak} bytes");

@@ -401,7 +401,8 @@ fn mutation() -> impl Strategy<Value = Mutation> {
     prop_oneof![
         (at.clone(), 0u8..8).prop_map(|(at, bit)| Mutation::Flip { at, bit }),
         (at.clone(), any::<u8>()).prop_map(|(at, byte)| Mutation::Set { at, byte }),
-        (at.clone(), proptest::collection::vec(any::<u8>(), 1..8)).prop_map(|(at, bytes)| Mutation::Insert { at, bytes }),
+        (at.clone(), proptest::collection::vec(any::<u8>(), 1..8))
+            .prop_map(|(at, bytes)| Mutation::Insert { at, bytes }),
         (at.clone(), 0..TOKENS.len(), 0usize..12).prop_map(|(at, token, replace)| Mutation::Token {
             at,
             token,
@@ -604,7 +605,11 @@ fn fuzz_glb() {
 fn fuzz_gzip() {
     on_big_stack(|| {
         fuzz(Target { name: "obj.gz", file: "mesh.obj.gz", seeds: vec![gzip(OBJ.as_bytes())] });
-        fuzz(Target { name: "ply.gz", file: "mesh.ply.gz", seeds: vec![gzip(PLY_ASCII.as_bytes()), gzip(&ply_binary(true))] });
+        fuzz(Target {
+            name: "ply.gz",
+            file: "mesh.ply.gz",
+            seeds: vec![gzip(PLY_ASCII.as_bytes()), gzip(&ply_binary(true))],
+        });
     });
 }
 

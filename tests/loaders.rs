@@ -800,6 +800,56 @@ fn every_mesh_in_scenes_loads_with_its_triangle_count() {
     }
 }
 
+/// A scene file that places one mesh file several times (read once) gives exactly the
+/// triangles of loading each placement on its own, in object order.
+#[test]
+fn a_mesh_placed_several_times_gives_each_placement() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let mesh = repo().join("scenes").join("dragon_vrip_res4.ply.gz");
+    let teapot = repo().join("scenes").join("teapot.obj");
+    let placements = [
+        Mat4::IDENTITY,
+        Mat4::from_scale_rotation_translation(
+            Vec3::splat(2.0),
+            glam::Quat::from_rotation_y(30f32.to_radians()),
+            Vec3::new(1.0, 0.0, -1.0),
+        ),
+        Mat4::from_translation(Vec3::new(-3.0, 0.5, 0.0)),
+    ];
+    let object = |file: &Path, m: &Mat4, albedo: f32| {
+        let cols = m.to_cols_array_2d();
+        let rows: Vec<String> =
+            (0..4).map(|r| format!("[{}, {}, {}, {}]", cols[0][r], cols[1][r], cols[2][r], cols[3][r])).collect();
+        format!(
+            "[[object]]\ntype = \"mesh\"\nfile = \"{}\"\nalbedo = {albedo}\ntransform = {{ matrix = [{}] }}\n\n",
+            file.display(),
+            rows.join(", ")
+        )
+    };
+    let mut text = String::from(
+        "[camera]\ntype = \"perspective\"\neye = [0.0, 1.0, 5.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 45.0\n\n",
+    );
+    text += &object(&mesh, &placements[0], 0.5);
+    text += &object(&teapot, &placements[0], 0.7);
+    text += &object(&mesh, &placements[1], 0.6);
+    text += &object(&mesh, &placements[2], 0.8);
+    let scene_path = d.join("placed.toml");
+    std::fs::write(&scene_path, text).unwrap();
+    let scene = Scene::load(&scene_path).unwrap_or_else(|e| panic!("{e}"));
+
+    let mut want = load_mesh(&mesh, 0.5, &placements[0]).unwrap();
+    want.extend(load_mesh(&teapot, 0.7, &placements[0]).unwrap());
+    want.extend(load_mesh(&mesh, 0.6, &placements[1]).unwrap());
+    want.extend(load_mesh(&mesh, 0.8, &placements[2]).unwrap());
+    assert_eq!(scene.triangles.len(), want.len());
+    assert!(scene.triangles == want, "the placements differ from loading each on its own");
+    // The placements are distinct: a cache that reused the first one would repeat it.
+    let n = load_mesh(&mesh, 1.0, &Mat4::IDENTITY).unwrap().len();
+    let teapot_n = load_mesh(&teapot, 1.0, &Mat4::IDENTITY).unwrap().len();
+    assert_ne!(scene.triangles[0].v, scene.triangles[n + teapot_n].v);
+}
+
 #[test]
 fn loading_holds_at_most_two_copies_of_the_geometry() {
     // The indexed mesh (12 bytes a vertex and a triangle) and the triangles returned (40

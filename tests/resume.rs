@@ -260,8 +260,13 @@ fn damaged_checkpoint_bytes_are_refused() {
         }
         Ok(())
     };
-    render_resumable(&scene, &options, Checkpointing { resume: None, interval: 0.0, save: Some(&mut save) }, &mut |_| {})
-        .unwrap();
+    render_resumable(
+        &scene,
+        &options,
+        Checkpointing { resume: None, interval: 0.0, save: Some(&mut save) },
+        &mut |_| {},
+    )
+    .unwrap();
     let acc = last.expect("a checkpoint inside a block");
     let path = dir.path().join("a.ck");
     acc.write(&path).unwrap();
@@ -356,7 +361,10 @@ fn checkpoints_of_other_renders_and_damaged_ones_are_refused() {
         // A fresh render must not overwrite an existing checkpoint.
         (strings(&["render", "--device", "cpu", "--checkpoint", "ck", "-o", "out.png"]), vec!["ck", "--resume ck"]),
         (strings(&["render", "--sample-range", "0..8", "-o", "out.png"]), vec!["--sample-range needs --checkpoint"]),
-        (strings(&["render", "--spp", "8", "--sample-range", "0..9", "--checkpoint", "x.ck", "-o", "out.png"]), vec!["0..9"]),
+        (
+            strings(&["render", "--spp", "8", "--sample-range", "0..9", "--checkpoint", "x.ck", "-o", "out.png"]),
+            vec!["0..9"],
+        ),
         (strings(&["render", "--checkpoint", "missing/dir/x.ck", "-o", "out.png"]), vec!["missing/dir/x.ck"]),
         (strings(&["render", "--checkpoint-interval", "0", "-o", "out.png"]), vec!["--checkpoint-interval"]),
         (strings(&["render", "--resume", "nothing.ck", "-o", "out.png"]), vec!["nothing.ck"]),
@@ -370,12 +378,16 @@ fn checkpoints_of_other_renders_and_damaged_ones_are_refused() {
     let good = std::fs::read(d.join("ck")).unwrap();
     let damaged: [(&str, Vec<u8>, &str); 4] = [
         ("truncated", good[..good.len() - 100].to_vec(), "truncated"),
-        ("flipped", {
-            let mut b = good.clone();
-            let at = b.len() / 2;
-            b[at] ^= 1;
-            b
-        }, "corrupt"),
+        (
+            "flipped",
+            {
+                let mut b = good.clone();
+                let at = b.len() / 2;
+                b[at] ^= 1;
+                b
+            },
+            "corrupt",
+        ),
         ("text", b"not a checkpoint\n".to_vec(), "not an aorender checkpoint"),
         ("empty", Vec::new(), "not an aorender checkpoint"),
     ];
@@ -431,8 +443,8 @@ fn a_finished_render_extends_to_more_samples_exactly() {
     let options = RenderOptions { device: Device::Cpu, ..Default::default() };
     let first = render_resumable(&aobench(256), &options, Checkpointing::default(), &mut |_| {}).unwrap();
     let resume = Some(first.accumulation);
-    let more = render_resumable(&aobench(600), &options, Checkpointing { resume, ..Default::default() }, &mut |_| {})
-        .unwrap();
+    let more =
+        render_resumable(&aobench(600), &options, Checkpointing { resume, ..Default::default() }, &mut |_| {}).unwrap();
     let direct = render_resumable(&aobench(600), &options, Checkpointing::default(), &mut |_| {}).unwrap();
     assert!(more.accumulation.exact == direct.accumulation.exact);
     assert!(more.accumulation.on_grid);

@@ -63,12 +63,17 @@ fn every_shader_file_validates() {
     }
     // The kernel as the renderer composes it for each layout, with the geometry in one
     // binding each and split into chunks.
-    let split = GeometryChunks { node_chunks: 3, nodes_per_chunk: 1000, primitive_chunks: 2, primitives_per_chunk: 700 };
+    let split =
+        GeometryChunks { node_chunks: 3, nodes_per_chunk: 1000, primitive_chunks: 2, primitives_per_chunk: 700 };
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
         for chunks in [GeometryChunks::SINGLE, split] {
             let module = validate_chunked("ao.wgsl", aorender::shaders::traversal_file(layout), chunks, &files);
             let bound = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).count() as u32;
-            assert_eq!(bound, aorender::gpu::OTHER_STORAGE_BINDINGS + chunks.node_chunks + chunks.primitive_chunks, "{layout:?} {chunks:?}");
+            assert_eq!(
+                bound,
+                aorender::gpu::OTHER_STORAGE_BINDINGS + chunks.node_chunks + chunks.primitive_chunks,
+                "{layout:?} {chunks:?}"
+            );
         }
     }
 }

@@ -83,10 +83,7 @@ fn shards_merge_to_the_single_run(device: &str) {
         std::fs::read(d.join("single.pfm")).unwrap(),
         "{device}: the merged image differs from the single render's"
     );
-    let shards: Vec<_> = files
-        .iter()
-        .map(|f| (d.join(f), Accumulation::read(&d.join(f)).unwrap()))
-        .collect();
+    let shards: Vec<_> = files.iter().map(|f| (d.join(f), Accumulation::read(&d.join(f)).unwrap())).collect();
     let merged = aorender::checkpoint::merge(&shards).unwrap();
     assert_eq!(merged.film, single_film, "{device}: merged sums differ from the single render's");
 
@@ -94,10 +91,7 @@ fn shards_merge_to_the_single_run(device: &str) {
     let files = render_shards(device, "unaligned", &[(0, 100), (100, 333), (333, 600)], d);
     let stats = merge(&[&files[0], &files[1], &files[2]], "unaligned.pfm", d);
     assert_eq!(stats["same_as_single_run"], false, "{device}: {stats}");
-    let shards: Vec<_> = files
-        .iter()
-        .map(|f| (d.join(f), Accumulation::read(&d.join(f)).unwrap()))
-        .collect();
+    let shards: Vec<_> = files.iter().map(|f| (d.join(f), Accumulation::read(&d.join(f)).unwrap())).collect();
     let merged = aorender::checkpoint::merge(&shards).unwrap();
     let eps = f32::EPSILON as f64 / 2.0;
     let quantum = 2f64.powi(single.exact.sum_exponent);
@@ -111,7 +105,10 @@ fn shards_merge_to_the_single_run(device: &str) {
         assert!((a - b).abs() <= eps * b.abs() + 2.0 * quantum, "{device}: pixel {i}: merged {a}, single {b}");
         differing += (a != b) as usize;
     }
-    eprintln!("{device}: unaligned shards: {differing} of {} pixel sums differ in their last bits", merged.film.sum.len());
+    eprintln!(
+        "{device}: unaligned shards: {differing} of {} pixel sums differ in their last bits",
+        merged.film.sum.len()
+    );
 }
 
 #[test]

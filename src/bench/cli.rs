@@ -232,7 +232,8 @@ pub fn write_outputs(results: &Results, dir: &Path) -> Result<()> {
 pub fn command(args: BenchArgs) -> Result<()> {
     let words: Vec<String> = std::env::args().skip(1).collect();
     let plan = plan(&args, format!("aorender {}", words.join(" ")))?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("{}: cannot create the directory", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("{}: cannot create the directory", args.out.display()))?;
     std::fs::create_dir_all(&args.cache)
         .with_context(|| format!("{}: cannot create the directory", args.cache.display()))?;
 

@@ -224,7 +224,8 @@ mod tests {
             .iter()
             .map(|&k| {
                 let n = 1u32 << k;
-                let image: Vec<f64> = (0..pixels).map(|_| (0..n).map(|_| g.uniform()).sum::<f64>() / n as f64).collect();
+                let image: Vec<f64> =
+                    (0..pixels).map(|_| (0..n).map(|_| g.uniform()).sum::<f64>() / n as f64).collect();
                 (n as f64, ErrorMetrics::measure(&image, &reference).rmse)
             })
             .collect();

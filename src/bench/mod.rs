@@ -808,7 +808,9 @@ fn bench_scene(
             }
             let gpu_default = raw_runs
                 .iter()
-                .find(|(s, _)| s.settings.hemisphere == Hemisphere::Cosine && s.settings.sampler == Sampler::Independent)
+                .find(|(s, _)| {
+                    s.settings.hemisphere == Hemisphere::Cosine && s.settings.sampler == Sampler::Independent
+                })
                 .map(|(_, r)| r);
             let speed = |r: &RawRun| {
                 let c = r.checkpoints.last().expect("checkpoints");

@@ -113,7 +113,8 @@ pub fn convergence(results: &Results, axis: Axis, path: &Path) -> Result<()> {
         for (i, s) in scenes.iter().enumerate() {
             for (j, hemi) in hemispheres.iter().enumerate() {
                 let panel = &panels[i * cols + j];
-                let mut runs: Vec<&Run> = s.runs.iter().filter(|r| r.device == "gpu" && &r.hemisphere == hemi).collect();
+                let mut runs: Vec<&Run> =
+                    s.runs.iter().filter(|r| r.device == "gpu" && &r.hemisphere == hemi).collect();
                 if axis == Axis::Seconds && hemi == "cosine" {
                     runs.extend(s.runs.iter().filter(|r| r.device == "cpu"));
                 }
@@ -156,10 +157,13 @@ pub fn convergence(results: &Results, axis: Axis, path: &Path) -> Result<()> {
                         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], GUIDE));
                 }
                 if axis == Axis::Spp
-                    && let Some(first) = runs.iter().find(|r| r.sampler == "independent").and_then(|r| points(r).first().copied())
+                    && let Some(first) =
+                        runs.iter().find(|r| r.sampler == "independent").and_then(|r| points(r).first().copied())
                 {
-                    let guide: Vec<(f64, f64)> =
-                        [xr.start.max(first.0), xr.end].iter().map(|&x| (x, first.1 * (x / first.0).powf(-0.5))).collect();
+                    let guide: Vec<(f64, f64)> = [xr.start.max(first.0), xr.end]
+                        .iter()
+                        .map(|&x| (x, first.1 * (x / first.0).powf(-0.5)))
+                        .collect();
                     chart
                         .draw_series(DashedLineSeries::new(guide, 6, 4, BLACK.mix(0.5).stroke_width(1)))
                         .map_err(&err)?
@@ -277,10 +281,14 @@ fn series_panel(
 pub fn rays_vs_triangles(results: &Results, path: &Path) -> Result<()> {
     let mut lines = Vec::new();
     let mut labels = Vec::new();
-    for (device, name, colour) in [("gpu", results.adapter.name.as_str(), GPU_COLOUR), ("cpu", "CPU reference", CPU_COLOUR)] {
+    for (device, name, colour) in
+        [("gpu", results.adapter.name.as_str(), GPU_COLOUR), ("cpu", "CPU reference", CPU_COLOUR)]
+    {
         let mut pts: Vec<(f64, f64)> = Vec::new();
         for s in &results.scenes {
-            if let Some(r) = s.runs.iter().find(|r| r.device == device && r.hemisphere == "cosine" && r.sampler == "independent") {
+            if let Some(r) =
+                s.runs.iter().find(|r| r.device == device && r.hemisphere == "cosine" && r.sampler == "independent")
+            {
                 let p = ((s.triangles + s.spheres).max(1) as f64, r.last().rays_per_second / 1e6);
                 pts.push(p);
                 if device == "gpu" {
@@ -365,7 +373,15 @@ pub fn scaling(results: &Results, path: &Path) -> Result<()> {
     draw_png(path, 1500, 460, &mut |root| {
         root.fill(&WHITE).map_err(&err)?;
         let panels = root.split_evenly((1, 3));
-        series_panel(&panels[0], path, "Cost per ray against image size", "pixels", "seconds per million rays", &series("resolution"), &[])?;
+        series_panel(
+            &panels[0],
+            path,
+            "Cost per ray against image size",
+            "pixels",
+            "seconds per million rays",
+            &series("resolution"),
+            &[],
+        )?;
         series_panel(
             &panels[1],
             path,
@@ -375,7 +391,15 @@ pub fn scaling(results: &Results, path: &Path) -> Result<()> {
             &spp_lines,
             &[],
         )?;
-        series_panel(&panels[2], path, "BVH presets: trace speed against build time", "build seconds", "GPU million rays per second", &preset_lines, &preset_labels)
+        series_panel(
+            &panels[2],
+            path,
+            "BVH presets: trace speed against build time",
+            "build seconds",
+            "GPU million rays per second",
+            &preset_lines,
+            &preset_labels,
+        )
     })
 }
 

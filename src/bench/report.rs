@@ -44,17 +44,31 @@ pub fn table(r: &Results) -> String {
         r.total_seconds
     );
 
-    let _ = writeln!(o, "\nScenes (rays/s of cosine/independent at N spp; best = highest 1/(MSE·s) at N, unbiased samplers)");
+    let _ = writeln!(
+        o,
+        "\nScenes (rays/s of cosine/independent at N spp; best = highest 1/(MSE·s) at N, unbiased samplers)"
+    );
     let _ = writeln!(
         o,
         "{:<18} {:>9} {:>8} {:>5} {:>8} {:>8} {:>7} {:>6} {:>6} {:>9} {:<26}",
-        "scene", "triangles", "image", "N", "GPU Mr/s", "CPU Mr/s", "GPU/CPU", "load s", "BVH s", "ref RMSE", "best (× cosine/indep.)"
+        "scene",
+        "triangles",
+        "image",
+        "N",
+        "GPU Mr/s",
+        "CPU Mr/s",
+        "GPU/CPU",
+        "load s",
+        "BVH s",
+        "ref RMSE",
+        "best (× cosine/indep.)"
     );
     for s in &r.scenes {
         let (g, c, ratio) = match &s.gpu_cpu {
             Some(gc) => (sig(gc.gpu_rays_per_second / 1e6), sig(gc.cpu_rays_per_second / 1e6), sig(gc.ratio)),
             None => {
-                let g = s.runs.iter().find(|x| x.device == "gpu" && x.hemisphere == "cosine" && x.sampler == "independent");
+                let g =
+                    s.runs.iter().find(|x| x.device == "gpu" && x.hemisphere == "cosine" && x.sampler == "independent");
                 (g.map_or("-".into(), |g| sig(g.last().rays_per_second / 1e6)), "-".into(), "-".into())
             }
         };
@@ -91,7 +105,10 @@ pub fn table(r: &Results) -> String {
     }
 
     if !r.bvh_presets.is_empty() {
-        let _ = writeln!(o, "\nBVH presets (CWBVH; cosine/independent; break-even: rays after which the build pays off against fastest)");
+        let _ = writeln!(
+            o,
+            "\nBVH presets (CWBVH; cosine/independent; break-even: rays after which the build pays off against fastest)"
+        );
         let _ = writeln!(
             o,
             "{:<18} {:<8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>14}",
@@ -119,7 +136,8 @@ pub fn table(r: &Results) -> String {
             continue;
         }
         let _ = writeln!(o, "\nSeconds per million rays against {what}");
-        let _ = writeln!(o, "{:<18} {:<4} {:>10} {:>9} {:>8} {:>10}", "scene", "dev", what, "image", "seconds", "s/M rays");
+        let _ =
+            writeln!(o, "{:<18} {:<4} {:>10} {:>9} {:>8} {:>10}", "scene", "dev", what, "image", "seconds", "s/M rays");
         for p in points {
             let _ = writeln!(
                 o,

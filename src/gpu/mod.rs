@@ -242,8 +242,10 @@ impl GpuContext {
         entries.extend(
             (0..chunks.primitive_chunks).map(|k| entry(GeometryChunks::primitive_binding(k), read_only, false)),
         );
-        let bind_group_layout = device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("ao bindings"), entries: &entries });
+        let bind_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("ao bindings"),
+            entries: &entries,
+        });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("ao.wgsl"),
             source: wgpu::ShaderSource::Wgsl(crate::shaders::compose("ao.wgsl", layout, chunks).into()),
@@ -528,8 +530,11 @@ impl<'a> GpuRenderer<'a> {
                 resource: b.as_entire_binding(),
             });
         }
-        let bind_group =
-            device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("ao bindings"), layout: &layout, entries: &entries });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("ao bindings"),
+            layout: &layout,
+            entries: &entries,
+        });
         ctx.take_error()?;
         // Some drivers (lavapipe) compile the kernel at its first dispatch: run one
         // workgroup of a new pipeline now, so compilation counts as setup rather than
@@ -557,16 +562,9 @@ impl<'a> GpuRenderer<'a> {
             .into_iter()
             .chain(&nodes)
             .chain(&primitives)
-            .chain([
-            &planes,
-            &probe_points,
-            &film,
-            &film_readback,
-            &counters,
-            &counters_readback,
-        ])
-        .map(|b| b.size())
-        .sum();
+            .chain([&planes, &probe_points, &film, &film_readback, &counters, &counters_readback])
+            .map(|b| b.size())
+            .sum();
         let rays_per_sample = match kernel {
             Kernel::Image => 2,
             Kernel::Probe => 1,

@@ -1,13 +1,14 @@
 //! The TOML scene format (documented in the README). Unknown fields are errors.
 
-use super::{Plane, Scene, Settings, Sphere, Triangle, load_mesh, non_finite_coordinate};
+use super::mesh::IndexedMesh;
+use super::{Plane, Scene, Settings, Sphere, Triangle, non_finite_coordinate, place_mesh, read_mesh};
 use crate::camera::{Camera, Projection};
 use crate::error::{Error, Result};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use glam::{Mat4, Vec3};
 use serde::Deserialize;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The default scene's text, compiled in so the binary renders without any files.
 pub const DEFAULT_SCENE: &str = include_str!("../../scenes/aobench.toml");
@@ -241,6 +242,18 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
     let mut triangles: Vec<Triangle> = Vec::new();
     let mut spheres = Vec::new();
     let mut planes = Vec::new();
+    // Mesh files placed by several objects are read once and kept until their last object:
+    // (path, objects still to place it, the mesh as read).
+    let mut meshes: Vec<(PathBuf, usize, Option<IndexedMesh>)> = Vec::new();
+    for object in &file.objects {
+        if let Object::Mesh(m) = object {
+            let path = base_dir.join(&m.file);
+            match meshes.iter_mut().find(|(p, _, _)| *p == path) {
+                Some((_, uses, _)) => *uses += 1,
+                None => meshes.push((path, 1, None)),
+            }
+        }
+    }
     for (i, object) in file.objects.iter().enumerate() {
         // Names the object in errors: `object 3 (mesh "bunny.obj")`, `object 1 (sphere)`.
         let (kind, albedo, transform) = match object {
@@ -260,11 +273,24 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
         match object {
             Object::Mesh(mesh) => {
                 // Errors in the mesh file name the scene file, the object and the mesh.
-                let loaded = load_mesh(&base_dir.join(&mesh.file), albedo, &m).map_err(|e| match e {
+                let path = base_dir.join(&mesh.file);
+                let in_scene_error = |e| match e {
                     Error::Scene { message, .. } => fail(message),
                     e => e,
-                })?;
-                triangles.extend(loaded);
+                };
+                let entry = meshes.iter_mut().find(|(p, _, _)| *p == path).expect("every mesh path was counted");
+                let read = match entry.2.take() {
+                    Some(read) => read,
+                    None => read_mesh(&path).map_err(in_scene_error)?,
+                };
+                let mut read = read;
+                entry.1 -= 1;
+                // The last object takes the vertices; the others transform a copy.
+                let positions = if entry.1 > 0 { read.positions.clone() } else { std::mem::take(&mut read.positions) };
+                triangles.extend(place_mesh(&path, positions, &read, albedo, &m).map_err(in_scene_error)?);
+                if entry.1 > 0 {
+                    entry.2 = Some(read);
+                }
             }
             Object::Sphere(s) => {
                 let (center, radius) = (Vec3::from(s.center), s.radius);

@@ -246,6 +246,13 @@ pub(crate) fn non_finite_coordinate(p: Vec3) -> Option<String> {
 /// drops degenerate triangles (zero area, a repeated vertex), which no ray can hit and
 /// whose normal is undefined. Errors name the vertex or triangle.
 pub fn load_mesh(path: &Path, albedo: f32, transform: &glam::Mat4) -> Result<Vec<Triangle>> {
+    let mut mesh = read_mesh(path)?;
+    let positions = std::mem::take(&mut mesh.positions);
+    place_mesh(path, positions, &mesh, albedo, transform)
+}
+
+/// Reads a mesh file as it is stored: its vertices and triangles, checked to index them.
+pub(crate) fn read_mesh(path: &Path) -> Result<mesh::IndexedMesh> {
     let mesh = match extension(path).as_str() {
         "obj" => obj::load_obj(path)?,
         "ply" => ply::load_ply(path)?,
@@ -254,24 +261,36 @@ pub fn load_mesh(path: &Path, albedo: f32, transform: &glam::Mat4) -> Result<Vec
             return Err(Error::scene(path, format!("unsupported mesh format '.{ext}': expected {MESH_FORMATS}")));
         }
     };
-    let mesh::IndexedMesh { mut positions, triangles, names } = mesh;
-    if triangles.is_empty() {
+    if mesh.triangles.is_empty() {
         return Err(Error::scene(path, "mesh has no triangles"));
     }
-    if let Some(i) = triangles.iter().flatten().find(|&&i| i as usize >= positions.len()) {
-        return Err(Error::scene(path, format!("vertex index {i} is out of range ({} vertices)", positions.len())));
+    let n = mesh.positions.len();
+    if let Some(i) = mesh.triangles.iter().flatten().find(|&&i| i as usize >= n) {
+        return Err(Error::scene(path, format!("vertex index {i} is out of range ({n} vertices)")));
     }
-    // Each distinct vertex goes through the transform once, in place, and every triangle
-    // below takes its corners from it, so shared vertices stay bit-identical.
+    Ok(mesh)
+}
+
+/// The triangles of `mesh` (read from `path`) placed in the world by `transform`;
+/// `positions` are the mesh's vertices (its own, taken out, or a copy), transformed in place.
+pub(crate) fn place_mesh(
+    path: &Path,
+    mut positions: Vec<Vec3>,
+    mesh: &mesh::IndexedMesh,
+    albedo: f32,
+    transform: &glam::Mat4,
+) -> Result<Vec<Triangle>> {
+    // Each distinct vertex goes through the transform once, and every triangle below takes
+    // its corners from the result, so shared vertices stay bit-identical.
     for (k, p) in positions.iter_mut().enumerate() {
         let q = transform.transform_point3(*p);
         if let Some(c) = non_finite_coordinate(q) {
-            let name = names.name(k, *p);
+            let name = mesh.names.name(k, *p);
             return Err(Error::scene(path, format!("{name} has a non-finite coordinate after the transform ({c})")));
         }
         *p = q;
     }
-    mesh_triangles(path, triangles.iter().map(|t| t.map(|i| positions[i as usize])), albedo)
+    mesh_triangles(path, mesh.triangles.iter().map(|t| t.map(|i| positions[i as usize])), albedo)
 }
 
 /// The triangles of a mesh in world space, as the scene keeps them: rejects a non-finite
