@@ -14,6 +14,7 @@
 //! ```
 
 pub mod accuracy;
+pub mod args;
 pub mod bench;
 pub mod bvh;
 pub mod camera;

@@ -1,12 +1,12 @@
 //! The `aorender` command: render, compare sample counts and samplers, list adapters.
 
 use anyhow::{Context, Result, bail};
+use aorender::args::{hemisphere_parser, sampler_parser};
 use aorender::bvh::{BuildQuality, BvhLayout};
 use aorender::checkpoint::{self, Accumulation};
 use aorender::compare::{self, CompareProgress};
 use aorender::render::{Checkpointing, render_resumable};
 use aorender::{Device, Hemisphere, Progress, RenderOptions, Sampler, Scene};
-use clap::builder::TypedValueParser as _;
 use clap::{Parser, Subcommand, ValueEnum};
 use std::io::{IsTerminal, Write};
 use std::ops::Range;
@@ -71,18 +71,6 @@ struct AccuracyArgs {
     /// Substring of the adapter's name to use.
     #[arg(long)]
     adapter: Option<String>,
-}
-
-/// `--hemisphere` values: the library's names.
-fn hemisphere_parser() -> impl clap::builder::TypedValueParser<Value = Hemisphere> {
-    clap::builder::PossibleValuesParser::new(Hemisphere::ALL.map(Hemisphere::name))
-        .map(|name: String| Hemisphere::from_name(&name).expect("a listed name"))
-}
-
-/// `--sampler` values: the library's names.
-fn sampler_parser() -> impl clap::builder::TypedValueParser<Value = Sampler> {
-    clap::builder::PossibleValuesParser::new(Sampler::ALL.map(Sampler::name))
-        .map(|name: String| Sampler::from_name(&name).expect("a listed name"))
 }
 
 #[derive(Clone, Copy, ValueEnum)]

@@ -2,11 +2,11 @@
 //! stderr, the files written and the table printed.
 
 use super::{Plan, Progress, Results, ScenePlan, plot, report};
+use crate::args::{hemisphere_parser, sampler_parser};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::Scene;
 use anyhow::{Context, Result, bail};
-use clap::builder::TypedValueParser as _;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
@@ -59,16 +59,6 @@ pub struct BenchArgs {
     /// Use the adapter whose name contains this (case-insensitive).
     #[arg(long)]
     pub adapter: Option<String>,
-}
-
-fn hemisphere_parser() -> impl clap::builder::TypedValueParser<Value = Hemisphere> {
-    clap::builder::PossibleValuesParser::new(Hemisphere::ALL.map(Hemisphere::name))
-        .map(|name: String| Hemisphere::from_name(&name).expect("a listed name"))
-}
-
-fn sampler_parser() -> impl clap::builder::TypedValueParser<Value = Sampler> {
-    clap::builder::PossibleValuesParser::new(Sampler::ALL.map(Sampler::name))
-        .map(|name: String| Sampler::from_name(&name).expect("a listed name"))
 }
 
 /// A scene of the built-in list: file (`None` for aobench), the image's longer side, N, and
