@@ -28,11 +28,16 @@ fn intersect_triangle(o: vec3f, d: vec3f, t_min: f32, t_max: f32, v0: vec3f, v1:
     return triangle_test(o, d, t_min, t_max, v0, v1, v2).x;
 }
 
-// The test of intersect_triangle as (t, U, V, W): t is INF on a miss; U, V, W are the
-// scaled barycentrics (weights of v0, v1, v2 times det = U + V + W).
-fn triangle_test(o: vec3f, d: vec3f, t_min: f32, t_max: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> vec4f {
-    // The shear, a pure function of d: kz is the axis of largest |d| (ties to the lower
-    // axis), and x and y swap when the ray runs toward -z to keep the winding.
+// The shear of the watertight test, a pure function of the ray direction d (so a
+// traversal computes it once per ray): kz is the axis of largest |d| (ties to the lower
+// axis), and x and y swap when the ray runs toward -z to keep the winding; s is
+// (d[kx] / d[kz], d[ky] / d[kz], 1 / d[kz]).
+struct Shear {
+    k: vec3u,
+    s: vec3f,
+}
+
+fn make_shear(d: vec3f) -> Shear {
     let ad = abs(d);
     var kz = 2u;
     if (ad.x >= ad.y && ad.x >= ad.z) {
@@ -42,22 +47,42 @@ fn triangle_test(o: vec3f, d: vec3f, t_min: f32, t_max: f32, v0: vec3f, v1: vec3
     }
     var kx = select(kz + 1u, 0u, kz == 2u);
     var ky = select(kx + 1u, 0u, kx == 2u);
-    let dz = d[kz];
+    let dz = component(d, kz);
     if (dz < 0.0) {
         let k = kx;
         kx = ky;
         ky = k;
     }
-    let sx = d[kx] / dz;
-    let sy = d[ky] / dz;
-    let sz = 1.0 / dz;
+    return Shear(vec3u(kx, ky, kz), vec3f(component(d, kx) / dz, component(d, ky) / dz, 1.0 / dz));
+}
+
+// v[k] by selects: a vector indexed by a varying index would go through memory.
+fn component(v: vec3f, k: u32) -> f32 {
+    return select(select(v.z, v.y, k == 1u), v.x, k == 0u);
+}
+
+// v in the permuted axes (v[kx], v[ky], v[kz]).
+fn permute_axes(v: vec3f, k: vec3u) -> vec3f {
+    return vec3f(component(v, k.x), component(v, k.y), component(v, k.z));
+}
+
+// The test of intersect_triangle as (t, U, V, W): t is INF on a miss; U, V, W are the
+// scaled barycentrics (weights of v0, v1, v2 times det = U + V + W).
+fn triangle_test(o: vec3f, d: vec3f, t_min: f32, t_max: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> vec4f {
+    let sh = make_shear(d);
+    return triangle_test_sheared(permute_axes(o, sh.k), sh, t_min, t_max, v0, v1, v2);
+}
+
+// triangle_test with the ray's shear and its origin in the permuted axes precomputed:
+// permute_axes(v) - op is permute_axes(v - o), component for component.
+fn triangle_test_sheared(op: vec3f, sh: Shear, t_min: f32, t_max: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> vec4f {
+    let sx = sh.s.x;
+    let sy = sh.s.y;
+    let sz = sh.s.z;
     // Vertices relative to the origin, in the permuted axes.
-    let ra = v0 - o;
-    let rb = v1 - o;
-    let rc = v2 - o;
-    let a = vec3f(ra[kx], ra[ky], ra[kz]);
-    let b = vec3f(rb[kx], rb[ky], rb[kz]);
-    let c = vec3f(rc[kx], rc[ky], rc[kz]);
+    let a = permute_axes(v0, sh.k) - op;
+    let b = permute_axes(v1, sh.k) - op;
+    let c = permute_axes(v2, sh.k) - op;
     // Sheared to the ray's frame: the ray is the z axis.
     let ax = a.x - sx * a.z;
     let ay = a.y - sy * a.z;

@@ -22,6 +22,8 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
         return hit;
     }
     let inv_d = safe_inverse(d);
+    let sh = make_shear(d);
+    let op = permute_axes(o, sh.k);
     var stack: array<vec2u, BVH2_STACK_SIZE>;
     var sp = 0u;
     // (index, count): count 0 is an inner node, count > 0 a run of primitives.
@@ -31,7 +33,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             break;
         }
         if (cur.y > 0u) {
-            let t = intersect_primitive(cur.x, o, d, hit.t);
+            let t = intersect_primitive(cur.x, o, d, sh, op, hit.t);
             if (t < hit.t) {
                 hit = Hit(t, HIT_PRIMITIVE, cur.x);
                 if (any_hit) {

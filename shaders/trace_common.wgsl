@@ -31,13 +31,15 @@ fn take_step() -> bool {
     return true;
 }
 
-// Primitive i of the leaf-ordered array against the ray (bindings.wgsl gives the record).
-fn intersect_primitive(i: u32, o: vec3f, d: vec3f, t_max: f32) -> f32 {
+// Primitive i of the leaf-ordered array against the ray (bindings.wgsl gives the record);
+// sh and op are the ray's shear and permuted origin (make_shear, permute_axes), computed once
+// per ray by the traversal.
+fn intersect_primitive(i: u32, o: vec3f, d: vec3f, sh: Shear, op: vec3f, t_max: f32) -> f32 {
     let p = load_primitive(i);
     if (bitcast<u32>(p.b.w) == PRIM_SPHERE) {
         return intersect_sphere(o, d, 0.0, t_max, p.a.xyz, p.b.x);
     }
-    return intersect_triangle(o, d, 0.0, t_max, p.a.xyz, p.b.xyz, p.c.xyz);
+    return triangle_test_sheared(op, sh, 0.0, t_max, p.a.xyz, p.b.xyz, p.c.xyz).x;
 }
 
 // The infinite planes, which stay outside the BVH.

@@ -81,6 +81,8 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
         return hit;
     }
     let inv_d = safe_inverse(d);
+    let sh = make_shear(d);
+    let op = permute_axes(o, sh.k);
     let oct_inv4 = select(0x04040404u, 0u, d.x < 0.0) | select(0x02020202u, 0u, d.y < 0.0)
         | select(0x01010101u, 0u, d.z < 0.0);
     var stack: array<vec2u, CWBVH_STACK_SIZE>;
@@ -96,7 +98,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             let local = firstLeadingBit(prim_group.y);
             prim_group.y &= ~(1u << local);
             let slot = prim_group.x + local;
-            let t = intersect_primitive(slot, o, d, hit.t);
+            let t = intersect_primitive(slot, o, d, sh, op, hit.t);
             if (t < hit.t) {
                 hit = Hit(t, HIT_PRIMITIVE, slot);
                 if (any_hit) {

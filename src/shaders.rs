@@ -181,14 +181,38 @@ pub fn geometry_files(layout: BvhLayout, chunks: GeometryChunks) -> [(&'static s
 
 /// The composed source of a compiled-in shader file, with the traversal of `layout` and
 /// the geometry split as `chunks` says.
-pub fn compose(name: &str, layout: BvhLayout, chunks: GeometryChunks) -> String {
+///
+/// With `AORENDER_SHADER_DIR` set, the files are read from that directory instead of the
+/// compiled-in copies (for shader work without rebuilding); a file missing there is an
+/// error rather than a silent fallback.
+pub fn compose(name: &str, layout: BvhLayout, chunks: GeometryChunks) -> Result<String, String> {
     let generated = geometry_files(layout, chunks);
+    let overridden: Option<Vec<(&str, String)>> = match std::env::var_os(SHADER_DIR_VAR) {
+        Some(dir) => Some(
+            FILES
+                .iter()
+                .map(|(f, _)| {
+                    let path = std::path::Path::new(&dir).join(f);
+                    std::fs::read_to_string(&path)
+                        .map(|text| (*f, text))
+                        .map_err(|e| format!("{SHADER_DIR_VAR}: {}: {e}", path.display()))
+                })
+                .collect::<Result<_, _>>()?,
+        ),
+        None => None,
+    };
     let lookup = |n: &str| {
         if let Some((_, text)) = generated.iter().find(|(f, _)| *f == n) {
             return Some(text.as_str());
         }
         let n = if n == "trace.wgsl" { traversal_file(layout) } else { n };
-        FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t)
+        match &overridden {
+            Some(files) => files.iter().find(|(f, _)| *f == n).map(|(_, t)| t.as_str()),
+            None => FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t),
+        }
     };
-    compose_with(name, &lookup).expect("compiled-in shaders resolve their imports")
+    compose_with(name, &lookup)
 }
+
+/// The environment variable naming a directory to read the shader files from.
+pub const SHADER_DIR_VAR: &str = "AORENDER_SHADER_DIR";

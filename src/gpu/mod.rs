@@ -215,12 +215,13 @@ impl GpuContext {
 
     /// The bind group layout and pipeline of `kernel` over `layout`, compiled on first use.
     /// The bool is true when it was compiled just now.
-    fn pipeline(&self, key: PipelineKey) -> (wgpu::BindGroupLayout, wgpu::ComputePipeline, bool) {
+    fn pipeline(&self, key: PipelineKey) -> Result<(wgpu::BindGroupLayout, wgpu::ComputePipeline, bool)> {
         let PipelineKey { layout, kernel, chunks } = key;
         let mut cache = self.pipelines.lock().expect("pipeline cache");
         if let Some((_, l, p)) = cache.iter().find(|(k, _, _)| *k == key) {
-            return (l.clone(), p.clone(), false);
+            return Ok((l.clone(), p.clone(), false));
         }
+        let source = crate::shaders::compose("ao.wgsl", layout, chunks).map_err(Error::Gpu)?;
         let device = &self.device;
         let entry = |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
             binding,
@@ -248,7 +249,7 @@ impl GpuContext {
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("ao.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(crate::shaders::compose("ao.wgsl", layout, chunks).into()),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("ao"),
@@ -267,7 +268,7 @@ impl GpuContext {
             cache: None,
         });
         cache.push((key, bind_group_layout.clone(), pipeline.clone()));
-        (bind_group_layout, pipeline, true)
+        Ok((bind_group_layout, pipeline, true))
     }
 
     /// The first device error since the last call, if any.
@@ -355,6 +356,8 @@ pub struct GpuRenderer<'a> {
     safe_samples_per_invocation: u32,
     /// Bytes of device memory the renderer allocated.
     pub device_bytes: u64,
+    /// Storage bindings holding the BVH nodes and the primitives.
+    pub geometry_bindings: u32,
     /// The BVH layout the kernel traverses.
     pub layout: BvhLayout,
 }
@@ -504,7 +507,7 @@ impl<'a> GpuRenderer<'a> {
             mapped_at_creation: false,
         });
 
-        let (layout, pipeline, fresh) = ctx.pipeline(PipelineKey { layout: bvh.layout, kernel, chunks });
+        let (layout, pipeline, fresh) = ctx.pipeline(PipelineKey { layout: bvh.layout, kernel, chunks })?;
         let dispatch_binding = wgpu::BufferBinding {
             buffer: &dispatch,
             offset: 0,
@@ -591,6 +594,7 @@ impl<'a> GpuRenderer<'a> {
             samples_per_invocation: safe_samples_per_invocation,
             safe_samples_per_invocation,
             device_bytes,
+            geometry_bindings: (nodes.len() + primitives.len()) as u32,
             layout: bvh.layout,
         })
     }
