@@ -123,6 +123,9 @@ pub struct RenderStats {
     pub bvh_layout: String,
     /// Bytes of device memory allocated (GPU only).
     pub device_bytes: u64,
+    /// Storage bindings the BVH nodes and primitives were split into (GPU only; 2 when
+    /// each fits one binding).
+    pub geometry_bindings: u32,
     /// Bytes of the scene's geometry on the host: its triangles, spheres and planes.
     pub scene_bytes: u64,
     /// Peak resident memory of the process so far, in bytes (Linux; 0 elsewhere).
@@ -289,13 +292,15 @@ fn accumulate(
             acc.exact.add_block(&block).map_err(|m| Error::scene(&scene.name, m))?;
             acc.partial_samples = 0;
         }
-        // Size the next pass to the target time (at most doubling), and to what is left of the limit.
+        // Size the next pass to the target time and to what is left of the limit, growing at
+        // most eightfold (the first passes' times include warm-up): a fast adapter reaches
+        // full-size passes within three round trips.
         let mut target = PASS_TARGET_SECONDS;
         if let Some(limit) = options.time_limit {
             target = target.min((limit - start.elapsed().as_secs_f64()).max(0.0));
         }
         let per_sample = seconds / count_now as f64;
-        count = ((target / per_sample) as u32).clamp(1, (2 * count).min(MAX_PASS_SAMPLES));
+        count = ((target / per_sample) as u32).clamp(1, (8 * count).min(MAX_PASS_SAMPLES));
         acc.render_seconds = seconds_before + start.elapsed().as_secs_f64();
         progress(&Progress {
             samples_done: acc.samples(),
@@ -374,7 +379,7 @@ pub fn render_resumable(
     };
     let resumed = acc.samples();
     let partial = acc.partial.take();
-    let (run, build_seconds, setup_seconds, device_info, device_bytes) = match options.device {
+    let (run, build_seconds, setup_seconds, device_info, (device_bytes, geometry_bindings)) = match options.device {
         Device::Gpu => {
             let ctx = GpuContext::new(options.adapter.as_deref())?;
             // Build time includes the conversion to the GPU layout.
@@ -391,7 +396,7 @@ pub fn render_resumable(
                 device.load(block)?;
             }
             let run = accumulate(scene, options, &mut acc, &mut device, &mut save, interval, progress)?;
-            let bytes = renderer.device_bytes;
+            let bytes = (renderer.device_bytes, renderer.geometry_bindings);
             (run, build_seconds, setup_seconds, ctx.description.clone(), bytes)
         }
         Device::Cpu => {
@@ -411,7 +416,7 @@ pub fn render_resumable(
                 device.load(block)?;
             }
             let run = accumulate(scene, options, &mut acc, &mut device, &mut save, interval, progress)?;
-            (run, build_seconds, 0.0, d, 0)
+            (run, build_seconds, 0.0, d, (0, 0))
         }
     };
     let film = acc.film().map_err(|m| Error::scene(&scene.name, m))?;
@@ -446,6 +451,7 @@ pub fn render_resumable(
         seed: s.seed,
         bvh_layout: layout.name().into(),
         device_bytes,
+        geometry_bindings,
         scene_bytes: scene.geometry_bytes(),
         host_peak_bytes: peak_rss_bytes().unwrap_or(0),
         load_seconds: 0.0,

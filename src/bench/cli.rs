@@ -72,14 +72,15 @@ struct Builtin {
 }
 
 /// The full run's list, smallest first. Sizes and sample counts keep the whole run,
-/// references included, within about 10 minutes on two cores with lavapipe.
+/// references included, within 10 minutes on two cores with lavapipe (the README's
+/// results give the time of each part).
 const FULL: &[Builtin] = &[
-    Builtin { file: None, size: 128, spp: 256, presets: false, resolutions: false },
-    Builtin { file: Some("dragon_vrip_res4.ply.gz"), size: 128, spp: 64, presets: false, resolutions: false },
-    Builtin { file: Some("dragon_vrip_res3.ply.gz"), size: 128, spp: 64, presets: false, resolutions: true },
-    Builtin { file: Some("bunny.obj"), size: 128, spp: 64, presets: true, resolutions: false },
-    Builtin { file: Some("dragon_vrip_res2.ply.gz"), size: 128, spp: 64, presets: true, resolutions: false },
-    Builtin { file: Some("dragon_vrip.ply.gz"), size: 96, spp: 64, presets: false, resolutions: false },
+    Builtin { file: None, size: 128, spp: 64, presets: false, resolutions: false },
+    Builtin { file: Some("dragon_vrip_res4.ply.gz"), size: 96, spp: 32, presets: false, resolutions: false },
+    Builtin { file: Some("dragon_vrip_res3.ply.gz"), size: 96, spp: 32, presets: false, resolutions: true },
+    Builtin { file: Some("bunny.obj"), size: 96, spp: 32, presets: true, resolutions: false },
+    Builtin { file: Some("dragon_vrip_res2.ply.gz"), size: 96, spp: 32, presets: true, resolutions: false },
+    Builtin { file: Some("dragon_vrip.ply.gz"), size: 64, spp: 32, presets: false, resolutions: false },
     Builtin { file: Some(BIG_SCENE), size: 64, spp: 16, presets: false, resolutions: false },
 ];
 
