@@ -8,6 +8,8 @@
 // Per-workgroup counts, added to the global counters once per workgroup: one global
 // atomic per invocation costs lavapipe's two worker threads a contended cache line.
 var<workgroup> workgroup_counters: array<atomic<u32>, COUNTER_COUNT>;
+// AO rays of this invocation, added to workgroup_counters once at its end.
+var<private> ao_rays: u32 = 0u;
 
 // Neumaier's compensated addition: (sum, compensation) + x.
 fn add_compensated(acc: vec2f, x: f32) -> vec2f {
@@ -36,7 +38,7 @@ fn camera_ray(pixel: vec2f) -> array<vec3f, 2> {
 fn ao_value(p: vec3f, n: vec3f, error: f32, u: vec2f) -> f32 {
     let w_local = sample_hemisphere(frame.hemisphere, u);
     let w = local_to_world(w_local, n);
-    atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], 1u);
+    ao_rays += 1u;
     let shadow = trace(offset_ray_origin(p, n, error), w, frame.max_distance, true);
     if (shadow.kind != HIT_NONE) {
         return 0.0;
@@ -95,6 +97,7 @@ fn flush_counters(lid: u32) {
 
 @compute @workgroup_size(WORKGROUP_WIDTH, WORKGROUP_HEIGHT, 1)
 fn render_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+    load_constants();
     if (gid.x < frame.width && gid.y < frame.height) {
         let i = gid.y * frame.width + gid.x;
         var acc = film[i];
@@ -104,6 +107,7 @@ fn render_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoc
             acc = accumulate(acc, shade_sample(gid.xy, u));
         }
         film[i] = acc;
+        atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);
     }
     workgroupBarrier();
     flush_counters(lid);
@@ -115,6 +119,7 @@ fn render_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoc
 // rounds dispatch.first_sample .. + dispatch.sample_count in order.
 @compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
 fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+    load_constants();
     let lanes = frame.width;
     let slot = gid.x;
     if (slot < lanes * frame.height) {
@@ -131,6 +136,7 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
             acc = accumulate(acc, ao_value(q.position, q.normal, 0.0, u.zw));
         }
         film[slot] = acc;
+        atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);
     }
     workgroupBarrier();
     flush_counters(lid);

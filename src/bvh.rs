@@ -43,6 +43,14 @@ impl BvhLayout {
         }
     }
 
+    /// Bytes of one node as the kernel reads it.
+    pub fn node_size(self) -> usize {
+        match self {
+            BvhLayout::Bvh2 => std::mem::size_of::<GpuNode>(),
+            BvhLayout::Cwbvh => std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>(),
+        }
+    }
+
     /// The name used on the command line and in stats.
     pub fn name(self) -> &'static str {
         match self {

@@ -6,6 +6,7 @@ use aorender::bvh::{BuildQuality, BvhLayout};
 use aorender::checkpoint::{self, Accumulation};
 use aorender::compare::{self, CompareProgress};
 use aorender::render::{Checkpointing, render_resumable};
+use aorender::shaders::GeometryStorage;
 use aorender::{Device, Hemisphere, Progress, RenderOptions, Sampler, Scene};
 use clap::{Parser, Subcommand, ValueEnum};
 use std::io::{IsTerminal, Write};
@@ -93,6 +94,14 @@ enum LayoutArg {
     Cwbvh,
 }
 
+#[derive(Clone, Copy, ValueEnum)]
+enum StorageArg {
+    /// Textures on a CPU adapter (lavapipe), storage buffers on a GPU.
+    Auto,
+    Buffers,
+    Textures,
+}
+
 /// Image size options shared by `render` and `compare`.
 #[derive(clap::Args)]
 struct SizeArgs {
@@ -139,6 +148,9 @@ struct SceneArgs {
     /// BVH node layout the GPU traverses.
     #[arg(long, value_enum, default_value = "cwbvh")]
     bvh_layout: LayoutArg,
+    /// What holds the BVH and the primitives on the GPU: storage buffers or textures.
+    #[arg(long, value_enum, default_value = "auto")]
+    geometry_storage: StorageArg,
 }
 
 impl SceneArgs {
@@ -176,6 +188,11 @@ impl SceneArgs {
             bvh_layout: match self.bvh_layout {
                 LayoutArg::Bvh2 => BvhLayout::Bvh2,
                 LayoutArg::Cwbvh => BvhLayout::Cwbvh,
+            },
+            geometry_storage: match self.geometry_storage {
+                StorageArg::Auto => None,
+                StorageArg::Buffers => Some(GeometryStorage::Buffers),
+                StorageArg::Textures => Some(GeometryStorage::Textures),
             },
             sample_range: None,
             stop: None,

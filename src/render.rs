@@ -14,6 +14,7 @@ use crate::error::{Error, Result};
 use crate::film::{BLOCK_SAMPLES, BlockSums, Film};
 use crate::gpu::{GpuContext, GpuRenderer, MAX_PASS_SAMPLES};
 use crate::scene::Scene;
+use crate::shaders::GeometryStorage;
 use std::ops::Range;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -42,6 +43,9 @@ pub struct RenderOptions {
     pub bvh_quality: BuildQuality,
     /// BVH layout the GPU traverses (the CPU reference always uses obvhs's CWBVH).
     pub bvh_layout: BvhLayout,
+    /// Where the GPU kernel reads the geometry from; `None` is the adapter's preference
+    /// ([`GeometryStorage::preferred`]).
+    pub geometry_storage: Option<GeometryStorage>,
     /// Sample indices to render, `start..end` with `end` at most the samples per pixel;
     /// `None` is all of them, `0..spp`. The cell samplers still place their cells for
     /// `spp` samples, so disjoint ranges are parts of one render.
@@ -126,6 +130,8 @@ pub struct RenderStats {
     /// Storage bindings the BVH nodes and primitives were split into (GPU only; 2 when
     /// each fits one binding).
     pub geometry_bindings: u32,
+    /// What holds them on the device: `buffers` or `textures` (empty on the CPU).
+    pub geometry_storage: String,
     /// Bytes of the scene's geometry on the host: its triangles, spheres and planes.
     pub scene_bytes: u64,
     /// Peak resident memory of the process so far, in bytes (Linux; 0 elsewhere).
@@ -379,9 +385,12 @@ pub fn render_resumable(
     };
     let resumed = acc.samples();
     let partial = acc.partial.take();
-    let (run, build_seconds, setup_seconds, device_info, (device_bytes, geometry_bindings)) = match options.device {
+    let (run, build_seconds, setup_seconds, device_info, on_device) = match options.device {
         Device::Gpu => {
-            let ctx = GpuContext::new(options.adapter.as_deref())?;
+            let mut ctx = GpuContext::new(options.adapter.as_deref())?;
+            if let Some(storage) = options.geometry_storage {
+                ctx.set_geometry_storage(storage);
+            }
             // Build time includes the conversion to the GPU layout.
             let build = Instant::now();
             let gpu_bvh = GpuBvh::build(scene, options.bvh_layout, options.bvh_quality);
@@ -396,7 +405,7 @@ pub fn render_resumable(
                 device.load(block)?;
             }
             let run = accumulate(scene, options, &mut acc, &mut device, &mut save, interval, progress)?;
-            let bytes = (renderer.device_bytes, renderer.geometry_bindings);
+            let bytes = (renderer.device_bytes, renderer.geometry_bindings, renderer.geometry_storage.name());
             (run, build_seconds, setup_seconds, ctx.description.clone(), bytes)
         }
         Device::Cpu => {
@@ -416,13 +425,14 @@ pub fn render_resumable(
                 device.load(block)?;
             }
             let run = accumulate(scene, options, &mut acc, &mut device, &mut save, interval, progress)?;
-            (run, build_seconds, 0.0, d, (0, 0))
+            (run, build_seconds, 0.0, d, (0, 0, ""))
         }
     };
     let film = acc.film().map_err(|m| Error::scene(&scene.name, m))?;
     let done = acc.samples();
     let camera_rays = done as u64 * s.width as u64 * s.height as u64;
     let rays = camera_rays + acc.ao_rays;
+    let (device_bytes, geometry_bindings, geometry_storage) = on_device;
     let stats = RenderStats {
         scene: scene.name.clone(),
         samples_per_pixel: done,
@@ -452,6 +462,7 @@ pub fn render_resumable(
         bvh_layout: layout.name().into(),
         device_bytes,
         geometry_bindings,
+        geometry_storage: geometry_storage.into(),
         scene_bytes: scene.geometry_bytes(),
         host_peak_bytes: peak_rss_bytes().unwrap_or(0),
         load_seconds: 0.0,

@@ -84,10 +84,49 @@ pub fn compose_with<'a>(name: &str, lookup: &dyn Fn(&str) -> Option<&'a str>) ->
     Ok(out)
 }
 
-/// How the BVH nodes and the primitives are split into chunks, each in its own storage
-/// binding, so that a scene is not limited to one binding's size.
+/// Where the kernel reads the BVH nodes and the primitives from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum GeometryStorage {
+    /// Storage buffers: `array<T>` indexed by element.
+    #[default]
+    Buffers,
+    /// `texture_2d<u32>` of `Rgba32Uint` texels, an element in consecutive texels of one
+    /// row, read with `textureLoad`. Mesa's lavapipe (22.x) reads a storage buffer at a
+    /// per-invocation index one lane and one word at a time, behind a branch each, but a
+    /// texel fetch as one gather for all lanes: several times faster there.
+    Textures,
+}
+
+impl GeometryStorage {
+    /// What suits an adapter of this type: textures on a CPU (lavapipe, where they are
+    /// several times faster), storage buffers on a GPU (where the renderer was measured
+    /// with them).
+    pub fn preferred(device_type: wgpu::DeviceType) -> GeometryStorage {
+        match device_type {
+            wgpu::DeviceType::Cpu => GeometryStorage::Textures,
+            _ => GeometryStorage::Buffers,
+        }
+    }
+
+    /// Name, as in the stats and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            GeometryStorage::Buffers => "buffers",
+            GeometryStorage::Textures => "textures",
+        }
+    }
+}
+
+/// Texels per texture row: a multiple of the texels of every element type (3 for a
+/// primitive, 4 for a BVH2 node, 5 for a CWBVH node), so that no element straddles two rows.
+pub const ROW_TEXEL_MULTIPLE: u32 = 60;
+
+/// How the BVH nodes and the primitives are split into chunks, each in its own binding
+/// (a storage buffer or a texture), so that a scene is not limited to one binding's size.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct GeometryChunks {
+    /// Buffers or textures.
+    pub storage: GeometryStorage,
     /// Bindings holding nodes.
     pub node_chunks: u32,
     /// Nodes in each node binding but the last.
@@ -96,15 +135,19 @@ pub struct GeometryChunks {
     pub primitive_chunks: u32,
     /// Primitives in each primitive binding but the last.
     pub primitives_per_chunk: u32,
+    /// Texels in a texture row (a multiple of [`ROW_TEXEL_MULTIPLE`]); unused for buffers.
+    pub row_texels: u32,
 }
 
 impl GeometryChunks {
-    /// Everything in one binding each.
+    /// Everything in one storage buffer each.
     pub const SINGLE: GeometryChunks = GeometryChunks {
+        storage: GeometryStorage::Buffers,
         node_chunks: 1,
         nodes_per_chunk: u32::MAX,
         primitive_chunks: 1,
         primitives_per_chunk: u32::MAX,
+        row_texels: 0,
     };
 
     /// The binding of node chunk `k`: 2, then 8, 10, 12, …
@@ -118,33 +161,94 @@ impl GeometryChunks {
     }
 }
 
-/// WGSL for `count` chunk bindings of `ty` named `name_k`, and `load` returning element
-/// i, which lives in chunk i / per_chunk.
-fn chunked_array(name: &str, ty: &str, load: &str, count: u32, per_chunk: u32, binding: fn(u32) -> u32) -> String {
+/// A geometry element type of the kernel as the texels that hold it.
+struct Element {
+    /// WGSL type name.
+    ty: &'static str,
+    /// Texels (16 bytes each) per element.
+    texels: u32,
+    /// WGSL expression building the element from texels `t0`, `t1`, … (`vec4u` each).
+    from_texels: &'static str,
+}
+
+const CW_NODE: Element = Element { ty: "CwNode", texels: 5, from_texels: "CwNode(t0, t1, t2, t3, t4)" };
+const BVH2_NODE: Element = Element {
+    ty: "Node",
+    texels: 4,
+    from_texels: "Node(bitcast<vec3f>(t0.xyz), t0.w, bitcast<vec3f>(t1.xyz), t1.w, \
+                  bitcast<vec3f>(t2.xyz), t2.w, bitcast<vec3f>(t3.xyz), t3.w)",
+};
+const PRIMITIVE: Element = Element {
+    ty: "Primitive",
+    texels: 3,
+    from_texels: "Primitive(bitcast<vec4f>(t0), bitcast<vec4f>(t1), bitcast<vec4f>(t2))",
+};
+
+/// WGSL for `count` chunk bindings of `e` named `name_k`, and `load` returning element
+/// i, which lives in chunk i / per_chunk: storage buffers or textures as `chunks` says.
+fn chunked_array(
+    name: &str,
+    e: &Element,
+    load: &str,
+    count: u32,
+    per_chunk: u32,
+    binding: fn(u32) -> u32,
+    chunks: GeometryChunks,
+) -> String {
+    let ty = e.ty;
     let mut s = String::new();
     for k in 0..count {
-        s += &format!("@group(0) @binding({}) var<storage, read> {name}_{k}: array<{ty}>;\n", binding(k));
+        let b = binding(k);
+        s += &match chunks.storage {
+            GeometryStorage::Buffers => {
+                format!("@group(0) @binding({b}) var<storage, read> {name}_{k}: array<{ty}>;\n")
+            }
+            GeometryStorage::Textures => format!("@group(0) @binding({b}) var {name}_{k}: texture_2d<u32>;\n"),
+        };
     }
-    if count == 1 {
-        s += &format!("fn {load}(i: u32) -> {ty} {{\n    return {name}_0[i];\n}}\n");
-        return s;
+    s += &format!("fn {load}(i: u32) -> {ty} {{\n");
+    s += &if count == 1 {
+        "    let j = i;\n".to_string()
+    } else {
+        format!("    let chunk = i / {per_chunk}u;\n    let j = i - chunk * {per_chunk}u;\n")
+    };
+    // The read of chunk k at index j, as statements.
+    let read = |k: u32| match chunks.storage {
+        GeometryStorage::Buffers => format!("return {name}_{k}[j];"),
+        GeometryStorage::Textures => (0..e.texels)
+            .map(|c| format!("t{c} = textureLoad({name}_{k}, vec2u(x + {c}u, y), 0);"))
+            .collect::<Vec<_>>()
+            .join(" "),
+    };
+    if chunks.storage == GeometryStorage::Textures {
+        let per_row = chunks.row_texels / e.texels;
+        s += &format!("    let y = j / {per_row}u;\n    let x = (j - y * {per_row}u) * {}u;\n", e.texels);
+        for c in 0..e.texels {
+            s += &format!("    var t{c}: vec4u;\n");
+        }
     }
-    s += &format!(
-        "fn {load}(i: u32) -> {ty} {{\n    let chunk = i / {per_chunk}u;\n    let j = i - chunk * {per_chunk}u;\n"
-    );
     for k in 0..count - 1 {
-        s += &format!("    if (chunk == {k}u) {{\n        return {name}_{k}[j];\n    }}\n");
+        s += &format!("    if (chunk == {k}u) {{\n        {}\n    }}", read(k));
+        s += if chunks.storage == GeometryStorage::Textures { " else " } else { "\n" };
     }
-    s += &format!("    return {name}_{}[j];\n}}\n", count - 1);
+    match chunks.storage {
+        GeometryStorage::Buffers => s += &format!("    {}\n", read(count - 1)),
+        GeometryStorage::Textures => {
+            let last = read(count - 1);
+            s += &if count == 1 { format!("    {last}\n") } else { format!("{{\n        {last}\n    }}\n") };
+            s += &format!("    return {};\n", e.from_texels);
+        }
+    }
+    s += "}\n";
     s
 }
 
 /// The generated `node_bindings.wgsl` (the node type is the traversal's) and
 /// `primitive_bindings.wgsl`.
 pub fn geometry_files(layout: BvhLayout, chunks: GeometryChunks) -> [(&'static str, String); 2] {
-    let node_type = match layout {
-        BvhLayout::Bvh2 => "Node",
-        BvhLayout::Cwbvh => "CwNode",
+    let node = match layout {
+        BvhLayout::Bvh2 => &BVH2_NODE,
+        BvhLayout::Cwbvh => &CW_NODE,
     };
     let header = "// Generated by src/shaders.rs: the chunk bindings and their accessor.\n";
     [
@@ -154,11 +258,12 @@ pub fn geometry_files(layout: BvhLayout, chunks: GeometryChunks) -> [(&'static s
                 "{header}{}",
                 chunked_array(
                     "nodes",
-                    node_type,
+                    node,
                     "load_node",
                     chunks.node_chunks,
                     chunks.nodes_per_chunk,
-                    GeometryChunks::node_binding
+                    GeometryChunks::node_binding,
+                    chunks
                 )
             ),
         ),
@@ -168,15 +273,25 @@ pub fn geometry_files(layout: BvhLayout, chunks: GeometryChunks) -> [(&'static s
                 "{header}//#import bindings.wgsl\n{}",
                 chunked_array(
                     "primitives",
-                    "Primitive",
+                    &PRIMITIVE,
                     "load_primitive",
                     chunks.primitive_chunks,
                     chunks.primitives_per_chunk,
-                    GeometryChunks::primitive_binding
+                    GeometryChunks::primitive_binding,
+                    chunks
                 )
             ),
         ),
     ]
+}
+
+/// Texels per element of the node type of `layout`, and of a primitive.
+pub fn element_texels(layout: BvhLayout) -> (u32, u32) {
+    let node = match layout {
+        BvhLayout::Bvh2 => &BVH2_NODE,
+        BvhLayout::Cwbvh => &CW_NODE,
+    };
+    (node.texels, PRIMITIVE.texels)
 }
 
 /// The composed source of a compiled-in shader file, with the traversal of `layout` and

@@ -5,6 +5,7 @@
 mod common;
 use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
 use aorender::gpu::{GpuContext, GpuRenderer};
+use aorender::shaders::GeometryStorage;
 use aorender::{Device, Film, Hemisphere, Sampler, Scene};
 use common::*;
 
@@ -196,34 +197,58 @@ fn passes_report_gpu_time_from_timestamps() {
     }
 }
 
-/// Nodes and primitives split across several bindings (chunks capped at 8,000 bytes, so
-/// this small scene takes several) render the same film, bit for bit, as in one binding
-/// each; a cap too small for the adapter's bindings is an error with the numbers.
+/// Nodes and primitives in storage buffers or in textures, each whole or split across
+/// several bindings (buffers capped at 8,000 bytes, textures at 600 × 2 texels, so this
+/// small scene takes several), render the same film, bit for bit; a cap too small for the
+/// adapter's bindings is an error with the numbers.
 #[test]
-fn geometry_split_across_bindings_renders_the_same_film() {
+fn geometry_in_buffers_or_textures_whole_or_split_renders_the_same_film() {
     if !gpu_available() {
         return;
     }
     let dir = temp_dir();
     let mut scene = mesh_scene(dir.path());
     scene.settings.hemisphere = Hemisphere::Uniform;
-    let whole = GpuContext::new(None).unwrap();
-    let mut split = GpuContext::new(None).unwrap();
-    split.limit_chunk_bytes(8_000);
+    let context = |storage: GeometryStorage, split: bool| {
+        let mut ctx = GpuContext::new(None).unwrap();
+        ctx.set_geometry_storage(storage);
+        if split {
+            ctx.limit_chunk_bytes(8_000);
+            ctx.limit_texture_size(600, 2);
+        }
+        ctx
+    };
+    let contexts = [
+        context(GeometryStorage::Buffers, false),
+        context(GeometryStorage::Buffers, true),
+        context(GeometryStorage::Textures, false),
+        context(GeometryStorage::Textures, true),
+    ];
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
         let bvh = GpuBvh::build(&scene, layout, BuildQuality::default());
+        // 400 primitives fill one 600 × 2 texture: the split takes three or more.
+        assert!(bvh.primitives.len() > 2 * 400);
         assert!(bvh.primitives.len() * std::mem::size_of::<aorender::bvh::GpuPrimitive>() > 3 * 8_000);
         let render = |ctx: &GpuContext| {
             let mut renderer = GpuRenderer::new(ctx, &scene, &bvh).unwrap();
+            assert_eq!(renderer.geometry_storage, ctx.geometry_storage());
+            let bindings = renderer.geometry_bindings;
             renderer.render_pass(0, 16).unwrap();
-            renderer.read_film(16).unwrap()
+            (renderer.read_film(16).unwrap(), bindings)
         };
-        let (a, b) = (render(&whole), render(&split));
+        let (a, a_bindings) = render(&contexts[0]);
         assert!(a.image_mean() > 0.0);
-        assert_eq!(a.sum, b.sum, "{layout:?}");
-        assert_eq!(a.sum_sq, b.sum_sq, "{layout:?}");
+        assert_eq!(a_bindings, 2);
+        for (k, ctx) in contexts.iter().enumerate().skip(1) {
+            let (b, bindings) = render(ctx);
+            let split = k % 2 == 1;
+            assert_eq!(split, bindings > 3, "{layout:?} context {k}: {bindings} bindings");
+            assert_eq!(a.sum, b.sum, "{layout:?} context {k}");
+            assert_eq!(a.sum_sq, b.sum_sq, "{layout:?} context {k}");
+        }
     }
     let mut tiny = GpuContext::new(None).unwrap();
+    tiny.set_geometry_storage(GeometryStorage::Buffers);
     tiny.limit_chunk_bytes(64);
     let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
     let e = GpuRenderer::new(&tiny, &scene, &bvh).err().expect("too many chunks for the adapter").to_string();

@@ -3,7 +3,7 @@
 
 use aorender::bvh::{BvhLayout, GpuNode, GpuPrimitive};
 use aorender::gpu::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint};
-use aorender::shaders::{GeometryChunks, compose_with, geometry_files};
+use aorender::shaders::{GeometryChunks, GeometryStorage, compose_with, geometry_files};
 use obvhs::cwbvh::node::CwBvhNode;
 use std::collections::BTreeMap;
 
@@ -63,10 +63,17 @@ fn every_shader_file_validates() {
     }
     // The kernel as the renderer composes it for each layout, with the geometry in one
     // binding each and split into chunks.
-    let split =
-        GeometryChunks { node_chunks: 3, nodes_per_chunk: 1000, primitive_chunks: 2, primitives_per_chunk: 700 };
+    let split = GeometryChunks {
+        node_chunks: 3,
+        nodes_per_chunk: 1000,
+        primitive_chunks: 2,
+        primitives_per_chunk: 700,
+        ..GeometryChunks::SINGLE
+    };
+    let textures =
+        |chunks: GeometryChunks| GeometryChunks { storage: GeometryStorage::Textures, row_texels: 600, ..chunks };
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
-        for chunks in [GeometryChunks::SINGLE, split] {
+        for chunks in [GeometryChunks::SINGLE, split, textures(GeometryChunks::SINGLE), textures(split)] {
             let module = validate_chunked("ao.wgsl", aorender::shaders::traversal_file(layout), chunks, &files);
             let bound = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).count() as u32;
             assert_eq!(
@@ -99,6 +106,16 @@ fn host_structs_match_wgsl_layout() {
     assert_eq!(size_of("Primitive") as usize, std::mem::size_of::<GpuPrimitive>());
     assert_eq!(size_of("Plane") as usize, std::mem::size_of::<GpuPlane>());
     assert_eq!(size_of("ProbePoint") as usize, std::mem::size_of::<GpuProbePoint>());
+    // Geometry textures hold each element in whole texels, and a row in whole elements.
+    for (layout, node_size) in [(BvhLayout::Bvh2, size_of("Node")), (BvhLayout::Cwbvh, wgsl_size(&cw_module, "CwNode"))]
+    {
+        let (node_texels, prim_texels) = aorender::shaders::element_texels(layout);
+        assert_eq!(16 * node_texels, node_size, "{layout:?}");
+        assert_eq!(16 * prim_texels, size_of("Primitive"));
+        for texels in [node_texels, prim_texels] {
+            assert_eq!(aorender::shaders::ROW_TEXEL_MULTIPLE % texels, 0);
+        }
+    }
 }
 
 /// The kernel binds no uniform buffer (see shaders/bindings.wgsl): lavapipe would

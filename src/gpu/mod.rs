@@ -8,7 +8,7 @@ use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::scene::Scene;
-use crate::shaders::GeometryChunks;
+use crate::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE, element_texels};
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
@@ -117,6 +117,10 @@ pub struct GpuContext {
     pipelines: Mutex<Vec<(PipelineKey, wgpu::BindGroupLayout, wgpu::ComputePipeline)>>,
     /// Largest chunk of nodes or primitives in one binding, in bytes.
     max_chunk_bytes: u64,
+    /// Where the kernel reads the geometry from.
+    geometry_storage: GeometryStorage,
+    /// Largest width and height of a geometry texture (the adapter's limit, or less for tests).
+    max_texture_size: [u32; 2],
 }
 
 impl GpuContext {
@@ -168,6 +172,8 @@ impl GpuContext {
         let description = AdapterDescription::new(&adapter.get_info());
         let limits = device.limits();
         let max_chunk_bytes = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let geometry_storage = GeometryStorage::preferred(adapter.get_info().device_type);
+        let max_texture_size = [limits.max_texture_dimension_2d; 2];
         Ok(GpuContext {
             adapter,
             device,
@@ -176,7 +182,27 @@ impl GpuContext {
             errors,
             pipelines: Mutex::new(Vec::new()),
             max_chunk_bytes,
+            geometry_storage,
+            max_texture_size,
         })
+    }
+
+    /// Where the kernel reads the BVH nodes and primitives from: by default textures on a
+    /// CPU adapter (lavapipe), storage buffers elsewhere ([`GeometryStorage::preferred`]).
+    pub fn geometry_storage(&self) -> GeometryStorage {
+        self.geometry_storage
+    }
+
+    /// Reads the geometry from `storage` in renderers made from now on.
+    pub fn set_geometry_storage(&mut self, storage: GeometryStorage) {
+        self.geometry_storage = storage;
+    }
+
+    /// Caps the width and height of a geometry texture below the adapter's limit, so that
+    /// small scenes are split into several textures as large ones are (for testing the
+    /// split). The width is rounded down to a multiple of [`ROW_TEXEL_MULTIPLE`].
+    pub fn limit_texture_size(&mut self, width: u32, height: u32) {
+        self.max_texture_size = [self.max_texture_size[0].min(width), self.max_texture_size[1].min(height).max(1)];
     }
 
     /// Caps the bytes of nodes or primitives in one binding below the adapter's limit, so
@@ -185,29 +211,61 @@ impl GpuContext {
         self.max_chunk_bytes = self.max_chunk_bytes.min(bytes);
     }
 
-    /// How `nodes` nodes of `node_size` bytes and `primitives` primitives split into
-    /// chunks of at most one binding each, or an error with the numbers when the adapter
-    /// has too few storage bindings per shader stage for them.
-    fn geometry_chunks(&self, nodes: usize, node_size: usize, primitives: usize) -> Result<GeometryChunks> {
+    /// How `nodes` nodes and `primitives` primitives split into chunks of at most one
+    /// binding each, or an error with the numbers when the adapter has too few bindings
+    /// per shader stage for them.
+    fn geometry_chunks(&self, layout: BvhLayout, nodes: usize, primitives: usize) -> Result<GeometryChunks> {
+        let node_size = layout.node_size();
         let prim_size = std::mem::size_of::<GpuPrimitive>();
-        let per_chunk = |size: usize| (self.max_chunk_bytes / size as u64).clamp(1, u32::MAX as u64) as u32;
-        let (nodes_per_chunk, primitives_per_chunk) = (per_chunk(node_size), per_chunk(prim_size));
+        let limits = self.device.limits();
+        let storage = self.geometry_storage;
+        // Elements per chunk, and the bytes a chunk holds at most.
+        let (row_texels, per_chunk, chunk_bytes): (u32, Box<dyn Fn(usize, u32) -> u32>, u64) = match storage {
+            GeometryStorage::Buffers => {
+                let max = self.max_chunk_bytes;
+                (0, Box::new(move |size, _| (max / size as u64).clamp(1, u32::MAX as u64) as u32), max)
+            }
+            GeometryStorage::Textures => {
+                let [width, rows] = self.max_texture_size;
+                let row = width / ROW_TEXEL_MULTIPLE * ROW_TEXEL_MULTIPLE;
+                if row == 0 {
+                    return Err(Error::Gpu(format!(
+                        "textures of {width} texels are too narrow for the geometry: it needs {ROW_TEXEL_MULTIPLE}"
+                    )));
+                }
+                let rows = rows as u64;
+                let per = move |_: usize, texels: u32| ((row / texels) as u64 * rows).min(u32::MAX as u64) as u32;
+                (row, Box::new(per), row as u64 * rows * 16)
+            }
+        };
+        let (node_texels, prim_texels) = element_texels(layout);
+        let (nodes_per_chunk, primitives_per_chunk) =
+            (per_chunk(node_size, node_texels), per_chunk(prim_size, prim_texels));
         let chunks = GeometryChunks {
+            storage,
             node_chunks: (nodes.div_ceil(nodes_per_chunk as usize) as u32).max(1),
             nodes_per_chunk,
             primitive_chunks: (primitives.div_ceil(primitives_per_chunk as usize) as u32).max(1),
             primitives_per_chunk,
+            row_texels,
         };
-        let allowed = self.device.limits().max_storage_buffers_per_shader_stage;
-        let needed = OTHER_STORAGE_BINDINGS + chunks.node_chunks + chunks.primitive_chunks;
-        if needed > allowed {
-            let geometry_chunks = allowed.saturating_sub(OTHER_STORAGE_BINDINGS) as u64;
+        let (allowed, limit_name) = match storage {
+            GeometryStorage::Buffers => (
+                limits.max_storage_buffers_per_shader_stage.saturating_sub(OTHER_STORAGE_BINDINGS),
+                "max_storage_buffers_per_shader_stage (less the kernel's other bindings) \
+                 × max_storage_buffer_binding_size",
+            ),
+            GeometryStorage::Textures => (
+                limits.max_sampled_textures_per_shader_stage,
+                "max_sampled_textures_per_shader_stage × the texels of a texture (max_texture_dimension_2d²)",
+            ),
+        };
+        if chunks.node_chunks + chunks.primitive_chunks > allowed {
             return Err(Error::TooLarge {
                 what: "the BVH nodes and primitives",
                 needed: (nodes * node_size + primitives * prim_size) as u64,
-                limit: geometry_chunks * self.max_chunk_bytes,
-                limit_name: "max_storage_buffers_per_shader_stage (less the kernel's other bindings) \
-                             × max_storage_buffer_binding_size",
+                limit: allowed as u64 * chunk_bytes,
+                limit_name,
             });
         }
         Ok(chunks)
@@ -231,6 +289,19 @@ impl GpuContext {
         };
         let read_only = wgpu::BufferBindingType::Storage { read_only: true };
         let read_write = wgpu::BufferBindingType::Storage { read_only: false };
+        let geometry = |binding: u32| match chunks.storage {
+            GeometryStorage::Buffers => entry(binding, read_only, false),
+            GeometryStorage::Textures => wgpu::BindGroupLayoutEntry {
+                binding,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Uint,
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                    multisampled: false,
+                },
+                count: None,
+            },
+        };
         let mut entries = vec![
             entry(0, read_only, false),
             entry(1, read_only, true),
@@ -239,10 +310,8 @@ impl GpuContext {
             entry(6, read_write, false),
             entry(7, read_only, false),
         ];
-        entries.extend((0..chunks.node_chunks).map(|k| entry(GeometryChunks::node_binding(k), read_only, false)));
-        entries.extend(
-            (0..chunks.primitive_chunks).map(|k| entry(GeometryChunks::primitive_binding(k), read_only, false)),
-        );
+        entries.extend((0..chunks.node_chunks).map(|k| geometry(GeometryChunks::node_binding(k))));
+        entries.extend((0..chunks.primitive_chunks).map(|k| geometry(GeometryChunks::primitive_binding(k))));
         let bind_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("ao bindings"),
             entries: &entries,
@@ -356,8 +425,10 @@ pub struct GpuRenderer<'a> {
     safe_samples_per_invocation: u32,
     /// Bytes of device memory the renderer allocated.
     pub device_bytes: u64,
-    /// Storage bindings holding the BVH nodes and the primitives.
+    /// Bindings holding the BVH nodes and the primitives.
     pub geometry_bindings: u32,
+    /// Whether those are storage buffers or textures.
+    pub geometry_storage: GeometryStorage,
     /// The BVH layout the kernel traverses.
     pub layout: BvhLayout,
 }
@@ -382,6 +453,98 @@ fn storage(ctx: &GpuContext, label: &'static str, bytes: &[u8], element: usize) 
         contents: bytes,
         usage: wgpu::BufferUsages::STORAGE,
     }))
+}
+
+/// One chunk of nodes or primitives on the device.
+enum Geometry {
+    Buffer(wgpu::Buffer),
+    Texture(wgpu::TextureView, u64),
+}
+
+impl Geometry {
+    /// Uploads `bytes`, elements of `element` bytes, as `chunks` says.
+    fn upload(
+        ctx: &GpuContext,
+        label: &'static str,
+        bytes: &[u8],
+        element: usize,
+        chunks: GeometryChunks,
+    ) -> Result<Geometry> {
+        match chunks.storage {
+            GeometryStorage::Buffers => storage(ctx, label, bytes, element).map(Geometry::Buffer),
+            GeometryStorage::Textures => texels(ctx, label, bytes, chunks.row_texels),
+        }
+    }
+
+    fn resource(&self) -> wgpu::BindingResource<'_> {
+        match self {
+            Geometry::Buffer(b) => b.as_entire_binding(),
+            Geometry::Texture(view, _) => wgpu::BindingResource::TextureView(view),
+        }
+    }
+
+    fn bytes(&self) -> u64 {
+        match self {
+            Geometry::Buffer(b) => b.size(),
+            Geometry::Texture(_, bytes) => *bytes,
+        }
+    }
+}
+
+/// An `Rgba32Uint` texture `row_texels` wide holding `bytes` row after row (elements
+/// never straddle rows: `row_texels` is a multiple of their texels), written straight from
+/// `bytes` without a padded copy.
+fn texels(ctx: &GpuContext, label: &'static str, bytes: &[u8], row_texels: u32) -> Result<Geometry> {
+    const TEXEL: usize = 16;
+    debug_assert_eq!(bytes.len() % TEXEL, 0);
+    let row_bytes = row_texels as usize * TEXEL;
+    let full_rows = (bytes.len() / row_bytes) as u32;
+    let rest = bytes.len() % row_bytes;
+    let rows = (full_rows + (rest > 0) as u32).max(1);
+    let max = ctx.device.limits().max_texture_dimension_2d;
+    if rows > max {
+        return Err(Error::TooLarge {
+            what: label,
+            needed: bytes.len() as u64,
+            limit: max as u64 * row_bytes as u64,
+            limit_name: "max_texture_dimension_2d² texels of 16 bytes",
+        });
+    }
+    let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d { width: row_texels, height: rows, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba32Uint,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    let write = |y: u32, width: u32, height: u32, data: &[u8]| {
+        ctx.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d { x: 0, y, z: 0 },
+                aspect: wgpu::TextureAspect::All,
+            },
+            data,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(width * TEXEL as u32),
+                rows_per_image: Some(height),
+            },
+            wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+        );
+    };
+    if full_rows > 0 {
+        write(0, row_texels, full_rows, &bytes[..full_rows as usize * row_bytes]);
+    }
+    if rest > 0 {
+        write(full_rows, (rest / TEXEL) as u32, 1, &bytes[full_rows as usize * row_bytes..]);
+    }
+    let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+    Ok(Geometry::Texture(view, rows as u64 * row_bytes as u64))
 }
 
 impl<'a> GpuRenderer<'a> {
@@ -447,18 +610,15 @@ impl<'a> GpuRenderer<'a> {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let node_size = match bvh.layout {
-            BvhLayout::Bvh2 => std::mem::size_of::<crate::bvh::GpuNode>(),
-            BvhLayout::Cwbvh => std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>(),
-        };
-        let chunks = ctx.geometry_chunks(bvh.node_count as usize, node_size, bvh.primitives.len())?;
-        let nodes: Vec<wgpu::Buffer> = chunk_bytes(&bvh.node_bytes, node_size, chunks.nodes_per_chunk)
-            .map(|bytes| storage(ctx, "BVH nodes", bytes, node_size))
+        let node_size = bvh.layout.node_size();
+        let chunks = ctx.geometry_chunks(bvh.layout, bvh.node_count as usize, bvh.primitives.len())?;
+        let nodes: Vec<Geometry> = chunk_bytes(&bvh.node_bytes, node_size, chunks.nodes_per_chunk)
+            .map(|bytes| Geometry::upload(ctx, "BVH nodes", bytes, node_size, chunks))
             .collect::<Result<_>>()?;
         let prim_size = std::mem::size_of::<GpuPrimitive>();
-        let primitives: Vec<wgpu::Buffer> =
+        let primitives: Vec<Geometry> =
             chunk_bytes(bytemuck::cast_slice(&bvh.primitives), prim_size, chunks.primitives_per_chunk)
-                .map(|bytes| storage(ctx, "primitives", bytes, prim_size))
+                .map(|bytes| Geometry::upload(ctx, "primitives", bytes, prim_size, chunks))
                 .collect::<Result<_>>()?;
         let planes: Vec<GpuPlane> = scene.planes.iter().map(GpuPlane::from).collect();
         let planes = storage(ctx, "planes", bytemuck::cast_slice(&planes), std::mem::size_of::<GpuPlane>())?;
@@ -521,16 +681,14 @@ impl<'a> GpuRenderer<'a> {
             wgpu::BindGroupEntry { binding: 6, resource: counters.as_entire_binding() },
             wgpu::BindGroupEntry { binding: 7, resource: probe_points.as_entire_binding() },
         ];
-        for (k, b) in nodes.iter().enumerate() {
-            entries.push(wgpu::BindGroupEntry {
-                binding: GeometryChunks::node_binding(k as u32),
-                resource: b.as_entire_binding(),
-            });
+        for (k, g) in nodes.iter().enumerate() {
+            entries
+                .push(wgpu::BindGroupEntry { binding: GeometryChunks::node_binding(k as u32), resource: g.resource() });
         }
-        for (k, b) in primitives.iter().enumerate() {
+        for (k, g) in primitives.iter().enumerate() {
             entries.push(wgpu::BindGroupEntry {
                 binding: GeometryChunks::primitive_binding(k as u32),
-                resource: b.as_entire_binding(),
+                resource: g.resource(),
             });
         }
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -561,13 +719,12 @@ impl<'a> GpuRenderer<'a> {
                 .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
         }
         ctx.take_error()?;
-        let device_bytes = [&frame, &dispatch]
-            .into_iter()
-            .chain(&nodes)
-            .chain(&primitives)
-            .chain([&planes, &probe_points, &film, &film_readback, &counters, &counters_readback])
-            .map(|b| b.size())
-            .sum();
+        let device_bytes =
+            [&frame, &dispatch, &planes, &probe_points, &film, &film_readback, &counters, &counters_readback]
+                .into_iter()
+                .map(|b| b.size())
+                .chain(nodes.iter().chain(&primitives).map(Geometry::bytes))
+                .sum();
         let rays_per_sample = match kernel {
             Kernel::Image => 2,
             Kernel::Probe => 1,
@@ -595,6 +752,7 @@ impl<'a> GpuRenderer<'a> {
             safe_samples_per_invocation,
             device_bytes,
             geometry_bindings: (nodes.len() + primitives.len()) as u32,
+            geometry_storage: chunks.storage,
             layout: bvh.layout,
         })
     }
