@@ -85,18 +85,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     let op = permute_axes(o, sh.k);
     let oct_inv4 = select(0x04040404u, 0u, d.x < 0.0) | select(0x02020202u, 0u, d.y < 0.0)
         | select(0x01010101u, 0u, d.z < 0.0);
-    // The stack's top eight entries live in s0 (the top) .. s7, the rest in `stack`:
-    // lavapipe reads and writes a dynamically indexed array one lane and one word at a
-    // time, so the array is touched only by traversals deeper than eight entries.
     var stack: array<vec2u, CWBVH_STACK_SIZE>;
-    var s0: vec2u;
-    var s1: vec2u;
-    var s2: vec2u;
-    var s3: vec2u;
-    var s4: vec2u;
-    var s5: vec2u;
-    var s6: vec2u;
-    var s7: vec2u;
     var sp = 0u;
     // (first child node, hit bits in 24..32 | imask), and (first primitive, hit bits).
     var node_group = vec2u(0u, 0x80000000u);
@@ -121,17 +110,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             let child_bit = firstLeadingBit(hits_imask);
             node_group.y &= ~(1u << child_bit);
             if ((node_group.y & 0xff000000u) != 0u) {
-                if (sp >= 8u) {
-                    stack[sp - 8u] = s7;
-                }
-                s7 = s6;
-                s6 = s5;
-                s5 = s4;
-                s4 = s3;
-                s3 = s2;
-                s2 = s1;
-                s1 = s0;
-                s0 = node_group;
+                stack[sp] = node_group;
                 sp += 1u;
             }
             let slot_index = (child_bit - 24u) ^ (oct_inv4 & 0xffu);
@@ -146,17 +125,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
                 break;
             }
             sp -= 1u;
-            node_group = s0;
-            s0 = s1;
-            s1 = s2;
-            s2 = s3;
-            s3 = s4;
-            s4 = s5;
-            s5 = s6;
-            s6 = s7;
-            if (sp >= 8u) {
-                s7 = stack[sp - 8u];
-            }
+            node_group = stack[sp];
         }
     }
     return hit;
