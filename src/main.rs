@@ -293,6 +293,13 @@ struct ProbeArgs {
 }
 
 fn main() {
+    // A panic inside wgpu that the library turns into an error is reported as that error.
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if !aorender::gpu::catching_panics() {
+            default_hook(info);
+        }
+    }));
     if let Err(e) = run() {
         eprintln!("aorender: {e:#}");
         std::process::exit(1);
@@ -562,7 +569,18 @@ fn render_command(args: RenderArgs) -> Result<()> {
     };
     let checkpointing =
         Checkpointing { resume, interval, save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None } };
-    let mut out = render_resumable(&scene, &options, checkpointing, &mut on_progress)?;
+    let mut out = render_resumable(&scene, &options, checkpointing, &mut on_progress).map_err(|e| {
+        // The adapter failed mid-render: the last checkpoint saved before it is whole.
+        let adapter_failed = matches!(e, aorender::Error::DeviceLost { .. } | aorender::Error::OutOfMemory { .. });
+        match &checkpoint_path {
+            Some(path) if adapter_failed && path.exists() => anyhow::anyhow!(
+                "{e}; the last checkpoint, {}, is intact: continue with --resume {}",
+                path.display(),
+                path.display()
+            ),
+            _ => e.into(),
+        }
+    })?;
     out.stats.load_seconds = load_seconds;
     if let Some(bar) = bar {
         bar.finish_and_clear();
