@@ -420,6 +420,9 @@ fn probe_command(args: ProbeArgs) -> Result<()> {
 
 /// The signal that asked the render to stop (0 for none).
 static STOP_SIGNAL: AtomicI32 = AtomicI32::new(0);
+/// Set when the render's first pass has finished: before that (loading the scene, building
+/// the BVH, setting up the device, the first pass) a signal ends the process at once.
+static FIRST_PASS_DONE: AtomicBool = AtomicBool::new(false);
 
 /// Name of a signal number.
 fn signal_name(signal: i32) -> String {
@@ -437,7 +440,8 @@ fn signal_name(signal: i32) -> String {
 
 /// On SIGINT or SIGTERM, sets `stop`: the render finishes its pass and the outputs are
 /// written. A second signal removes the temporary files of writes in progress (their
-/// targets are untouched) and exits at once with status 128 + signal.
+/// targets are untouched) and exits at once with status 128 + signal. Before the first
+/// pass has finished there is nothing to write: a signal exits at once.
 #[cfg(unix)]
 fn install_signal_handlers(stop: Arc<AtomicBool>) -> Result<()> {
     use signal_hook::consts::{SIGINT, SIGTERM};
@@ -446,6 +450,15 @@ fn install_signal_handlers(stop: Arc<AtomicBool>) -> Result<()> {
         .name("signals".into())
         .spawn(move || {
             for signal in signals.forever() {
+                if !FIRST_PASS_DONE.load(Ordering::SeqCst) {
+                    aorender::film::remove_temporary_files();
+                    eprintln!(
+                        "aorender: interrupted by {} before the first pass finished (loading the scene, building the \
+                         BVH or setting up the device); nothing was written",
+                        signal_name(signal)
+                    );
+                    signal_hook::low_level::exit(128 + signal);
+                }
                 if STOP_SIGNAL.compare_exchange(0, signal, Ordering::SeqCst, Ordering::SeqCst).is_ok() {
                     stop.store(true, Ordering::SeqCst);
                     eprintln!("{}: finishing the current pass (a second signal stops at once)", signal_name(signal));
@@ -486,6 +499,9 @@ fn check_writable(path: &Path) -> Result<()> {
 }
 
 fn render_command(args: RenderArgs) -> Result<()> {
+    // Before loading: a signal while a large scene loads or its BVH builds ends the process.
+    let stop = Arc::new(AtomicBool::new(false));
+    install_signal_handlers(stop.clone())?;
     let load_start = std::time::Instant::now();
     let mut scene = args.scene.load()?;
     let load_seconds = load_start.elapsed().as_secs_f64();
@@ -540,8 +556,6 @@ fn render_command(args: RenderArgs) -> Result<()> {
         check_writable(path)?;
     }
     let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
-    let stop = Arc::new(AtomicBool::new(false));
-    install_signal_handlers(stop.clone())?;
     let mut options = args.scene.options(args.time_limit);
     options.sample_range = args.sample_range.clone();
     options.stop = Some(stop);
@@ -555,6 +569,7 @@ fn render_command(args: RenderArgs) -> Result<()> {
         bar
     });
     let mut on_progress = |p: &Progress| {
+        FIRST_PASS_DONE.store(true, Ordering::SeqCst);
         if let Some(bar) = &bar {
             bar.set_length(p.samples_total as u64);
             bar.set_position(p.samples_done as u64);
@@ -588,7 +603,11 @@ fn render_command(args: RenderArgs) -> Result<()> {
     let st = &out.stats;
     let signal = STOP_SIGNAL.load(Ordering::SeqCst);
     if st.samples_per_pixel == 0 {
-        bail!("interrupted by {} before any sample was rendered; nothing was written", signal_name(signal));
+        eprintln!(
+            "aorender: interrupted by {} before any sample was rendered; nothing was written",
+            signal_name(signal)
+        );
+        std::process::exit(128 + signal);
     }
     out.film.write_image(&args.output)?;
     let json = serde_json::to_string_pretty(&out.stats)?;

@@ -449,3 +449,32 @@ fn a_finished_render_extends_to_more_samples_exactly() {
     assert!(more.accumulation.exact == direct.accumulation.exact);
     assert!(more.accumulation.on_grid);
 }
+
+/// A signal while the scene loads or its BVH builds ends the process at once with
+/// 128 + signal and one line, writing nothing: no image, stats, checkpoint or temporary
+/// file. `dragons.toml` (7.8M triangles) takes over a second to load and several to build.
+#[test]
+fn a_signal_while_loading_or_building_the_bvh_writes_nothing() {
+    let scene = repo().join("scenes/dragons.toml");
+    let scene = scene.to_str().unwrap();
+    // 0.3 s: reading the mesh; 5 s: building the BVH (load took 1.4 s and the build 11 s on two cores).
+    for (signal, name, after) in [(libc::SIGINT, "SIGINT", 0.3), (libc::SIGTERM, "SIGTERM", 5.0)] {
+        let dir = temp_dir();
+        let d = dir.path();
+        let args = ["render", scene, "--device", "cpu", "--checkpoint", "ck", "--stats", "stats.json", "-o", "out.png"];
+        let child = spawn(&args, d);
+        std::thread::sleep(Duration::from_secs_f64(after));
+        send(&child, signal);
+        let sent = Instant::now();
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(sent.elapsed() < Duration::from_secs(2), "{name}: took {:?} to stop", sent.elapsed());
+        assert_eq!(out.status.code(), Some(128 + signal), "{name}: {stderr}");
+        let lines: Vec<&str> = stderr.lines().collect();
+        assert_eq!(lines.len(), 1, "{name}: {stderr}");
+        assert!(lines[0].starts_with(&format!("aorender: interrupted by {name}")), "{stderr}");
+        assert!(lines[0].contains("nothing was written"), "{stderr}");
+        let files: Vec<_> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert!(files.is_empty(), "{name}: wrote {files:?}");
+    }
+}
