@@ -240,8 +240,11 @@ struct RenderArgs {
 /// `START..END` with START < END.
 fn parse_sample_range(text: &str) -> Result<Range<u32>, String> {
     let (a, b) = text.split_once("..").ok_or_else(|| format!("expected START..END, got '{text}'"))?;
-    let number = |t: &str| t.trim().parse::<u32>().map_err(|e| format!("'{t}' in '{text}': {e}"));
-    let (a, b) = (number(a)?, number(b)?);
+    let number = |t: &str, name: &str| match t.trim() {
+        "" => Err(format!("{name} is missing in '{text}' (expected START..END)")),
+        t => t.parse::<u32>().map_err(|e| format!("{name} '{t}' in '{text}' is not a sample index: {e}")),
+    };
+    let (a, b) = (number(a, "START")?, number(b, "END")?);
     if a >= b {
         return Err(format!("'{text}' is empty: START must be below END"));
     }
