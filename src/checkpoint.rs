@@ -27,7 +27,8 @@
 //!
 //! The reader checks the magic, the version and every field's range, computes the file's
 //! expected length from the header and compares it with the actual length before it
-//! reads the sums, then checks the hash.
+//! allocates or reads the sums, then streams the sums (holding them once, never the file
+//! beside them) and checks the hash.
 
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, Film};
@@ -35,7 +36,7 @@ use crate::render::Device;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::Scene;
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 /// The first bytes of a checkpoint file.
@@ -438,15 +439,33 @@ impl Accumulation {
 
     /// Reads a checkpoint file, checking it whole before use.
     pub fn read(path: &Path) -> Result<Accumulation, CheckpointError> {
-        let bytes = std::fs::read(path).map_err(|e| CheckpointError::new(path, e))?;
-        let mut acc = Accumulation::from_bytes(&bytes).map_err(|m| CheckpointError::new(path, m))?;
+        let err = |m: String| CheckpointError::new(path, m);
+        let file = std::fs::File::open(path).map_err(|e| err(e.to_string()))?;
+        let len = file.metadata().map_err(|e| err(e.to_string()))?.len();
+        let mut acc = Accumulation::from_stream(&mut std::io::BufReader::new(file), len).map_err(err)?;
         acc.source = Some(path.to_path_buf());
         Ok(acc)
     }
 
     /// Parses the bytes of a checkpoint file; the error says what is wrong in one line.
-    pub fn from_bytes(bytes: &[u8]) -> Result<Accumulation, String> {
-        let mut r = Reader { bytes, at: 0 };
+    pub fn from_bytes(mut bytes: &[u8]) -> Result<Accumulation, String> {
+        let len = bytes.len() as u64;
+        Accumulation::from_stream(&mut bytes, len)
+    }
+
+    /// Parses a checkpoint of `len` bytes from `stream`. Memory is taken only after the
+    /// header's figures agree with `len`, so a damaged or hostile header cannot ask for
+    /// more than the file holds.
+    fn from_stream(stream: &mut dyn Read, len: u64) -> Result<Accumulation, String> {
+        // The fixed fields (through the adapter name's length), and the name at most.
+        const FIXED_HEADER: usize = 8 + 4 + 32 + 16 + 8 + 12 + 12 + 16 + 20 + 4;
+        let mut head = Vec::new();
+        stream
+            .take((FIXED_HEADER + MAX_ADAPTER_NAME) as u64)
+            .read_to_end(&mut head)
+            .map_err(|e| format!("cannot read: {e}"))?;
+        let bytes = &head[..];
+        let mut r = Reader { bytes, at: 0, len };
         if bytes.len() < MAGIC.len() || bytes[..MAGIC.len()] != MAGIC {
             return Err("not an aorender checkpoint (no AOCKPT header)".into());
         }
@@ -511,43 +530,36 @@ impl Accumulation {
         // The length the header implies, checked against the file's before reading the sums.
         let pixels = width as u64 * height as u64;
         let expected = r.at as u64 + 32 * pixels + if has_partial == 1 { 16 * pixels } else { 0 } + 32;
-        if bytes.len() as u64 != expected {
-            return Err(format!("truncated or corrupt: {} bytes, but its header describes {expected}", bytes.len()));
+        if len != expected {
+            return Err(format!("truncated or corrupt: {len} bytes, but its header describes {expected}"));
         }
-        let (body, hash) = bytes.split_at(bytes.len() - 32);
-        if blake3::hash(body).as_bytes() != hash {
-            return Err("corrupt: its contents do not match their checksum".into());
-        }
+        let mut hasher = blake3::Hasher::new();
+        hasher.update(&bytes[..r.at]);
+        // The rest of the file: what `head` read past the header, then the stream.
+        let mut body = Body { stream: (&bytes[r.at..]).chain(stream), hasher, len };
         let n = pixels as usize;
-        let sums = |r: &mut Reader| -> Result<Vec<i128>, String> {
-            let b = r.take(16 * n)?;
-            Ok(b.chunks_exact(16).map(|c| i128::from_le_bytes(c.try_into().expect("16 bytes"))).collect())
-        };
-        let sum = sums(&mut r)?;
-        let sum_sq = sums(&mut r)?;
+        let sum = body.read_vec(n, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
+        let sum_sq = body.read_vec(n, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
         let exact = ExactSums { width, height, sum_exponent, sq_exponent, sum, sum_sq };
         let partial = if has_partial == 0 {
             None
         } else {
-            let b = r.take(16 * n)?;
             Some(match device {
-                Device::Gpu => BlockSums::Gpu(
-                    b.chunks_exact(16)
-                        .map(|c| {
-                            std::array::from_fn(|k| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4")))
-                        })
-                        .collect(),
-                ),
+                Device::Gpu => BlockSums::Gpu(body.read_vec(n, 16, |c| {
+                    std::array::from_fn(|k| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes")))
+                })?),
                 Device::Cpu => {
                     let f = |c: &[u8]| f64::from_le_bytes(c.try_into().expect("8 bytes"));
-                    let (s, q) = b.split_at(8 * n);
-                    BlockSums::Cpu {
-                        sum: s.chunks_exact(8).map(f).collect(),
-                        sum_sq: q.chunks_exact(8).map(f).collect(),
-                    }
+                    BlockSums::Cpu { sum: body.read_vec(n, 8, f)?, sum_sq: body.read_vec(n, 8, f)? }
                 }
             })
         };
+        let computed = body.hasher.finalize();
+        let mut hash = [0u8; 32];
+        body.stream.read_exact(&mut hash).map_err(|e| body.truncated(e))?;
+        if computed.as_bytes() != &hash {
+            return Err("corrupt: its contents do not match their checksum".into());
+        }
         Ok(Accumulation {
             settings: SampleSettings {
                 scene_hash,
@@ -598,16 +610,49 @@ impl Write for HashingWriter<'_> {
     }
 }
 
-/// Bounds-checked little-endian reads.
+/// The sums of a checkpoint after its header, hashed as they are read.
+struct Body<R: Read> {
+    stream: R,
+    hasher: blake3::Hasher,
+    /// The file's length, for messages.
+    len: u64,
+}
+
+impl<R: Read> Body<R> {
+    fn truncated(&self, e: std::io::Error) -> String {
+        format!("truncated or unreadable: {} bytes: {e}", self.len)
+    }
+
+    /// `n` elements of `size` bytes each, converted by `convert`.
+    fn read_vec<T>(&mut self, n: usize, size: usize, convert: impl Fn(&[u8]) -> T) -> Result<Vec<T>, String> {
+        let mut out = Vec::new();
+        out.try_reserve_exact(n).map_err(|_| format!("cannot allocate memory for {n} pixels of sums"))?;
+        let mut chunk = vec![0u8; size * 65_536];
+        let mut left = n;
+        while left > 0 {
+            let take = left.min(65_536);
+            let bytes = &mut chunk[..take * size];
+            self.stream.read_exact(bytes).map_err(|e| self.truncated(e))?;
+            self.hasher.update(bytes);
+            out.extend(bytes.chunks_exact(size).map(&convert));
+            left -= take;
+        }
+        Ok(out)
+    }
+}
+
+/// Bounds-checked little-endian reads of a header.
 struct Reader<'a> {
     bytes: &'a [u8],
     at: usize,
+    /// The whole file's length, for messages.
+    len: u64,
 }
 
 impl<'a> Reader<'a> {
     fn take(&mut self, n: usize) -> Result<&'a [u8], String> {
         let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
-        let end = end.ok_or_else(|| format!("truncated: {} bytes, ends inside its header", self.bytes.len()))?;
+        let end = end.ok_or_else(|| format!("truncated: {} bytes, ends inside its header", self.len))?;
         let b = &self.bytes[self.at..end];
         self.at = end;
         Ok(b)

@@ -16,6 +16,23 @@ pub enum Error {
     /// No usable adapter, or the device failed.
     #[error("{0}")]
     Gpu(String),
+    /// The adapter's device was lost (a driver reset, a removed GPU, or `destroy`):
+    /// nothing more can be rendered on it.
+    #[error("device lost on the adapter {adapter}: {message}")]
+    DeviceLost {
+        /// The adapter's name.
+        adapter: String,
+        /// What the driver said, in one line.
+        message: String,
+    },
+    /// The adapter ran out of memory for a buffer or a submission.
+    #[error("out of memory on the adapter {adapter}: {message}")]
+    OutOfMemory {
+        /// The adapter's name.
+        adapter: String,
+        /// What the driver said, in one line.
+        message: String,
+    },
     /// The scene needs more than the adapter allows.
     #[error("{what} needs {needed} bytes but the adapter's {limit_name} is {limit} bytes")]
     TooLarge {

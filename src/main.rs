@@ -257,8 +257,11 @@ struct RenderArgs {
 /// `START..END` with START < END.
 fn parse_sample_range(text: &str) -> Result<Range<u32>, String> {
     let (a, b) = text.split_once("..").ok_or_else(|| format!("expected START..END, got '{text}'"))?;
-    let number = |t: &str| t.trim().parse::<u32>().map_err(|e| format!("'{t}' in '{text}': {e}"));
-    let (a, b) = (number(a)?, number(b)?);
+    let number = |t: &str, name: &str| match t.trim() {
+        "" => Err(format!("{name} is missing in '{text}' (expected START..END)")),
+        t => t.parse::<u32>().map_err(|e| format!("{name} '{t}' in '{text}' is not a sample index: {e}")),
+    };
+    let (a, b) = (number(a, "START")?, number(b, "END")?);
     if a >= b {
         return Err(format!("'{text}' is empty: START must be below END"));
     }
@@ -310,6 +313,13 @@ struct ProbeArgs {
 }
 
 fn main() {
+    // A panic inside wgpu that the library turns into an error is reported as that error.
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if !aorender::gpu::catching_panics() {
+            default_hook(info);
+        }
+    }));
     if let Err(e) = run() {
         eprintln!("aorender: {e:#}");
         std::process::exit(1);
@@ -430,6 +440,9 @@ fn probe_command(args: ProbeArgs) -> Result<()> {
 
 /// The signal that asked the render to stop (0 for none).
 static STOP_SIGNAL: AtomicI32 = AtomicI32::new(0);
+/// Set when the render's first pass has finished: before that (loading the scene, building
+/// the BVH, setting up the device, the first pass) a signal ends the process at once.
+static FIRST_PASS_DONE: AtomicBool = AtomicBool::new(false);
 
 /// Name of a signal number.
 fn signal_name(signal: i32) -> String {
@@ -447,7 +460,8 @@ fn signal_name(signal: i32) -> String {
 
 /// On SIGINT or SIGTERM, sets `stop`: the render finishes its pass and the outputs are
 /// written. A second signal removes the temporary files of writes in progress (their
-/// targets are untouched) and exits at once with status 128 + signal.
+/// targets are untouched) and exits at once with status 128 + signal. Before the first
+/// pass has finished there is nothing to write: a signal exits at once.
 #[cfg(unix)]
 fn install_signal_handlers(stop: Arc<AtomicBool>) -> Result<()> {
     use signal_hook::consts::{SIGINT, SIGTERM};
@@ -456,6 +470,15 @@ fn install_signal_handlers(stop: Arc<AtomicBool>) -> Result<()> {
         .name("signals".into())
         .spawn(move || {
             for signal in signals.forever() {
+                if !FIRST_PASS_DONE.load(Ordering::SeqCst) {
+                    aorender::film::remove_temporary_files();
+                    eprintln!(
+                        "aorender: interrupted by {} before the first pass finished (loading the scene, building the \
+                         BVH or setting up the device); nothing was written",
+                        signal_name(signal)
+                    );
+                    signal_hook::low_level::exit(128 + signal);
+                }
                 if STOP_SIGNAL.compare_exchange(0, signal, Ordering::SeqCst, Ordering::SeqCst).is_ok() {
                     stop.store(true, Ordering::SeqCst);
                     eprintln!("{}: finishing the current pass (a second signal stops at once)", signal_name(signal));
@@ -496,6 +519,9 @@ fn check_writable(path: &Path) -> Result<()> {
 }
 
 fn render_command(args: RenderArgs) -> Result<()> {
+    // Before loading: a signal while a large scene loads or its BVH builds ends the process.
+    let stop = Arc::new(AtomicBool::new(false));
+    install_signal_handlers(stop.clone())?;
     let load_start = std::time::Instant::now();
     let mut scene = args.scene.load()?;
     let load_seconds = load_start.elapsed().as_secs_f64();
@@ -550,8 +576,6 @@ fn render_command(args: RenderArgs) -> Result<()> {
         check_writable(path)?;
     }
     let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
-    let stop = Arc::new(AtomicBool::new(false));
-    install_signal_handlers(stop.clone())?;
     let mut options = args.scene.options(args.time_limit);
     options.sample_range = args.sample_range.clone();
     options.stop = Some(stop);
@@ -565,6 +589,7 @@ fn render_command(args: RenderArgs) -> Result<()> {
         bar
     });
     let mut on_progress = |p: &Progress| {
+        FIRST_PASS_DONE.store(true, Ordering::SeqCst);
         if let Some(bar) = &bar {
             bar.set_length(p.samples_total as u64);
             bar.set_position(p.samples_done as u64);
@@ -579,7 +604,18 @@ fn render_command(args: RenderArgs) -> Result<()> {
     };
     let checkpointing =
         Checkpointing { resume, interval, save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None } };
-    let mut out = render_resumable(&scene, &options, checkpointing, &mut on_progress)?;
+    let mut out = render_resumable(&scene, &options, checkpointing, &mut on_progress).map_err(|e| {
+        // The adapter failed mid-render: the last checkpoint saved before it is whole.
+        let adapter_failed = matches!(e, aorender::Error::DeviceLost { .. } | aorender::Error::OutOfMemory { .. });
+        match &checkpoint_path {
+            Some(path) if adapter_failed && path.exists() => anyhow::anyhow!(
+                "{e}; the last checkpoint, {}, is intact: continue with --resume {}",
+                path.display(),
+                path.display()
+            ),
+            _ => e.into(),
+        }
+    })?;
     out.stats.load_seconds = load_seconds;
     if let Some(bar) = bar {
         bar.finish_and_clear();
@@ -587,7 +623,11 @@ fn render_command(args: RenderArgs) -> Result<()> {
     let st = &out.stats;
     let signal = STOP_SIGNAL.load(Ordering::SeqCst);
     if st.samples_per_pixel == 0 {
-        bail!("interrupted by {} before any sample was rendered; nothing was written", signal_name(signal));
+        eprintln!(
+            "aorender: interrupted by {} before any sample was rendered; nothing was written",
+            signal_name(signal)
+        );
+        std::process::exit(128 + signal);
     }
     out.film.write_image(&args.output)?;
     let json = serde_json::to_string_pretty(&out.stats)?;

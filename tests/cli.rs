@@ -158,3 +158,33 @@ fn malformed_meshes_are_one_line_errors() {
         assert_rejected(&["render", path.to_str().unwrap(), "-o", "out.png"], dir.path(), &[file]);
     }
 }
+
+/// `--sample-range START..END`: an empty or reversed range, an end past the samples per
+/// pixel, a missing bound or `..`, and anything but two sample indices are one line naming
+/// the option and the problem; nothing is written, not even the shard's checkpoint.
+#[test]
+fn bad_sample_ranges_are_refused() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let cases: &[(&str, &[&str])] = &[
+        ("5..3", &["--sample-range", "5..3", "START must be below END"]),
+        ("3..3", &["--sample-range", "3..3", "START must be below END"]),
+        ("0..9", &["--sample-range", "0..9", "past the 8 samples per pixel"]),
+        ("8..9", &["--sample-range", "8..9", "past the 8 samples per pixel"]),
+        ("a..3", &["--sample-range", "START 'a'", "not a sample index"]),
+        ("1..b", &["--sample-range", "END 'b'", "not a sample index"]),
+        ("-1..3", &["--sample-range", "START '-1'", "not a sample index"]),
+        ("0..4294967296", &["--sample-range", "END '4294967296'", "too large"]),
+        ("1..2..3", &["--sample-range", "END '2..3'"]),
+        ("5", &["--sample-range", "expected START..END"]),
+        ("", &["--sample-range", "expected START..END"]),
+        ("..4", &["--sample-range", "START is missing"]),
+        ("2..", &["--sample-range", "END is missing"]),
+    ];
+    for (range, expect) in cases {
+        let option = format!("--sample-range={range}");
+        let args = ["render", "--device", "cpu", "--spp", "8", &option, "--checkpoint", "x.ck", "-o", "out.png"];
+        assert_rejected(&args, d, expect);
+        assert!(!d.join("x.ck").exists(), "{range}: a checkpoint was written");
+    }
+}

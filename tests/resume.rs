@@ -4,6 +4,7 @@
 //! reference; checkpoints of other scenes or settings, and damaged ones, are refused.
 
 mod common;
+use aorender::bvh::{BuildQuality, BvhLayout};
 use aorender::checkpoint::Accumulation;
 use aorender::render::{Checkpointing, render_resumable};
 use aorender::{Device, Hemisphere, RenderOptions, Scene};
@@ -448,4 +449,78 @@ fn a_finished_render_extends_to_more_samples_exactly() {
     let direct = render_resumable(&aobench(600), &options, Checkpointing::default(), &mut |_| {}).unwrap();
     assert!(more.accumulation.exact == direct.accumulation.exact);
     assert!(more.accumulation.on_grid);
+}
+
+/// A signal while the scene loads or its BVH builds ends the process at once with
+/// 128 + signal and one line, writing nothing: no image, stats, checkpoint or temporary
+/// file. `dragons.toml` (7.8M triangles) takes over a second to load and several to build.
+#[test]
+fn a_signal_while_loading_or_building_the_bvh_writes_nothing() {
+    let scene = repo().join("scenes/dragons.toml");
+    let scene = scene.to_str().unwrap();
+    // 0.3 s: reading the mesh; 5 s: building the BVH (load took 1.4 s and the build 11 s on two cores).
+    for (signal, name, after) in [(libc::SIGINT, "SIGINT", 0.3), (libc::SIGTERM, "SIGTERM", 5.0)] {
+        let dir = temp_dir();
+        let d = dir.path();
+        let args = ["render", scene, "--device", "cpu", "--checkpoint", "ck", "--stats", "stats.json", "-o", "out.png"];
+        let child = spawn(&args, d);
+        std::thread::sleep(Duration::from_secs_f64(after));
+        send(&child, signal);
+        let sent = Instant::now();
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(sent.elapsed() < Duration::from_secs(2), "{name}: took {:?} to stop", sent.elapsed());
+        assert_eq!(out.status.code(), Some(128 + signal), "{name}: {stderr}");
+        let lines: Vec<&str> = stderr.lines().collect();
+        assert_eq!(lines.len(), 1, "{name}: {stderr}");
+        assert!(lines[0].starts_with(&format!("aorender: interrupted by {name}")), "{stderr}");
+        assert!(lines[0].contains("nothing was written"), "{stderr}");
+        let files: Vec<_> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert!(files.is_empty(), "{name}: wrote {files:?}");
+    }
+}
+
+/// A header claiming the largest image (16384 × 16384, 8 GiB of sums) is refused by its
+/// length before anything is allocated; a sparse file of exactly that length is read in a
+/// process whose address space cannot hold the sums: one line naming the file, exit 1, no
+/// abort and no output.
+#[test]
+fn a_header_claiming_a_huge_image_is_refused_without_allocating_it() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let scene = aobench(300);
+    let acc = Accumulation::new(&scene, Device::Cpu, BvhLayout::Cwbvh, BuildQuality::Medium, 0, 300);
+    acc.write(&d.join("small.ck")).unwrap();
+    let mut bytes = std::fs::read(d.join("small.ck")).unwrap();
+    let header = bytes.len() - 32 * 8 * 6 - 32;
+    // Width and height follow the magic, the version and the scene hash.
+    assert_eq!(&bytes[44..52], [8u32.to_le_bytes(), 6u32.to_le_bytes()].concat());
+    bytes[44..48].copy_from_slice(&16384u32.to_le_bytes());
+    bytes[48..52].copy_from_slice(&16384u32.to_le_bytes());
+    let described = header as u64 + 32 * 16384 * 16384 + 32;
+    let e = Accumulation::from_bytes(&bytes).unwrap_err();
+    assert!(e.contains(&format!("{} bytes, but its header describes {described}", bytes.len())), "{e}");
+
+    let huge = d.join("huge.ck");
+    std::fs::write(&huge, &bytes).unwrap();
+    std::fs::OpenOptions::new().write(true).open(&huge).unwrap().set_len(described).unwrap();
+    let mut command = Command::new(env!("CARGO_BIN_EXE_aorender"));
+    command.args(["merge", "huge.ck", "-o", "out.pfm"]).current_dir(d);
+    // SAFETY: setrlimit is async-signal-safe and touches only the child being started.
+    unsafe {
+        std::os::unix::process::CommandExt::pre_exec(&mut command, || {
+            let l = libc::rlimit { rlim_cur: 1 << 30, rlim_max: 1 << 30 };
+            if libc::setrlimit(libc::RLIMIT_AS, &l) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let out = command.output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let lines: Vec<&str> = stderr.lines().collect();
+    assert_eq!(lines.len(), 1, "{stderr}");
+    assert!(lines[0].starts_with("aorender: huge.ck: cannot allocate memory"), "{stderr}");
+    assert!(!d.join("out.pfm").exists());
 }

@@ -9,8 +9,54 @@ use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::scene::Scene;
 use crate::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE, element_texels};
-use std::sync::{Arc, Mutex};
+use std::cell::Cell;
+use std::panic::AssertUnwindSafe;
+use std::sync::{Arc, Mutex, MutexGuard};
 use wgpu::util::DeviceExt;
+
+/// Test hook: with this environment variable set to N, the renderer destroys its device
+/// (`wgpu::Device::destroy`) before its pass N + 1, so that the real device-lost path runs.
+pub const TEST_LOSE_DEVICE_ENV: &str = "AORENDER_TEST_LOSE_DEVICE_AFTER_PASSES";
+
+thread_local! {
+    /// Depth of [`catch_panic`] calls running on this thread.
+    static CATCHING: Cell<u32> = const { Cell::new(0) };
+}
+
+/// True while [`catch_panic`] runs on this thread: a panic hook can stay quiet about a
+/// panic that becomes an error.
+pub fn catching_panics() -> bool {
+    CATCHING.with(Cell::get) > 0
+}
+
+/// Runs `f`, turning a panic inside it (wgpu's own, or one of the callbacks it invokes,
+/// such as buffer mapping and device-lost callbacks) into an error saying `what` failed.
+pub fn catch_panic<T>(what: &str, f: impl FnOnce() -> T) -> Result<T> {
+    CATCHING.with(|c| c.set(c.get() + 1));
+    let result = std::panic::catch_unwind(AssertUnwindSafe(f));
+    CATCHING.with(|c| c.set(c.get() - 1));
+    result.map_err(|payload| {
+        let text = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "no message".into());
+        Error::Gpu(format!("wgpu panicked {what}: {}", text.lines().next().unwrap_or("")))
+    })
+}
+
+/// A device error recorded by the callbacks, most serious first.
+#[derive(Debug)]
+enum Fault {
+    Lost(String),
+    OutOfMemory(String),
+    Other(String),
+}
+
+/// The list of faults, whatever a panicking holder left in it.
+fn lock(faults: &Mutex<Vec<Fault>>) -> MutexGuard<'_, Vec<Fault>> {
+    faults.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 /// Traversal loop iterations one invocation may spend on all its rays together. Mesa
 /// 22.3's lavapipe silently ends an invocation after 65,535 loop iterations; a traversal
@@ -111,7 +157,7 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     /// The adapter's description.
     pub description: AdapterDescription,
-    errors: Arc<Mutex<Vec<String>>>,
+    errors: Arc<Mutex<Vec<Fault>>>,
     /// Compiled pipelines by BVH layout and kernel: many renderers on one context (probe
     /// batches, the accuracy suite) compile each once.
     pipelines: Mutex<Vec<(PipelineKey, wgpu::BindGroupLayout, wgpu::ComputePipeline)>>,
@@ -163,11 +209,23 @@ impl GpuContext {
         let errors = Arc::new(Mutex::new(Vec::new()));
         let sink = errors.clone();
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
-            sink.lock().expect("error sink").push(e.to_string().lines().next().unwrap_or("").to_string());
+            let text = e.to_string().lines().next().unwrap_or("").to_string();
+            lock(&sink).push(match e {
+                wgpu::Error::OutOfMemory { .. } => Fault::OutOfMemory(text),
+                // Work on a lost device fails with wgpu-core's `DeviceError::Lost` ("Parent
+                // device is lost") before the lost callback has run.
+                _ if text.to_lowercase().contains("device is lost") => Fault::Lost(text),
+                _ => Fault::Other(text),
+            });
         }));
         let sink = errors.clone();
         device.set_device_lost_callback(move |reason, message| {
-            sink.lock().expect("error sink").push(format!("device lost ({reason:?}): {message}"));
+            let message = message.lines().next().unwrap_or("").trim().to_string();
+            lock(&sink).push(Fault::Lost(if message.is_empty() {
+                format!("{reason:?}")
+            } else {
+                format!("{message} ({reason:?})")
+            }));
         });
         let description = AdapterDescription::new(&adapter.get_info());
         let limits = device.limits();
@@ -340,13 +398,46 @@ impl GpuContext {
         Ok((bind_group_layout, pipeline, true))
     }
 
-    /// The first device error since the last call, if any.
+    /// The most serious device error since the last call, if any: a lost device, then
+    /// running out of memory, then the first other error.
     fn take_error(&self) -> Result<()> {
-        let mut errors = self.errors.lock().expect("error sink");
-        match errors.drain(..).next() {
-            Some(e) => Err(Error::Gpu(format!("GPU error: {e}"))),
-            None => Ok(()),
+        let faults = std::mem::take(&mut *lock(&self.errors));
+        let adapter = self.description.name.clone();
+        let lost = faults.iter().find_map(|f| if let Fault::Lost(m) = f { Some(m) } else { None });
+        let oom = faults.iter().find_map(|f| if let Fault::OutOfMemory(m) = f { Some(m) } else { None });
+        if let Some(message) = lost {
+            return Err(Error::DeviceLost { adapter, message: message.clone() });
         }
+        if let Some(message) = oom {
+            return Err(Error::OutOfMemory { adapter, message: message.clone() });
+        }
+        match faults.first() {
+            Some(Fault::Other(e)) => Err(Error::Gpu(format!("GPU error: {e}"))),
+            _ => Ok(()),
+        }
+    }
+
+    /// The recorded device error if there is one (a lost device explains most failures),
+    /// else `fallback`.
+    fn fault(&self, fallback: String) -> Error {
+        self.take_error().err().unwrap_or(Error::Gpu(fallback))
+    }
+
+    /// Submits `commands`; a panic inside wgpu becomes an error.
+    fn submit(&self, commands: impl IntoIterator<Item = wgpu::CommandBuffer>) -> Result<()> {
+        catch_panic("submitting work", || {
+            self.queue.submit(commands);
+        })?;
+        self.take_error()
+    }
+
+    /// Waits for the submitted work, running the callbacks it completes (buffer mappings,
+    /// device loss); a panic inside wgpu or a callback becomes an error.
+    pub fn wait(&self) -> Result<()> {
+        let polled = catch_panic("while waiting for the GPU", || self.device.poll(wgpu::PollType::wait_indefinitely()));
+        self.take_error()?;
+        polled?.map_err(|e| self.fault(format!("waiting for the GPU failed: {e}")))?;
+        Ok(())
     }
 
     fn check_size(&self, what: &'static str, bytes: u64) -> Result<()> {
@@ -431,6 +522,10 @@ pub struct GpuRenderer<'a> {
     pub geometry_storage: GeometryStorage,
     /// The BVH layout the kernel traverses.
     pub layout: BvhLayout,
+    /// Passes started.
+    passes_run: u32,
+    /// The test hook's pass count ([`TEST_LOSE_DEVICE_ENV`]).
+    lose_device_after: Option<u32>,
 }
 
 /// `bytes` in chunks of `per_chunk` elements of `element` bytes; one empty chunk when
@@ -713,10 +808,8 @@ impl<'a> GpuRenderer<'a> {
             }
             encoder.clear_buffer(&film, 0, None);
             encoder.clear_buffer(&counters, 0, None);
-            ctx.queue.submit([encoder.finish()]);
-            ctx.device
-                .poll(wgpu::PollType::wait_indefinitely())
-                .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
+            ctx.submit([encoder.finish()])?;
+            ctx.wait()?;
         }
         ctx.take_error()?;
         let device_bytes =
@@ -754,6 +847,8 @@ impl<'a> GpuRenderer<'a> {
             geometry_bindings: (nodes.len() + primitives.len()) as u32,
             geometry_storage: chunks.storage,
             layout: bvh.layout,
+            passes_run: 0,
+            lose_device_after: std::env::var(TEST_LOSE_DEVICE_ENV).ok().and_then(|v| v.trim().parse().ok()),
         })
     }
 
@@ -776,6 +871,10 @@ impl<'a> GpuRenderer<'a> {
     /// l of every point the sample index r × lanes + l.
     pub fn render_pass(&mut self, first: u32, count: u32) -> Result<PassCounters> {
         assert!((1..=MAX_PASS_SAMPLES).contains(&count), "pass of {count} samples");
+        if self.lose_device_after == Some(self.passes_run) {
+            self.ctx.device.destroy();
+        }
+        self.passes_run += 1;
         let per = self.samples_per_invocation;
         let dispatches = count.div_ceil(per);
         let mut uniforms = vec![0u8; (DISPATCH_STRIDE * dispatches as u64) as usize];
@@ -817,7 +916,7 @@ impl<'a> GpuRenderer<'a> {
             encoder.resolve_query_set(set, 0..2, resolved, 0);
             encoder.copy_buffer_to_buffer(resolved, 0, &self.counters_readback, TIMESTAMPS_AT, None);
         }
-        self.ctx.queue.submit([encoder.finish()]);
+        self.ctx.submit([encoder.finish()])?;
         let words: Vec<u32> = self.read(&self.counters_readback)?;
         let gpu_seconds = self.timestamps.as_ref().map(|_| {
             let at = (TIMESTAMPS_AT / 4) as usize;
@@ -836,7 +935,7 @@ impl<'a> GpuRenderer<'a> {
         let mut encoder =
             self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("film readback") });
         encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, None);
-        self.ctx.queue.submit([encoder.finish()]);
+        self.ctx.submit([encoder.finish()])?;
         let texels: Vec<[f32; 4]> = self.read(&self.film_readback)?;
         let mut film = Film::new(self.width, self.height);
         film.samples = samples;
@@ -850,24 +949,25 @@ impl<'a> GpuRenderer<'a> {
     /// Maps a readback buffer after the last submission and copies it out.
     fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer) -> Result<Vec<T>> {
         let (tx, rx) = std::sync::mpsc::channel();
-        buffer.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        self.ctx
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
-        self.ctx.take_error()?;
+        catch_panic("mapping a readback buffer", || {
+            buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+                let _ = tx.send(r);
+            })
+        })?;
+        self.ctx.wait()?;
+        let ctx = self.ctx;
         rx.recv()
-            .map_err(|_| Error::Gpu("buffer mapping was dropped".into()))?
-            .map_err(|e| Error::Gpu(format!("cannot map a readback buffer: {e}")))?;
-        let data = {
-            let view =
-                buffer.get_mapped_range(..).map_err(|e| Error::Gpu(format!("cannot read a mapped buffer: {e}")))?;
-            bytemuck::cast_slice(&view).to_vec()
-        };
-        buffer.unmap();
-        Ok(data)
+            .map_err(|_| ctx.fault("buffer mapping was dropped".into()))?
+            .map_err(|e| ctx.fault(format!("cannot map a readback buffer: {e}")))?;
+        catch_panic("reading a readback buffer", || {
+            let data = {
+                let view =
+                    buffer.get_mapped_range(..).map_err(|e| ctx.fault(format!("cannot read a mapped buffer: {e}")))?;
+                bytemuck::cast_slice(&view).to_vec()
+            };
+            buffer.unmap();
+            Ok(data)
+        })?
     }
 
     /// The film's raw words, one `[Σv, compensation, Σv², compensation]` per slot, as
@@ -877,7 +977,7 @@ impl<'a> GpuRenderer<'a> {
         let mut encoder =
             self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("film words") });
         encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, None);
-        self.ctx.queue.submit([encoder.finish()]);
+        self.ctx.submit([encoder.finish()])?;
         self.read(&self.film_readback)
     }
 
@@ -888,12 +988,8 @@ impl<'a> GpuRenderer<'a> {
             return Err(Error::Gpu(format!("{} film slots given for a film of {slots}", words.len())));
         }
         self.ctx.queue.write_buffer(&self.film, 0, bytemuck::cast_slice(words));
-        self.ctx.queue.submit([]);
-        self.ctx
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Gpu(format!("waiting for the GPU failed: {e}")))?;
-        self.ctx.take_error()
+        self.ctx.submit([])?;
+        self.ctx.wait()
     }
 
     /// Zeroes the film.
@@ -901,8 +997,7 @@ impl<'a> GpuRenderer<'a> {
         let mut encoder =
             self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("clear film") });
         encoder.clear_buffer(&self.film, 0, None);
-        self.ctx.queue.submit([encoder.finish()]);
-        self.ctx.take_error()
+        self.ctx.submit([encoder.finish()])
     }
 }
 
