@@ -8,7 +8,7 @@ use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::scene::Scene;
-use crate::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE, element_texels};
+use crate::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE};
 use std::cell::Cell;
 use std::panic::AssertUnwindSafe;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -277,12 +277,9 @@ impl GpuContext {
         let prim_size = std::mem::size_of::<GpuPrimitive>();
         let limits = self.device.limits();
         let storage = self.geometry_storage;
-        // Elements per chunk, and the bytes a chunk holds at most.
-        let (row_texels, per_chunk, chunk_bytes): (u32, Box<dyn Fn(usize, u32) -> u32>, u64) = match storage {
-            GeometryStorage::Buffers => {
-                let max = self.max_chunk_bytes;
-                (0, Box::new(move |size, _| (max / size as u64).clamp(1, u32::MAX as u64) as u32), max)
-            }
+        // Texels in a texture row (0 for buffers), and the bytes one binding holds at most.
+        let (row_texels, chunk_bytes) = match storage {
+            GeometryStorage::Buffers => (0, self.max_chunk_bytes),
             GeometryStorage::Textures => {
                 let [width, rows] = self.max_texture_size;
                 let row = width / ROW_TEXEL_MULTIPLE * ROW_TEXEL_MULTIPLE;
@@ -291,14 +288,13 @@ impl GpuContext {
                         "textures of {width} texels are too narrow for the geometry: it needs {ROW_TEXEL_MULTIPLE}"
                     )));
                 }
-                let rows = rows as u64;
-                let per = move |_: usize, texels: u32| ((row / texels) as u64 * rows).min(u32::MAX as u64) as u32;
-                (row, Box::new(per), row as u64 * rows * 16)
+                (row, row as u64 * rows as u64 * 16)
             }
         };
-        let (node_texels, prim_texels) = element_texels(layout);
-        let (nodes_per_chunk, primitives_per_chunk) =
-            (per_chunk(node_size, node_texels), per_chunk(prim_size, prim_texels));
+        // An element is a whole number of texels and a row a whole number of elements, so
+        // a texture holds exactly chunk_bytes / size of them.
+        let per_chunk = |size: usize| (chunk_bytes / size as u64).clamp(1, u32::MAX as u64) as u32;
+        let (nodes_per_chunk, primitives_per_chunk) = (per_chunk(node_size), per_chunk(prim_size));
         let chunks = GeometryChunks {
             storage,
             node_chunks: (nodes.div_ceil(nodes_per_chunk as usize) as u32).max(1),
