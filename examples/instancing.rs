@@ -2,9 +2,10 @@
 //! times be represented for tracing?
 //!
 //! `scenes/dragons.toml` places the 871k-triangle dragon nine times, each copy with its own
-//! rotation and translation. The renderer flattens such a scene: every copy's triangles are
-//! transformed to world space and one CWBVH holds all of them (A). The alternative is two
-//! levels (B): one CWBVH over the mesh in its own space (the BLAS), a CWBVH over the nine
+//! rotation and translation. Flattened, every copy's triangles are transformed to world
+//! space and one CWBVH holds all of them (A; what `Scene::flattened` gives, and what the
+//! renderer did before it kept instances). The alternative, which the renderer now uses
+//! (`src/bvh.rs`), is two levels (B): one CWBVH over the mesh in its own space (the BLAS), a CWBVH over the nine
 //! instances' world-space boxes (the TLAS), and each ray carried into an instance's space by
 //! the inverse of its affine transform. The direction is transformed but not renormalized,
 //! so a hit distance `t` means the same in both spaces, scaled instances included, and one
@@ -39,7 +40,7 @@
 
 use anyhow::{Context, Result, ensure};
 use aorender::Scene;
-use aorender::bvh::{BuildQuality, build_cwbvh};
+use aorender::bvh::{BuildQuality, SceneCwbvh, build_cwbvh};
 use aorender::cpu::{CpuTracer, HitKind};
 use aorender::geometry::{intersect_plane, intersect_triangle, plane_hit_point, triangle_hit_point};
 use aorender::sampling::{local_to_world, offset_ray_origin, sample_cosine_hemisphere, sample_uniforms};
@@ -239,6 +240,7 @@ impl Tracer for Renderer<'_> {
         self.0.closest(o, d, t_max).map(|(t, kind)| match kind {
             HitKind::Plane(i) => (t, Hit::Plane(i)),
             HitKind::Primitive(slot) => (t, Hit::Mesh(self.1[slot])),
+            HitKind::Instance { .. } => unreachable!("the flattened scene has no instances"),
         })
     }
     fn occluded(&self, o: Vec3, d: Vec3, t_max: f32) -> bool {
@@ -311,7 +313,7 @@ fn measure<T: Send>(
 fn main() -> Result<()> {
     let path = PathBuf::from(std::env::args().nth(1).unwrap_or_else(|| "scenes/dragons.toml".into()));
     let start = Instant::now();
-    let scene = Scene::load(&path).with_context(|| format!("loading {}", path.display()))?;
+    let scene = Scene::load(&path).with_context(|| format!("loading {}", path.display()))?.flattened();
     eprintln!("loaded {} in {:.1} s", path.display(), start.elapsed().as_secs_f64());
     ensure!(scene.spheres.is_empty(), "only triangle meshes and planes are handled; the scene has spheres");
 
@@ -354,8 +356,8 @@ fn main() -> Result<()> {
     // Builds, on one thread and on all (the renderer's default quality); the second is kept.
     let (mut flat_s, mut blas_s, mut tlas_s, mut built) = ([0.0; 2], [0.0; 2], [0.0; 2], None);
     for (k, pool) in pools.iter().enumerate() {
-        let (s, flat) = timed(pool, || build_cwbvh(&scene, BuildQuality::Medium));
-        let build_blas = |m: &Scene| Blas::new(build_cwbvh(m, BuildQuality::Medium).expect("a mesh"), &m.triangles);
+        let (s, flat) = timed(pool, || build_cwbvh(&scene, BuildQuality::Medium).top);
+        let build_blas = |m: &Scene| Blas::new(build_cwbvh(m, BuildQuality::Medium).top.expect("a mesh"), &m.triangles);
         let (b, blases) = timed(pool, || meshes.iter().map(|(_, m)| build_blas(m)).collect::<Vec<_>>());
         let (t, (tlas, leaf)) = timed(pool, || {
             let boxes: Vec<Aabb> =
@@ -371,7 +373,8 @@ fn main() -> Result<()> {
     }
     let (flat, two) = built.context("no build")?;
     let flat = Flat { blas: Blas::new(flat.context("no triangles")?, &scene.triangles), planes: scene.planes.clone() };
-    let renderer = Renderer(CpuTracer::new(&scene, Some(flat.blas.bvh.clone())), &flat.blas.bvh.primitive_indices);
+    let flat_bvh = SceneCwbvh { top: Some(flat.blas.bvh.clone()), meshes: Vec::new() };
+    let renderer = Renderer(CpuTracer::new(&scene, flat_bvh), &flat.blas.bvh.primitive_indices);
     let tracers: [&dyn Tracer; 3] = [&flat, &two, &renderer];
 
     // Camera rays through pixel centres.

@@ -61,6 +61,16 @@ fn shade_sample(px: vec2u, u: vec4f) -> f32 {
         let plane = planes[hit.index];
         surface = plane_hit_point(o, d, hit.t, plane.normal, plane.point);
         albedo = plane.albedo;
+    } else if (hit.instance != NO_INSTANCE) {
+        // The instance record: (index, root node, first data record, albedo); the data is
+        // world-to-object rows, then object-to-world rows.
+        let record = load_primitive(hit.instance);
+        let data = bitcast<u32>(record.a.z);
+        let prim = load_primitive(hit.index);
+        surface = instance_hit_point(
+            load_affine(data + 1u), load_affine(data), o, d, hit.t, prim.a.xyz, prim.b.xyz, prim.c.xyz,
+        );
+        albedo = record.a.w;
     } else {
         let prim = load_primitive(hit.index);
         albedo = prim.a.w;

@@ -8,9 +8,11 @@ const INF: f32 = 0x1.fffffep+127f;
 const GAMMA1: f32 = 0x1p-24f / (1.0 - 0x1p-24f);
 const GAMMA2: f32 = 2.0 * 0x1p-24f / (1.0 - 2.0 * 0x1p-24f);
 const GAMMA3: f32 = 3.0 * 0x1p-24f / (1.0 - 3.0 * 0x1p-24f);
+const GAMMA4: f32 = 4.0 * 0x1p-24f / (1.0 - 4.0 * 0x1p-24f);
 const GAMMA5: f32 = 5.0 * 0x1p-24f / (1.0 - 5.0 * 0x1p-24f);
 const GAMMA6: f32 = 6.0 * 0x1p-24f / (1.0 - 6.0 * 0x1p-24f);
 const GAMMA8: f32 = 8.0 * 0x1p-24f / (1.0 - 8.0 * 0x1p-24f);
+const GAMMA16: f32 = 16.0 * 0x1p-24f / (1.0 - 16.0 * 0x1p-24f);
 
 // Watertight ray-triangle test of Woop, Benthin & Wald (JCGT 2013) on the stored
 // vertices; both sides are hit and d need not be unit length. The twin of
@@ -111,10 +113,11 @@ fn triangle_test_sheared(op: vec3f, sh: Shear, t_min: f32, t_max: f32, v0: vec3f
     }
     // pbrt-v4's bound on the error of t (src/geometry.rs, operation for operation).
     let max_zt = max(max(abs(az), abs(bz)), abs(cz));
+    let max_z = max(max(abs(a.z), abs(b.z)), abs(c.z));
     let max_xt = max(max(abs(ax), abs(bx)), abs(cx));
     let max_yt = max(max(abs(ay), abs(by)), abs(cy));
-    let delta_x = GAMMA5 * (max_xt + max_zt);
-    let delta_y = GAMMA5 * (max_yt + max_zt);
+    let delta_x = GAMMA5 * (max_xt + max_z);
+    let delta_y = GAMMA5 * (max_yt + max_z);
     let delta_z = GAMMA3 * max_zt;
     let delta_e = 2.0 * (GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
     let max_e = max(max(abs(u), abs(v)), abs(w));
@@ -182,9 +185,16 @@ struct SurfacePoint {
     error: f32,
 }
 
+// A triangle's hit point, unit normal and componentwise error bound.
+struct TriangleHit {
+    p: vec3f,
+    n: vec3f,
+    p_error: vec3f,
+}
+
 // By barycentric interpolation of the vertices: within GAMMA8 sum |b_i v_i| of the
 // triangle however far the ray came (src/geometry.rs triangle_hit_point).
-fn triangle_hit_point(o: vec3f, d: vec3f, t: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> SurfacePoint {
+fn triangle_hit(o: vec3f, d: vec3f, t: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> TriangleHit {
     let n = normalize(cross(v1 - v0, v2 - v0));
     let r = triangle_test(o, d, 0.0, INF, v0, v1, v2);
     let det = r.y + r.z + r.w;
@@ -201,7 +211,71 @@ fn triangle_hit_point(o: vec3f, d: vec3f, t: f32, v0: vec3f, v1: vec3f, v2: vec3
         p = o + t * d;
         p_error = GAMMA8 * abs(p);
     }
-    return SurfacePoint(p, n, dot(abs(n), p_error));
+    return TriangleHit(p, n, p_error);
+}
+
+fn triangle_hit_point(o: vec3f, d: vec3f, t: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> SurfacePoint {
+    let h = triangle_hit(o, d, t, v0, v1, v2);
+    return SurfacePoint(h.p, h.n, dot(abs(h.n), h.p_error));
+}
+
+// An affine map as rows (m_i0, m_i1, m_i2, t_i), evaluated as src/geometry.rs AffineRows is.
+struct Affine {
+    r0: vec4f,
+    r1: vec4f,
+    r2: vec4f,
+}
+
+fn affine_row_point(m: vec4f, p: vec3f) -> f32 {
+    return ((m.x * p.x + m.y * p.y) + m.z * p.z) + m.w;
+}
+
+fn affine_point(m: Affine, p: vec3f) -> vec3f {
+    return vec3f(affine_row_point(m.r0, p), affine_row_point(m.r1, p), affine_row_point(m.r2, p));
+}
+
+fn affine_row_vector(m: vec4f, v: vec3f) -> f32 {
+    return (m.x * v.x + m.y * v.y) + m.z * v.z;
+}
+
+fn affine_vector(m: Affine, v: vec3f) -> vec3f {
+    return vec3f(affine_row_vector(m.r0, v), affine_row_vector(m.r1, v), affine_row_vector(m.r2, v));
+}
+
+// The preimage of p under y = L x + t, from the rows of L^-1 with t in their last column:
+// L^-1 (p - t) (src/geometry.rs InverseAffine).
+fn affine_inverse_point(m: Affine, p: vec3f) -> vec3f {
+    return affine_vector(m, p - vec3f(m.r0.w, m.r1.w, m.r2.w));
+}
+
+// |M| a + |t| b.
+fn affine_row_abs(m: vec4f, a: vec3f, b: f32) -> f32 {
+    let x = abs(m);
+    return ((x.x * a.x + x.y * a.y) + x.z * a.z) + b * x.w;
+}
+
+fn affine_abs(m: Affine, a: vec3f, b: f32) -> vec3f {
+    return vec3f(affine_row_abs(m.r0, a, b), affine_row_abs(m.r1, a, b), affine_row_abs(m.r2, a, b));
+}
+
+// The transpose of the linear part times v.
+fn affine_transpose_vector(m: Affine, v: vec3f) -> vec3f {
+    return (m.r0.xyz * v.x + m.r1.xyz * v.y) + m.r2.xyz * v.z;
+}
+
+// The world-space hit point of an instance's triangle, found in the mesh's space; the
+// error bound covers the way there and back (src/geometry.rs instance_hit_point).
+fn instance_hit_point(
+    to_world: Affine, to_object: Affine, o: vec3f, d: vec3f, t: f32, v0: vec3f, v1: vec3f, v2: vec3f,
+) -> SurfacePoint {
+    let h = triangle_hit(affine_inverse_point(to_object, o), affine_vector(to_object, d), t, v0, v1, v2);
+    let p = affine_point(to_world, h.p);
+    let forward = GAMMA3 * affine_abs(to_world, abs(h.p), 0.0) + GAMMA1 * abs(p)
+        + (1.0 + GAMMA3) * affine_abs(to_world, h.p_error, 0.0);
+    let q = abs(p - vec3f(to_world.r0.w, to_world.r1.w, to_world.r2.w)) + 2.0 * forward;
+    let back = affine_abs(to_world, GAMMA5 * affine_abs(to_object, q, 0.0), 0.0);
+    let n = normalize(affine_transpose_vector(to_object, h.n));
+    return SurfacePoint(p, n, dot(abs(n), forward + back) * (1.0 + GAMMA16));
 }
 
 // Projected back onto the sphere (src/geometry.rs sphere_hit_point).

@@ -35,7 +35,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
         if (cur.y > 0u) {
             let t = intersect_primitive(cur.x, o, d, sh, op, hit.t);
             if (t < hit.t) {
-                hit = Hit(t, HIT_PRIMITIVE, cur.x);
+                hit = Hit(t, HIT_PRIMITIVE, cur.x, NO_INSTANCE);
                 if (any_hit) {
                     break;
                 }

@@ -10,10 +10,14 @@ const HIT_NONE: u32 = 0u;
 const HIT_PRIMITIVE: u32 = 1u;
 const HIT_PLANE: u32 = 2u;
 
+// Top-level traversal (no instance entered).
+const NO_INSTANCE: u32 = 0xffffffffu;
+
 struct Hit {
     t: f32,
-    kind: u32,   // HIT_*
-    index: u32,  // primitive or plane index
+    kind: u32,      // HIT_*
+    index: u32,     // primitive or plane index
+    instance: u32,  // the slot of the instance record a primitive was reached through, or NO_INSTANCE
 }
 
 // Loop iterations spent by this invocation so far.
@@ -35,7 +39,10 @@ fn take_step() -> bool {
 // sh and op are the ray's shear and permuted origin (make_shear, permute_axes), computed once
 // per ray by the traversal.
 fn intersect_primitive(i: u32, o: vec3f, d: vec3f, sh: Shear, op: vec3f, t_max: f32) -> f32 {
-    let p = load_primitive(i);
+    return intersect_record(load_primitive(i), o, d, sh, op, t_max);
+}
+
+fn intersect_record(p: Primitive, o: vec3f, d: vec3f, sh: Shear, op: vec3f, t_max: f32) -> f32 {
     if (bitcast<u32>(p.b.w) == PRIM_SPHERE) {
         return intersect_sphere(o, d, 0.0, t_max, p.a.xyz, p.b.x);
     }
@@ -44,18 +51,24 @@ fn intersect_primitive(i: u32, o: vec3f, d: vec3f, sh: Shear, op: vec3f, t_max: 
 
 // The infinite planes, which stay outside the BVH.
 fn trace_planes(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
-    var hit = Hit(t_max, HIT_NONE, 0u);
+    var hit = Hit(t_max, HIT_NONE, 0u, NO_INSTANCE);
     for (var i = 0u; i < frame.plane_count; i++) {
         if (!take_step()) {
             break;
         }
         let t = intersect_plane(o, d, 0.0, hit.t, planes[i].normal, planes[i].point);
         if (t < hit.t) {
-            hit = Hit(t, HIT_PLANE, i);
+            hit = Hit(t, HIT_PLANE, i, NO_INSTANCE);
             if (any_hit) {
                 break;
             }
         }
     }
     return hit;
+}
+
+// Record `slot` as an affine map (one of an instance's rows records, src/bvh.rs).
+fn load_affine(slot: u32) -> Affine {
+    let p = load_primitive(slot);
+    return Affine(p.a, p.b, p.c);
 }

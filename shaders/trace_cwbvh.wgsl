@@ -74,22 +74,45 @@ fn intersect_node(node: CwNode, o: vec3f, inv_d: vec3f, oct_inv4: u32, t_max: f3
         | intersect_children4(node.n1.w, lo_b, hi_b, scale, origin, neg, oct_inv4, t_max);
 }
 
-// Closest hit within (0, t_max) or, with any_hit, the first hit found.
+// What the traversal derives from a ray once: the node test's inverse direction and
+// octant, the triangle test's shear and permuted origin.
+struct RayState {
+    o: vec3f,
+    d: vec3f,
+    inv_d: vec3f,
+    oct_inv4: u32,
+    sh: Shear,
+    op: vec3f,
+}
+
+fn ray_state(o: vec3f, d: vec3f) -> RayState {
+    let sh = make_shear(d);
+    let oct_inv4 = select(0x04040404u, 0u, d.x < 0.0) | select(0x02020202u, 0u, d.y < 0.0)
+        | select(0x01010101u, 0u, d.z < 0.0);
+    return RayState(o, d, safe_inverse(d), oct_inv4, sh, permute_axes(o, sh.k));
+}
+
+// Closest hit within (0, t_max) or, with any_hit, the first hit found. A leaf entry that
+// is an instance (src/bvh.rs PRIM_INSTANCE) carries the ray into its mesh's space and
+// continues at its mesh's root, stacking on top of the top level's entries; once those
+// are done, the top level resumes where it left off. The direction is not renormalized,
+// so t means the same in both spaces.
 fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     var hit = trace_planes(o, d, t_max, any_hit);
     if (frame.node_count == 0u || (any_hit && hit.kind != HIT_NONE)) {
         return hit;
     }
-    let inv_d = safe_inverse(d);
-    let sh = make_shear(d);
-    let op = permute_axes(o, sh.k);
-    let oct_inv4 = select(0x04040404u, 0u, d.x < 0.0) | select(0x02020202u, 0u, d.y < 0.0)
-        | select(0x01010101u, 0u, d.z < 0.0);
+    var ray = ray_state(o, d);
     var stack: array<vec2u, CWBVH_STACK_SIZE>;
     var sp = 0u;
     // (first child node, hit bits in 24..32 | imask), and (first primitive, hit bits).
     var node_group = vec2u(0u, 0x80000000u);
     var prim_group = vec2u(0u, 0u);
+    // The instance being traversed, and where the top level resumes after it.
+    var instance = NO_INSTANCE;
+    var base_sp = 0u;
+    var top_node_group = vec2u(0u, 0u);
+    var top_prim_group = vec2u(0u, 0u);
     loop {
         if (!take_step()) {
             break;
@@ -98,11 +121,23 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             let local = firstLeadingBit(prim_group.y);
             prim_group.y &= ~(1u << local);
             let slot = prim_group.x + local;
-            let t = intersect_primitive(slot, o, d, sh, op, hit.t);
-            if (t < hit.t) {
-                hit = Hit(t, HIT_PRIMITIVE, slot);
-                if (any_hit) {
-                    break;
+            let p = load_primitive(slot);
+            if (bitcast<u32>(p.b.w) == PRIM_INSTANCE) {
+                instance = slot;
+                base_sp = sp;
+                top_node_group = node_group;
+                top_prim_group = prim_group;
+                let to_object = load_affine(bitcast<u32>(p.a.z));
+                ray = ray_state(affine_inverse_point(to_object, o), affine_vector(to_object, d));
+                node_group = vec2u(bitcast<u32>(p.a.y), 0x80000000u);
+                prim_group = vec2u(0u, 0u);
+            } else {
+                let t = intersect_record(p, ray.o, ray.d, ray.sh, ray.op, hit.t);
+                if (t < hit.t) {
+                    hit = Hit(t, HIT_PRIMITIVE, slot, instance);
+                    if (any_hit) {
+                        break;
+                    }
                 }
             }
         } else if ((node_group.y & 0xff000000u) != 0u) {
@@ -113,19 +148,26 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
                 stack[sp] = node_group;
                 sp += 1u;
             }
-            let slot_index = (child_bit - 24u) ^ (oct_inv4 & 0xffu);
+            let slot_index = (child_bit - 24u) ^ (ray.oct_inv4 & 0xffu);
             let relative_index = countOneBits(hits_imask & ~(0xffffffffu << slot_index));
             let node = load_node(node_group.x + relative_index);
-            let hitmask = intersect_node(node, o, inv_d, oct_inv4, hit.t);
+            let hitmask = intersect_node(node, ray.o, ray.inv_d, ray.oct_inv4, hit.t);
             node_group = vec2u(node.n1.x, (hitmask & 0xff000000u) | (node.n0.w >> 24u));
             prim_group = vec2u(node.n1.y, hitmask & 0x00ffffffu);
         }
         if (prim_group.y == 0u && (node_group.y & 0xff000000u) == 0u) {
-            if (sp == 0u) {
+            if (sp > base_sp) {
+                sp -= 1u;
+                node_group = stack[sp];
+            } else if (instance != NO_INSTANCE) {
+                instance = NO_INSTANCE;
+                base_sp = 0u;
+                ray = ray_state(o, d);
+                node_group = top_node_group;
+                prim_group = top_prim_group;
+            } else {
                 break;
             }
-            sp -= 1u;
-            node_group = stack[sp];
         }
     }
     return hit;

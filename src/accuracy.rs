@@ -105,6 +105,8 @@ fn empty_scene(name: &str, v: &Variant) -> Scene {
         },
         settings: Settings::default(),
         triangles: Vec::new(),
+        meshes: Vec::new(),
+        instances: Vec::new(),
         spheres: Vec::new(),
         planes: Vec::new(),
     }

@@ -1,14 +1,19 @@
 //! BVH construction with obvhs and the GPU layout of nodes and primitives.
 //!
-//! One BVH holds every finite primitive: triangles first (ids `0..n_tri`), then spheres.
-//! Infinite planes stay outside it. The GPU layout is a BVH2 whose nodes carry both
+//! One BVH holds every finite primitive: triangles first (ids `0..n_tri`), then spheres,
+//! then instances of meshes placed more than once, each of which refers to the BVH of its
+//! mesh in the mesh's own space (two levels: a ray that reaches an instance continues in
+//! that BVH, carried into the mesh's space). Infinite planes stay outside it. The GPU layout is a BVH2 whose nodes carry both
 //! children's boxes (Aila & Laine, "Understanding the Efficiency of Ray Traversal on GPUs",
 //! HPG 2009), so one 64-byte fetch tests two boxes; primitives are stored in BVH leaf
 //! order, so leaves index them directly without an indirection table.
 
+use crate::geometry::AffineRows;
 use crate::scene::Scene;
 use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
 use glam::Vec3A;
+use obvhs::cwbvh::{CwBvh, node::CwBvhNode};
 use obvhs::{BvhBuildParams, aabb::Aabb, bvh2::Bvh2};
 
 /// Marks an absent child (only when the root itself is a leaf).
@@ -17,6 +22,11 @@ pub const INVALID_INDEX: u32 = u32::MAX;
 pub const PRIM_TRIANGLE: u32 = 0;
 /// Primitive tag of a sphere.
 pub const PRIM_SPHERE: u32 = 1;
+/// Primitive tag of an instance: `a = (instance index, root node, first data record,
+/// albedo)` as bits (the albedo as a float). The root and data fields are the GPU's (the
+/// node where its mesh's BVH starts and the record of its world-to-object rows, followed
+/// by its object-to-world rows), filled in by [`GpuBvh::from_cwbvh`].
+pub const PRIM_INSTANCE: u32 = 2;
 /// Entries of the BVH2 traversal stack in the shader; deeper trees are refused.
 pub const BVH2_STACK_SIZE: u32 = 64;
 /// Entries of the CWBVH traversal stack (one per level at most). Kept small: the private
@@ -128,21 +138,49 @@ pub struct GpuPrimitive {
 const _: () = assert!(std::mem::size_of::<GpuPrimitive>() == 48);
 const _: () = assert!(std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>() == 80);
 
-/// Axis-aligned boxes of the BVH's primitives, in id order (triangles, then spheres).
+/// Axis-aligned boxes of the BVH's primitives, in id order (triangles, spheres, instances).
 pub fn primitive_aabbs(scene: &Scene) -> Vec<Aabb> {
-    let tris = scene.triangles.iter().map(|t| {
-        let v = t.v.map(Vec3A::from);
-        Aabb::new(v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]))
-    });
+    let tris = scene.triangles.iter().map(|t| triangle_aabb(&t.v));
     let spheres = scene.spheres.iter().map(|s| {
         let c = Vec3A::from(s.center);
         Aabb::new(c - s.radius, c + s.radius)
     });
-    tris.chain(spheres).collect()
+    let mesh_boxes: Vec<Aabb> = scene.meshes.iter().map(|m| mesh_aabb(&m.triangles)).collect();
+    let instances = scene.instances.iter().map(|i| instance_aabb(&i.to_world_rows(), &mesh_boxes[i.mesh as usize]));
+    tris.chain(spheres).chain(instances).collect()
 }
 
-/// Builds obvhs's BVH2 over the scene's finite primitives.
+fn triangle_aabb(v: &[Vec3; 3]) -> Aabb {
+    let v = v.map(Vec3A::from);
+    Aabb::new(v[0].min(v[1]).min(v[2]), v[0].max(v[1]).max(v[2]))
+}
+
+fn mesh_aabb(triangles: &[[Vec3; 3]]) -> Aabb {
+    triangles.iter().fold(Aabb::empty(), |b, t| b.union(&triangle_aabb(t)))
+}
+
+/// The world box of an instance: the mesh box's corners through `to_world`, widened on
+/// every axis by 2⁻²⁰ of its largest extent plus its largest coordinate, far more than the rounding of
+/// the corners (γ(3)) and of the ray's way into the mesh's space, so a world ray is never
+/// culled here that its object-space twin would hit.
+fn instance_aabb(to_world: &crate::geometry::AffineRows, b: &Aabb) -> Aabb {
+    let mut out = Aabb::empty();
+    for k in 0..8 {
+        let pick = |bit: usize, lo: f32, hi: f32| if k & bit == 0 { lo } else { hi };
+        let c = glam::Vec3::new(pick(1, b.min.x, b.max.x), pick(2, b.min.y, b.max.y), pick(4, b.min.z, b.max.z));
+        let w = Vec3A::from(to_world.point(c));
+        out.extend(w);
+    }
+    // One margin on every axis, so a box that is flat along an axis gets one too.
+    let size = (out.max - out.min).max_element() + out.max.abs().max(out.min.abs()).max_element();
+    let pad = Vec3A::splat(size * (1.0 / (1u32 << 20) as f32));
+    Aabb::new(out.min - pad, out.max + pad)
+}
+
+/// Builds obvhs's BVH2 over the scene's finite primitives, instances flattened into the
+/// world (the BVH2 layout has no second level): call it with [`Scene::flattened`].
 pub fn build_bvh2(scene: &Scene, quality: BuildQuality) -> Bvh2 {
+    debug_assert!(scene.instances.is_empty());
     let aabbs = primitive_aabbs(scene);
     if aabbs.is_empty() {
         return Bvh2::default();
@@ -150,10 +188,82 @@ pub fn build_bvh2(scene: &Scene, quality: BuildQuality) -> Bvh2 {
     obvhs::bvh2::builder::build_bvh2(&aabbs, quality.params(), &mut Default::default())
 }
 
-/// Builds obvhs's compressed 8-wide BVH; `None` when the scene has no finite primitives.
-pub fn build_cwbvh(scene: &Scene, quality: BuildQuality) -> Option<obvhs::cwbvh::CwBvh> {
+/// obvhs's compressed 8-wide BVHs of a scene: the top level over its triangles, spheres
+/// and instances, and one over each instanced mesh, in its own space.
+#[derive(Clone, Debug, Default)]
+pub struct SceneCwbvh {
+    /// The top level; `None` when the scene has no finite primitives.
+    pub top: Option<CwBvh>,
+    /// One per `Scene::meshes` entry.
+    pub meshes: Vec<CwBvh>,
+}
+
+/// Builds the scene's CWBVHs.
+pub fn build_cwbvh(scene: &Scene, quality: BuildQuality) -> SceneCwbvh {
+    let build = |aabbs: &[Aabb]| obvhs::cwbvh::builder::build_cwbvh(aabbs, quality.params(), &mut Default::default());
+    let meshes =
+        scene.meshes.iter().map(|m| build(&m.triangles.iter().map(triangle_aabb).collect::<Vec<_>>())).collect();
     let aabbs = primitive_aabbs(scene);
-    (!aabbs.is_empty()).then(|| obvhs::cwbvh::builder::build_cwbvh(&aabbs, quality.params(), &mut Default::default()))
+    SceneCwbvh { top: (!aabbs.is_empty()).then(|| build(&aabbs)), meshes }
+}
+
+/// The record of top-level primitive `id` (triangles, spheres, instances).
+pub(crate) fn gpu_primitive(scene: &Scene, id: usize) -> GpuPrimitive {
+    let n_tri = scene.triangles.len();
+    let n_sphere = scene.spheres.len();
+    if id < n_tri {
+        let t = &scene.triangles[id];
+        let [v0, v1, v2] = t.v;
+        GpuPrimitive {
+            a: [v0.x, v0.y, v0.z, t.albedo],
+            b: [v1.x, v1.y, v1.z, f32::from_bits(PRIM_TRIANGLE)],
+            c: [v2.x, v2.y, v2.z, 0.0],
+        }
+    } else if id < n_tri + n_sphere {
+        let s = &scene.spheres[id - n_tri];
+        GpuPrimitive {
+            a: [s.center.x, s.center.y, s.center.z, s.albedo],
+            b: [s.radius, 0.0, 0.0, f32::from_bits(PRIM_SPHERE)],
+            c: [0.0; 4],
+        }
+    } else {
+        let i = id - n_tri - n_sphere;
+        GpuPrimitive {
+            a: [f32::from_bits(i as u32), 0.0, 0.0, scene.instances[i].albedo],
+            b: [0.0, 0.0, 0.0, f32::from_bits(PRIM_INSTANCE)],
+            c: [0.0; 4],
+        }
+    }
+}
+
+/// The record of a triangle of an instanced mesh (no albedo: the instance has it).
+pub(crate) fn mesh_primitive(v: &[Vec3; 3]) -> GpuPrimitive {
+    let [v0, v1, v2] = *v;
+    GpuPrimitive {
+        a: [v0.x, v0.y, v0.z, 0.0],
+        b: [v1.x, v1.y, v1.z, f32::from_bits(PRIM_TRIANGLE)],
+        c: [v2.x, v2.y, v2.z, 0.0],
+    }
+}
+
+/// An affine map's rows as one record.
+fn rows_record(rows: &AffineRows) -> GpuPrimitive {
+    GpuPrimitive { a: rows.0[0], b: rows.0[1], c: rows.0[2] }
+}
+
+/// Depth of the deepest inner node of a CWBVH (root = 1).
+fn cwbvh_depth(bvh: &CwBvh) -> u32 {
+    // Inner children of a node are stored contiguously from child_base_idx.
+    let mut depth = 0;
+    let mut stack = vec![(0usize, 1u32)];
+    while let Some((i, d)) = stack.pop() {
+        depth = depth.max(d);
+        let n = &bvh.nodes[i];
+        for k in 0..n.imask.count_ones() as usize {
+            stack.push((n.child_base_idx as usize + k, d + 1));
+        }
+    }
+    depth
 }
 
 /// The GPU form of a scene's BVH.
@@ -172,53 +282,57 @@ pub struct GpuBvh {
     pub depth: u32,
 }
 
-/// The record of primitive `id` (triangles first, then spheres).
-pub(crate) fn gpu_primitive(scene: &Scene, id: usize) -> GpuPrimitive {
-    let n_tri = scene.triangles.len();
-    if id < n_tri {
-        let t = &scene.triangles[id];
-        let [v0, v1, v2] = t.v;
-        GpuPrimitive {
-            a: [v0.x, v0.y, v0.z, t.albedo],
-            b: [v1.x, v1.y, v1.z, f32::from_bits(PRIM_TRIANGLE)],
-            c: [v2.x, v2.y, v2.z, 0.0],
-        }
-    } else {
-        let s = &scene.spheres[id - n_tri];
-        GpuPrimitive {
-            a: [s.center.x, s.center.y, s.center.z, s.albedo],
-            b: [s.radius, 0.0, 0.0, f32::from_bits(PRIM_SPHERE)],
-            c: [0.0; 4],
-        }
-    }
-}
-
 impl GpuBvh {
     /// Builds the BVH of `scene` in `layout`.
     pub fn build(scene: &Scene, layout: BvhLayout, quality: BuildQuality) -> GpuBvh {
         match layout {
-            BvhLayout::Bvh2 => GpuBvh::from_bvh2(scene, &build_bvh2(scene, quality)),
-            BvhLayout::Cwbvh => build_cwbvh(scene, quality).map(|b| GpuBvh::from_cwbvh(scene, &b)).unwrap_or_default(),
+            BvhLayout::Bvh2 if scene.instances.is_empty() => GpuBvh::from_bvh2(scene, &build_bvh2(scene, quality)),
+            BvhLayout::Bvh2 => {
+                let flat = scene.flattened();
+                GpuBvh::from_bvh2(&flat, &build_bvh2(&flat, quality))
+            }
+            BvhLayout::Cwbvh => GpuBvh::from_cwbvh(scene, &build_cwbvh(scene, quality)),
         }
     }
 
-    /// Uploads obvhs's CWBVH as it is; primitives follow its `primitive_indices`.
-    pub fn from_cwbvh(scene: &Scene, bvh: &obvhs::cwbvh::CwBvh) -> GpuBvh {
-        let primitives = bvh.primitive_indices.iter().map(|&id| gpu_primitive(scene, id as usize)).collect();
-        // Inner children of a node are stored contiguously from child_base_idx.
-        let mut depth = 0;
-        let mut stack = vec![(0usize, 1u32)];
-        while let Some((i, d)) = stack.pop() {
-            depth = depth.max(d);
-            let n = &bvh.nodes[i];
-            for k in 0..n.imask.count_ones() as usize {
-                stack.push((n.child_base_idx as usize + k, d + 1));
-            }
+    /// Uploads obvhs's CWBVHs as they are, one after the other: the top level (its root is
+    /// node 0), then each mesh's, whose child and primitive indices are moved by where its
+    /// nodes and primitives start. Primitives follow each BVH's `primitive_indices`; after
+    /// them come two records per instance, its world-to-object and object-to-world rows.
+    pub fn from_cwbvh(scene: &Scene, bvh: &SceneCwbvh) -> GpuBvh {
+        let Some(top) = &bvh.top else {
+            return GpuBvh { layout: BvhLayout::Cwbvh, ..Default::default() };
+        };
+        let mut nodes: Vec<CwBvhNode> = top.nodes.clone();
+        let mut primitives: Vec<GpuPrimitive> =
+            top.primitive_indices.iter().map(|&id| gpu_primitive(scene, id as usize)).collect();
+        let mut roots = Vec::with_capacity(bvh.meshes.len());
+        for (mesh, blas) in scene.meshes.iter().zip(&bvh.meshes) {
+            let (node_base, prim_base) = (nodes.len() as u32, primitives.len() as u32);
+            roots.push(node_base);
+            nodes.extend(blas.nodes.iter().map(|n| CwBvhNode {
+                child_base_idx: n.child_base_idx + node_base,
+                primitive_base_idx: n.primitive_base_idx + prim_base,
+                ..*n
+            }));
+            primitives.extend(blas.primitive_indices.iter().map(|&i| mesh_primitive(&mesh.triangles[i as usize])));
         }
+        let data_base = primitives.len() as u32;
+        for p in primitives.iter_mut().filter(|p| p.b[3].to_bits() == PRIM_INSTANCE) {
+            let i = p.a[0].to_bits();
+            p.a[1] = f32::from_bits(roots[scene.instances[i as usize].mesh as usize]);
+            p.a[2] = f32::from_bits(data_base + 2 * i);
+        }
+        for instance in &scene.instances {
+            primitives.push(rows_record(&instance.to_object().0));
+            primitives.push(rows_record(&instance.to_world_rows()));
+        }
+        // A ray inside an instance stacks its mesh's nodes on top of the top level's.
+        let depth = cwbvh_depth(top) + bvh.meshes.iter().map(cwbvh_depth).max().unwrap_or(0);
         GpuBvh {
             layout: BvhLayout::Cwbvh,
-            node_bytes: bytemuck::cast_slice(&bvh.nodes).to_vec(),
-            node_count: bvh.nodes.len() as u32,
+            node_bytes: bytemuck::cast_slice(&nodes).to_vec(),
+            node_count: nodes.len() as u32,
             primitives,
             depth,
         }

@@ -182,6 +182,20 @@ pub fn scene_hash(scene: &Scene) -> [u8; 32] {
     for p in &scene.planes {
         put(&mut h, &mut buf, &[p.normal.x, p.normal.y, p.normal.z, p.point.x, p.point.y, p.point.z, p.albedo]);
     }
+    // Instanced meshes and their placements; a scene without them hashes as before.
+    for m in &scene.meshes {
+        buf.extend_from_slice(b"mesh");
+        buf.extend_from_slice(&(m.triangles.len() as u64).to_le_bytes());
+        for [a, b, c] in &m.triangles {
+            put(&mut h, &mut buf, &[a.x, a.y, a.z, b.x, b.y, b.z, c.x, c.y, c.z]);
+        }
+    }
+    for i in &scene.instances {
+        buf.extend_from_slice(b"instance");
+        buf.extend_from_slice(&i.mesh.to_le_bytes());
+        put(&mut h, &mut buf, &i.to_world.to_cols_array());
+        put(&mut h, &mut buf, &[i.albedo]);
+    }
     h.update(&buf);
     *h.finalize().as_bytes()
 }
@@ -194,6 +208,7 @@ pub fn max_sample_value(scene: &Scene) -> f64 {
         .iter()
         .map(|t| t.albedo)
         .chain(scene.spheres.iter().map(|s| s.albedo))
+        .chain(scene.instances.iter().map(|i| i.albedo))
         .chain(scene.planes.iter().map(|p| p.albedo))
         .fold(0.0f64, |m, a| m.max(a as f64));
     (2.0 * albedo).max((scene.settings.background as f64).abs())

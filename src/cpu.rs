@@ -2,12 +2,12 @@
 //! rays, `ray_traverse_miss` as the occlusion query), multi-threaded over rows with rayon,
 //! and the same camera, random numbers, warps and shading as `shaders/ao.wgsl`.
 
-use crate::bvh::{GpuPrimitive, PRIM_SPHERE};
+use crate::bvh::{GpuPrimitive, PRIM_INSTANCE, PRIM_SPHERE, SceneCwbvh};
 use crate::camera::RayGen;
 use crate::film::Film;
 use crate::geometry::{
-    SurfacePoint, intersect_plane, intersect_sphere, intersect_triangle, plane_hit_point, sphere_hit_point,
-    triangle_hit_point,
+    AffineRows, InverseAffine, SurfacePoint, instance_hit_point, intersect_plane, intersect_sphere, intersect_triangle,
+    plane_hit_point, sphere_hit_point, triangle_hit_point,
 };
 use crate::probe::Probe;
 use crate::sampler::PointSampler;
@@ -25,14 +25,26 @@ pub enum HitKind {
     Primitive(usize),
     /// Plane index.
     Plane(usize),
+    /// Primitive `slot` of the leaf-ordered primitives of instance `instance`'s mesh.
+    Instance { instance: usize, slot: usize },
 }
 
-/// A scene prepared for CPU tracing: the CWBVH and its primitives in leaf order, in the
+/// A scene prepared for CPU tracing: the CWBVHs and their primitives in leaf order, in the
 /// GPU's record format so both read the same numbers.
 pub struct CpuTracer {
     bvh: Option<CwBvh>,
     primitives: Vec<GpuPrimitive>,
+    meshes: Vec<(CwBvh, Vec<GpuPrimitive>)>,
+    instances: Vec<CpuInstance>,
     planes: Vec<Plane>,
+}
+
+/// An instance: its mesh, its maps and its albedo.
+struct CpuInstance {
+    mesh: usize,
+    to_object: InverseAffine,
+    to_world: AffineRows,
+    albedo: f32,
 }
 
 /// obvhs's CWBVH node test skips boxes that end nearer than its `EPSILON` (1e-4) along
@@ -48,18 +60,94 @@ pub struct CpuTracer {
 /// of the origin, closer than an ulp, can be skipped.
 const TRAVERSAL_BACKOFF: f32 = 2e-4;
 
+/// obvhs's ray for traversing an instance's mesh, and the map from the ray's `t` to the
+/// traversal's. obvhs treats direction components below `f32::EPSILON` as that small and
+/// clamps its box distances at 1e-4, both meant for unit directions, but a ray carried
+/// into a mesh's space is as long as the inverse scale makes it: the traversal runs along
+/// the unit direction, from the origin moved back by [`TRAVERSAL_BACKOFF`] of it, and
+/// distances are converted to it rounded up by 2⁻²⁰ (a box is never culled early).
+fn traversal_ray(o: Vec3, d: Vec3, t_max: f32) -> (Ray, impl Fn(f32) -> f32) {
+    let length = d.length();
+    let unit = d / length;
+    let scale = length * (1.0 + 1.0 / (1u32 << 20) as f32);
+    let to_traversal = move |t: f32| t * scale + TRAVERSAL_BACKOFF;
+    let ray = Ray::new(Vec3A::from(o - TRAVERSAL_BACKOFF * unit), Vec3A::from(unit), 0.0, to_traversal(t_max));
+    (ray, to_traversal)
+}
+
 fn v3(a: [f32; 4]) -> Vec3 {
     Vec3::new(a[0], a[1], a[2])
 }
 
 impl CpuTracer {
-    /// Prepares `scene` with an already built CWBVH (`None` when there are no finite primitives).
-    pub fn new(scene: &Scene, bvh: Option<CwBvh>) -> CpuTracer {
-        let primitives = match &bvh {
+    /// Prepares `scene` with its already built CWBVHs.
+    pub fn new(scene: &Scene, bvh: SceneCwbvh) -> CpuTracer {
+        let primitives = match &bvh.top {
             Some(b) => b.primitive_indices.iter().map(|&id| crate::bvh::gpu_primitive(scene, id as usize)).collect(),
             None => Vec::new(),
         };
-        CpuTracer { bvh, primitives, planes: scene.planes.clone() }
+        let meshes = scene
+            .meshes
+            .iter()
+            .zip(bvh.meshes)
+            .map(|(m, b)| {
+                let prims = b.primitive_indices.iter().map(|&i| crate::bvh::mesh_primitive(&m.triangles[i as usize]));
+                let prims = prims.collect();
+                (b, prims)
+            })
+            .collect();
+        let instances = scene
+            .instances
+            .iter()
+            .map(|i| CpuInstance {
+                mesh: i.mesh as usize,
+                to_object: i.to_object(),
+                to_world: i.to_world_rows(),
+                albedo: i.albedo,
+            })
+            .collect();
+        CpuTracer { bvh: bvh.top, primitives, meshes, instances, planes: scene.planes.clone() }
+    }
+
+    /// The instance a top-level record stands for, if it is one.
+    fn instance_of(p: &GpuPrimitive) -> Option<usize> {
+        (p.b[3].to_bits() == PRIM_INSTANCE).then(|| p.a[0].to_bits() as usize)
+    }
+
+    /// The ray in instance `i`'s mesh space (the same operations as the kernel's).
+    fn to_instance(&self, i: usize, o: Vec3, d: Vec3) -> (&(CwBvh, Vec<GpuPrimitive>), Vec3, Vec3) {
+        let inst = &self.instances[i];
+        (&self.meshes[inst.mesh], inst.to_object.point(o), inst.to_object.vector(d))
+    }
+
+    /// Closest hit in `(0, t_max)` among instance `i`'s triangles: its distance and slot.
+    fn closest_in_instance(&self, i: usize, o: Vec3, d: Vec3, t_max: f32) -> Option<(f32, usize)> {
+        let ((bvh, prims), o, d) = self.to_instance(i, o, d);
+        let mut hit = RayHit::none();
+        let mut t_exact = t_max;
+        let (ray, to_traversal) = traversal_ray(o, d, t_max);
+        let found = bvh.ray_traverse(ray, &mut hit, |_, slot| {
+            let p = &prims[slot];
+            let t = intersect_triangle(o, d, 0.0, t_exact, v3(p.a), v3(p.b), v3(p.c));
+            if t < t_exact {
+                t_exact = t;
+                to_traversal(t)
+            } else {
+                f32::INFINITY
+            }
+        });
+        found.then_some((t_exact, hit.primitive_id as usize))
+    }
+
+    /// Whether any of instance `i`'s triangles lies in `(0, t_max)`.
+    fn occluded_in_instance(&self, i: usize, o: Vec3, d: Vec3, t_max: f32) -> bool {
+        let ((bvh, prims), o, d) = self.to_instance(i, o, d);
+        let (ray, to_traversal) = traversal_ray(o, d, t_max);
+        !bvh.ray_traverse_miss(ray, |_, slot| {
+            let p = &prims[slot];
+            let t = intersect_triangle(o, d, 0.0, t_max, v3(p.a), v3(p.b), v3(p.c));
+            if t < t_max { to_traversal(t) } else { f32::INFINITY }
+        })
     }
 
     fn intersect_primitive(&self, slot: usize, o: Vec3, d: Vec3, t_max: f32) -> f32 {
@@ -85,18 +173,29 @@ impl CpuTracer {
         if let Some(bvh) = &self.bvh {
             let mut hit = RayHit::none();
             let mut t_exact = t_best;
+            let mut kind = None;
             let ray = Ray::new(Vec3A::from(o - TRAVERSAL_BACKOFF * d), Vec3A::from(d), 0.0, t_best + TRAVERSAL_BACKOFF);
-            let found = bvh.ray_traverse(ray, &mut hit, |_, slot| {
-                let t = self.intersect_primitive(slot, o, d, t_exact);
-                if t < t_exact {
-                    t_exact = t;
-                    t + TRAVERSAL_BACKOFF
-                } else {
-                    f32::INFINITY
+            bvh.ray_traverse(ray, &mut hit, |_, slot| {
+                let hit = match Self::instance_of(&self.primitives[slot]) {
+                    Some(i) => self
+                        .closest_in_instance(i, o, d, t_exact)
+                        .map(|(t, s)| (t, HitKind::Instance { instance: i, slot: s })),
+                    None => {
+                        let t = self.intersect_primitive(slot, o, d, t_exact);
+                        (t < t_exact).then_some((t, HitKind::Primitive(slot)))
+                    }
+                };
+                match hit {
+                    Some((t, k)) if t < t_exact => {
+                        t_exact = t;
+                        kind = Some(k);
+                        t + TRAVERSAL_BACKOFF
+                    }
+                    _ => f32::INFINITY,
                 }
             });
-            if found {
-                best = Some((t_exact, HitKind::Primitive(hit.primitive_id as usize)));
+            if let Some(k) = kind {
+                best = Some((t_exact, k));
             }
         }
         best
@@ -111,9 +210,13 @@ impl CpuTracer {
             Some(bvh) => {
                 let ray =
                     Ray::new(Vec3A::from(o - TRAVERSAL_BACKOFF * d), Vec3A::from(d), 0.0, t_max + TRAVERSAL_BACKOFF);
-                !bvh.ray_traverse_miss(ray, |_, slot| {
-                    let t = self.intersect_primitive(slot, o, d, t_max);
-                    if t < t_max { t + TRAVERSAL_BACKOFF } else { f32::INFINITY }
+                !bvh.ray_traverse_miss(ray, |_, slot| match Self::instance_of(&self.primitives[slot]) {
+                    Some(i) if self.occluded_in_instance(i, o, d, t_max) => TRAVERSAL_BACKOFF,
+                    Some(_) => f32::INFINITY,
+                    None => {
+                        let t = self.intersect_primitive(slot, o, d, t_max);
+                        if t < t_max { t + TRAVERSAL_BACKOFF } else { f32::INFINITY }
+                    }
                 })
             }
             None => false,
@@ -124,6 +227,11 @@ impl CpuTracer {
     pub fn surface(&self, o: Vec3, d: Vec3, t: f32, kind: HitKind) -> (SurfacePoint, f32) {
         match kind {
             HitKind::Plane(i) => (plane_hit_point(o, d, t, &self.planes[i]), self.planes[i].albedo),
+            HitKind::Instance { instance, slot } => {
+                let inst = &self.instances[instance];
+                let p = &self.meshes[inst.mesh].1[slot];
+                (instance_hit_point(&inst.to_world, &inst.to_object, o, d, t, [v3(p.a), v3(p.b), v3(p.c)]), inst.albedo)
+            }
             HitKind::Primitive(slot) => {
                 let p = &self.primitives[slot];
                 if p.b[3].to_bits() == PRIM_SPHERE {

@@ -127,12 +127,18 @@ pub fn triangle_test(o: Vec3, d: Vec3, t_min: f32, t_max: f32, v0: Vec3, v1: Vec
     if !(t > t_min && t < t_max) {
         return (MISS, uvw);
     }
-    // pbrt-v4's bound on the error of t; shaders/intersect.wgsl repeats it operation for operation.
+    // pbrt-v4's bound on the error of t; shaders/intersect.wgsl repeats it operation for
+    // operation. The error of the sheared x and y is bounded with the z coordinates before
+    // the scaling by 1/d_z, as the bound is derived (|s_x|, |s_y| <= 1), not after it as
+    // pbrt-v4's code has it: scaled, they are in units of t, and for a short direction
+    // (a ray carried into a mesh scaled up by 1e6 is 1e-6 long) the bound would exceed
+    // every t and reject true hits.
     let max_zt = az.abs().max(bz.abs()).max(cz.abs());
+    let max_z = a.z.abs().max(b.z.abs()).max(c.z.abs());
     let max_xt = ax.abs().max(bx.abs()).max(cx.abs());
     let max_yt = ay.abs().max(by.abs()).max(cy.abs());
-    let delta_x = gamma(5) * (max_xt + max_zt);
-    let delta_y = gamma(5) * (max_yt + max_zt);
+    let delta_x = gamma(5) * (max_xt + max_z);
+    let delta_y = gamma(5) * (max_yt + max_z);
     let delta_z = gamma(3) * max_zt;
     let delta_e = 2.0 * (gamma(2) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
     let max_e = u.abs().max(v.abs()).max(w.abs());
@@ -157,6 +163,12 @@ pub struct SurfacePoint {
 /// ray came; one more γ for WGSL's division, which is within 2.5 ulp rather than exact.
 /// Falls back to `o + t d` if the test no longer sees the hit.
 pub fn triangle_hit_point(o: Vec3, d: Vec3, t: f32, v0: Vec3, v1: Vec3, v2: Vec3) -> SurfacePoint {
+    let (p, n, p_error) = triangle_hit(o, d, t, v0, v1, v2);
+    SurfacePoint { p, n, error: n.abs().dot(p_error) }
+}
+
+/// [`triangle_hit_point`]'s point, unit normal and componentwise error bound.
+fn triangle_hit(o: Vec3, d: Vec3, t: f32, v0: Vec3, v1: Vec3, v2: Vec3) -> (Vec3, Vec3, Vec3) {
     let n = (v1 - v0).cross(v2 - v0).normalize();
     let (_, uvw) = triangle_test(o, d, 0.0, f32::INFINITY, v0, v1, v2);
     let det = uvw.x + uvw.y + uvw.z;
@@ -168,7 +180,127 @@ pub fn triangle_hit_point(o: Vec3, d: Vec3, t: f32, v0: Vec3, v1: Vec3, v2: Vec3
         let p = o + t * d;
         (p, gamma(8) * p.abs())
     };
-    SurfacePoint { p, n, error: n.abs().dot(p_error) }
+    (p, n, p_error)
+}
+
+/// An affine map as three rows `(m_i0, m_i1, m_i2, t_i)`: `y_i = ((m_i0 x + m_i1 y) + m_i2 z) + t_i`,
+/// evaluated in that order by the CPU and the kernels alike (`shaders/intersect.wgsl`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AffineRows(pub [[f32; 4]; 3]);
+
+impl AffineRows {
+    /// The affine part of `m` (its last row is ignored, as `Mat4::transform_point3` does).
+    pub fn from_mat4(m: &glam::Mat4) -> AffineRows {
+        AffineRows([0, 1, 2].map(|i| m.row(i).to_array()))
+    }
+
+    /// The image of point `p`.
+    pub fn point(&self, p: Vec3) -> Vec3 {
+        let r = |k: usize| {
+            let m = self.0[k];
+            ((m[0] * p.x + m[1] * p.y) + m[2] * p.z) + m[3]
+        };
+        Vec3::new(r(0), r(1), r(2))
+    }
+
+    /// The image of direction `v` (no translation).
+    pub fn vector(&self, v: Vec3) -> Vec3 {
+        let r = |k: usize| {
+            let m = self.0[k];
+            (m[0] * v.x + m[1] * v.y) + m[2] * v.z
+        };
+        Vec3::new(r(0), r(1), r(2))
+    }
+
+    /// `|M| a + |t| b`: the linear part's absolute values times `a`, plus `b` times the
+    /// translation's absolute values.
+    fn abs_apply(&self, a: Vec3, b: f32) -> Vec3 {
+        let r = |k: usize| {
+            let m = self.0[k].map(f32::abs);
+            m[0] * a.x + m[1] * a.y + m[2] * a.z + b * m[3]
+        };
+        Vec3::new(r(0), r(1), r(2))
+    }
+
+    /// The transpose of the linear part applied to `v`: with the rows of the inverse,
+    /// how normals map.
+    fn transpose_vector(&self, v: Vec3) -> Vec3 {
+        let m = &self.0;
+        let c = |j: usize| (m[0][j] * v.x + m[1][j] * v.y) + m[2][j] * v.z;
+        Vec3::new(c(0), c(1), c(2))
+    }
+
+    /// The translation column.
+    fn translation(&self) -> Vec3 {
+        Vec3::new(self.0[0][3], self.0[1][3], self.0[2][3])
+    }
+}
+
+/// The inverse of an affine map `y = L x + t`, kept as the rows of `L⁻¹` with `t` in the
+/// last column and applied as `L⁻¹ (y − t)`. Subtracting `t` first keeps a point near the
+/// instance exact where `L⁻¹ y − L⁻¹ t` would cancel: near an instance 1e6 from the origin,
+/// `y − t` is exact (Sterbenz) and the object-space point is as good as at the origin.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InverseAffine(pub AffineRows);
+
+impl InverseAffine {
+    /// The inverse of `y = L x + t`: `L⁻¹` computed in f64 and rounded once, `t` as it is.
+    pub fn of(m: &glam::Mat4) -> InverseAffine {
+        let l = glam::DMat3::from_mat4(m.as_dmat4()).inverse();
+        let t = m.w_axis;
+        InverseAffine(AffineRows([0, 1, 2].map(|i| {
+            let r = l.row(i).as_vec3();
+            [r.x, r.y, r.z, t[i]]
+        })))
+    }
+
+    /// The preimage of point `p`.
+    pub fn point(&self, p: Vec3) -> Vec3 {
+        self.0.vector(p - self.0.translation())
+    }
+
+    /// The preimage of direction `v`.
+    pub fn vector(&self, v: Vec3) -> Vec3 {
+        self.0.vector(v)
+    }
+}
+
+/// The world-space hit point of an instance's triangle: the ray is carried into the mesh's
+/// space by `to_object`, the point found there ([`triangle_hit_point`]) and carried back
+/// by `to_world` (`y = L x + t`). The error bound covers, besides the object-space error e,
+///
+/// - the way to the world: the products and the first two sums within γ(3)|L||p|, the
+///   last sum, adding t, within γ(1)|y|, and e carried by L: (1 + γ(3))|L| e;
+/// - the way back: an AO ray from this point enters the instance again through
+///   `to_object`, whose f32 entries are within half an ulp of the exact `L⁻¹`, and which
+///   rounds `y − t` and then three times more: its origin lands within
+///   γ(5)|L⁻¹||y − t| of the exact preimage of the world origin; carried to the world by
+///   L (which preserves sides exactly in real arithmetic), that is |L| times it. `|y − t|`
+///   is taken at the hit point plus twice the first error, for the offset of the origin;
+///   what the offset's own share of the way back adds, at most γ(5)‖|L||L⁻¹|‖ of the
+///   bound, is covered by the final factor 1 + γ(16).
+///
+/// The world origin is pushed off by the sum, so the object-space origin stays on the
+/// side of the triangle it left. `shaders/intersect.wgsl` (`instance_hit_point`) repeats
+/// the operations.
+pub fn instance_hit_point(
+    to_world: &AffineRows,
+    to_object: &InverseAffine,
+    o: Vec3,
+    d: Vec3,
+    t: f32,
+    v: [Vec3; 3],
+) -> SurfacePoint {
+    let (oo, od) = (to_object.point(o), to_object.vector(d));
+    let (p_object, n_object, e_object) = triangle_hit(oo, od, t, v[0], v[1], v[2]);
+    let p = to_world.point(p_object);
+    let forward = gamma(3) * to_world.abs_apply(p_object.abs(), 0.0)
+        + gamma(1) * p.abs()
+        + (1.0 + gamma(3)) * to_world.abs_apply(e_object, 0.0);
+    let q = (p - to_world.translation()).abs() + 2.0 * forward;
+    let back = to_world.abs_apply(gamma(5) * to_object.0.abs_apply(q, 0.0), 0.0);
+    let n = to_object.0.transpose_vector(n_object).normalize();
+    SurfacePoint { p, n, error: n.abs().dot(forward + back) * (1.0 + gamma(16)) }
 }
 
 /// The hit point of a ray on a sphere, projected back onto the surface (pbrt-v4 §6.8.5):

@@ -105,6 +105,8 @@ pub struct RenderStats {
     pub rays_per_second: f64,
     /// Triangles in the scene.
     pub triangles: usize,
+    /// Placements of meshes placed more than once (their triangles are in `triangles`).
+    pub instances: usize,
     /// Spheres in the scene.
     pub spheres: usize,
     /// Planes in the scene.
@@ -449,7 +451,8 @@ pub fn render_resumable(
         bvh_build_seconds: build_seconds,
         setup_seconds,
         rays_per_second: rays as f64 / acc.render_seconds.max(1e-9),
-        triangles: scene.triangles.len(),
+        triangles: scene.world_triangle_count(),
+        instances: scene.instances.len(),
         spheres: scene.spheres.len(),
         planes: scene.planes.len(),
         adapter: device_info.name,

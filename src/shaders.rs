@@ -2,7 +2,9 @@
 //! generated header that defines the constants Rust and WGSL share (so each is written
 //! once, in Rust).
 
-use crate::bvh::{BVH2_STACK_SIZE, BvhLayout, CWBVH_STACK_SIZE, INVALID_INDEX, PRIM_SPHERE, PRIM_TRIANGLE};
+use crate::bvh::{
+    BVH2_STACK_SIZE, BvhLayout, CWBVH_STACK_SIZE, INVALID_INDEX, PRIM_INSTANCE, PRIM_SPHERE, PRIM_TRIANGLE,
+};
 use crate::gpu::{COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, PROBE_WORKGROUP_SIZE, WORKGROUP_SIZE};
 use crate::sampler::{PERMUTE_WALK_LIMIT, Sampler};
 use crate::sampling::Hemisphere;
@@ -35,6 +37,7 @@ pub fn shared_constants() -> String {
         u("INVALID_INDEX", INVALID_INDEX),
         u("PRIM_TRIANGLE", PRIM_TRIANGLE),
         u("PRIM_SPHERE", PRIM_SPHERE),
+        u("PRIM_INSTANCE", PRIM_INSTANCE),
         u("BVH2_STACK_SIZE", BVH2_STACK_SIZE),
         u("CWBVH_STACK_SIZE", CWBVH_STACK_SIZE),
         u("WORKGROUP_WIDTH", WORKGROUP_SIZE[0]),

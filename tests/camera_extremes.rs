@@ -19,6 +19,8 @@ fn scene(camera: Camera, planes: Vec<Plane>, spheres: Vec<Sphere>, width: u32, s
         camera,
         settings: Settings { width, height: width, spp, ..Default::default() },
         triangles: Vec::new(),
+        meshes: Vec::new(),
+        instances: Vec::new(),
         spheres,
         planes,
     }

@@ -838,16 +838,20 @@ fn a_mesh_placed_several_times_gives_each_placement() {
     std::fs::write(&scene_path, text).unwrap();
     let scene = Scene::load(&scene_path).unwrap_or_else(|e| panic!("{e}"));
 
-    let mut want = load_mesh(&mesh, 0.5, &placements[0]).unwrap();
-    want.extend(load_mesh(&teapot, 0.7, &placements[0]).unwrap());
+    // The mesh placed three times is kept once, as three instances; the teapot, placed
+    // once, is in the world. Flattened, the instances follow it in their order.
+    assert_eq!((scene.meshes.len(), scene.instances.len()), (1, 3));
+    let flat = scene.flattened().triangles;
+    let mut want = load_mesh(&teapot, 0.7, &placements[0]).unwrap();
+    want.extend(load_mesh(&mesh, 0.5, &placements[0]).unwrap());
     want.extend(load_mesh(&mesh, 0.6, &placements[1]).unwrap());
     want.extend(load_mesh(&mesh, 0.8, &placements[2]).unwrap());
-    assert_eq!(scene.triangles.len(), want.len());
-    assert!(scene.triangles == want, "the placements differ from loading each on its own");
+    assert_eq!(flat.len(), want.len());
+    assert!(flat == want, "the placements differ from loading each on its own");
     // The placements are distinct: a cache that reused the first one would repeat it.
     let n = load_mesh(&mesh, 1.0, &Mat4::IDENTITY).unwrap().len();
     let teapot_n = load_mesh(&teapot, 1.0, &Mat4::IDENTITY).unwrap().len();
-    assert_ne!(scene.triangles[0].v, scene.triangles[n + teapot_n].v);
+    assert_ne!(flat[teapot_n].v, flat[teapot_n + n].v);
 }
 
 #[test]

@@ -48,6 +48,20 @@ pub fn key(scene: &Scene, sampling: ReferenceSampling) -> String {
         }
         h.update(&buf);
     }
+    // Instanced meshes and their placements (nothing for a scene without them).
+    for m in &scene.meshes {
+        h.update(&(m.triangles.len() as u64).to_le_bytes());
+        for t in &m.triangles {
+            for v in t {
+                h.update(bytemuck::cast_slice(&v.to_array()));
+            }
+        }
+    }
+    for i in &scene.instances {
+        h.update(&i.mesh.to_le_bytes());
+        h.update(bytemuck::cast_slice(&i.to_world.to_cols_array()));
+        h.update(&i.albedo.to_bits().to_le_bytes());
+    }
     h.update(&(scene.spheres.len() as u64).to_le_bytes());
     for sp in &scene.spheres {
         for c in [sp.center.x, sp.center.y, sp.center.z, sp.radius, sp.albedo] {

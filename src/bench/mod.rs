@@ -742,12 +742,12 @@ fn bench_scene(
     let px = width as u64 * height as u64;
     let targets = checkpoints(sp.max_spp);
 
-    tracker.stage(format!("{prefix}: building the BVH ({} triangles)", scene.triangles.len()));
+    tracker.stage(format!("{prefix}: building the BVH ({} triangles)", scene.world_triangle_count()));
     let t = Instant::now();
     let cwbvh = build_cwbvh(&scene, BuildQuality::Medium);
     let bvh_build_seconds = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let gpu_bvh = cwbvh.as_ref().map(|b| GpuBvh::from_cwbvh(&scene, b)).unwrap_or_default();
+    let gpu_bvh = GpuBvh::from_cwbvh(&scene, &cwbvh);
     let bvh_convert_seconds = t.elapsed().as_secs_f64();
     let bvh_nodes = gpu_bvh.node_count as usize;
 
@@ -899,7 +899,7 @@ fn bench_scene(
     Ok(SceneResult {
         name,
         source: sp.path.as_ref().map_or_else(|| "built-in".into(), |p| p.display().to_string()),
-        triangles: scene.triangles.len(),
+        triangles: scene.world_triangle_count(),
         spheres: scene.spheres.len(),
         planes: scene.planes.len(),
         width,
@@ -962,7 +962,7 @@ fn bvh_presets(
         let cwbvh = build_cwbvh(&scene, q);
         let build_seconds = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let gpu_bvh = cwbvh.as_ref().map(|b| GpuBvh::from_cwbvh(&scene, b)).unwrap_or_default();
+        let gpu_bvh = GpuBvh::from_cwbvh(&scene, &cwbvh);
         let convert_seconds = t.elapsed().as_secs_f64();
         let nodes = gpu_bvh.node_count as usize;
         let raw = gpu_run(ctx, &scene, &gpu_bvh, &[plan.scaling_spp], tracker)?;
@@ -984,7 +984,7 @@ fn bvh_presets(
         });
         out.push(PresetResult {
             scene: name.into(),
-            triangles: scene.triangles.len(),
+            triangles: scene.world_triangle_count(),
             preset: preset_name(q).into(),
             build_seconds,
             convert_seconds,

@@ -1,7 +1,10 @@
 //! The TOML scene format (documented in the README). Unknown fields are errors.
 
 use super::mesh::IndexedMesh;
-use super::{Plane, Scene, Settings, Sphere, Triangle, non_finite_coordinate, place_mesh, read_mesh};
+use super::{
+    Instance, InstancedMesh, Plane, Scene, Settings, Sphere, Triangle, mesh_triangles, non_finite_coordinate,
+    place_mesh, read_mesh,
+};
 use crate::camera::{Camera, Projection};
 use crate::error::{Error, Result};
 use crate::sampler::Sampler;
@@ -9,6 +12,18 @@ use crate::sampling::Hemisphere;
 use glam::{Mat4, Vec3};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
+
+/// Fails when a vertex of `mesh` (as read from `path`) has a non-finite coordinate under `m`,
+/// naming it as `place_mesh` does.
+fn check_placement(path: &Path, mesh: &IndexedMesh, m: &Mat4) -> Result<(), Error> {
+    for (k, p) in mesh.positions.iter().enumerate() {
+        if let Some(c) = non_finite_coordinate(m.transform_point3(*p)) {
+            let name = mesh.names.name(k, *p);
+            return Err(Error::scene(path, format!("{name} has a non-finite coordinate after the transform ({c})")));
+        }
+    }
+    Ok(())
+}
 
 /// The default scene's text, compiled in so the binary renders without any files.
 pub const DEFAULT_SCENE: &str = include_str!("../../scenes/aobench.toml");
@@ -242,15 +257,18 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
     let mut triangles: Vec<Triangle> = Vec::new();
     let mut spheres = Vec::new();
     let mut planes = Vec::new();
-    // Mesh files placed by several objects are read once and kept until their last object:
-    // (path, objects still to place it, the mesh as read).
-    let mut meshes: Vec<(PathBuf, usize, Option<IndexedMesh>)> = Vec::new();
+    // Mesh files placed by several objects become instanced meshes: read once, kept in
+    // their own space, each object an instance. (path, objects placing it, its index in
+    // `meshes` once read).
+    let mut mesh_uses: Vec<(PathBuf, usize, Option<(u32, IndexedMesh)>)> = Vec::new();
+    let mut meshes: Vec<InstancedMesh> = Vec::new();
+    let mut instances: Vec<Instance> = Vec::new();
     for object in &file.objects {
         if let Object::Mesh(m) = object {
             let path = base_dir.join(&m.file);
-            match meshes.iter_mut().find(|(p, _, _)| *p == path) {
+            match mesh_uses.iter_mut().find(|(p, _, _)| *p == path) {
                 Some((_, uses, _)) => *uses += 1,
-                None => meshes.push((path, 1, None)),
+                None => mesh_uses.push((path, 1, None)),
             }
         }
     }
@@ -278,18 +296,30 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
                     Error::Scene { message, .. } => fail(message),
                     e => e,
                 };
-                let entry = meshes.iter_mut().find(|(p, _, _)| *p == path).expect("every mesh path was counted");
-                let read = match entry.2.take() {
-                    Some(read) => read,
-                    None => read_mesh(&path).map_err(in_scene_error)?,
-                };
-                let mut read = read;
+                let entry = mesh_uses.iter_mut().find(|(p, _, _)| *p == path).expect("every mesh path was counted");
+                if entry.1 == 1 && entry.2.is_none() {
+                    let mut read = read_mesh(&path).map_err(in_scene_error)?;
+                    let positions = std::mem::take(&mut read.positions);
+                    triangles.extend(place_mesh(&path, positions, &read, albedo, &m).map_err(in_scene_error)?);
+                    continue;
+                }
+                if entry.2.is_none() {
+                    let read = read_mesh(&path).map_err(in_scene_error)?;
+                    let tris = read.triangles.iter().map(|t| t.map(|k| read.positions[k as usize]));
+                    let tris = mesh_triangles(&path, tris, albedo).map_err(in_scene_error)?;
+                    meshes.push(InstancedMesh {
+                        name: path.display().to_string(),
+                        triangles: tris.into_iter().map(|t| t.v).collect(),
+                    });
+                    entry.2 = Some((meshes.len() as u32 - 1, read));
+                }
+                let (index, read) = entry.2.as_ref().expect("read above");
+                check_placement(&path, read, &m).map_err(in_scene_error)?;
+                instances.push(Instance { mesh: *index, to_world: m, albedo });
+                // The file's vertices are kept for the checks of its later instances only.
                 entry.1 -= 1;
-                // The last object takes the vertices; the others transform a copy.
-                let positions = if entry.1 > 0 { read.positions.clone() } else { std::mem::take(&mut read.positions) };
-                triangles.extend(place_mesh(&path, positions, &read, albedo, &m).map_err(in_scene_error)?);
-                if entry.1 > 0 {
-                    entry.2 = Some(read);
+                if entry.1 == 0 {
+                    entry.2 = None;
                 }
             }
             Object::Sphere(s) => {
@@ -337,5 +367,5 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
         }
     }
     let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
-    Ok(Scene { name, camera, settings, triangles, spheres, planes })
+    Ok(Scene { name, camera, settings, triangles, meshes, instances, spheres, planes })
 }

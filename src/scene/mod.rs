@@ -52,6 +52,41 @@ pub struct Plane {
     pub albedo: f32,
 }
 
+/// A mesh placed by several objects of a scene file, kept once in its own space: each
+/// placement is an [`Instance`] that carries rays into this space rather than copying the
+/// triangles into the world (two-level BVH, `src/bvh.rs`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct InstancedMesh {
+    /// The mesh file, for messages.
+    pub name: String,
+    /// Triangles in the mesh's own space, degenerate ones dropped.
+    pub triangles: Vec<[Vec3; 3]>,
+}
+
+/// One placement of an [`InstancedMesh`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Instance {
+    /// Index into `Scene::meshes`.
+    pub mesh: u32,
+    /// Object to world, as the scene file gives it: every vertex of the mesh is finite
+    /// under it.
+    pub to_world: glam::Mat4,
+    /// Diffuse reflectance ρ of this placement.
+    pub albedo: f32,
+}
+
+impl Instance {
+    /// Object to world as three rows `(m0, m1, m2, t)` (what the kernels read).
+    pub fn to_world_rows(&self) -> crate::geometry::AffineRows {
+        crate::geometry::AffineRows::from_mat4(&self.to_world)
+    }
+
+    /// World to object: the inverse of `to_world`.
+    pub fn to_object(&self) -> crate::geometry::InverseAffine {
+        crate::geometry::InverseAffine::of(&self.to_world)
+    }
+}
+
 /// Image size and sampling defaults; command-line options override them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Settings {
@@ -121,8 +156,12 @@ pub struct Scene {
     pub camera: Camera,
     /// Render settings.
     pub settings: Settings,
-    /// Triangles of all meshes, transformed to world space.
+    /// Triangles of meshes placed once, transformed to world space.
     pub triangles: Vec<Triangle>,
+    /// Meshes placed more than once, each in its own space.
+    pub meshes: Vec<InstancedMesh>,
+    /// Placements of `meshes`.
+    pub instances: Vec<Instance>,
     /// Spheres.
     pub spheres: Vec<Sphere>,
     /// Infinite planes.
@@ -176,6 +215,8 @@ impl Scene {
             },
             settings: Settings::default(),
             triangles,
+            meshes: Vec::new(),
+            instances: Vec::new(),
             spheres: Vec::new(),
             planes: Vec::new(),
         };
@@ -196,14 +237,39 @@ impl Scene {
         }
     }
 
-    /// Bytes of the geometry held on the host: triangles, spheres and planes.
+    /// Bytes of the geometry held on the host: triangles, instanced meshes, instances,
+    /// spheres and planes.
     pub fn geometry_bytes(&self) -> u64 {
+        let mesh_triangles: usize = self.meshes.iter().map(|m| m.triangles.len()).sum();
         (self.triangles.len() * std::mem::size_of::<Triangle>()
+            + mesh_triangles * std::mem::size_of::<[Vec3; 3]>()
+            + self.instances.len() * std::mem::size_of::<Instance>()
             + self.spheres.len() * std::mem::size_of::<Sphere>()
             + self.planes.len() * std::mem::size_of::<Plane>()) as u64
     }
 
-    /// Bounds of triangles and spheres; `None` when the scene has neither.
+    /// Triangles in the world: those placed once and every placement of an instanced mesh.
+    pub fn world_triangle_count(&self) -> usize {
+        self.triangles.len()
+            + self.instances.iter().map(|i| self.meshes[i.mesh as usize].triangles.len()).sum::<usize>()
+    }
+
+    /// The scene with every instance's triangles transformed into the world and added to
+    /// `triangles`, as the loader placed meshes before instancing (each vertex through
+    /// `Mat4::transform_point3`, degenerate results dropped).
+    pub fn flattened(&self) -> Scene {
+        let mut scene = Scene { meshes: Vec::new(), instances: Vec::new(), ..self.clone() };
+        for instance in &self.instances {
+            let m = &instance.to_world;
+            let world = self.meshes[instance.mesh as usize].triangles.iter().map(|t| t.map(|v| m.transform_point3(v)));
+            scene
+                .triangles
+                .extend(world.filter(|&v| !is_degenerate(v)).map(|v| Triangle { v, albedo: instance.albedo }));
+        }
+        scene
+    }
+
+    /// Bounds of triangles, instances and spheres; `None` when the scene has none.
     pub fn bounds(&self) -> Option<Bounds> {
         let mut min = Vec3::splat(f32::INFINITY);
         let mut max = Vec3::splat(f32::NEG_INFINITY);
@@ -213,6 +279,15 @@ impl Scene {
                 max = max.max(v);
             }
         }
+        for instance in &self.instances {
+            for t in &self.meshes[instance.mesh as usize].triangles {
+                for v in t {
+                    let w = instance.to_world.transform_point3(*v);
+                    min = min.min(w);
+                    max = max.max(w);
+                }
+            }
+        }
         for s in &self.spheres {
             min = min.min(s.center - s.radius);
             max = max.max(s.center + s.radius);
@@ -220,9 +295,9 @@ impl Scene {
         (min.x <= max.x).then_some(Bounds { min, max })
     }
 
-    /// Number of primitives the BVH holds (triangles and spheres).
+    /// Number of primitives the top-level BVH holds (triangles, spheres and instances).
     pub fn finite_primitive_count(&self) -> usize {
-        self.triangles.len() + self.spheres.len()
+        self.triangles.len() + self.spheres.len() + self.instances.len()
     }
 }
 
@@ -231,6 +306,12 @@ impl Scene {
 /// denormals may flush to zero, too), so the triangle is dropped. Such a triangle has no
 /// area to hit (twice its area is below 2^-60 ≈ 8.7e-19 world units²).
 pub const MIN_NORMAL_LENGTH_SQUARED: f32 = f32::from_bits((127 - 120) << 23); // 2^-120
+/// Whether a triangle's normal is too small to keep (see [`MIN_NORMAL_LENGTH_SQUARED`]).
+pub(crate) fn is_degenerate(v: [Vec3; 3]) -> bool {
+    let n = (v[1] - v[0]).cross(v[2] - v[0]);
+    !(n.dot(n) >= MIN_NORMAL_LENGTH_SQUARED)
+}
+
 /// Largest squared normal length accepted: above it normalizing could overflow.
 pub const MAX_NORMAL_LENGTH_SQUARED: f32 = f32::from_bits((127 + 120) << 23); // 2^120
 

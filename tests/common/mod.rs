@@ -103,3 +103,61 @@ pub fn aorender(args: &[&str], cwd: &std::path::Path) -> std::process::Output {
         .output()
         .expect("aorender runs")
 }
+
+/// Independent renders agree: the image means within 4 standard errors, and the
+/// per-pixel z-scores have mean square within 4 of its own standard errors of the value
+/// expected for two estimates whose variances are themselves estimated from n samples.
+pub fn assert_statistical_agreement(gpu: &Film, cpu: &Film, what: &str) {
+    let (mg, mc) = (gpu.image_mean(), cpu.image_mean());
+    let (sg, sc) = (image_mean_std_error(gpu), image_mean_std_error(cpu));
+    let sigma = (sg * sg + sc * sc).sqrt();
+    assert!(sigma > 0.0, "{what}: zero variance, the test could not detect a difference");
+    assert!(
+        (mg - mc).abs() <= 4.0 * sigma,
+        "{what}: image means {mg} (GPU) and {mc} (CPU) differ by more than 4σ = {}",
+        4.0 * sigma
+    );
+
+    let (a, b) = (gpu.mean(), cpu.mean());
+    let (ea, eb) = (gpu.std_error(), cpu.std_error());
+    let z2: Vec<f64> = (0..a.len())
+        .filter(|&i| ea[i] > 0.0 || eb[i] > 0.0 || a[i] != b[i])
+        .map(|i| (a[i] - b[i]).powi(2) / (ea[i] * ea[i] + eb[i] * eb[i]))
+        .collect();
+    assert!(z2.len() > 100, "{what}: only {} pixels vary", z2.len());
+    let m = z2.iter().sum::<f64>() / z2.len() as f64;
+    let sd = (z2.iter().map(|z| (z - m).powi(2)).sum::<f64>() / (z2.len() - 1) as f64).sqrt();
+    let se = sd / (z2.len() as f64).sqrt();
+    // A t-distributed z with ν = 2(n - 1) degrees of freedom has E[z²] = ν/(ν - 2).
+    let nu = 2.0 * (gpu.samples as f64 - 1.0);
+    let expected = nu / (nu - 2.0);
+    eprintln!("{what}: mean {mg:.5} vs {mc:.5} (σ {sigma:.2e}); mean z² {m:.3} ± {se:.3} over {} pixels", z2.len());
+    assert!((m - expected).abs() <= 4.0 * se, "{what}: mean z² {m} is not {expected} ± 4·{se}");
+}
+
+/// A bumpy floor with an open-bottomed box on it: 1,162 triangles.
+pub fn floor_and_box() -> Vec<[[f32; 3]; 3]> {
+    let mut tris = Vec::new();
+    let n = 24;
+    let h = |i: usize, j: usize| 0.15 * ((i as f32 * 0.7).sin() * (j as f32 * 0.5).cos());
+    let p = |i: usize, j: usize| [i as f32 / n as f32 * 4.0 - 2.0, h(i, j), j as f32 / n as f32 * 4.0 - 2.0];
+    for i in 0..n {
+        for j in 0..n {
+            tris.push([p(i, j), p(i + 1, j), p(i + 1, j + 1)]);
+            tris.push([p(i, j), p(i + 1, j + 1), p(i, j + 1)]);
+        }
+    }
+    let c = |x: f32, y: f32, z: f32| [x * 0.5, y * 0.8, z * 0.5];
+    let quads = [
+        [c(-1., 0., -1.), c(1., 0., -1.), c(1., 1., -1.), c(-1., 1., -1.)],
+        [c(-1., 0., 1.), c(1., 0., 1.), c(1., 1., 1.), c(-1., 1., 1.)],
+        [c(-1., 0., -1.), c(-1., 0., 1.), c(-1., 1., 1.), c(-1., 1., -1.)],
+        [c(1., 0., -1.), c(1., 0., 1.), c(1., 1., 1.), c(1., 1., -1.)],
+        [c(-1., 1., -1.), c(1., 1., -1.), c(1., 1., 1.), c(-1., 1., 1.)],
+    ];
+    for q in quads {
+        tris.push([q[0], q[1], q[2]]);
+        tris.push([q[0], q[2], q[3]]);
+    }
+    tris
+}
