@@ -303,18 +303,23 @@ impl GpuBvh {
         let Some(top) = &bvh.top else {
             return GpuBvh { layout: BvhLayout::Cwbvh, ..Default::default() };
         };
-        let mut nodes: Vec<CwBvhNode> = top.nodes.clone();
+        // Nodes go straight into the upload bytes: no second array of them on the host.
+        let mut node_bytes: Vec<u8> = bytemuck::cast_slice(&top.nodes).to_vec();
+        let node_size = std::mem::size_of::<CwBvhNode>();
         let mut primitives: Vec<GpuPrimitive> =
             top.primitive_indices.iter().map(|&id| gpu_primitive(scene, id as usize)).collect();
         let mut roots = Vec::with_capacity(bvh.meshes.len());
         for (mesh, blas) in scene.meshes.iter().zip(&bvh.meshes) {
-            let (node_base, prim_base) = (nodes.len() as u32, primitives.len() as u32);
+            let (node_base, prim_base) = ((node_bytes.len() / node_size) as u32, primitives.len() as u32);
             roots.push(node_base);
-            nodes.extend(blas.nodes.iter().map(|n| CwBvhNode {
-                child_base_idx: n.child_base_idx + node_base,
-                primitive_base_idx: n.primitive_base_idx + prim_base,
-                ..*n
-            }));
+            for n in &blas.nodes {
+                let moved = CwBvhNode {
+                    child_base_idx: n.child_base_idx + node_base,
+                    primitive_base_idx: n.primitive_base_idx + prim_base,
+                    ..*n
+                };
+                node_bytes.extend_from_slice(bytemuck::bytes_of(&moved));
+            }
             primitives.extend(blas.primitive_indices.iter().map(|&i| mesh_primitive(&mesh.triangles[i as usize])));
         }
         let data_base = primitives.len() as u32;
@@ -331,8 +336,8 @@ impl GpuBvh {
         let depth = cwbvh_depth(top) + bvh.meshes.iter().map(cwbvh_depth).max().unwrap_or(0);
         GpuBvh {
             layout: BvhLayout::Cwbvh,
-            node_bytes: bytemuck::cast_slice(&nodes).to_vec(),
-            node_count: nodes.len() as u32,
+            node_count: (node_bytes.len() / node_size) as u32,
+            node_bytes,
             primitives,
             depth,
         }
