@@ -5,7 +5,7 @@
 //! rotation and translation. Flattened, every copy's triangles are transformed to world
 //! space and one CWBVH holds all of them (A; what `Scene::flattened` gives, and what the
 //! renderer did before it kept instances). The alternative, which the renderer now uses
-//! (`src/bvh.rs`), is two levels (B): one CWBVH over the mesh in its own space (the BLAS), a CWBVH over the nine
+//! (`src/bvh/mod.rs`), is two levels (B): one CWBVH over the mesh in its own space (the BLAS), a CWBVH over the nine
 //! instances' world-space boxes (the TLAS), and each ray carried into an instance's space by
 //! the inverse of its affine transform. The direction is transformed but not renormalized,
 //! so a hit distance `t` means the same in both spaces, scaled instances included, and one

@@ -61,7 +61,7 @@ fn shade_sample(px: vec2u, u: vec4f) -> f32 {
         let plane = planes[hit.index];
         surface = plane_hit_point(o, d, hit.t, plane.normal, plane.point);
         albedo = plane.albedo;
-    } else if (hit.instance != NO_INSTANCE) {
+    } else if (HAS_INSTANCES && hit.instance != NO_INSTANCE) {
         // The instance record: (index, root node, first data record, albedo); the data is
         // world-to-object rows, then object-to-world rows.
         let record = load_primitive(hit.instance);

@@ -13,6 +13,10 @@ const HIT_PLANE: u32 = 2u;
 // Top-level traversal (no instance entered).
 const NO_INSTANCE: u32 = 0xffffffffu;
 
+// Whether the BVH has instances (src/gpu/mod.rs sets it per scene): without them the
+// compiler drops the instance paths of traversal and shading.
+override HAS_INSTANCES: bool = true;
+
 struct Hit {
     t: f32,
     kind: u32,      // HIT_*

@@ -122,7 +122,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             prim_group.y &= ~(1u << local);
             let slot = prim_group.x + local;
             let p = load_primitive(slot);
-            if (bitcast<u32>(p.b.w) == PRIM_INSTANCE) {
+            if (HAS_INSTANCES && bitcast<u32>(p.b.w) == PRIM_INSTANCE) {
                 instance = slot;
                 base_sp = sp;
                 top_node_group = node_group;
@@ -159,7 +159,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             if (sp > base_sp) {
                 sp -= 1u;
                 node_group = stack[sp];
-            } else if (instance != NO_INSTANCE) {
+            } else if (HAS_INSTANCES && instance != NO_INSTANCE) {
                 instance = NO_INSTANCE;
                 base_sp = 0u;
                 ray = ray_state(o, d);

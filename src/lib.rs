@@ -25,6 +25,7 @@ pub mod error;
 pub mod film;
 pub mod geometry;
 pub mod gpu;
+pub mod memory;
 pub mod probe;
 pub mod render;
 pub mod sampler;

@@ -312,6 +312,10 @@ struct ProbeArgs {
     sampler: Option<Sampler>,
 }
 
+/// Counts aorender's heap, for the `heap_peak_bytes` statistic.
+#[global_allocator]
+static HEAP: aorender::memory::CountingAlloc = aorender::memory::CountingAlloc;
+
 fn main() {
     // A panic inside wgpu that the library turns into an error is reported as that error.
     let default_hook = std::panic::take_hook();

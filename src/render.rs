@@ -136,8 +136,15 @@ pub struct RenderStats {
     pub geometry_storage: String,
     /// Bytes of the scene's geometry on the host: its triangles, spheres and planes.
     pub scene_bytes: u64,
+    /// Bytes of the BVH as traversed: its nodes and primitive records, as uploaded to the
+    /// device (GPU) or held by the tracer (CPU).
+    pub bvh_bytes: u64,
     /// Peak resident memory of the process so far, in bytes (Linux; 0 elsewhere).
     pub host_peak_bytes: u64,
+    /// The most bytes aorender's own heap held at once so far: the loaded scene, the BVH
+    /// build's workspace, the bytes prepared for upload; not the driver's. `None` when the
+    /// program did not install `memory::CountingAlloc`.
+    pub heap_peak_bytes: Option<u64>,
     /// Seconds to read and parse the scene and its meshes: set by the caller that loaded
     /// it (`aorender render` does), 0 for a scene made in memory.
     pub load_seconds: f64,
@@ -387,7 +394,7 @@ pub fn render_resumable(
     };
     let resumed = acc.samples();
     let partial = acc.partial.take();
-    let (run, build_seconds, setup_seconds, device_info, on_device) = match options.device {
+    let (run, build_seconds, setup_seconds, device_info, on_device, bvh_bytes) = match options.device {
         Device::Gpu => {
             let mut ctx = GpuContext::new(options.adapter.as_deref())?;
             if let Some(storage) = options.geometry_storage {
@@ -399,6 +406,7 @@ pub fn render_resumable(
             let build_seconds = build.elapsed().as_secs_f64();
             let setup = Instant::now();
             let mut renderer = GpuRenderer::new(&ctx, scene, &gpu_bvh)?;
+            let bvh_bytes = gpu_bvh.bytes();
             drop(gpu_bvh);
             let setup_seconds = setup.elapsed().as_secs_f64();
             acc.adapter = ctx.description.name.clone();
@@ -408,12 +416,13 @@ pub fn render_resumable(
             }
             let run = accumulate(scene, options, &mut acc, &mut device, &mut save, interval, progress)?;
             let bytes = (renderer.device_bytes, renderer.geometry_bindings, renderer.geometry_storage.name());
-            (run, build_seconds, setup_seconds, ctx.description.clone(), bytes)
+            (run, build_seconds, setup_seconds, ctx.description.clone(), bytes, bvh_bytes)
         }
         Device::Cpu => {
             let build = Instant::now();
             let cwbvh = bvh::build_cwbvh(scene, options.bvh_quality);
             let build_seconds = build.elapsed().as_secs_f64();
+            let bvh_bytes = bvh::cwbvh_bytes(&cwbvh);
             let d = crate::gpu::AdapterDescription {
                 name: "cpu".into(),
                 backend: "cpu".into(),
@@ -427,7 +436,7 @@ pub fn render_resumable(
                 device.load(block)?;
             }
             let run = accumulate(scene, options, &mut acc, &mut device, &mut save, interval, progress)?;
-            (run, build_seconds, 0.0, d, (0, 0, ""))
+            (run, build_seconds, 0.0, d, (0, 0, ""), bvh_bytes)
         }
     };
     let film = acc.film().map_err(|m| Error::scene(&scene.name, m))?;
@@ -467,18 +476,12 @@ pub fn render_resumable(
         geometry_bindings,
         geometry_storage: geometry_storage.into(),
         scene_bytes: scene.geometry_bytes(),
-        host_peak_bytes: peak_rss_bytes().unwrap_or(0),
+        bvh_bytes,
+        host_peak_bytes: crate::memory::peak_rss_bytes().unwrap_or(0),
+        heap_peak_bytes: crate::memory::heap_peak_bytes(),
         load_seconds: 0.0,
         passes: acc.passes,
         image_mean: film.image_mean(),
     };
     Ok(RenderOutput { film, stats, accumulation: acc })
-}
-
-/// Peak resident memory of this process (Linux's VmHWM), in bytes.
-pub fn peak_rss_bytes() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
 }

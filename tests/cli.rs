@@ -119,6 +119,8 @@ fn render_writes_image_and_stats() {
                 "load_seconds",
                 "scene_bytes",
                 "host_peak_bytes",
+                "heap_peak_bytes",
+                "bvh_bytes",
                 "device_bytes",
             ] {
                 assert!(json.get(key).is_some(), "{device}: stats lack {key}");
@@ -130,6 +132,9 @@ fn render_writes_image_and_stats() {
             assert_eq!(scene_bytes, expected as u64, "{device}");
             let peak = json["host_peak_bytes"].as_u64().unwrap();
             assert!(peak > 1 << 20, "{device}: peak resident memory {peak} bytes");
+            let heap = json["heap_peak_bytes"].as_u64().expect("the binary counts its heap");
+            assert!(heap >= scene_bytes && heap <= peak, "{device}: heap peak {heap} bytes, resident peak {peak}");
+            assert!(json["bvh_bytes"].as_u64().unwrap() > 0, "{device}");
             assert!(json["load_seconds"].as_f64().unwrap() > 0.0, "{device}");
             if device == "gpu" {
                 assert!(json["device_bytes"].as_u64().unwrap() > 0, "{device}");

@@ -909,7 +909,7 @@ fn bench_scene(
         bvh_build_seconds,
         bvh_convert_seconds,
         bvh_nodes,
-        peak_rss_bytes: crate::render::peak_rss_bytes(),
+        peak_rss_bytes: crate::memory::peak_rss_bytes(),
         reference: ReferenceInfo {
             samples: reference.samples,
             seed: ref_seed,

@@ -328,7 +328,7 @@ impl GpuContext {
     /// The bind group layout and pipeline of `kernel` over `layout`, compiled on first use.
     /// The bool is true when it was compiled just now.
     fn pipeline(&self, key: PipelineKey) -> Result<(wgpu::BindGroupLayout, wgpu::ComputePipeline, bool)> {
-        let PipelineKey { layout, kernel, chunks } = key;
+        let PipelineKey { layout, kernel, chunks, instances } = key;
         let mut cache = self.pipelines.lock().expect("pipeline cache");
         if let Some((_, l, p)) = cache.iter().find(|(k, _, _)| *k == key) {
             return Ok((l.clone(), p.clone(), false));
@@ -387,7 +387,11 @@ impl GpuContext {
                 Kernel::Image => "render_sample",
                 Kernel::Probe => "probe_sample",
             }),
-            compilation_options: Default::default(),
+            // Specialized per scene: a scene without instances compiles without their paths.
+            compilation_options: wgpu::PipelineCompilationOptions {
+                constants: &[("HAS_INSTANCES", if instances { 1.0 } else { 0.0 })],
+                ..Default::default()
+            },
             cache: None,
         });
         cache.push((key, bind_group_layout.clone(), pipeline.clone()));
@@ -475,6 +479,8 @@ struct PipelineKey {
     layout: BvhLayout,
     kernel: Kernel,
     chunks: GeometryChunks,
+    /// Whether the BVH has instances (the shaders' `HAS_INSTANCES`).
+    instances: bool,
 }
 
 /// Storage bindings of the kernel besides the node and primitive chunks: frame,
@@ -526,24 +532,62 @@ pub struct GpuRenderer<'a> {
 
 /// `bytes` in chunks of `per_chunk` elements of `element` bytes; one empty chunk when
 /// `bytes` is empty.
-fn chunk_bytes(bytes: &[u8], element: usize, per_chunk: u32) -> impl Iterator<Item = &[u8]> {
-    let chunk = (element * per_chunk as usize).max(1);
-    let empty: &[u8] = &[];
-    let first = bytes.is_empty().then_some(empty);
-    first.into_iter().chain(bytes.chunks(chunk))
+fn chunk_ranges(count: usize, per_chunk: u32) -> impl Iterator<Item = std::ops::Range<usize>> {
+    let per_chunk = (per_chunk as usize).max(1);
+    let chunks = count.div_ceil(per_chunk).max(1);
+    (0..chunks).map(move |k| k * per_chunk..((k + 1) * per_chunk).min(count))
+}
+
+/// Bytes filled at a time when an upload is made piece by piece.
+const UPLOAD_PIECE: usize = 1 << 20;
+
+/// Makes bytes `0..len` a piece at a time: each piece, whole elements of about
+/// [`UPLOAD_PIECE`] bytes, is filled by `fill(offset, piece)` and handed to `put(offset,
+/// piece)`.
+fn fill_pieces(len: usize, element: usize, fill: &mut dyn FnMut(usize, &mut [u8]), put: &mut dyn FnMut(usize, &[u8])) {
+    let step = (UPLOAD_PIECE / element).max(1) * element;
+    let mut piece = Vec::with_capacity(step.min(len));
+    for at in (0..len).step_by(step) {
+        piece.resize(step.min(len - at), 0);
+        fill(at, &mut piece);
+        put(at, &piece);
+    }
 }
 
 /// A read-only storage buffer; `element` is the size of one array element in the shader.
 fn storage(ctx: &GpuContext, label: &'static str, bytes: &[u8], element: usize) -> Result<wgpu::Buffer> {
-    // A binding may not be empty: upload one zeroed element for absent data.
-    let zero = vec![0u8; element];
-    let bytes = if bytes.is_empty() { &zero[..] } else { bytes };
-    ctx.check_size(label, bytes.len() as u64)?;
-    Ok(ctx.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+    storage_filled(ctx, label, bytes.len(), element, &mut |at, out| out.copy_from_slice(&bytes[at..at + out.len()]))
+}
+
+/// A read-only storage buffer of `len` bytes written through its mapping by `fill(offset,
+/// piece)`, so no copy of the whole is needed on the host.
+fn storage_filled(
+    ctx: &GpuContext,
+    label: &'static str,
+    len: usize,
+    element: usize,
+    fill: &mut dyn FnMut(usize, &mut [u8]),
+) -> Result<wgpu::Buffer> {
+    // A binding may not be empty: absent data is one zeroed element (wgpu zeroes buffers).
+    let size = len.max(element) as u64;
+    ctx.check_size(label, size)?;
+    let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),
-        contents: bytes,
+        size,
         usage: wgpu::BufferUsages::STORAGE,
-    }))
+        mapped_at_creation: true,
+    });
+    let mut mapped = Ok(());
+    fill_pieces(len, element, fill, &mut |at, piece| {
+        let range = at as u64..(at + piece.len()) as u64;
+        match buffer.slice(range).get_mapped_range_mut() {
+            Ok(mut view) => view.copy_from_slice(piece),
+            Err(e) => mapped = Err(ctx.fault(format!("cannot write the mapped {label} buffer: {e}"))),
+        }
+    });
+    mapped?;
+    buffer.unmap();
+    Ok(buffer)
 }
 
 /// One chunk of nodes or primitives on the device.
@@ -553,17 +597,19 @@ enum Geometry {
 }
 
 impl Geometry {
-    /// Uploads `bytes`, elements of `element` bytes, as `chunks` says.
+    /// Uploads `len` bytes, elements of `element` bytes, as `chunks` says; `fill(offset,
+    /// piece)` writes them a piece at a time.
     fn upload(
         ctx: &GpuContext,
         label: &'static str,
-        bytes: &[u8],
+        len: usize,
         element: usize,
         chunks: GeometryChunks,
+        fill: &mut dyn FnMut(usize, &mut [u8]),
     ) -> Result<Geometry> {
         match chunks.storage {
-            GeometryStorage::Buffers => storage(ctx, label, bytes, element).map(Geometry::Buffer),
-            GeometryStorage::Textures => texels(ctx, label, bytes, chunks.row_texels),
+            GeometryStorage::Buffers => storage_filled(ctx, label, len, element, fill).map(Geometry::Buffer),
+            GeometryStorage::Textures => texels(ctx, label, len, element, chunks.row_texels, fill),
         }
     }
 
@@ -582,21 +628,29 @@ impl Geometry {
     }
 }
 
-/// An `Rgba32Uint` texture `row_texels` wide holding `bytes` row after row (elements
-/// never straddle rows: `row_texels` is a multiple of their texels), written straight from
-/// `bytes` without a padded copy.
-fn texels(ctx: &GpuContext, label: &'static str, bytes: &[u8], row_texels: u32) -> Result<Geometry> {
+/// An `Rgba32Uint` texture `row_texels` wide holding `len` bytes row after row (elements
+/// of `element` bytes never straddle rows: `row_texels` is a multiple of their texels),
+/// written by `fill(offset, piece)` a few rows at a time.
+fn texels(
+    ctx: &GpuContext,
+    label: &'static str,
+    len: usize,
+    element: usize,
+    row_texels: u32,
+    fill: &mut dyn FnMut(usize, &mut [u8]),
+) -> Result<Geometry> {
     const TEXEL: usize = 16;
-    debug_assert_eq!(bytes.len() % TEXEL, 0);
+    debug_assert_eq!(len % TEXEL, 0);
     let row_bytes = row_texels as usize * TEXEL;
-    let full_rows = (bytes.len() / row_bytes) as u32;
-    let rest = bytes.len() % row_bytes;
+    debug_assert_eq!(row_bytes % element, 0);
+    let full_rows = (len / row_bytes) as u32;
+    let rest = len % row_bytes;
     let rows = (full_rows + (rest > 0) as u32).max(1);
     let max = ctx.device.limits().max_texture_dimension_2d;
     if rows > max {
         return Err(Error::TooLarge {
             what: label,
-            needed: bytes.len() as u64,
+            needed: len as u64,
             limit: max as u64 * row_bytes as u64,
             limit_name: "max_texture_dimension_2d² texels of 16 bytes",
         });
@@ -628,12 +682,18 @@ fn texels(ctx: &GpuContext, label: &'static str, bytes: &[u8], row_texels: u32) 
             wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
         );
     };
-    if full_rows > 0 {
-        write(0, row_texels, full_rows, &bytes[..full_rows as usize * row_bytes]);
-    }
+    // Pieces of whole rows, then the last, partial row on its own.
+    let whole = full_rows as usize * row_bytes;
+    fill_pieces(whole, row_bytes, fill, &mut |at, piece| {
+        write((at / row_bytes) as u32, row_texels, (piece.len() / row_bytes) as u32, piece)
+    });
     if rest > 0 {
-        write(full_rows, (rest / TEXEL) as u32, 1, &bytes[full_rows as usize * row_bytes..]);
+        let mut piece = vec![0; rest];
+        fill(whole, &mut piece);
+        write(full_rows, (rest / TEXEL) as u32, 1, &piece);
     }
+    // The writes wait in the queue's staging memory until a submission: send them now.
+    ctx.queue.submit([]);
     let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
     Ok(Geometry::Texture(view, rows as u64 * row_bytes as u64))
 }
@@ -702,15 +762,28 @@ impl<'a> GpuRenderer<'a> {
             mapped_at_creation: false,
         });
         let node_size = bvh.layout.node_size();
-        let chunks = ctx.geometry_chunks(bvh.layout, bvh.node_count as usize, bvh.primitives.len())?;
-        let nodes: Vec<Geometry> = chunk_bytes(&bvh.node_bytes, node_size, chunks.nodes_per_chunk)
-            .map(|bytes| Geometry::upload(ctx, "BVH nodes", bytes, node_size, chunks))
+        let record_count = bvh.records.len();
+        let chunks = ctx.geometry_chunks(bvh.layout, bvh.node_count as usize, record_count)?;
+        let nodes: Vec<Geometry> = chunk_ranges(bvh.node_count as usize, chunks.nodes_per_chunk)
+            .map(|r| {
+                let bytes = &bvh.node_bytes[r.start * node_size..r.end * node_size];
+                Geometry::upload(ctx, "BVH nodes", bytes.len(), node_size, chunks, &mut |at, out| {
+                    out.copy_from_slice(&bytes[at..at + out.len()])
+                })
+            })
             .collect::<Result<_>>()?;
         let prim_size = std::mem::size_of::<GpuPrimitive>();
-        let primitives: Vec<Geometry> =
-            chunk_bytes(bytemuck::cast_slice(&bvh.primitives), prim_size, chunks.primitives_per_chunk)
-                .map(|bytes| Geometry::upload(ctx, "primitives", bytes, prim_size, chunks))
-                .collect::<Result<_>>()?;
+        // Records are made from the scene a piece at a time, straight into the upload.
+        let mut piece: Vec<GpuPrimitive> = Vec::new();
+        let primitives: Vec<Geometry> = chunk_ranges(record_count, chunks.primitives_per_chunk)
+            .map(|r| {
+                Geometry::upload(ctx, "primitives", r.len() * prim_size, prim_size, chunks, &mut |at, out| {
+                    piece.resize(out.len() / prim_size, bytemuck::Zeroable::zeroed());
+                    bvh.records.write(scene, r.start + at / prim_size, &mut piece);
+                    out.copy_from_slice(bytemuck::cast_slice(&piece));
+                })
+            })
+            .collect::<Result<_>>()?;
         let planes: Vec<GpuPlane> = scene.planes.iter().map(GpuPlane::from).collect();
         let planes = storage(ctx, "planes", bytemuck::cast_slice(&planes), std::mem::size_of::<GpuPlane>())?;
         let probe_points =
@@ -758,7 +831,13 @@ impl<'a> GpuRenderer<'a> {
             mapped_at_creation: false,
         });
 
-        let (layout, pipeline, fresh) = ctx.pipeline(PipelineKey { layout: bvh.layout, kernel, chunks })?;
+        let (layout, pipeline, fresh) = ctx.pipeline(PipelineKey {
+            layout: bvh.layout,
+            kernel,
+            chunks,
+            // The BVH2 layout flattens instances.
+            instances: bvh.layout == BvhLayout::Cwbvh && !scene.instances.is_empty(),
+        })?;
         let dispatch_binding = wgpu::BufferBinding {
             buffer: &dispatch,
             offset: 0,
@@ -818,12 +897,8 @@ impl<'a> GpuRenderer<'a> {
             Kernel::Image => 2,
             Kernel::Probe => 1,
         };
-        let safe_samples_per_invocation = safe_samples_per_invocation(
-            rays_per_sample,
-            bvh.node_count as usize,
-            bvh.primitives.len(),
-            scene.planes.len(),
-        );
+        let safe_samples_per_invocation =
+            safe_samples_per_invocation(rays_per_sample, bvh.node_count as usize, record_count, scene.planes.len());
         Ok(GpuRenderer {
             ctx,
             pipeline,

@@ -300,7 +300,11 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
                 if entry.1 == 1 && entry.2.is_none() {
                     let mut read = read_mesh(&path).map_err(in_scene_error)?;
                     let positions = std::mem::take(&mut read.positions);
-                    triangles.extend(place_mesh(&path, positions, &read, albedo, &m).map_err(in_scene_error)?);
+                    let placed = place_mesh(&path, positions, &read, albedo, &m).map_err(in_scene_error)?;
+                    // Exact growth: the scene never reserves room it will not fill (a large
+                    // array grows by remapping its pages, not by copying them).
+                    triangles.reserve_exact(placed.len());
+                    triangles.extend(placed);
                     continue;
                 }
                 if entry.2.is_none() {

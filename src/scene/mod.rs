@@ -54,7 +54,7 @@ pub struct Plane {
 
 /// A mesh placed by several objects of a scene file, kept once in its own space: each
 /// placement is an [`Instance`] that carries rays into this space rather than copying the
-/// triangles into the world (two-level BVH, `src/bvh.rs`).
+/// triangles into the world (two-level BVH, `src/bvh/mod.rs`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct InstancedMesh {
     /// The mesh file, for messages.

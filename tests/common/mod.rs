@@ -161,3 +161,19 @@ pub fn floor_and_box() -> Vec<[[f32; 3]; 3]> {
     }
     tris
 }
+
+/// `scenes/dragons.toml` written into `dir` with each of its nine dragons read through a
+/// file name of its own (links to the one file), so they are not instances of one mesh
+/// but 7.8M triangles in one BVH. Returns the scene file.
+pub fn flattened_dragons(dir: &std::path::Path) -> PathBuf {
+    let mut text = std::fs::read_to_string(repo().join("scenes/dragons.toml")).unwrap();
+    for i in 0..9 {
+        let name = format!("dragon{i}.ply.gz");
+        std::os::unix::fs::symlink(repo().join("scenes/dragon_vrip.ply.gz"), dir.join(&name)).unwrap();
+        text = text.replacen("file = \"dragon_vrip.ply.gz\"", &format!("file = \"{name}\""), 1);
+    }
+    assert!(!text.contains("dragon_vrip"));
+    let scene = dir.join("dragons.toml");
+    std::fs::write(&scene, text).unwrap();
+    scene
+}

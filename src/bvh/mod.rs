@@ -1,12 +1,17 @@
-//! BVH construction with obvhs and the GPU layout of nodes and primitives.
+//! BVH construction with obvhs and the GPU layouts of nodes and primitives.
 //!
 //! One BVH holds every finite primitive: triangles first (ids `0..n_tri`), then spheres,
 //! then instances of meshes placed more than once, each of which refers to the BVH of its
 //! mesh in the mesh's own space (two levels: a ray that reaches an instance continues in
-//! that BVH, carried into the mesh's space). Infinite planes stay outside it. The GPU layout is a BVH2 whose nodes carry both
-//! children's boxes (Aila & Laine, "Understanding the Efficiency of Ray Traversal on GPUs",
-//! HPG 2009), so one 64-byte fetch tests two boxes; primitives are stored in BVH leaf
-//! order, so leaves index them directly without an indirection table.
+//! that BVH, carried into the mesh's space). Infinite planes stay outside it. CWBVHs are
+//! built in octree cells of bounded size ([`chunked`]) so the build's workspace stays
+//! small beside the scene. Two GPU layouts: obvhs's CWBVH nodes as they are, or a BVH2
+//! whose nodes carry both children's boxes (Aila & Laine, "Understanding the Efficiency of
+//! Ray Traversal on GPUs", HPG 2009), so one 64-byte fetch tests two boxes. Primitive
+//! records are stored in BVH leaf order, so leaves index them directly without an
+//! indirection table.
+
+pub mod chunked;
 
 use crate::geometry::AffineRows;
 use crate::scene::Scene;
@@ -138,16 +143,42 @@ pub struct GpuPrimitive {
 const _: () = assert!(std::mem::size_of::<GpuPrimitive>() == 48);
 const _: () = assert!(std::mem::size_of::<obvhs::cwbvh::node::CwBvhNode>() == 80);
 
+/// The boxes of the top level's primitives, by id: triangles, spheres, instances.
+struct TopBoxes<'a> {
+    scene: &'a Scene,
+    instances: Vec<Aabb>,
+}
+
+impl<'a> TopBoxes<'a> {
+    fn new(scene: &'a Scene) -> Self {
+        let mesh_boxes: Vec<Aabb> = scene.meshes.iter().map(|m| mesh_aabb(&m.triangles)).collect();
+        let instances =
+            scene.instances.iter().map(|i| instance_aabb(&i.to_world_rows(), &mesh_boxes[i.mesh as usize])).collect();
+        TopBoxes { scene, instances }
+    }
+
+    fn len(&self) -> usize {
+        self.scene.triangles.len() + self.scene.spheres.len() + self.instances.len()
+    }
+
+    fn get(&self, id: usize) -> Aabb {
+        let (n_tri, n_sphere) = (self.scene.triangles.len(), self.scene.spheres.len());
+        if id < n_tri {
+            triangle_aabb(&self.scene.triangles[id].v)
+        } else if id < n_tri + n_sphere {
+            let s = &self.scene.spheres[id - n_tri];
+            let c = Vec3A::from(s.center);
+            Aabb::new(c - s.radius, c + s.radius)
+        } else {
+            self.instances[id - n_tri - n_sphere]
+        }
+    }
+}
+
 /// Axis-aligned boxes of the BVH's primitives, in id order (triangles, spheres, instances).
 pub fn primitive_aabbs(scene: &Scene) -> Vec<Aabb> {
-    let tris = scene.triangles.iter().map(|t| triangle_aabb(&t.v));
-    let spheres = scene.spheres.iter().map(|s| {
-        let c = Vec3A::from(s.center);
-        Aabb::new(c - s.radius, c + s.radius)
-    });
-    let mesh_boxes: Vec<Aabb> = scene.meshes.iter().map(|m| mesh_aabb(&m.triangles)).collect();
-    let instances = scene.instances.iter().map(|i| instance_aabb(&i.to_world_rows(), &mesh_boxes[i.mesh as usize]));
-    tris.chain(spheres).chain(instances).collect()
+    let boxes = TopBoxes::new(scene);
+    (0..boxes.len()).map(|id| boxes.get(id)).collect()
 }
 
 fn triangle_aabb(v: &[Vec3; 3]) -> Aabb {
@@ -198,13 +229,36 @@ pub struct SceneCwbvh {
     pub meshes: Vec<CwBvh>,
 }
 
-/// Builds the scene's CWBVHs.
+/// Bytes of the scene's CWBVHs: nodes and primitive indices, top level and meshes.
+pub fn cwbvh_bytes(bvh: &SceneCwbvh) -> u64 {
+    let one =
+        |b: &CwBvh| (std::mem::size_of_val(&b.nodes[..]) + std::mem::size_of_val(&b.primitive_indices[..])) as u64;
+    bvh.top.iter().chain(&bvh.meshes).map(one).sum()
+}
+
+/// Most primitives in one octree cell of a CWBVH build (see [`chunked`]): each cell being
+/// built takes about 320 bytes × this, 5 MB.
+pub const BUILD_CELL: usize = 1 << 14;
+
+/// Builds the scene's CWBVHs, in octree cells of at most [`BUILD_CELL`] primitives.
 pub fn build_cwbvh(scene: &Scene, quality: BuildQuality) -> SceneCwbvh {
-    let build = |aabbs: &[Aabb]| obvhs::cwbvh::builder::build_cwbvh(aabbs, quality.params(), &mut Default::default());
-    let meshes =
-        scene.meshes.iter().map(|m| build(&m.triangles.iter().map(triangle_aabb).collect::<Vec<_>>())).collect();
-    let aabbs = primitive_aabbs(scene);
-    SceneCwbvh { top: (!aabbs.is_empty()).then(|| build(&aabbs)), meshes }
+    build_cwbvh_in_cells(scene, quality, BUILD_CELL)
+}
+
+/// Builds the scene's CWBVHs in octree cells of at most `cell` primitives.
+pub fn build_cwbvh_in_cells(scene: &Scene, quality: BuildQuality, cell: usize) -> SceneCwbvh {
+    let meshes = scene
+        .meshes
+        .iter()
+        .map(|m| {
+            let aabb = |i: usize| triangle_aabb(&m.triangles[i]);
+            chunked::build_cwbvh_in_cells(m.triangles.len(), &aabb, quality, cell)
+                .expect("an instanced mesh has triangles")
+        })
+        .collect();
+    let boxes = TopBoxes::new(scene);
+    let top = chunked::build_cwbvh_in_cells(boxes.len(), &|id| boxes.get(id), quality, cell);
+    SceneCwbvh { top, meshes }
 }
 
 /// The record of top-level primitive `id` (triangles, spheres, instances).
@@ -276,13 +330,106 @@ pub struct GpuBvh {
     pub node_bytes: Vec<u8>,
     /// Number of nodes.
     pub node_count: u32,
-    /// Primitives in leaf order.
-    pub primitives: Vec<GpuPrimitive>,
+    /// Primitive records in leaf order.
+    pub records: GpuRecords,
     /// Depth of the deepest inner node (root = 1): a bound on the traversal stack.
     pub depth: u32,
 }
 
+/// The primitive records of a [`GpuBvh`], in the order the device holds them.
+#[derive(Clone, Debug)]
+pub enum GpuRecords {
+    /// Made in full on the host (the BVH2 layout, whose scene may be a flattened copy).
+    Made(Vec<GpuPrimitive>),
+    /// Made from the scene piece by piece as they are uploaded, so the host never holds a
+    /// second full copy of the geometry: the top level's primitives in `top` order, then
+    /// each instanced mesh's triangles in its BVH's order, then two records per instance
+    /// (its world-to-object and object-to-world rows).
+    Cwbvh {
+        /// The top level's primitive ids (triangles, spheres, instances) in leaf order.
+        top: Vec<u32>,
+        /// Each instanced mesh's triangle indices in its BVH's leaf order.
+        meshes: Vec<Vec<u32>>,
+        /// The node where each instanced mesh's BVH starts.
+        roots: Vec<u32>,
+        /// Instances in the scene.
+        instances: usize,
+    },
+}
+
+impl Default for GpuRecords {
+    fn default() -> Self {
+        GpuRecords::Made(Vec::new())
+    }
+}
+
+impl GpuRecords {
+    /// Number of records.
+    pub fn len(&self) -> usize {
+        match self {
+            GpuRecords::Made(r) => r.len(),
+            GpuRecords::Cwbvh { top, meshes, instances, .. } => {
+                top.len() + meshes.iter().map(Vec::len).sum::<usize>() + 2 * instances
+            }
+        }
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Writes records `first..first + out.len()` into `out`. `scene` must be the scene the
+    /// BVH was built from.
+    pub fn write(&self, scene: &Scene, first: usize, out: &mut [GpuPrimitive]) {
+        let (top, meshes, roots) = match self {
+            GpuRecords::Made(r) => {
+                out.copy_from_slice(&r[first..first + out.len()]);
+                return;
+            }
+            GpuRecords::Cwbvh { top, meshes, roots, .. } => (top, meshes, roots),
+        };
+        // Where each mesh's records start; the instances' rows follow the last.
+        let mut mesh_starts = Vec::with_capacity(meshes.len());
+        let mut data_base = top.len();
+        for ids in meshes {
+            mesh_starts.push(data_base);
+            data_base += ids.len();
+        }
+        for (slot, k) in out.iter_mut().zip(first..) {
+            *slot = if k < top.len() {
+                let mut p = gpu_primitive(scene, top[k] as usize);
+                if p.b[3].to_bits() == PRIM_INSTANCE {
+                    let i = p.a[0].to_bits();
+                    p.a[1] = f32::from_bits(roots[scene.instances[i as usize].mesh as usize]);
+                    p.a[2] = f32::from_bits(data_base as u32 + 2 * i);
+                }
+                p
+            } else if k < data_base {
+                let m = mesh_starts.partition_point(|&s| s <= k) - 1;
+                mesh_primitive(&scene.meshes[m].triangles[meshes[m][k - mesh_starts[m]] as usize])
+            } else {
+                let instance = &scene.instances[(k - data_base) / 2];
+                let rows = if (k - data_base) % 2 == 0 { instance.to_object().0 } else { instance.to_world_rows() };
+                rows_record(&rows)
+            };
+        }
+    }
+
+    /// All records, made at once.
+    pub fn to_vec(&self, scene: &Scene) -> Vec<GpuPrimitive> {
+        let mut out = vec![GpuPrimitive::zeroed(); self.len()];
+        self.write(scene, 0, &mut out);
+        out
+    }
+}
+
 impl GpuBvh {
+    /// Bytes to upload: nodes and primitive records.
+    pub fn bytes(&self) -> u64 {
+        (self.node_bytes.len() + self.records.len() * std::mem::size_of::<GpuPrimitive>()) as u64
+    }
+
     /// Builds the BVH of `scene` in `layout`.
     pub fn build(scene: &Scene, layout: BvhLayout, quality: BuildQuality) -> GpuBvh {
         match layout {
@@ -295,22 +442,25 @@ impl GpuBvh {
         }
     }
 
-    /// Uploads obvhs's CWBVHs as they are, one after the other: the top level (its root is
+    /// Lays out obvhs's CWBVHs as they are, one after the other: the top level (its root is
     /// node 0), then each mesh's, whose child and primitive indices are moved by where its
-    /// nodes and primitives start. Primitives follow each BVH's `primitive_indices`; after
-    /// them come two records per instance, its world-to-object and object-to-world rows.
+    /// nodes and primitives start. Primitive records follow each BVH's `primitive_indices`;
+    /// after them come two records per instance, its world-to-object and object-to-world
+    /// rows. The records are made from `scene` when they are uploaded ([`GpuRecords`]).
     pub fn from_cwbvh(scene: &Scene, bvh: &SceneCwbvh) -> GpuBvh {
         let Some(top) = &bvh.top else {
             return GpuBvh { layout: BvhLayout::Cwbvh, ..Default::default() };
         };
-        // Nodes go straight into the upload bytes: no second array of them on the host.
-        let mut node_bytes: Vec<u8> = bytemuck::cast_slice(&top.nodes).to_vec();
+        // Nodes go straight into the upload bytes, sized exactly; the primitive records are
+        // made at upload.
         let node_size = std::mem::size_of::<CwBvhNode>();
-        let mut primitives: Vec<GpuPrimitive> =
-            top.primitive_indices.iter().map(|&id| gpu_primitive(scene, id as usize)).collect();
+        let node_count = bvh.top.iter().chain(&bvh.meshes).map(|b| b.nodes.len()).sum::<usize>();
+        let mut node_bytes: Vec<u8> = Vec::with_capacity(node_count * node_size);
+        node_bytes.extend_from_slice(bytemuck::cast_slice(&top.nodes));
+        let mut prim_base = top.primitive_indices.len() as u32;
         let mut roots = Vec::with_capacity(bvh.meshes.len());
-        for (mesh, blas) in scene.meshes.iter().zip(&bvh.meshes) {
-            let (node_base, prim_base) = ((node_bytes.len() / node_size) as u32, primitives.len() as u32);
+        for blas in &bvh.meshes {
+            let node_base = (node_bytes.len() / node_size) as u32;
             roots.push(node_base);
             for n in &blas.nodes {
                 let moved = CwBvhNode {
@@ -320,27 +470,17 @@ impl GpuBvh {
                 };
                 node_bytes.extend_from_slice(bytemuck::bytes_of(&moved));
             }
-            primitives.extend(blas.primitive_indices.iter().map(|&i| mesh_primitive(&mesh.triangles[i as usize])));
+            prim_base += blas.primitive_indices.len() as u32;
         }
-        let data_base = primitives.len() as u32;
-        for p in primitives.iter_mut().filter(|p| p.b[3].to_bits() == PRIM_INSTANCE) {
-            let i = p.a[0].to_bits();
-            p.a[1] = f32::from_bits(roots[scene.instances[i as usize].mesh as usize]);
-            p.a[2] = f32::from_bits(data_base + 2 * i);
-        }
-        for instance in &scene.instances {
-            primitives.push(rows_record(&instance.to_object().0));
-            primitives.push(rows_record(&instance.to_world_rows()));
-        }
+        let records = GpuRecords::Cwbvh {
+            top: top.primitive_indices.clone(),
+            meshes: bvh.meshes.iter().map(|b| b.primitive_indices.clone()).collect(),
+            roots,
+            instances: scene.instances.len(),
+        };
         // A ray inside an instance stacks its mesh's nodes on top of the top level's.
         let depth = cwbvh_depth(top) + bvh.meshes.iter().map(cwbvh_depth).max().unwrap_or(0);
-        GpuBvh {
-            layout: BvhLayout::Cwbvh,
-            node_count: (node_bytes.len() / node_size) as u32,
-            node_bytes,
-            primitives,
-            depth,
-        }
+        GpuBvh { layout: BvhLayout::Cwbvh, node_count: node_count as u32, node_bytes, records, depth }
     }
 
     /// Converts obvhs's BVH2 to the two-boxes-per-node layout.
@@ -348,7 +488,8 @@ impl GpuBvh {
         if bvh.nodes.is_empty() {
             return GpuBvh { layout: BvhLayout::Bvh2, ..Default::default() };
         }
-        let primitives = bvh.primitive_indices.iter().map(|&id| gpu_primitive(scene, id as usize)).collect();
+        let records =
+            GpuRecords::Made(bvh.primitive_indices.iter().map(|&id| gpu_primitive(scene, id as usize)).collect());
         let child = |i: usize, gpu_index: &[u32]| -> ([f32; 3], [f32; 3], u32, u32) {
             let n = &bvh.nodes[i];
             let (min, max) = (n.aabb.min.to_array(), n.aabb.max.to_array());
@@ -399,7 +540,7 @@ impl GpuBvh {
             layout: BvhLayout::Bvh2,
             node_bytes: bytemuck::cast_slice(&nodes).to_vec(),
             node_count: nodes.len() as u32,
-            primitives,
+            records,
             depth,
         }
     }
