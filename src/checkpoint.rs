@@ -520,7 +520,8 @@ impl Accumulation {
         if spp == 0 || strata != sampler.strata_per_axis(spp) {
             return Err(format!("invalid samples per pixel {spp} or strata {strata}"));
         }
-        if (has_max_distance == 1 && !(max_distance >= 0.0)) || !background.is_finite() {
+        // A NaN distance is refused too.
+        if (has_max_distance == 1 && (max_distance.is_nan() || max_distance < 0.0)) || !background.is_finite() {
             return Err("invalid max distance or background".into());
         }
         if block != BLOCK_SAMPLES {

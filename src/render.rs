@@ -164,6 +164,9 @@ pub struct RenderOutput {
     pub accumulation: Accumulation,
 }
 
+/// Receives an accumulation to save.
+pub type SaveFn<'a> = &'a mut dyn FnMut(&Accumulation) -> Result<()>;
+
 /// Saving and continuing a render.
 #[derive(Default)]
 pub struct Checkpointing<'a> {
@@ -177,7 +180,7 @@ pub struct Checkpointing<'a> {
     pub interval: f64,
     /// Receives the accumulation every `interval` seconds and when the render ends
     /// (finished, out of time or stopped), not after an error: the last saved one stays.
-    pub save: Option<&'a mut dyn FnMut(&Accumulation) -> Result<()>>,
+    pub save: Option<SaveFn<'a>>,
 }
 
 /// Seconds a pass aims for: long enough to amortise the round trip, short enough for
@@ -270,7 +273,7 @@ fn accumulate(
     options: &RenderOptions,
     acc: &mut Accumulation,
     device: &mut dyn BlockDevice,
-    save: &mut Option<&mut dyn FnMut(&Accumulation) -> Result<()>>,
+    save: &mut Option<SaveFn<'_>>,
     interval: f64,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<Run> {

@@ -228,7 +228,7 @@ fn gltf() -> Vec<u8> {
 fn glb() -> Vec<u8> {
     let buffer = gltf_buffer();
     let mut json = gltf_json(None, buffer.len()).into_bytes();
-    while json.len() % 4 != 0 {
+    while !json.len().is_multiple_of(4) {
         json.push(b' ');
     }
     let total = 12 + 8 + json.len() + 8 + buffer.len();
@@ -399,17 +399,12 @@ enum Mutation {
 fn mutation() -> impl Strategy<Value = Mutation> {
     let at = any::<usize>();
     prop_oneof![
-        (at.clone(), 0u8..8).prop_map(|(at, bit)| Mutation::Flip { at, bit }),
-        (at.clone(), any::<u8>()).prop_map(|(at, byte)| Mutation::Set { at, byte }),
-        (at.clone(), proptest::collection::vec(any::<u8>(), 1..8))
-            .prop_map(|(at, bytes)| Mutation::Insert { at, bytes }),
-        (at.clone(), 0..TOKENS.len(), 0usize..12).prop_map(|(at, token, replace)| Mutation::Token {
-            at,
-            token,
-            replace
-        }),
-        (at.clone(), 1usize..64).prop_map(|(at, len)| Mutation::Delete { at, len }),
-        (at.clone(), 1usize..64, any::<usize>(), 1usize..16).prop_map(|(at, len, to, times)| Mutation::Duplicate {
+        (at, 0u8..8).prop_map(|(at, bit)| Mutation::Flip { at, bit }),
+        (at, any::<u8>()).prop_map(|(at, byte)| Mutation::Set { at, byte }),
+        (at, proptest::collection::vec(any::<u8>(), 1..8)).prop_map(|(at, bytes)| Mutation::Insert { at, bytes }),
+        (at, 0..TOKENS.len(), 0usize..12).prop_map(|(at, token, replace)| Mutation::Token { at, token, replace }),
+        (at, 1usize..64).prop_map(|(at, len)| Mutation::Delete { at, len }),
+        (at, 1usize..64, any::<usize>(), 1usize..16).prop_map(|(at, len, to, times)| Mutation::Duplicate {
             at,
             len,
             to,

@@ -7,6 +7,9 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::path::Path;
 
+/// One plotted line: its label, colour and points.
+type Series = (String, RGBColor, Vec<(f64, f64)>);
+
 /// The font family the plots name; registered once with the embedded font.
 const FONT: &str = "sans-serif";
 /// Side of one panel of a grid, in pixels.
@@ -224,7 +227,7 @@ fn series_panel(
     caption: &str,
     x_desc: &str,
     y_desc: &str,
-    lines: &[(String, RGBColor, Vec<(f64, f64)>)],
+    lines: &[Series],
     labels: &[(f64, f64, String)],
 ) -> Result<()> {
     let err = plot_err(path);
@@ -298,7 +301,7 @@ pub fn rays_vs_triangles(results: &Results, path: &Path) -> Result<()> {
         }
         pts.sort_by(|a, b| a.0.total_cmp(&b.0));
         if !pts.is_empty() {
-            lines.push((format!("{name}"), colour, pts));
+            lines.push((name.to_string(), colour, pts));
         }
     }
     let err = plot_err(path);
@@ -319,7 +322,7 @@ pub fn rays_vs_triangles(results: &Results, path: &Path) -> Result<()> {
 /// Seconds per million rays against image size and against spp, and the BVH presets'
 /// trace speed against their build time.
 pub fn scaling(results: &Results, path: &Path) -> Result<()> {
-    let series = |name: &str| -> Vec<(String, RGBColor, Vec<(f64, f64)>)> {
+    let series = |name: &str| -> Vec<Series> {
         let mut out = Vec::new();
         let mut keys: Vec<(String, String)> = Vec::new();
         for p in results.scaling.iter().filter(|p| p.series == name) {

@@ -277,7 +277,7 @@ mod tests {
     #[test]
     fn numbers_keep_three_significant_digits() {
         assert_eq!(sig(12345.0), "12345");
-        assert_eq!(sig(3.14159), "3.14");
+        assert_eq!(sig(1.23456), "1.23");
         assert_eq!(sig(0.012345), "0.0123");
         assert_eq!(sig(0.5), "0.500");
         assert_eq!(sig(1.5e-5), "1.50e-5");

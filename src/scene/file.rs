@@ -212,6 +212,10 @@ fn toml_error(text: &str, e: &toml::de::Error) -> String {
     }
 }
 
+/// A mesh file, the objects still to place it, and its index in the scene's meshes with
+/// its vertices once read.
+type MeshUse = (PathBuf, usize, Option<(u32, IndexedMesh)>);
+
 pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Scene> {
     let file: SceneFile = toml::from_str(text).map_err(|e| Error::scene(path, toml_error(text, &e)))?;
     let err = |m: String| Error::scene(path, m);
@@ -260,7 +264,7 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
     // Mesh files placed by several objects become instanced meshes: read once, kept in
     // their own space, each object an instance. (path, objects placing it, its index in
     // `meshes` once read).
-    let mut mesh_uses: Vec<(PathBuf, usize, Option<(u32, IndexedMesh)>)> = Vec::new();
+    let mut mesh_uses: Vec<MeshUse> = Vec::new();
     let mut meshes: Vec<InstancedMesh> = Vec::new();
     let mut instances: Vec<Instance> = Vec::new();
     for object in &file.objects {

@@ -307,6 +307,8 @@ impl Scene {
 /// area to hit (twice its area is below 2^-60 ≈ 8.7e-19 world units²).
 pub const MIN_NORMAL_LENGTH_SQUARED: f32 = f32::from_bits((127 - 120) << 23); // 2^-120
 /// Whether a triangle's normal is too small to keep (see [`MIN_NORMAL_LENGTH_SQUARED`]).
+// Negated so that a NaN normal counts as degenerate.
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
 pub(crate) fn is_degenerate(v: [Vec3; 3]) -> bool {
     let n = (v[1] - v[0]).cross(v[2] - v[0]);
     !(n.dot(n) >= MIN_NORMAL_LENGTH_SQUARED)
