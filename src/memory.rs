@@ -74,11 +74,6 @@ unsafe impl GlobalAlloc for CountingAlloc {
     }
 }
 
-/// Bytes live on aorender's heap now; `None` when `CountingAlloc` is not the global allocator.
-pub fn heap_bytes() -> Option<u64> {
-    INSTALLED.load(Ordering::Relaxed).then(|| CURRENT.load(Ordering::Relaxed) as u64)
-}
-
 /// The most bytes live on aorender's heap at once so far; `None` when `CountingAlloc` is not
 /// the global allocator.
 pub fn heap_peak_bytes() -> Option<u64> {

@@ -415,13 +415,6 @@ impl GpuRecords {
             };
         }
     }
-
-    /// All records, made at once.
-    pub fn to_vec(&self, scene: &Scene) -> Vec<GpuPrimitive> {
-        let mut out = vec![GpuPrimitive::zeroed(); self.len()];
-        self.write(scene, 0, &mut out);
-        out
-    }
 }
 
 impl GpuBvh {
