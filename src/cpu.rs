@@ -80,6 +80,15 @@ fn v3(a: [f32; 4]) -> Vec3 {
 }
 
 impl CpuTracer {
+    /// Bytes it holds for tracing: the CWBVHs' nodes and primitive indices and the
+    /// leaf-ordered records, top level and meshes.
+    pub fn bytes(&self) -> u64 {
+        let bvh = |b: &CwBvh| std::mem::size_of_val(&b.nodes[..]) + std::mem::size_of_val(&b.primitive_indices[..]);
+        let top = self.bvh.as_ref().map_or(0, bvh) + std::mem::size_of_val(&self.primitives[..]);
+        let meshes: usize = self.meshes.iter().map(|(b, p)| bvh(b) + std::mem::size_of_val(&p[..])).sum();
+        (top + meshes) as u64
+    }
+
     /// Prepares `scene` with its already built CWBVHs.
     pub fn new(scene: &Scene, bvh: SceneCwbvh) -> CpuTracer {
         let primitives = match &bvh.top {

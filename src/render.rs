@@ -425,7 +425,6 @@ pub fn render_resumable(
             let build = Instant::now();
             let cwbvh = bvh::build_cwbvh(scene, options.bvh_quality);
             let build_seconds = build.elapsed().as_secs_f64();
-            let bvh_bytes = bvh::cwbvh_bytes(&cwbvh);
             let d = crate::gpu::AdapterDescription {
                 name: "cpu".into(),
                 backend: "cpu".into(),
@@ -433,8 +432,9 @@ pub fn render_resumable(
                 driver: format!("obvhs cwbvh, {} threads", rayon::current_num_threads()),
             };
             acc.adapter = d.name.clone();
-            let mut device =
-                CpuBlocks { tracer: CpuTracer::new(scene, cwbvh), scene, film: Film::new(s.width, s.height) };
+            let tracer = CpuTracer::new(scene, cwbvh);
+            let bvh_bytes = tracer.bytes();
+            let mut device = CpuBlocks { tracer, scene, film: Film::new(s.width, s.height) };
             if let Some(block) = &partial {
                 device.load(block)?;
             }

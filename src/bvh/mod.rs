@@ -30,7 +30,7 @@ pub const PRIM_SPHERE: u32 = 1;
 /// Primitive tag of an instance: `a = (instance index, root node, first data record,
 /// albedo)` as bits (the albedo as a float). The root and data fields are the GPU's (the
 /// node where its mesh's BVH starts and the record of its world-to-object rows, followed
-/// by its object-to-world rows), filled in by [`GpuBvh::from_cwbvh`].
+/// by its object-to-world rows), filled in as the records are made ([`GpuRecords::write`]).
 pub const PRIM_INSTANCE: u32 = 2;
 /// Entries of the BVH2 traversal stack in the shader; deeper trees are refused.
 pub const BVH2_STACK_SIZE: u32 = 64;
@@ -227,13 +227,6 @@ pub struct SceneCwbvh {
     pub top: Option<CwBvh>,
     /// One per `Scene::meshes` entry.
     pub meshes: Vec<CwBvh>,
-}
-
-/// Bytes of the scene's CWBVHs: nodes and primitive indices, top level and meshes.
-pub fn cwbvh_bytes(bvh: &SceneCwbvh) -> u64 {
-    let one =
-        |b: &CwBvh| (std::mem::size_of_val(&b.nodes[..]) + std::mem::size_of_val(&b.primitive_indices[..])) as u64;
-    bvh.top.iter().chain(&bvh.meshes).map(one).sum()
 }
 
 /// Most primitives in one octree cell of a CWBVH build (see [`chunked`]): each cell being
