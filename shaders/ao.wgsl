@@ -11,6 +11,11 @@ var<workgroup> workgroup_counters: array<atomic<u32>, COUNTER_COUNT>;
 // AO rays of this invocation, added to workgroup_counters once at its end.
 var<private> ao_rays: u32 = 0u;
 
+// The render's point sampler (SAMPLER_*) and hemisphere mapping (HEMISPHERE_*), set per
+// pipeline by src/gpu/mod.rs, so that only the chosen one is compiled in.
+override SAMPLER: u32;
+override HEMISPHERE: u32;
+
 // Neumaier's compensated addition: (sum, compensation) + x.
 fn add_compensated(acc: vec2f, x: f32) -> vec2f {
     let t = acc.x + x;
@@ -32,58 +37,99 @@ fn camera_ray(pixel: vec2f) -> array<vec3f, 2> {
     return array<vec3f, 2>(frame.eye, normalize(frame.forward + sx * frame.right + sy * frame.up));
 }
 
-// The hemisphere estimate at p with normal n, p within `error` of its surface along n,
-// for hemisphere numbers u: one AO ray, then 0 or cos(theta) / (pi pdf). The twin of
-// CpuTracer::ao_at.
-fn ao_value(p: vec3f, n: vec3f, error: f32, u: vec2f) -> f32 {
-    let w_local = sample_hemisphere(frame.hemisphere, u);
-    let w = local_to_world(w_local, n);
+// The AO ray from p with normal n, p within `error` of its surface along n, for
+// hemisphere numbers u; w_local is its direction in the local frame (z = n).
+struct AoRay {
+    o: vec3f,
+    d: vec3f,
+    w_local: vec3f,
+}
+
+fn ao_ray(p: vec3f, n: vec3f, error: f32, u: vec2f) -> AoRay {
+    let w_local = sample_hemisphere(HEMISPHERE, u);
     ao_rays += 1u;
-    let shadow = trace(offset_ray_origin(p, n, error), w, frame.max_distance, true);
+    return AoRay(offset_ray_origin(p, n, error), local_to_world(w_local, n), w_local);
+}
+
+// The hemisphere estimate of an AO ray that found `shadow`: 0 or cos(theta) / (pi pdf).
+fn ao_estimate(shadow: Hit, w_local: vec3f) -> f32 {
     if (shadow.kind != HIT_NONE) {
         return 0.0;
     }
-    return hemisphere_weight(frame.hemisphere, w_local);
+    return hemisphere_weight(HEMISPHERE, w_local);
 }
 
-// AO value of one sample: albedo x the hemisphere estimate, or the background.
-fn shade_sample(px: vec2u, u: vec4f) -> f32 {
-    let ray = camera_ray(vec2f(px) + u.xy);
-    let o = ray[0];
-    let d = ray[1];
-    let hit = trace(o, d, INF, false);
-    if (hit.kind == HIT_NONE) {
-        return frame.background;
-    }
-    var surface: SurfacePoint;
-    var albedo: f32;
-    if (hit.kind == HIT_PLANE) {
+// The hemisphere estimate at p: one AO ray. The twin of CpuTracer::ao_at.
+fn ao_value(p: vec3f, n: vec3f, error: f32, u: vec2f) -> f32 {
+    let ray = ao_ray(p, n, error, u);
+    return ao_estimate(trace(ray.o, ray.d, frame.max_distance, true), ray.w_local);
+}
+
+// Where a camera ray hit, and the albedo there.
+struct CameraHit {
+    surface: SurfacePoint,
+    albedo: f32,
+}
+
+fn camera_hit(o: vec3f, d: vec3f, hit: Hit) -> CameraHit {
+    if (HAS_PLANES && hit.kind == HIT_PLANE) {
         let plane = planes[hit.index];
-        surface = plane_hit_point(o, d, hit.t, plane.normal, plane.point);
-        albedo = plane.albedo;
-    } else if (HAS_INSTANCES && hit.instance != NO_INSTANCE) {
+        return CameraHit(plane_hit_point(o, d, hit.t, plane.normal, plane.point), plane.albedo);
+    }
+    if (HAS_INSTANCES && hit.instance != NO_INSTANCE) {
         // The instance record: (index, root node, first data record, albedo); the data is
         // world-to-object rows, then object-to-world rows.
         let record = load_primitive(hit.instance);
         let data = bitcast<u32>(record.a.z);
         let prim = load_primitive(hit.index);
-        surface = instance_hit_point(
+        let surface = instance_hit_point(
             load_affine(data + 1u), load_affine(data), o, d, hit.t, prim.a.xyz, prim.b.xyz, prim.c.xyz,
         );
-        albedo = record.a.w;
-    } else {
-        let prim = load_primitive(hit.index);
-        albedo = prim.a.w;
-        if (bitcast<u32>(prim.b.w) == PRIM_SPHERE) {
-            surface = sphere_hit_point(o, d, hit.t, prim.a.xyz, prim.b.x);
-        } else {
-            // The record holds the vertices (v0, v1, v2).
-            surface = triangle_hit_point(o, d, hit.t, prim.a.xyz, prim.b.xyz, prim.c.xyz);
-        }
+        return CameraHit(surface, record.a.w);
     }
-    // The hemisphere faces the side the camera ray came from.
-    let n = select(surface.n, -surface.n, dot(surface.n, d) > 0.0);
-    return albedo * ao_value(surface.p, n, surface.error, u.zw);
+    let prim = load_primitive(hit.index);
+    if (is_sphere(prim)) {
+        return CameraHit(sphere_hit_point(o, d, hit.t, prim.a.xyz, prim.b.x), prim.a.w);
+    }
+    // The record holds the vertices (v0, v1, v2).
+    return CameraHit(triangle_hit_point(o, d, hit.t, prim.a.xyz, prim.b.xyz, prim.c.xyz), prim.a.w);
+}
+
+// AO value of one sample: albedo x the hemisphere estimate, or the background. The camera
+// ray and then, where it hits, the AO ray are traced at one call site, in two turns of a
+// loop: a SIMD batch none of whose camera rays hit ends the loop instead of running a
+// second traversal masked (lavapipe executes both sides of every branch).
+fn shade_sample(px: vec2u, u: vec4f) -> f32 {
+    let camera = camera_ray(vec2f(px) + u.xy);
+    var o = camera[0];
+    var d = camera[1];
+    var t_max = INF;
+    var is_ao_ray = false;
+    var albedo = 0.0;
+    var w_local = vec3f(0.0);
+    var value = 0.0;
+    loop {
+        let hit = trace(o, d, t_max, is_ao_ray);
+        if (is_ao_ray) {
+            value = albedo * ao_estimate(hit, w_local);
+            break;
+        }
+        if (hit.kind == HIT_NONE) {
+            value = frame.background;
+            break;
+        }
+        let h = camera_hit(o, d, hit);
+        albedo = h.albedo;
+        // The hemisphere faces the side the camera ray came from.
+        let n = select(h.surface.n, -h.surface.n, dot(h.surface.n, d) > 0.0);
+        let ray = ao_ray(h.surface.p, n, h.surface.error, u.zw);
+        o = ray.o;
+        d = ray.d;
+        w_local = ray.w_local;
+        t_max = frame.max_distance;
+        is_ao_ray = true;
+    }
+    return value;
 }
 
 // Adds one sample's value to the running sums `acc` (a film slot), or counts it void
@@ -113,7 +159,7 @@ fn render_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoc
         var acc = film[i];
         for (var k = 0u; k < dispatch.sample_count; k++) {
             let index = dispatch.first_sample + k;
-            let u = sample_point_uniforms(frame.point_sampler, gid.x, gid.y, index, frame.seed, frame.strata);
+            let u = sample_point_uniforms(SAMPLER, gid.x, gid.y, index, frame.seed, frame.strata);
             acc = accumulate(acc, shade_sample(gid.xy, u));
         }
         film[i] = acc;
@@ -141,7 +187,7 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
             if (index >= frame.probe_samples) {
                 break;
             }
-            let u = sample_point_uniforms(frame.point_sampler, point, 0u, index, frame.seed, frame.strata);
+            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata);
             // A probe point is exact as given: no offset.
             acc = accumulate(acc, ao_value(q.position, q.normal, 0.0, u.zw));
         }

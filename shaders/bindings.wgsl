@@ -12,12 +12,11 @@ struct Frame {
     seed: u32,
     max_distance: f32,  // INF when unlimited
     background: f32,
-    hemisphere: u32,    // HEMISPHERE_*
     plane_count: u32,
     node_count: u32,    // 0 when the scene has no finite primitives
-    point_sampler: u32, // SAMPLER_*
     strata: u32,        // cells per axis of the stratified and grid samplers
     probe_samples: u32, // samples per point of probe_sample
+    _pad: vec2u,
 }
 
 // Per-dispatch constants, bound with a dynamic offset.

@@ -24,7 +24,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     let inv_d = safe_inverse(d);
     let sh = make_shear(d);
     let op = permute_axes(o, sh.k);
-    var stack: array<vec2u, BVH2_STACK_SIZE>;
+    var stack: array<vec2u, STACK_SIZE>;
     var sp = 0u;
     // (index, count): count 0 is an inner node, count > 0 a run of primitives.
     var cur = vec2u(0u, 0u);

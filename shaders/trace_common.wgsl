@@ -13,9 +13,17 @@ const HIT_PLANE: u32 = 2u;
 // Top-level traversal (no instance entered).
 const NO_INSTANCE: u32 = 0xffffffffu;
 
-// Whether the BVH has instances (src/gpu/mod.rs sets it per scene): without them the
-// compiler drops the instance paths of traversal and shading.
+// What the scene holds (src/gpu/mod.rs sets these per scene; the defaults keep every
+// path). The compiler drops the paths of what a scene lacks: lavapipe runs a SIMD batch's
+// lanes in lockstep and executes every branch that is not constant, taken or not.
+// Instances in the BVH.
 override HAS_INSTANCES: bool = true;
+// Spheres among the primitives.
+override HAS_SPHERES: bool = true;
+// Triangles among the primitives (placed once or in instanced meshes).
+override HAS_TRIANGLES: bool = true;
+// Infinite planes.
+override HAS_PLANES: bool = true;
 
 struct Hit {
     t: f32,
@@ -47,15 +55,23 @@ fn intersect_primitive(i: u32, o: vec3f, d: vec3f, sh: Shear, op: vec3f, t_max: 
 }
 
 fn intersect_record(p: Primitive, o: vec3f, d: vec3f, sh: Shear, op: vec3f, t_max: f32) -> f32 {
-    if (bitcast<u32>(p.b.w) == PRIM_SPHERE) {
+    if (is_sphere(p)) {
         return intersect_sphere(o, d, 0.0, t_max, p.a.xyz, p.b.x);
     }
     return triangle_test_sheared(op, sh, 0.0, t_max, p.a.xyz, p.b.xyz, p.c.xyz).x;
 }
 
+// Whether a primitive record (not an instance) is a sphere rather than a triangle.
+fn is_sphere(p: Primitive) -> bool {
+    return HAS_SPHERES && (!HAS_TRIANGLES || bitcast<u32>(p.b.w) == PRIM_SPHERE);
+}
+
 // The infinite planes, which stay outside the BVH.
 fn trace_planes(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     var hit = Hit(t_max, HIT_NONE, 0u, NO_INSTANCE);
+    if (!HAS_PLANES) {
+        return hit;
+    }
     for (var i = 0u; i < frame.plane_count; i++) {
         if (!take_step()) {
             break;

@@ -103,7 +103,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
         return hit;
     }
     var ray = ray_state(o, d);
-    var stack: array<vec2u, CWBVH_STACK_SIZE>;
+    var stack: array<vec2u, STACK_SIZE>;
     var sp = 0u;
     // (first child node, hit bits in 24..32 | imask), and (first primitive, hit bits).
     var node_group = vec2u(0u, 0x80000000u);

@@ -29,7 +29,7 @@ fn validate_chunked(
     files: &BTreeMap<String, String>,
 ) -> naga::Module {
     let layout = if traversal == "trace_cwbvh.wgsl" { BvhLayout::Cwbvh } else { BvhLayout::Bvh2 };
-    let generated = geometry_files(layout, chunks);
+    let generated = geometry_files(layout, chunks, layout.stack_size());
     let lookup = |n: &str| {
         if let Some((_, text)) = generated.iter().find(|(f, _)| *f == n) {
             return Some(text.as_str());

@@ -32,11 +32,13 @@ pub const PRIM_SPHERE: u32 = 1;
 /// node where its mesh's BVH starts and the record of its world-to-object rows, followed
 /// by its object-to-world rows), filled in as the records are made ([`GpuRecords::write`]).
 pub const PRIM_INSTANCE: u32 = 2;
-/// Entries of the BVH2 traversal stack in the shader; deeper trees are refused.
+/// Most entries of the BVH2 traversal stack in the shader; deeper trees are refused.
 pub const BVH2_STACK_SIZE: u32 = 64;
-/// Entries of the CWBVH traversal stack (one per level at most). Kept small: the private
-/// array is zeroed and indexed per invocation; on lavapipe the bunny (512², 64 spp) took
-/// 7.9 s with 64 entries and 6.0 s with 24.
+/// Most entries of the CWBVH traversal stack (one per level at most); deeper trees are
+/// refused. The kernel's stack holds as many entries as its BVH is deep
+/// ([`GpuBvh::stack_size`]), no more: the private array is zeroed and indexed per
+/// invocation, and on lavapipe the bunny (512², 64 spp) took 7.9 s with 64 entries and
+/// 6.0 s with 24.
 pub const CWBVH_STACK_SIZE: u32 = 32;
 
 /// The node layout the GPU traverses.
@@ -50,7 +52,7 @@ pub enum BvhLayout {
 }
 
 impl BvhLayout {
-    /// Entries of the shader's traversal stack: the deepest tree it can traverse.
+    /// Most entries of the shader's traversal stack: the deepest tree it can traverse.
     pub fn stack_size(self) -> u32 {
         match self {
             BvhLayout::Bvh2 => BVH2_STACK_SIZE,
@@ -411,6 +413,13 @@ impl GpuRecords {
 }
 
 impl GpuBvh {
+    /// Entries the kernel's traversal stack needs: one per level below the root at most
+    /// (a traversal pushes the rest of a node's hit children before descending), and at
+    /// least one, for an array of nonzero size.
+    pub fn stack_size(&self) -> u32 {
+        self.depth.max(1)
+    }
+
     /// Bytes to upload: nodes and primitive records.
     pub fn bytes(&self) -> u64 {
         (self.node_bytes.len() + self.records.len() * std::mem::size_of::<GpuPrimitive>()) as u64

@@ -28,18 +28,16 @@ pub struct FrameUniforms {
     pub max_distance: f32,
     /// Background value.
     pub background: f32,
-    /// Hemisphere id.
-    pub hemisphere: u32,
     /// Number of planes.
     pub plane_count: u32,
     /// Number of BVH nodes (0: no finite primitives).
     pub node_count: u32,
-    /// Sampler id.
-    pub point_sampler: u32,
     /// Cells per axis of the stratified and grid samplers.
     pub strata: u32,
     /// Samples per point of the probe kernel.
     pub probe_samples: u32,
+    /// Padding to the WGSL struct's 16-byte multiple.
+    pub _pad: [u32; 2],
 }
 const _: () = assert!(std::mem::size_of::<FrameUniforms>() == 96);
 
@@ -59,12 +57,11 @@ impl FrameUniforms {
             seed: s.seed,
             max_distance: s.max_distance.map_or(f32::MAX, |d| d.min(f32::MAX)),
             background: s.background,
-            hemisphere: s.hemisphere.shader_id(),
             plane_count: scene.planes.len() as u32,
             node_count,
-            point_sampler: s.sampler.shader_id(),
             strata: s.sampler.strata_per_axis(s.spp),
             probe_samples: 0,
+            _pad: [0; 2],
         }
     }
 }

@@ -7,6 +7,8 @@ pub use layout::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint};
 use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
 use crate::film::Film;
+use crate::sampler::Sampler;
+use crate::sampling::Hemisphere;
 use crate::scene::Scene;
 use crate::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE};
 use std::cell::Cell;
@@ -66,8 +68,9 @@ pub const TRAVERSAL_BUDGET: u32 = 65_000;
 /// Mesa 22.3 lavapipe's per-invocation loop cap (`LP_MAX_TGSI_LOOP_ITERATIONS`).
 pub const LAVAPIPE_LOOP_CAP: u32 = 65_535;
 /// Loop iterations a sample may take outside the traversal loops: its turn of the
-/// kernel's sample loop, the sampler's permutation walks, and the exits of bounded loops.
-const SAMPLE_LOOP_OVERHEAD: u32 = crate::sampler::SAMPLER_LOOP_BOUND + 8;
+/// kernel's sample loop, the two turns of its ray loop (camera ray, AO ray), the
+/// sampler's permutation walks, and the exits of bounded loops.
+const SAMPLE_LOOP_OVERHEAD: u32 = crate::sampler::SAMPLER_LOOP_BOUND + 10;
 /// Iterations of an invocation outside its samples.
 const INVOCATION_LOOP_OVERHEAD: u32 = 8;
 const _: () = assert!(TRAVERSAL_BUDGET + SAMPLE_LOOP_OVERHEAD + INVOCATION_LOOP_OVERHEAD <= LAVAPIPE_LOOP_CAP);
@@ -328,12 +331,12 @@ impl GpuContext {
     /// The bind group layout and pipeline of `kernel` over `layout`, compiled on first use.
     /// The bool is true when it was compiled just now.
     fn pipeline(&self, key: PipelineKey) -> Result<(wgpu::BindGroupLayout, wgpu::ComputePipeline, bool)> {
-        let PipelineKey { layout, kernel, chunks, instances } = key;
+        let PipelineKey { layout, kernel, chunks, stack_size, .. } = key;
         let mut cache = self.pipelines.lock().expect("pipeline cache");
         if let Some((_, l, p)) = cache.iter().find(|(k, _, _)| *k == key) {
             return Ok((l.clone(), p.clone(), false));
         }
-        let source = crate::shaders::compose("ao.wgsl", layout, chunks).map_err(Error::Gpu)?;
+        let source = crate::shaders::compose("ao.wgsl", layout, chunks, stack_size).map_err(Error::Gpu)?;
         let device = &self.device;
         let entry = |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
             binding,
@@ -387,11 +390,7 @@ impl GpuContext {
                 Kernel::Image => "render_sample",
                 Kernel::Probe => "probe_sample",
             }),
-            // Specialized per scene: a scene without instances compiles without their paths.
-            compilation_options: wgpu::PipelineCompilationOptions {
-                constants: &[("HAS_INSTANCES", if instances { 1.0 } else { 0.0 })],
-                ..Default::default()
-            },
+            compilation_options: wgpu::PipelineCompilationOptions { constants: &key.constants(), ..Default::default() },
             cache: None,
         });
         cache.push((key, bind_group_layout.clone(), pipeline.clone()));
@@ -473,14 +472,64 @@ pub struct PassCounters {
     pub gpu_seconds: Option<f64>,
 }
 
-/// What a compiled pipeline is specialised for.
+/// What a compiled pipeline is specialised for. Besides the layout, kernel and geometry
+/// split: what the scene holds, the sampler and the hemisphere mapping, as the shaders'
+/// override constants, so that the compiler drops every path the render cannot take
+/// (lavapipe runs a SIMD batch's lanes in lockstep and pays for every branch that is not
+/// constant); and the traversal stack's size, the BVH's depth.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct PipelineKey {
     layout: BvhLayout,
     kernel: Kernel,
     chunks: GeometryChunks,
-    /// Whether the BVH has instances (the shaders' `HAS_INSTANCES`).
+    /// `HAS_INSTANCES`: the BVH has instances.
     instances: bool,
+    /// `HAS_SPHERES`: the scene has spheres.
+    spheres: bool,
+    /// `HAS_TRIANGLES`: the scene has triangles, placed once or instanced.
+    triangles: bool,
+    /// `HAS_PLANES`: the scene has planes.
+    planes: bool,
+    /// `SAMPLER`.
+    sampler: Sampler,
+    /// `HEMISPHERE`.
+    hemisphere: Hemisphere,
+    /// `STACK_SIZE`.
+    stack_size: u32,
+}
+
+impl PipelineKey {
+    /// The key for rendering `scene` through `bvh` with `kernel`, its geometry split as
+    /// `chunks`.
+    fn new(scene: &Scene, bvh: &GpuBvh, kernel: Kernel, chunks: GeometryChunks) -> PipelineKey {
+        let s = &scene.settings;
+        PipelineKey {
+            layout: bvh.layout,
+            kernel,
+            chunks,
+            // The BVH2 layout flattens instances.
+            instances: bvh.layout == BvhLayout::Cwbvh && !scene.instances.is_empty(),
+            spheres: !scene.spheres.is_empty(),
+            triangles: !scene.triangles.is_empty() || !scene.instances.is_empty(),
+            planes: !scene.planes.is_empty(),
+            sampler: s.sampler,
+            hemisphere: s.hemisphere,
+            stack_size: bvh.stack_size(),
+        }
+    }
+
+    /// The override constants' values.
+    fn constants(&self) -> [(&'static str, f64); 6] {
+        let flag = |b: bool| if b { 1.0 } else { 0.0 };
+        [
+            ("HAS_INSTANCES", flag(self.instances)),
+            ("HAS_SPHERES", flag(self.spheres)),
+            ("HAS_TRIANGLES", flag(self.triangles)),
+            ("HAS_PLANES", flag(self.planes)),
+            ("SAMPLER", self.sampler.shader_id() as f64),
+            ("HEMISPHERE", self.hemisphere.shader_id() as f64),
+        ]
+    }
 }
 
 /// Storage bindings of the kernel besides the node and primitive chunks: frame,
@@ -831,13 +880,7 @@ impl<'a> GpuRenderer<'a> {
             mapped_at_creation: false,
         });
 
-        let (layout, pipeline, fresh) = ctx.pipeline(PipelineKey {
-            layout: bvh.layout,
-            kernel,
-            chunks,
-            // The BVH2 layout flattens instances.
-            instances: bvh.layout == BvhLayout::Cwbvh && !scene.instances.is_empty(),
-        })?;
+        let (layout, pipeline, fresh) = ctx.pipeline(PipelineKey::new(scene, bvh, kernel, chunks))?;
         let dispatch_binding = wgpu::BufferBinding {
             buffer: &dispatch,
             offset: 0,
