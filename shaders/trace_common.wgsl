@@ -32,6 +32,10 @@ struct Hit {
     instance: u32,  // the slot of the instance record a primitive was reached through, or NO_INSTANCE
 }
 
+// The invocation's index in its workgroup, below TRAVERSAL_LANES (each entry point sets
+// it): its column of a traversal's workgroup stacks.
+var<private> lane: u32;
+
 // Loop iterations spent by this invocation so far.
 var<private> steps: u32 = 0u;
 // Set when a traversal ran out of budget: its answer is wrong and the sample is void.

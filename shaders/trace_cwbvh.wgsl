@@ -1,8 +1,8 @@
 //#import trace_common.wgsl
 // Traversal of obvhs's compressed 8-wide BVH (Ylitie, Karras & Laine, "Efficient
 // Incoherent Ray Traversal on GPUs Through Compressed Wide BVHs", HPG 2017), following
-// obvhs's node encoding and its `traverse!` macro, as one loop that visits a node or a
-// primitive per iteration.
+// obvhs's node encoding and its `traverse!` macro, as one loop that tests a primitive and
+// visits a node in each iteration.
 
 // obvhs::cwbvh::node::CwBvhNode, 80 bytes, as words:
 // n0 = (p.x, p.y, p.z, e.x | e.y << 8 | e.z << 16 | imask << 24)
@@ -92,30 +92,48 @@ fn ray_state(o: vec3f, d: vec3f) -> RayState {
     return RayState(o, d, safe_inverse(d), oct_inv4, sh, permute_axes(o, sh.k));
 }
 
+// The traversal stacks of a workgroup's invocations, entry k of invocation `lane` at
+// k × TRAVERSAL_LANES + lane. In workgroup memory rather than a private array: lavapipe
+// reads and writes a private array at a per-lane index through every one of its entries,
+// workgroup memory at one address per lane.
+var<workgroup> stacks: array<vec2u, STACK_SIZE * TRAVERSAL_LANES>;
+
 // Closest hit within (0, t_max) or, with any_hit, the first hit found. A leaf entry that
 // is an instance (src/bvh.rs PRIM_INSTANCE) carries the ray into its mesh's space and
 // continues at its mesh's root, stacking on top of the top level's entries; once those
 // are done, the top level resumes where it left off. The direction is not renormalized,
 // so t means the same in both spaces.
+//
+// Each iteration tests one primitive of the leaf in front and visits one node: lavapipe
+// runs a SIMD batch's lanes in lockstep through both halves of a branch, so an iteration
+// that did only one of the two would pay for both. A leaf found while another's
+// primitives are still being tested waits in a second slot; a node is visited only while
+// that slot is free.
 fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     var hit = trace_planes(o, d, t_max, any_hit);
     if (frame.node_count == 0u || (any_hit && hit.kind != HIT_NONE)) {
         return hit;
     }
     var ray = ray_state(o, d);
-    var stack: array<vec2u, STACK_SIZE>;
     var sp = 0u;
-    // (first child node, hit bits in 24..32 | imask), and (first primitive, hit bits).
+    // (first child node, hit bits in 24..32 | imask), and (first primitive, hit bits) of
+    // the leaf in front and of the one waiting.
     var node_group = vec2u(0u, 0x80000000u);
     var prim_group = vec2u(0u, 0u);
+    var prim_next = vec2u(0u, 0u);
     // The instance being traversed, and where the top level resumes after it.
     var instance = NO_INSTANCE;
     var base_sp = 0u;
     var top_node_group = vec2u(0u, 0u);
     var top_prim_group = vec2u(0u, 0u);
+    var top_prim_next = vec2u(0u, 0u);
     loop {
         if (!take_step()) {
             break;
+        }
+        if (prim_group.y == 0u) {
+            prim_group = prim_next;
+            prim_next = vec2u(0u, 0u);
         }
         if (prim_group.y != 0u) {
             let local = firstLeadingBit(prim_group.y);
@@ -127,10 +145,12 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
                 base_sp = sp;
                 top_node_group = node_group;
                 top_prim_group = prim_group;
+                top_prim_next = prim_next;
                 let to_object = load_affine(bitcast<u32>(p.a.z));
                 ray = ray_state(affine_inverse_point(to_object, o), affine_vector(to_object, d));
                 node_group = vec2u(bitcast<u32>(p.a.y), 0x80000000u);
                 prim_group = vec2u(0u, 0u);
+                prim_next = vec2u(0u, 0u);
             } else {
                 let t = intersect_record(p, ray.o, ray.d, ray.sh, ray.op, hit.t);
                 if (t < hit.t) {
@@ -140,31 +160,41 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
                     }
                 }
             }
-        } else if ((node_group.y & 0xff000000u) != 0u) {
-            let hits_imask = node_group.y;
-            let child_bit = firstLeadingBit(hits_imask);
-            node_group.y &= ~(1u << child_bit);
-            if ((node_group.y & 0xff000000u) != 0u) {
-                stack[sp] = node_group;
-                sp += 1u;
-            }
-            let slot_index = (child_bit - 24u) ^ (ray.oct_inv4 & 0xffu);
-            let relative_index = countOneBits(hits_imask & ~(0xffffffffu << slot_index));
-            let node = load_node(node_group.x + relative_index);
-            let hitmask = intersect_node(node, ray.o, ray.inv_d, ray.oct_inv4, hit.t);
-            node_group = vec2u(node.n1.x, (hitmask & 0xff000000u) | (node.n0.w >> 24u));
-            prim_group = vec2u(node.n1.y, hitmask & 0x00ffffffu);
         }
-        if (prim_group.y == 0u && (node_group.y & 0xff000000u) == 0u) {
-            if (sp > base_sp) {
+        if (prim_next.y == 0u) {
+            if ((node_group.y & 0xff000000u) == 0u && sp > base_sp) {
                 sp -= 1u;
-                node_group = stack[sp];
-            } else if (HAS_INSTANCES && instance != NO_INSTANCE) {
+                node_group = stacks[sp * TRAVERSAL_LANES + lane];
+            }
+            if ((node_group.y & 0xff000000u) != 0u) {
+                let hits_imask = node_group.y;
+                let child_bit = firstLeadingBit(hits_imask);
+                node_group.y &= ~(1u << child_bit);
+                if ((node_group.y & 0xff000000u) != 0u) {
+                    stacks[sp * TRAVERSAL_LANES + lane] = node_group;
+                    sp += 1u;
+                }
+                let slot_index = (child_bit - 24u) ^ (ray.oct_inv4 & 0xffu);
+                let relative_index = countOneBits(hits_imask & ~(0xffffffffu << slot_index));
+                let node = load_node(node_group.x + relative_index);
+                let hitmask = intersect_node(node, ray.o, ray.inv_d, ray.oct_inv4, hit.t);
+                node_group = vec2u(node.n1.x, (hitmask & 0xff000000u) | (node.n0.w >> 24u));
+                let leaf = vec2u(node.n1.y, hitmask & 0x00ffffffu);
+                if (prim_group.y == 0u) {
+                    prim_group = leaf;
+                } else {
+                    prim_next = leaf;
+                }
+            }
+        }
+        if (prim_group.y == 0u && prim_next.y == 0u && (node_group.y & 0xff000000u) == 0u && sp == base_sp) {
+            if (HAS_INSTANCES && instance != NO_INSTANCE) {
                 instance = NO_INSTANCE;
                 base_sp = 0u;
                 ray = ray_state(o, d);
                 node_group = top_node_group;
                 prim_group = top_prim_group;
+                prim_next = top_prim_next;
             } else {
                 break;
             }

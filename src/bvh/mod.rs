@@ -35,11 +35,10 @@ pub const PRIM_INSTANCE: u32 = 2;
 /// Most entries of the BVH2 traversal stack in the shader; deeper trees are refused.
 pub const BVH2_STACK_SIZE: u32 = 64;
 /// Most entries of the CWBVH traversal stack (one per level at most); deeper trees are
-/// refused. The kernel's stack holds as many entries as its BVH is deep
-/// ([`GpuBvh::stack_size`]), no more: the private array is zeroed and indexed per
-/// invocation, and on lavapipe the bunny (512², 64 spp) took 7.9 s with 64 entries and
-/// 6.0 s with 24.
-pub const CWBVH_STACK_SIZE: u32 = 32;
+/// refused. The kernel's stacks hold as many entries as its BVH is deep
+/// ([`GpuBvh::stack_size`]), no more; at most 31 so that a workgroup's 64 stacks fit its
+/// 16 KiB of workgroup memory beside the counters (src/gpu/mod.rs checks).
+pub const CWBVH_STACK_SIZE: u32 = 31;
 
 /// The node layout the GPU traverses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]

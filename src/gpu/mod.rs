@@ -96,10 +96,23 @@ pub fn safe_samples_per_invocation(rays: u32, nodes: usize, references: usize, p
     }
     s
 }
-/// Workgroup size of the AO kernel.
+/// Workgroup size of the AO kernel: an 8 × 8 tile of pixels (ao.wgsl `tile_pixel` lays
+/// them out for that size).
 pub const WORKGROUP_SIZE: [u32; 2] = [8, 8];
 /// Workgroup size of the probe kernel (one dimension: point × lane slots).
 pub const PROBE_WORKGROUP_SIZE: u32 = 64;
+/// Invocations in a workgroup of either kernel: the columns of the CWBVH traversal's
+/// stacks in workgroup memory.
+pub const TRAVERSAL_LANES: u32 = 64;
+const _: () = assert!(WORKGROUP_SIZE[0] == 8 && WORKGROUP_SIZE[1] == 8);
+const _: () = assert!(WORKGROUP_SIZE[0] * WORKGROUP_SIZE[1] == TRAVERSAL_LANES);
+const _: () = assert!(PROBE_WORKGROUP_SIZE == TRAVERSAL_LANES);
+// The stacks (8-byte entries) and the workgroup counters fit the 16 KiB of workgroup
+// memory that WebGPU's default limits promise.
+const _: () = assert!(
+    TRAVERSAL_LANES * crate::bvh::CWBVH_STACK_SIZE * 8 + COUNTER_COUNT * 4
+        <= wgpu::Limits::downlevel_defaults().max_compute_workgroup_storage_size
+);
 /// Counter of AO rays traced in a pass.
 pub const COUNTER_AO_RAYS: u32 = 0;
 /// Counter of samples voided by the traversal budget in a pass.
