@@ -83,3 +83,60 @@ fn a_traversal_near_the_budget_is_exact() {
         assert_eq!(cpu.mean(), film.mean());
     }
 }
+
+#[test]
+fn a_ray_through_a_row_of_instances_stays_within_the_budget() {
+    if !gpu_available() {
+        return;
+    }
+    // One mesh of 300 slivers placed 100 times in a row along the view: a ray down the row
+    // crosses every instance and every sliver's box in it, about 30,000 steps, though the
+    // BVH holds the mesh once. Few pixels see the row and the others only the floor, so
+    // passes grow to many samples: the samples an invocation takes must be bounded by the
+    // instances a ray can enter, not by the nodes and primitives counted once.
+    let dir = temp_dir();
+    let tris: Vec<_> = (0..300)
+        .map(|i| {
+            let z = i as f32 / 300.0 * 0.01;
+            [[-1.0, -1.0, z], [1.0, 1.0, z], [-0.98, -1.0, z]]
+        })
+        .collect();
+    write_obj(&dir.path().join("slivers.obj"), &tris);
+    let mut text = r#"
+        [image]
+        width = 64
+        height = 64
+        [sampling]
+        spp = 16
+        max_distance = 0.001
+        [camera]
+        type = "orthographic"
+        eye = [0.0, 0.0, 3.0]
+        look_at = [0.0, 0.0, 0.0]
+        height = 96.0
+        [[object]]
+        type = "plane"
+        point = [0.0, 0.0, -5.0]
+        normal = [0.0, 0.0, 1.0]
+        albedo = 0.5
+    "#
+    .to_string();
+    for j in 0..100 {
+        text += &format!(
+            "[[object]]\ntype = \"mesh\"\nfile = \"slivers.obj\"\nalbedo = 0.5\n\
+             transform = {{ translate = [0.0, 0.0, {}] }}\n",
+            -0.02 * j as f32
+        );
+    }
+    let scene = scene_from_toml(&text, dir.path());
+    assert_eq!(scene.instances.len(), 100);
+    let cpu = render_on(&scene, Device::Cpu);
+    for options in gpu_options() {
+        let film = render_with(&scene, &options);
+        // No AO ray reaches anything within 0.001: each sample is the albedo, 0.5.
+        for v in film.mean() {
+            assert_eq!(v as f32, 0.5, "{}: pixel value {v}", label(&options));
+        }
+        assert_eq!(cpu.mean(), film.mean());
+    }
+}

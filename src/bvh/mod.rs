@@ -419,6 +419,28 @@ impl GpuBvh {
         self.depth.max(1)
     }
 
+    /// The most traversal loop iterations one ray can take through this BVH of `scene`
+    /// (planes aside). Every iteration visits a node or tests a primitive reference, and
+    /// a ray meets each of the top level's at most once; the nodes and references of an
+    /// instanced mesh, once per instance that the ray enters, plus the iteration that
+    /// may return it to the top level with nothing left to do there.
+    pub fn ray_steps(&self, scene: &Scene) -> u64 {
+        match &self.records {
+            GpuRecords::Made(records) => self.node_count as u64 + records.len() as u64,
+            GpuRecords::Cwbvh { top, meshes, roots, .. } => {
+                let top_nodes = roots.first().copied().unwrap_or(self.node_count);
+                // The meshes' nodes follow the top level's, each mesh's from its root on.
+                let mesh_nodes = |m: usize| roots.get(m + 1).copied().unwrap_or(self.node_count) - roots[m];
+                let entered: u64 = scene
+                    .instances
+                    .iter()
+                    .map(|i| 1 + mesh_nodes(i.mesh as usize) as u64 + meshes[i.mesh as usize].len() as u64)
+                    .sum();
+                top_nodes as u64 + top.len() as u64 + entered
+            }
+        }
+    }
+
     /// Bytes to upload: nodes and primitive records.
     pub fn bytes(&self) -> u64 {
         (self.node_bytes.len() + self.records.len() * std::mem::size_of::<GpuPrimitive>()) as u64

@@ -83,13 +83,12 @@ fn traversal_budget(samples: u32) -> u32 {
 }
 
 /// How many samples one invocation can render in turn without any chance of running out
-/// of budget, given a bound on one sample's traversal iterations: every traversal loop
-/// iteration visits a BVH node, tests a primitive reference or a plane, and a ray visits
-/// each at most once, so one sample's rays take at most `rays` × (nodes + primitive
-/// references + planes). At least 1: a sample that alone could exceed the budget is
-/// rendered one per invocation, where running out is detected and reported.
-pub fn safe_samples_per_invocation(rays: u32, nodes: usize, references: usize, planes: usize) -> u32 {
-    let steps = (rays as u64) * (nodes + references + planes) as u64;
+/// of budget, given `ray_steps`, the most traversal loop iterations one ray can take
+/// ([`GpuBvh::ray_steps`] plus the planes): one sample's rays take at most `rays` ×
+/// `ray_steps`. At least 1: a sample that alone could exceed the budget is rendered one
+/// per invocation, where running out is detected and reported.
+pub fn safe_samples_per_invocation(rays: u32, ray_steps: u64) -> u32 {
+    let steps = rays as u64 * ray_steps;
     let mut s = 1;
     while s < MAX_PASS_SAMPLES && (s as u64 + 1) * steps <= traversal_budget(s + 1) as u64 {
         s += 1;
@@ -954,7 +953,7 @@ impl<'a> GpuRenderer<'a> {
             Kernel::Probe => 1,
         };
         let safe_samples_per_invocation =
-            safe_samples_per_invocation(rays_per_sample, bvh.node_count as usize, record_count, scene.planes.len());
+            safe_samples_per_invocation(rays_per_sample, bvh.ray_steps(scene) + scene.planes.len() as u64);
         Ok(GpuRenderer {
             ctx,
             pipeline,
@@ -1136,11 +1135,9 @@ mod tests {
     /// the other loops within lavapipe's cap; one more would not fit.
     #[test]
     fn safe_samples_per_invocation_fill_the_loop_cap() {
-        for (rays, nodes, refs, planes) in
-            [(2, 1, 1, 1), (2, 0, 0, 1), (2, 5, 3, 1), (1, 600, 1162, 0), (2, 600, 1162, 0), (2, 20_000, 40_000, 0)]
-        {
-            let steps = rays as u64 * (nodes + refs + planes) as u64;
-            let s = safe_samples_per_invocation(rays, nodes, refs, planes);
+        for (rays, ray_steps) in [(2, 3), (2, 1), (2, 9), (1, 1762), (2, 1762), (2, 60_000)] {
+            let steps = rays as u64 * ray_steps;
+            let s = safe_samples_per_invocation(rays, ray_steps);
             let budget = traversal_budget(s);
             assert!(
                 budget as u64 + (s * SAMPLE_LOOP_OVERHEAD + INVOCATION_LOOP_OVERHEAD) as u64
@@ -1153,7 +1150,7 @@ mod tests {
                 assert!((s as u64 + 1) * steps > traversal_budget(s + 1) as u64, "{} would fit too", s + 1);
             }
         }
-        assert_eq!(safe_samples_per_invocation(2, 20_000, 40_000, 0), 1);
+        assert_eq!(safe_samples_per_invocation(2, 60_000), 1);
         assert_eq!(traversal_budget(1), TRAVERSAL_BUDGET);
     }
 }
