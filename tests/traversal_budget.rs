@@ -12,13 +12,32 @@ mod common;
 use aorender::{Device, Error, Scene, render};
 use common::*;
 
-fn sliver_stack(slivers: usize, dir: &std::path::Path) -> Scene {
-    let mut tris: Vec<_> = (0..slivers)
+/// `count` thin slivers along the diagonal of the square [-1, 1]², one above the other
+/// from z = 0 to z = `height`.
+fn slivers(count: usize, height: f32) -> Vec<[[f32; 3]; 3]> {
+    (0..count)
         .map(|i| {
-            let z = i as f32 / slivers as f32;
+            let z = i as f32 / count as f32 * height;
             [[-1.0, -1.0, z], [1.0, 1.0, z], [-0.98, -1.0, z]]
         })
-        .collect();
+        .collect()
+}
+
+/// Renders `scene` on every GPU option and on the CPU, and checks that every pixel is
+/// 0.5 (the albedo, no AO ray reaching anything) and that the two agree.
+fn assert_every_pixel_is_one_half(scene: &Scene) {
+    let cpu = render_on(scene, Device::Cpu);
+    for options in gpu_options() {
+        let film = render_with(scene, &options);
+        for v in film.mean() {
+            assert_eq!(v as f32, 0.5, "{}: pixel value {v}: a traversal was cut short", label(&options));
+        }
+        assert_eq!(cpu.mean(), film.mean());
+    }
+}
+
+fn sliver_stack(count: usize, dir: &std::path::Path) -> Scene {
+    let mut tris = slivers(count, 1.0);
     // The floor is a triangle in the same BVH, behind the slivers: a traversal cut short
     // never reaches it and returns the background (0) instead of the floor's 0.5.
     tris.push([[-4.0, -4.0, -2.0], [4.0, -4.0, -2.0], [0.0, 4.0, -2.0]]);
@@ -72,16 +91,8 @@ fn a_traversal_near_the_budget_is_exact() {
     let dir = temp_dir();
     // About 40,000 primitive tests plus the inner nodes on the way: well past half of
     // lavapipe's cap, so a kernel that looped more than it counts would be cut short.
-    let scene = sliver_stack(40_000, dir.path());
-    let cpu = render_on(&scene, Device::Cpu);
-    for options in gpu_options() {
-        let film = render_with(&scene, &options);
-        // Every camera ray reaches the floor; no AO ray reaches anything: each sample is 0.5.
-        for v in film.mean() {
-            assert_eq!(v as f32, 0.5, "{}: pixel value {v}: a traversal was cut short", label(&options));
-        }
-        assert_eq!(cpu.mean(), film.mean());
-    }
+    // Every camera ray reaches the floor; no AO ray reaches anything: each sample is 0.5.
+    assert_every_pixel_is_one_half(&sliver_stack(40_000, dir.path()));
 }
 
 #[test]
@@ -95,13 +106,7 @@ fn a_ray_through_a_row_of_instances_stays_within_the_budget() {
     // passes grow to many samples: the samples an invocation takes must be bounded by the
     // instances a ray can enter, not by the nodes and primitives counted once.
     let dir = temp_dir();
-    let tris: Vec<_> = (0..300)
-        .map(|i| {
-            let z = i as f32 / 300.0 * 0.01;
-            [[-1.0, -1.0, z], [1.0, 1.0, z], [-0.98, -1.0, z]]
-        })
-        .collect();
-    write_obj(&dir.path().join("slivers.obj"), &tris);
+    write_obj(&dir.path().join("slivers.obj"), &slivers(300, 0.01));
     let mut text = r#"
         [image]
         width = 64
@@ -130,13 +135,6 @@ fn a_ray_through_a_row_of_instances_stays_within_the_budget() {
     }
     let scene = scene_from_toml(&text, dir.path());
     assert_eq!(scene.instances.len(), 100);
-    let cpu = render_on(&scene, Device::Cpu);
-    for options in gpu_options() {
-        let film = render_with(&scene, &options);
-        // No AO ray reaches anything within 0.001: each sample is the albedo, 0.5.
-        for v in film.mean() {
-            assert_eq!(v as f32, 0.5, "{}: pixel value {v}", label(&options));
-        }
-        assert_eq!(cpu.mean(), film.mean());
-    }
+    // No AO ray reaches anything within 0.001: each sample is the albedo, 0.5.
+    assert_every_pixel_is_one_half(&scene);
 }
