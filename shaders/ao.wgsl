@@ -171,7 +171,7 @@ fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_i
         for (var k = 0u; k < dispatch.sample_count; k++) {
             let index = dispatch.first_sample + k;
             let u = sample_point_uniforms(SAMPLER, pixel.x, pixel.y, index, frame.seed, frame.strata);
-            acc = accumulate(acc, shade_sample(pixel.xy, u));
+            acc = accumulate(acc, shade_sample(pixel, u));
         }
         film[i] = acc;
         atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);
