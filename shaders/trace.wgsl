@@ -17,8 +17,10 @@ struct Node {
 
 // Closest hit within (0, t_max) or, with any_hit, the first hit found.
 fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
+    share_steps();
     var hit = trace_planes(o, d, t_max, any_hit);
     if (frame.node_count == 0u || (any_hit && hit.kind != HIT_NONE)) {
+        share_steps();
         return hit;
     }
     let inv_d = safe_inverse(d);
@@ -80,5 +82,6 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
         sp -= 1u;
         cur = stack[sp];
     }
+    share_steps();
     return hit;
 }

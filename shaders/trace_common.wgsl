@@ -1,10 +1,12 @@
 //#import bindings.wgsl
 //#import intersect.wgsl
 //#import primitive_bindings.wgsl
+//#import batch.wgsl
 // What both BVH traversals share: the hit record, the iteration budget, primitives and
-// planes. Every traversal loop iteration of an invocation is counted in `steps` against
-// dispatch.traversal_budget (lavapipe silently ends an invocation after 65,535 loop
-// iterations; the host leaves room in that cap for the other loops of the kernel).
+// planes. Every traversal loop iteration is counted in `steps` against
+// dispatch.traversal_budget: lavapipe silently ends a SIMD batch of invocations after
+// 65,535 loop iterations, counting each iteration that any of them runs, and the host
+// leaves room in that cap for the other loops of the kernel.
 
 const HIT_NONE: u32 = 0u;
 const HIT_PRIMITIVE: u32 = 1u;
@@ -36,10 +38,17 @@ struct Hit {
 // it): its column of a traversal's workgroup stacks.
 var<private> lane: u32;
 
-// Loop iterations spent by this invocation so far.
+// Loop iterations spent so far, as the batch counts them where the device has subgroup
+// operations: share_steps, before and after every traversal, gives the invocations that
+// trace together the largest count among them, and within a traversal's loop those
+// still running count every iteration the batch runs.
 var<private> steps: u32 = 0u;
 // Set when a traversal ran out of budget: its answer is wrong and the sample is void.
 var<private> truncated: bool = false;
+
+fn share_steps() {
+    steps = batch_max(steps);
+}
 
 // Counts one loop iteration; false (and `truncated` set) once the budget is spent.
 fn take_step() -> bool {

@@ -110,8 +110,10 @@ var<workgroup> stacks: array<vec2u, STACK_SIZE * TRAVERSAL_LANES>;
 // primitives are still being tested waits in a second slot; a node is visited only while
 // that slot is free.
 fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
+    share_steps();
     var hit = trace_planes(o, d, t_max, any_hit);
     if (frame.node_count == 0u || (any_hit && hit.kind != HIT_NONE)) {
+        share_steps();
         return hit;
     }
     var ray = ray_state(o, d);
@@ -200,5 +202,6 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             }
         }
     }
+    share_steps();
     return hit;
 }

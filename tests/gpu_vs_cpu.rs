@@ -113,7 +113,7 @@ fn samples_per_invocation_leave_the_film_unchanged() {
                 films.push((per, renderer.read_film(64).unwrap()));
             }
             let (most, _) = films[2];
-            assert!(most > 7, "{what} {layout:?}: only {most} samples per invocation are safe");
+            assert!(most > 7, "{what} {layout:?}: only {most} samples per invocation were set");
             for (per, film) in &films[1..] {
                 assert_eq!(film.sum, films[0].1.sum, "{what} {layout:?}: {per} samples per invocation");
                 assert_eq!(film.sum_sq, films[0].1.sum_sq, "{what} {layout:?}: {per} samples per invocation");

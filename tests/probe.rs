@@ -189,7 +189,7 @@ fn rounds_per_invocation_leave_the_sums_unchanged() {
             }
             sums.push((per, renderer.read_film(0).unwrap()));
         }
-        assert!(sums[2].0 > 37, "{layout:?}: only {} rounds per invocation are safe", sums[2].0);
+        assert!(sums[2].0 > 37, "{layout:?}: only {} rounds per invocation were set", sums[2].0);
         for (per, film) in &sums[1..] {
             assert_eq!(film.sum, sums[0].1.sum, "{layout:?}: {per} rounds per invocation");
             assert_eq!(film.sum_sq, sums[0].1.sum_sq, "{layout:?}: {per} rounds per invocation");

@@ -3,7 +3,7 @@
 
 use aorender::bvh::{BvhLayout, GpuNode, GpuPrimitive};
 use aorender::gpu::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint};
-use aorender::shaders::{GeometryChunks, GeometryStorage, compose_with, geometry_files};
+use aorender::shaders::{GeometryChunks, GeometryStorage, batch_file, compose_with, geometry_files};
 use obvhs::cwbvh::node::CwBvhNode;
 use std::collections::BTreeMap;
 
@@ -29,19 +29,29 @@ fn validate_chunked(
     files: &BTreeMap<String, String>,
 ) -> naga::Module {
     let layout = if traversal == "trace_cwbvh.wgsl" { BvhLayout::Cwbvh } else { BvhLayout::Bvh2 };
-    let generated = geometry_files(layout, chunks, layout.stack_size());
-    let lookup = |n: &str| {
-        if let Some((_, text)) = generated.iter().find(|(f, _)| *f == n) {
-            return Some(text.as_str());
-        }
-        files.get(if n == "trace.wgsl" { traversal } else { n }).map(|s| s.as_str())
-    };
-    let source = compose_with(name, &lookup).unwrap_or_else(|e| panic!("{name}: {e}"));
-    let module =
-        naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&source)));
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&source)));
+    // With batch_max from subgroup operations and without.
+    let [module, _] = [true, false].map(|subgroups| {
+        let [nodes, primitives] = geometry_files(layout, chunks, layout.stack_size());
+        let generated = [nodes, primitives, batch_file(subgroups)];
+        let lookup = |n: &str| {
+            if let Some((_, text)) = generated.iter().find(|(f, _)| *f == n) {
+                return Some(text.as_str());
+            }
+            files.get(if n == "trace.wgsl" { traversal } else { n }).map(|s| s.as_str())
+        };
+        let source = compose_with(name, &lookup).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let module =
+            naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&source)));
+        let capabilities = if subgroups {
+            naga::valid::Capabilities::all()
+        } else {
+            naga::valid::Capabilities::all() - naga::valid::Capabilities::SUBGROUP
+        };
+        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), capabilities)
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{name} (subgroups: {subgroups}): {}", e.emit_to_string(&source)));
+        module
+    });
     module
 }
 

@@ -61,12 +61,22 @@ fn lock(faults: &Mutex<Vec<Fault>>) -> MutexGuard<'_, Vec<Fault>> {
 }
 
 /// Traversal loop iterations one invocation may spend on all its rays together. Mesa
-/// 22.3's lavapipe silently ends an invocation after 65,535 loop iterations; a traversal
-/// that would pass the budget stops and voids its sample, and the pass reports
-/// [`Error::TraversalBudget`].
+/// 22.3's lavapipe silently ends a SIMD batch of invocations after 65,535 loop
+/// iterations, counting every iteration that any of them runs; a traversal that would
+/// pass the budget stops and voids its sample, and the pass is rendered again with fewer
+/// samples per invocation or reports [`Error::TraversalBudget`].
 pub const TRAVERSAL_BUDGET: u32 = 65_000;
-/// Mesa 22.3 lavapipe's per-invocation loop cap (`LP_MAX_TGSI_LOOP_ITERATIONS`).
+/// Mesa 22.3 lavapipe's loop cap per SIMD batch (`LP_MAX_TGSI_LOOP_ITERATIONS`).
 pub const LAVAPIPE_LOOP_CAP: u32 = 65_535;
+/// The most invocations a CPU driver runs in one SIMD batch (32-bit lanes of a 512-bit
+/// vector): where the kernel cannot count a batch's iterations together (no subgroup
+/// operations), each invocation's budget is that share of the batch's.
+const MAX_BATCH_LANES: u32 = 16;
+/// Samples an invocation renders in turn where the BVH alone cannot promise that they
+/// fit the loop cap. Each dispatch reads and writes the film and adds its counters once
+/// per invocation; a pass that runs out of budget is rendered again with the safe count.
+/// The bunny (512², 32 spp, cosine, lavapipe) renders about 10 % faster than with one.
+pub const PREFERRED_SAMPLES_PER_INVOCATION: u32 = 16;
 /// Loop iterations a sample may take outside the traversal loops: its turn of the
 /// kernel's sample loop, the two turns of its ray loop (camera ray, AO ray), the
 /// sampler's permutation walks, and the exits of bounded loops.
@@ -75,18 +85,32 @@ const SAMPLE_LOOP_OVERHEAD: u32 = crate::sampler::SAMPLER_LOOP_BOUND + 10;
 const INVOCATION_LOOP_OVERHEAD: u32 = 8;
 const _: () = assert!(TRAVERSAL_BUDGET + SAMPLE_LOOP_OVERHEAD + INVOCATION_LOOP_OVERHEAD <= LAVAPIPE_LOOP_CAP);
 
-/// The traversal budget of an invocation that renders `samples` samples: what lavapipe's
-/// cap leaves after their other loops, and at most [`TRAVERSAL_BUDGET`].
+/// The traversal iterations a SIMD batch of invocations that each render `samples`
+/// samples may run: what lavapipe's cap leaves after their other loops, and at most
+/// [`TRAVERSAL_BUDGET`].
 fn traversal_budget(samples: u32) -> u32 {
     let other = samples.saturating_mul(SAMPLE_LOOP_OVERHEAD).saturating_add(INVOCATION_LOOP_OVERHEAD);
     TRAVERSAL_BUDGET.min(LAVAPIPE_LOOP_CAP.saturating_sub(other))
 }
 
+/// The budget the kernel checks `steps` against in a dispatch of `samples` samples of
+/// `rays` rays per invocation, a ray taking at most `ray_steps` iterations. Where that
+/// worst case fits, nothing can run out: the batch's whole budget. Otherwise, with
+/// `shared` steps (the kernel counts a batch's iterations together, src/shaders.rs
+/// `batch_file`) also the batch's budget, and without, each invocation's share: a batch
+/// runs each of its loops as long as its longest lane, so at most min(lanes, rays ×
+/// samples) times the count of its busiest invocation.
+fn dispatch_budget(samples: u32, rays: u32, ray_steps: u64, shared: bool) -> u32 {
+    let batch = traversal_budget(samples);
+    let worst = samples as u64 * rays as u64 * ray_steps;
+    if shared || worst <= batch as u64 { batch } else { batch / MAX_BATCH_LANES.min(rays.saturating_mul(samples)) }
+}
+
 /// How many samples one invocation can render in turn without any chance of running out
 /// of budget, given `ray_steps`, the most traversal loop iterations one ray can take
 /// ([`GpuBvh::ray_steps`] plus the planes): one sample's rays take at most `rays` ×
-/// `ray_steps`. At least 1: a sample that alone could exceed the budget is rendered one
-/// per invocation, where running out is detected and reported.
+/// `ray_steps`, and a batch's loops as many. At least 1: a sample that alone could exceed
+/// the budget is rendered one per invocation, where running out is detected and reported.
 pub fn safe_samples_per_invocation(rays: u32, ray_steps: u64) -> u32 {
     let steps = rays as u64 * ray_steps;
     let mut s = 1;
@@ -214,8 +238,9 @@ impl GpuContext {
         };
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("aorender"),
-            // Pass times from timestamp queries where the adapter has them.
-            required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
+            // Pass times from timestamp queries, and a traversal budget counted per
+            // SIMD batch from subgroup operations, where the adapter has them.
+            required_features: adapter.features() & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SUBGROUP),
             // wgpu's defaults cap a storage binding at 128 MiB: ask for what the adapter has.
             required_limits: adapter.limits(),
             ..Default::default()
@@ -348,7 +373,8 @@ impl GpuContext {
         if let Some((_, l, p)) = cache.iter().find(|(k, _, _)| *k == key) {
             return Ok((l.clone(), p.clone(), false));
         }
-        let source = crate::shaders::compose("ao.wgsl", layout, chunks, stack_size).map_err(Error::Gpu)?;
+        let source =
+            crate::shaders::compose("ao.wgsl", layout, chunks, stack_size, self.shared_steps()).map_err(Error::Gpu)?;
         let device = &self.device;
         let entry = |binding: u32, ty: wgpu::BufferBindingType, dynamic: bool| wgpu::BindGroupLayoutEntry {
             binding,
@@ -407,6 +433,12 @@ impl GpuContext {
         });
         cache.push((key, bind_group_layout.clone(), pipeline.clone()));
         Ok((bind_group_layout, pipeline, true))
+    }
+
+    /// Whether the kernel counts a SIMD batch's traversal iterations together (the device
+    /// has subgroup operations): src/shaders.rs `batch_file`.
+    fn shared_steps(&self) -> bool {
+        self.device.features().contains(wgpu::Features::SUBGROUP)
     }
 
     /// The most serious device error since the last call, if any: a lost device, then
@@ -577,6 +609,10 @@ pub struct GpuRenderer<'a> {
     samples_per_invocation: u32,
     /// The most that cannot run out of traversal budget.
     safe_samples_per_invocation: u32,
+    /// Rays of one sample (or probe round) of one invocation.
+    rays_per_sample: u32,
+    /// The most traversal iterations one ray can take.
+    ray_steps: u64,
     /// Bytes of device memory the renderer allocated.
     pub device_bytes: u64,
     /// Bindings holding the BVH nodes and the primitives.
@@ -952,8 +988,8 @@ impl<'a> GpuRenderer<'a> {
             Kernel::Image => 2,
             Kernel::Probe => 1,
         };
-        let safe_samples_per_invocation =
-            safe_samples_per_invocation(rays_per_sample, bvh.ray_steps(scene) + scene.planes.len() as u64);
+        let ray_steps = bvh.ray_steps(scene) + scene.planes.len() as u64;
+        let safe_samples_per_invocation = safe_samples_per_invocation(rays_per_sample, ray_steps);
         Ok(GpuRenderer {
             ctx,
             pipeline,
@@ -967,8 +1003,10 @@ impl<'a> GpuRenderer<'a> {
             width,
             height,
             kernel,
-            samples_per_invocation: safe_samples_per_invocation,
+            samples_per_invocation: safe_samples_per_invocation.max(PREFERRED_SAMPLES_PER_INVOCATION),
             safe_samples_per_invocation,
+            rays_per_sample,
+            ray_steps,
             device_bytes,
             geometry_bindings: (nodes.len() + primitives.len()) as u32,
             geometry_storage: chunks.storage,
@@ -983,19 +1021,52 @@ impl<'a> GpuRenderer<'a> {
         self.samples_per_invocation
     }
 
-    /// Sets the samples each invocation renders in turn, at most
-    /// [`safe_samples_per_invocation`] for this scene; returns the value set. The film
-    /// is the same, bit for bit, whatever the setting: each invocation adds its samples
-    /// in order, as one dispatch per sample would.
+    /// Sets the samples each invocation renders in turn, at most [`MAX_PASS_SAMPLES`];
+    /// returns the value set. The film is the same, bit for bit, whatever the setting:
+    /// each invocation adds its samples in order, as one dispatch per sample would, and a
+    /// pass that runs out of budget with more than [`safe_samples_per_invocation`] is
+    /// rendered again with that many.
     pub fn set_samples_per_invocation(&mut self, samples: u32) -> u32 {
-        self.samples_per_invocation = samples.clamp(1, self.safe_samples_per_invocation);
+        self.samples_per_invocation = samples.clamp(1, MAX_PASS_SAMPLES);
         self.samples_per_invocation
     }
 
     /// Adds samples `first .. first + count` of every pixel to the film, in order, and
     /// waits for them. For probes, `first .. first + count` are rounds: round r gives lane
     /// l of every point the sample index r × lanes + l.
+    ///
+    /// With more samples per invocation than are safe, the film is copied aside first; if
+    /// a ray runs out of budget, the copy is put back and the pass rendered again with the
+    /// safe count, which the renderer keeps from then on.
     pub fn render_pass(&mut self, first: u32, count: u32) -> Result<PassCounters> {
+        let per = self.samples_per_invocation;
+        let guarded = per.min(count) > self.safe_samples_per_invocation;
+        let (counters, truncated) = self.run_pass(first, count, guarded)?;
+        if truncated == 0 {
+            return Ok(counters);
+        }
+        if guarded {
+            let words: Vec<[f32; 4]> = self.read(&self.film_readback)?;
+            self.set_film_words(&words)?;
+            self.samples_per_invocation = self.safe_samples_per_invocation;
+            let (counters, truncated) = self.run_pass(first, count, false)?;
+            if truncated == 0 {
+                return Ok(counters);
+            }
+        }
+        let budget = self.dispatch_budget(self.samples_per_invocation.min(count));
+        Err(Error::TraversalBudget { count: truncated, budget })
+    }
+
+    /// The traversal budget of a dispatch of `samples` samples per invocation.
+    fn dispatch_budget(&self, samples: u32) -> u32 {
+        dispatch_budget(samples, self.rays_per_sample, self.ray_steps, self.ctx.shared_steps())
+    }
+
+    /// One try at [`GpuRenderer::render_pass`], copying the film to the readback buffer
+    /// first where `keep_film` is set; returns its counters and how many samples ran out
+    /// of budget.
+    fn run_pass(&mut self, first: u32, count: u32, keep_film: bool) -> Result<(PassCounters, u64)> {
         assert!((1..=MAX_PASS_SAMPLES).contains(&count), "pass of {count} samples");
         if self.lose_device_after == Some(self.passes_run) {
             self.ctx.device.destroy();
@@ -1009,7 +1080,7 @@ impl<'a> GpuRenderer<'a> {
             let u = DispatchUniforms {
                 first_sample: first.wrapping_add(k * per),
                 sample_count: n,
-                traversal_budget: traversal_budget(n),
+                traversal_budget: self.dispatch_budget(n),
                 _pad: 0,
             };
             let at = (DISPATCH_STRIDE * k as u64) as usize;
@@ -1019,6 +1090,9 @@ impl<'a> GpuRenderer<'a> {
         let mut encoder =
             self.ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("pass") });
         encoder.clear_buffer(&self.counters, 0, None);
+        if keep_film {
+            encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, None);
+        }
         {
             let timestamp_writes = self.timestamps.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
                 query_set: set,
@@ -1050,10 +1124,7 @@ impl<'a> GpuRenderer<'a> {
             tick(1).wrapping_sub(tick(0)) as f64 * self.ctx.queue.get_timestamp_period() as f64 * 1e-9
         });
         let truncated = words[COUNTER_TRUNCATED as usize] as u64;
-        if truncated > 0 {
-            return Err(Error::TraversalBudget { count: truncated, budget: traversal_budget(per) });
-        }
-        Ok(PassCounters { ao_rays: words[COUNTER_AO_RAYS as usize] as u64, gpu_seconds })
+        Ok((PassCounters { ao_rays: words[COUNTER_AO_RAYS as usize] as u64, gpu_seconds }, truncated))
     }
 
     /// Copies the film back: per-pixel compensated sums as f64.
@@ -1152,5 +1223,29 @@ mod tests {
         }
         assert_eq!(safe_samples_per_invocation(2, 60_000), 1);
         assert_eq!(traversal_budget(1), TRAVERSAL_BUDGET);
+    }
+
+    /// A batch of invocations cannot pass lavapipe's cap. With its iterations counted
+    /// together, or where the worst case fits, its budget is the whole of what the cap
+    /// leaves. Counted per invocation otherwise, the batch runs at most min(lanes, rays ×
+    /// samples) times its busiest invocation's count, so the budget is that share.
+    #[test]
+    fn dispatch_budgets_keep_a_batch_within_the_cap() {
+        for (samples, rays, ray_steps) in
+            [(1, 2, 40_000), (16, 2, 1000), (4, 1, 9), (16, 2, 3), (3, 2, 70_000), (64, 1, 2000)]
+        {
+            let batch = traversal_budget(samples);
+            assert_eq!(dispatch_budget(samples, rays, ray_steps, true), batch);
+            let own = dispatch_budget(samples, rays, ray_steps, false);
+            if samples as u64 * rays as u64 * ray_steps <= batch as u64 {
+                assert_eq!(own, batch);
+            } else {
+                let worst = own as u64 * MAX_BATCH_LANES.min(rays * samples) as u64;
+                assert!(worst <= batch as u64, "{samples} × {rays}: {worst} > {batch}");
+                assert!(own > 0);
+            }
+        }
+        assert_eq!(dispatch_budget(1, 2, 40_000, false), TRAVERSAL_BUDGET / 2);
+        assert_eq!(dispatch_budget(16, 2, 3, false), traversal_budget(16));
     }
 }
