@@ -1041,18 +1041,15 @@ impl<'a> GpuRenderer<'a> {
     pub fn render_pass(&mut self, first: u32, count: u32) -> Result<PassCounters> {
         let per = self.samples_per_invocation;
         let guarded = per.min(count) > self.safe_samples_per_invocation;
-        let (counters, truncated) = self.run_pass(first, count, guarded)?;
-        if truncated == 0 {
-            return Ok(counters);
-        }
-        if guarded {
+        let (mut counters, mut truncated) = self.run_pass(first, count, guarded)?;
+        if truncated > 0 && guarded {
             let words: Vec<[f32; 4]> = self.read(&self.film_readback)?;
             self.set_film_words(&words)?;
             self.samples_per_invocation = self.safe_samples_per_invocation;
-            let (counters, truncated) = self.run_pass(first, count, false)?;
-            if truncated == 0 {
-                return Ok(counters);
-            }
+            (counters, truncated) = self.run_pass(first, count, false)?;
+        }
+        if truncated == 0 {
+            return Ok(counters);
         }
         let budget = self.dispatch_budget(self.samples_per_invocation.min(count));
         Err(Error::TraversalBudget { count: truncated, budget })
