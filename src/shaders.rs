@@ -92,10 +92,12 @@ pub enum GeometryStorage {
     /// Storage buffers: `array<T>` indexed by element.
     #[default]
     Buffers,
-    /// `texture_2d<u32>` of `Rgba32Uint` texels, an element in consecutive texels of one
-    /// row, read with `textureLoad`. Mesa's lavapipe (22.x) reads a storage buffer at a
-    /// per-invocation index one lane and one word at a time, behind a branch each, but a
-    /// texel fetch as one gather for all lanes: several times faster there.
+    /// Read-only storage textures (`texture_storage_2d<rgba32uint, read>`), an element in
+    /// consecutive texels of one row, read with `textureLoad`. Mesa's lavapipe (22.x) reads
+    /// a storage buffer at a per-invocation index one lane and one word at a time, behind a
+    /// branch each, but an image load as one inlined gather for all lanes (a sampled
+    /// texture's texel fetch is a call that also handles mip levels): several times faster
+    /// there.
     Textures,
 }
 
@@ -205,7 +207,9 @@ fn chunked_array(
             GeometryStorage::Buffers => {
                 format!("@group(0) @binding({b}) var<storage, read> {name}_{k}: array<{ty}>;\n")
             }
-            GeometryStorage::Textures => format!("@group(0) @binding({b}) var {name}_{k}: texture_2d<u32>;\n"),
+            GeometryStorage::Textures => {
+                format!("@group(0) @binding({b}) var {name}_{k}: texture_storage_2d<rgba32uint, read>;\n")
+            }
         };
     }
     s += &format!("fn {load}(i: u32) -> {ty} {{\n");
@@ -219,7 +223,7 @@ fn chunked_array(
         GeometryStorage::Buffers => format!("return {name}_{k}[j];"),
         GeometryStorage::Textures => {
             let loads: String =
-                (0..e.texels).map(|c| format!("let t{c} = textureLoad({name}_{k}, vec2u(x + {c}u, y), 0); ")).collect();
+                (0..e.texels).map(|c| format!("let t{c} = textureLoad({name}_{k}, vec2u(x + {c}u, y)); ")).collect();
             format!("{loads}return {};", e.from_texels)
         }
     };

@@ -350,8 +350,8 @@ impl GpuContext {
                  × max_storage_buffer_binding_size",
             ),
             GeometryStorage::Textures => (
-                limits.max_sampled_textures_per_shader_stage,
-                "max_sampled_textures_per_shader_stage × the texels of a texture (max_texture_dimension_2d²)",
+                limits.max_storage_textures_per_shader_stage,
+                "max_storage_textures_per_shader_stage × the texels of a texture (max_texture_dimension_2d²)",
             ),
         };
         if chunks.node_chunks + chunks.primitive_chunks > allowed {
@@ -389,10 +389,10 @@ impl GpuContext {
             GeometryStorage::Textures => wgpu::BindGroupLayoutEntry {
                 binding,
                 visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Texture {
-                    sample_type: wgpu::TextureSampleType::Uint,
+                ty: wgpu::BindingType::StorageTexture {
+                    access: wgpu::StorageTextureAccess::ReadOnly,
+                    format: wgpu::TextureFormat::Rgba32Uint,
                     view_dimension: wgpu::TextureViewDimension::D2,
-                    multisampled: false,
                 },
                 count: None,
             },
@@ -759,7 +759,7 @@ fn texels(
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
         format: wgpu::TextureFormat::Rgba32Uint,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
     });
     let write = |y: u32, width: u32, height: u32, data: &[u8]| {
