@@ -95,8 +95,13 @@ fn ray_state(o: vec3f, d: vec3f) -> RayState {
 // The traversal stacks of a workgroup's invocations, entry k of invocation `lane` at
 // k × TRAVERSAL_LANES + lane. In workgroup memory rather than a private array: lavapipe
 // reads and writes a private array at a per-lane index through every one of its entries,
-// workgroup memory at one address per lane.
+// workgroup memory at one address per lane. Each lane's access is a turn of a loop over
+// the SIMD batch's lanes, and a read costs a store-forwarding stall per lane that reads,
+// so the traversal keeps its two newest entries in registers (NEAR_ENTRIES) and only
+// older ones come here.
 var<workgroup> stacks: array<vec2u, STACK_SIZE * TRAVERSAL_LANES>;
+// Stack entries held in registers (near0, near1).
+const NEAR_ENTRIES: u32 = 2u;
 
 // Closest hit within (0, t_max) or, with any_hit, the first hit found. A leaf entry that
 // is an instance (src/bvh.rs PRIM_INSTANCE) carries the ray into its mesh's space and
@@ -129,6 +134,15 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     var top_node_group = vec2u(0u, 0u);
     var top_prim_group = vec2u(0u, 0u);
     var top_prim_next = vec2u(0u, 0u);
+    // The stack's newest entries, near0 the newest, `near` of them in use; the entries
+    // below them are in `stacks`, sp of them. The top level's, while an instance is
+    // traversed.
+    var near0 = vec2u(0u, 0u);
+    var near1 = vec2u(0u, 0u);
+    var near = 0u;
+    var top_near0 = vec2u(0u, 0u);
+    var top_near1 = vec2u(0u, 0u);
+    var top_near = 0u;
     loop {
         if (!take_step()) {
             break;
@@ -148,6 +162,10 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
                 top_node_group = node_group;
                 top_prim_group = prim_group;
                 top_prim_next = prim_next;
+                top_near0 = near0;
+                top_near1 = near1;
+                top_near = near;
+                near = 0u;
                 let to_object = load_affine(bitcast<u32>(p.a.z));
                 ray = ray_state(affine_inverse_point(to_object, o), affine_vector(to_object, d));
                 node_group = vec2u(bitcast<u32>(p.a.y), 0x80000000u);
@@ -164,17 +182,28 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             }
         }
         if (prim_next.y == 0u) {
-            if ((node_group.y & 0xff000000u) == 0u && sp > base_sp) {
-                sp -= 1u;
-                node_group = stacks[sp * TRAVERSAL_LANES + lane];
+            if ((node_group.y & 0xff000000u) == 0u) {
+                if (near != 0u) {
+                    node_group = near0;
+                    near0 = near1;
+                    near -= 1u;
+                } else if (sp > base_sp) {
+                    sp -= 1u;
+                    node_group = stacks[sp * TRAVERSAL_LANES + lane];
+                }
             }
             if ((node_group.y & 0xff000000u) != 0u) {
                 let hits_imask = node_group.y;
                 let child_bit = firstLeadingBit(hits_imask);
                 node_group.y &= ~(1u << child_bit);
                 if ((node_group.y & 0xff000000u) != 0u) {
-                    stacks[sp * TRAVERSAL_LANES + lane] = node_group;
-                    sp += 1u;
+                    if (near == NEAR_ENTRIES) {
+                        stacks[sp * TRAVERSAL_LANES + lane] = near1;
+                        sp += 1u;
+                    }
+                    near1 = near0;
+                    near0 = node_group;
+                    near = min(near + 1u, NEAR_ENTRIES);
                 }
                 let slot_index = (child_bit - 24u) ^ (ray.oct_inv4 & 0xffu);
                 let relative_index = countOneBits(hits_imask & ~(0xffffffffu << slot_index));
@@ -189,7 +218,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
                 }
             }
         }
-        if (prim_group.y == 0u && prim_next.y == 0u && (node_group.y & 0xff000000u) == 0u && sp == base_sp) {
+        if (prim_group.y == 0u && prim_next.y == 0u && (node_group.y & 0xff000000u) == 0u && near == 0u && sp == base_sp) {
             if (HAS_INSTANCES && instance != NO_INSTANCE) {
                 instance = NO_INSTANCE;
                 base_sp = 0u;
@@ -197,6 +226,9 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
                 node_group = top_node_group;
                 prim_group = top_prim_group;
                 prim_next = top_prim_next;
+                near0 = top_near0;
+                near1 = top_near1;
+                near = top_near;
             } else {
                 break;
             }
