@@ -176,7 +176,7 @@ pub struct Checkpointing<'a> {
     /// a render that never stopped, on the same adapter.
     pub resume: Option<Accumulation>,
     /// Seconds between two saves, at least; stretched so that saving takes at most a tenth
-    /// of the render's time.
+    /// of the render's time. Zero or less saves after every pass, however long saving takes.
     pub interval: f64,
     /// Receives the accumulation every `interval` seconds and when the render ends
     /// (finished, out of time or stopped), not after an error: the last saved one stays.
@@ -328,7 +328,7 @@ fn accumulate(
         });
         if let Some(save) = save.as_mut()
             && acc.next < acc.end
-            && last_save.elapsed().as_secs_f64() >= interval.max(10.0 * save_seconds)
+            && (interval <= 0.0 || last_save.elapsed().as_secs_f64() >= interval.max(10.0 * save_seconds))
         {
             let t = Instant::now();
             acc.partial = if acc.partial_samples > 0 { Some(device.read()?) } else { None };
