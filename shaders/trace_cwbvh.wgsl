@@ -18,6 +18,32 @@ struct CwNode {
 
 //#import node_bindings.wgsl
 
+// firstLeadingBit(x) for 0 < x < 2^24. On a CPU adapter from the exponent of f32(x),
+// which is exact below 2^24: lavapipe's firstLeadingBit is a table lookup per nibble.
+fn msb24(x: u32) -> u32 {
+    if (CPU_LANES) {
+        return (bitcast<u32>(f32(i32(x))) >> 23u) - 127u;
+    }
+    return firstLeadingBit(x);
+}
+
+// max(a, b) and min(a, b). On a CPU adapter as a comparison and a select, which x86
+// does in one instruction (maxps, minps), and which gives b where either is NaN;
+// lavapipe's max and min add a NaN check and a blend to each.
+fn fmax_cpu(a: f32, b: f32) -> f32 {
+    if (CPU_LANES) {
+        return select(b, a, a > b);
+    }
+    return max(a, b);
+}
+
+fn fmin_cpu(a: f32, b: f32) -> f32 {
+    if (CPU_LANES) {
+        return select(b, a, a < b);
+    }
+    return min(a, b);
+}
+
 fn byte_at(word: u32, shift: u32) -> f32 {
     return f32((word >> shift) & 0xffu);
 }
@@ -51,9 +77,12 @@ fn child_hit(
 ) -> u32 {
     let tn3 = vec3f(byte_at(near.x, shift), byte_at(near.y, shift), byte_at(near.z, shift)) * scale + origin;
     let tf3 = vec3f(byte_at(far.x, shift), byte_at(far.y, shift), byte_at(far.z, shift)) * scale + origin;
-    let tn = max(max(tn3.x, tn3.y), max(tn3.z, 0.0));
+    // On a CPU adapter a NaN plane distance (an overflowed scale times a zero byte)
+    // cannot make tn or tf NaN, as the last operands, 0 and t_max, are not: it only
+    // loosens the test.
+    let tn = fmax_cpu(fmax_cpu(tn3.x, tn3.y), fmax_cpu(tn3.z, 0.0));
     // Widened by 1 + 2 gamma(3) as in intersect_box.
-    let tf = min(min(tf3.x, tf3.y), min(tf3.z, t_max)) * 1.0000008;
+    let tf = fmin_cpu(fmin_cpu(tf3.x, tf3.y), fmin_cpu(tf3.z, t_max)) * 1.0000008;
     if (tn <= tf) {
         return ((child_bits4 >> shift) & 0xffu) << ((bit_index4 >> shift) & 0xffu);
     }
@@ -152,7 +181,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             prim_next = vec2u(0u, 0u);
         }
         if (prim_group.y != 0u) {
-            let local = firstLeadingBit(prim_group.y);
+            let local = msb24(prim_group.y);
             prim_group.y &= ~(1u << local);
             let slot = prim_group.x + local;
             let p = load_primitive(slot);
@@ -194,7 +223,7 @@ fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
             }
             if ((node_group.y & 0xff000000u) != 0u) {
                 let hits_imask = node_group.y;
-                let child_bit = firstLeadingBit(hits_imask);
+                let child_bit = 24u + msb24(hits_imask >> 24u);
                 node_group.y &= ~(1u << child_bit);
                 if ((node_group.y & 0xff000000u) != 0u) {
                     if (near == NEAR_ENTRIES) {

@@ -202,6 +202,31 @@ fn geometry_in_buffers_or_textures_whole_or_split_renders_the_same_film() {
     assert!(e.contains("max_storage_buffers_per_shader_stage"), "{e}");
 }
 
+/// The traversal's formulations for CPU adapters (`CPU_LANES`: min and max as a
+/// comparison and a select, the leading bit from a float's exponent) and the plain ones
+/// render the same film, bit for bit, on the bunny and on the default scene's spheres.
+#[test]
+fn cpu_lane_formulations_render_the_same_film() {
+    if !gpu_available() {
+        return;
+    }
+    let mut bunny = Scene::load(&repo().join("scenes/bunny.obj")).unwrap_or_else(|e| panic!("{e}"));
+    (bunny.settings.width, bunny.settings.height) = (64, 64);
+    for scene in [bunny, aobench()] {
+        let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
+        let films = [false, true].map(|cpu_lanes| {
+            let mut ctx = GpuContext::new(None).unwrap();
+            ctx.set_cpu_lanes(cpu_lanes);
+            let mut renderer = GpuRenderer::new(&ctx, &scene, &bvh).unwrap();
+            renderer.render_pass(0, 16).unwrap();
+            renderer.read_film(16).unwrap()
+        });
+        assert!(films[0].image_mean() > 0.05, "{}: nothing in view", scene.name);
+        assert_eq!(films[0].sum, films[1].sum, "{}", scene.name);
+        assert_eq!(films[0].sum_sq, films[1].sum_sq, "{}", scene.name);
+    }
+}
+
 /// A mesh whose BVH is built in many octree cells and whose primitive records are made
 /// and uploaded in many pieces (202,520 triangles: 9.7 MB of records, 1 MiB a piece)
 /// renders like the CPU reference pixel by pixel with the same seed, in buffers and in

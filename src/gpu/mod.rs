@@ -206,6 +206,8 @@ pub struct GpuContext {
     geometry_storage: GeometryStorage,
     /// Largest width and height of a geometry texture (the adapter's limit, or less for tests).
     max_texture_size: [u32; 2],
+    /// The kernel's `CPU_LANES`: the adapter is a CPU (or a test asks for its formulations).
+    cpu_lanes: bool,
 }
 
 impl GpuContext {
@@ -272,6 +274,7 @@ impl GpuContext {
         let max_chunk_bytes = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
         let geometry_storage = GeometryStorage::preferred(adapter.get_info().device_type);
         let max_texture_size = [limits.max_texture_dimension_2d; 2];
+        let cpu_lanes = adapter.get_info().device_type == wgpu::DeviceType::Cpu;
         Ok(GpuContext {
             adapter,
             device,
@@ -282,6 +285,7 @@ impl GpuContext {
             max_chunk_bytes,
             geometry_storage,
             max_texture_size,
+            cpu_lanes,
         })
     }
 
@@ -294,6 +298,18 @@ impl GpuContext {
     /// Reads the geometry from `storage` in renderers made from now on.
     pub fn set_geometry_storage(&mut self, storage: GeometryStorage) {
         self.geometry_storage = storage;
+    }
+
+    /// Whether the traversal takes the formulations that compile to fewer instructions on
+    /// a CPU adapter (the shaders' `CPU_LANES`); by default where the adapter is a CPU.
+    pub fn cpu_lanes(&self) -> bool {
+        self.cpu_lanes
+    }
+
+    /// Compiles renderers made from now on with `CPU_LANES` = `cpu_lanes`: either choice
+    /// runs on any adapter and renders the same film (tests compare the two).
+    pub fn set_cpu_lanes(&mut self, cpu_lanes: bool) {
+        self.cpu_lanes = cpu_lanes;
     }
 
     /// Caps the width and height of a geometry texture below the adapter's limit, so that
@@ -517,10 +533,11 @@ pub struct PassCounters {
 }
 
 /// What a compiled pipeline is specialised for. Besides the layout, kernel and geometry
-/// split: what the scene holds, the sampler and the hemisphere mapping, as the shaders'
-/// override constants, so that the compiler drops every path the render cannot take
-/// (lavapipe runs a SIMD batch's lanes in lockstep and pays for every branch that is not
-/// constant); and the traversal stack's size, the BVH's depth.
+/// split: what the scene holds, the sampler, the hemisphere mapping and whether to take
+/// a CPU adapter's formulations, as the shaders' override constants, so that the compiler
+/// drops every path the render cannot take (lavapipe runs a SIMD batch's lanes in
+/// lockstep and pays for every branch that is not constant); and the traversal stack's
+/// size, the BVH's depth.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct PipelineKey {
     layout: BvhLayout,
@@ -540,12 +557,14 @@ struct PipelineKey {
     hemisphere: Hemisphere,
     /// `STACK_SIZE`.
     stack_size: u32,
+    /// `CPU_LANES`.
+    cpu_lanes: bool,
 }
 
 impl PipelineKey {
     /// The key for rendering `scene` through `bvh` with `kernel`, its geometry split as
     /// `chunks`.
-    fn new(scene: &Scene, bvh: &GpuBvh, kernel: Kernel, chunks: GeometryChunks) -> PipelineKey {
+    fn new(scene: &Scene, bvh: &GpuBvh, kernel: Kernel, chunks: GeometryChunks, cpu_lanes: bool) -> PipelineKey {
         let s = &scene.settings;
         PipelineKey {
             layout: bvh.layout,
@@ -559,17 +578,19 @@ impl PipelineKey {
             sampler: s.sampler,
             hemisphere: s.hemisphere,
             stack_size: bvh.stack_size(),
+            cpu_lanes,
         }
     }
 
     /// The override constants' values.
-    fn constants(&self) -> [(&'static str, f64); 6] {
+    fn constants(&self) -> [(&'static str, f64); 7] {
         let flag = |b: bool| if b { 1.0 } else { 0.0 };
         [
             ("HAS_INSTANCES", flag(self.instances)),
             ("HAS_SPHERES", flag(self.spheres)),
             ("HAS_TRIANGLES", flag(self.triangles)),
             ("HAS_PLANES", flag(self.planes)),
+            ("CPU_LANES", flag(self.cpu_lanes)),
             ("SAMPLER", self.sampler.shader_id() as f64),
             ("HEMISPHERE", self.hemisphere.shader_id() as f64),
         ]
@@ -928,7 +949,7 @@ impl<'a> GpuRenderer<'a> {
             mapped_at_creation: false,
         });
 
-        let (layout, pipeline, fresh) = ctx.pipeline(PipelineKey::new(scene, bvh, kernel, chunks))?;
+        let (layout, pipeline, fresh) = ctx.pipeline(PipelineKey::new(scene, bvh, kernel, chunks, ctx.cpu_lanes))?;
         let dispatch_binding = wgpu::BufferBinding {
             buffer: &dispatch,
             offset: 0,
