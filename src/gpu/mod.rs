@@ -300,14 +300,10 @@ impl GpuContext {
         self.geometry_storage = storage;
     }
 
-    /// Whether the traversal takes the formulations that compile to fewer instructions on
-    /// a CPU adapter (the shaders' `CPU_LANES`); by default where the adapter is a CPU.
-    pub fn cpu_lanes(&self) -> bool {
-        self.cpu_lanes
-    }
-
-    /// Compiles renderers made from now on with `CPU_LANES` = `cpu_lanes`: either choice
-    /// runs on any adapter and renders the same film (tests compare the two).
+    /// Compiles renderers made from now on with `CPU_LANES` = `cpu_lanes` (by default
+    /// true where the adapter is a CPU): the traversal then takes the formulations that
+    /// compile to fewer instructions on a CPU. Either choice runs on any adapter and
+    /// renders the same film (tests compare the two).
     pub fn set_cpu_lanes(&mut self, cpu_lanes: bool) {
         self.cpu_lanes = cpu_lanes;
     }
