@@ -1,0 +1,203 @@
+//! Command-line values shared by the `aorender` commands: the scene and device options,
+//! the image size, the value parsers and output checks.
+
+use anyhow::{Context, Result, bail};
+use aorender::{BuildQuality, BvhLayout, BvhOptions, Device, DeviceKind, GeometryStorage, Hemisphere, Sampler, Scene};
+use clap::ValueEnum;
+use clap::builder::TypedValueParser as _;
+use std::path::{Path, PathBuf};
+
+/// `--hemisphere` values: the library's names.
+pub fn hemisphere_parser() -> impl clap::builder::TypedValueParser<Value = Hemisphere> {
+    clap::builder::PossibleValuesParser::new(Hemisphere::ALL.map(Hemisphere::name))
+        .map(|name: String| Hemisphere::from_name(&name).expect("a listed name"))
+}
+
+/// `--sampler` values: the library's names.
+pub fn sampler_parser() -> impl clap::builder::TypedValueParser<Value = Sampler> {
+    clap::builder::PossibleValuesParser::new(Sampler::ALL.map(Sampler::name))
+        .map(|name: String| Sampler::from_name(&name).expect("a listed name"))
+}
+
+/// `--device`.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum DeviceArg {
+    Gpu,
+    Cpu,
+}
+
+impl DeviceArg {
+    /// The library's kind.
+    pub fn kind(self) -> DeviceKind {
+        match self {
+            DeviceArg::Gpu => DeviceKind::Gpu,
+            DeviceArg::Cpu => DeviceKind::Cpu,
+        }
+    }
+}
+
+/// `--bvh-quality`.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum QualityArg {
+    Fastest,
+    Fast,
+    Medium,
+    Slow,
+}
+
+/// `--bvh-layout`.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum LayoutArg {
+    Bvh2,
+    Cwbvh,
+}
+
+/// `--geometry-storage`.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum StorageArg {
+    /// Textures on a CPU adapter (lavapipe), storage buffers on a GPU.
+    Auto,
+    Buffers,
+    Textures,
+}
+
+/// Image size options shared by `render` and `compare`.
+#[derive(clap::Args)]
+pub struct SizeArgs {
+    /// Image width (default: the scene's).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (default: the scene's).
+    #[arg(long)]
+    pub height: Option<u32>,
+}
+
+impl SizeArgs {
+    /// The scene's settings with the size options applied.
+    pub fn apply(&self, scene: &mut Scene) {
+        let s = &mut scene.settings;
+        if let Some(w) = self.width {
+            s.width = w;
+        }
+        if let Some(h) = self.height {
+            s.height = h;
+        }
+    }
+}
+
+/// The scene and how to trace it: options shared by `render`, `compare` and `probe`.
+#[derive(clap::Args)]
+pub struct SceneArgs {
+    /// Scene file (.toml) or mesh (.obj). Default: the built-in aobench scene.
+    pub scene: Option<PathBuf>,
+    /// AO rays longer than this are unoccluded (default: the scene's, else unlimited).
+    #[arg(long, allow_negative_numbers = true)]
+    pub max_distance: Option<f32>,
+    /// Random seed (default: the scene's, else 0).
+    #[arg(long)]
+    pub seed: Option<u32>,
+    /// GPU (wgpu compute) or the CPU reference renderer.
+    #[arg(long, value_enum, default_value = "gpu")]
+    pub device: DeviceArg,
+    /// Pick the adapter whose name contains this (case-insensitive).
+    #[arg(long)]
+    pub adapter: Option<String>,
+    /// BVH build preset (obvhs).
+    #[arg(long, value_enum, default_value = "medium")]
+    pub bvh_quality: QualityArg,
+    /// BVH node layout the GPU traverses.
+    #[arg(long, value_enum, default_value = "cwbvh")]
+    pub bvh_layout: LayoutArg,
+    /// What holds the BVH and the primitives on the GPU: storage buffers or textures.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub geometry_storage: StorageArg,
+}
+
+impl SceneArgs {
+    /// The scene with the distance and seed options applied (not yet validated); the
+    /// loaders' warnings are printed.
+    pub fn load(&self) -> Result<Scene> {
+        let mut scene = match &self.scene {
+            Some(path) => Scene::load(path)?,
+            None => Scene::default_scene(),
+        };
+        for w in &scene.warnings {
+            eprintln!("aorender: warning: {w}");
+        }
+        let s = &mut scene.settings;
+        if self.max_distance.is_some() {
+            s.max_distance = self.max_distance;
+        }
+        if let Some(seed) = self.seed {
+            s.seed = seed;
+        }
+        Ok(scene)
+    }
+
+    /// Opens the device the options name.
+    pub fn device(&self) -> Result<Device> {
+        Ok(Device::open(self.device.kind(), self.adapter.as_deref())?)
+    }
+
+    /// How the scene is prepared on the device.
+    pub fn bvh(&self) -> BvhOptions {
+        BvhOptions {
+            quality: match self.bvh_quality {
+                QualityArg::Fastest => BuildQuality::Fastest,
+                QualityArg::Fast => BuildQuality::Fast,
+                QualityArg::Medium => BuildQuality::Medium,
+                QualityArg::Slow => BuildQuality::Slow,
+            },
+            layout: match self.bvh_layout {
+                LayoutArg::Bvh2 => BvhLayout::Bvh2,
+                LayoutArg::Cwbvh => BvhLayout::Cwbvh,
+            },
+            geometry_storage: match self.geometry_storage {
+                StorageArg::Auto => None,
+                StorageArg::Buffers => Some(GeometryStorage::Buffers),
+                StorageArg::Textures => Some(GeometryStorage::Textures),
+            },
+        }
+    }
+}
+
+/// An invalid setting as the command line reports it: "invalid option: …".
+pub fn invalid_option(e: aorender::Error) -> anyhow::Error {
+    anyhow::anyhow!("invalid option: {}", e.message())
+}
+
+/// Refuses an output path whose extension is not one of `allowed` (lower case, no dot),
+/// before any time is spent rendering.
+pub fn check_output_extension(path: &Path, allowed: &[&str]) -> Result<()> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    if allowed.contains(&ext.as_str()) {
+        return Ok(());
+    }
+    let mut expected: Vec<String> = allowed.iter().map(|e| format!(".{e}")).collect();
+    let last = expected.pop().unwrap_or_default();
+    let expected = if expected.is_empty() { last } else { format!("{} or {last}", expected.join(", ")) };
+    bail!("{}: unsupported output format: expected {expected}", path.display());
+}
+
+/// Fails when no file can be created beside `path` (before any time is spent rendering).
+pub fn check_writable(path: &Path) -> Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let name = path.file_name().with_context(|| format!("{}: not a file path", path.display()))?;
+    let probe = dir.join(format!(".{}.{}.probe", name.to_string_lossy(), std::process::id()));
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .with_context(|| format!("{}: cannot write beside it", path.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// Writes `json` and a newline to `path`, atomically.
+pub fn write_json(path: &Path, json: &str) -> Result<()> {
+    aorender::output::write_atomically(path, format!("{json}\n").as_bytes())?;
+    Ok(())
+}

@@ -1,0 +1,75 @@
+//! `aorender merge`: the accumulations of disjoint sample ranges of one render (the
+//! checkpoints of its shards) combined into its image.
+
+use crate::args::{check_output_extension, write_json};
+use anyhow::Result;
+use aorender::output::{IMAGE_EXTENSIONS, write_image};
+use aorender::{Accumulation, BLOCK_SAMPLES, MergedShard, merge};
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct MergeArgs {
+    /// Checkpoint files of the shards (`render --sample-range START..END --checkpoint FILE`).
+    #[arg(required = true)]
+    inputs: Vec<PathBuf>,
+    /// Output image: .png (8-bit sRGB), .exr or .pfm (32-bit float, linear).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Write the merge's statistics as JSON.
+    #[arg(long)]
+    stats: Option<PathBuf>,
+}
+
+/// What `aorender merge` reports.
+#[derive(serde::Serialize)]
+struct MergeStats {
+    samples_per_pixel: u32,
+    first_sample: u32,
+    width: u32,
+    height: u32,
+    image_mean: f64,
+    same_as_single_run: bool,
+    shards: Vec<MergedShard>,
+}
+
+pub fn run(args: MergeArgs) -> Result<()> {
+    check_output_extension(&args.output, &IMAGE_EXTENSIONS)?;
+    let mut shards = Vec::with_capacity(args.inputs.len());
+    for path in &args.inputs {
+        shards.push((path.clone(), Accumulation::read(path)?));
+    }
+    let merged = merge(&shards)?;
+    write_image(&merged.film, &args.output)?;
+    let stats = MergeStats {
+        samples_per_pixel: merged.end - merged.first,
+        first_sample: merged.first,
+        width: merged.film.width,
+        height: merged.film.height,
+        image_mean: merged.film.image_mean(),
+        same_as_single_run: merged.same_as_single_run,
+        shards: merged.shards,
+    };
+    let json = serde_json::to_string_pretty(&stats)?;
+    if let Some(path) = &args.stats {
+        write_json(path, &json)?;
+    }
+    eprintln!(
+        "{}: {}x{}, samples {}..{} from {} shards; mean {:.4}",
+        args.output.display(),
+        stats.width,
+        stats.height,
+        merged.first,
+        merged.end,
+        stats.shards.len(),
+        stats.image_mean
+    );
+    if !stats.same_as_single_run {
+        eprintln!(
+            "note: a shard boundary is not a multiple of {BLOCK_SAMPLES} samples, a shard was continued past an \
+             unaligned end, or the shards come from different adapters: the sums equal a single render's within \
+             float rounding, not bit for bit"
+        );
+    }
+    println!("{json}");
+    Ok(())
+}

@@ -1,0 +1,140 @@
+//! `aorender probe`: AO at points and normals read from a text file, written as CSV.
+
+use crate::args::{SceneArgs, check_output_extension, hemisphere_parser, invalid_option, sampler_parser};
+use anyhow::{Context, Result, anyhow, bail};
+use aorender::output::write_atomically;
+use aorender::{Hemisphere, Probe, ProbeValue, Sampler, Session};
+use glam::Vec3;
+use std::path::{Path, PathBuf};
+
+#[derive(clap::Args)]
+pub struct ProbeArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Probe points: one `x y z nx ny nz` per line (spaces or commas; `#` comments).
+    #[arg(long)]
+    points: PathBuf,
+    /// Output CSV (x,y,z,nx,ny,nz,ao,std_error,samples); `-` for standard output.
+    #[arg(short, long, default_value = "-")]
+    output: PathBuf,
+    /// Samples per probe.
+    #[arg(long, default_value_t = 4096)]
+    samples: u32,
+    /// AO direction distribution (default: the scene's, else cosine).
+    #[arg(long, value_parser = hemisphere_parser())]
+    hemisphere: Option<Hemisphere>,
+    /// Placement of the hemisphere numbers (default: the scene's, else independent).
+    #[arg(long, value_parser = sampler_parser())]
+    sampler: Option<Sampler>,
+}
+
+pub fn run(args: ProbeArgs) -> Result<()> {
+    let mut scene = args.scene.load()?;
+    let s = &mut scene.settings;
+    if let Some(h) = args.hemisphere {
+        s.hemisphere = h;
+    }
+    if let Some(p) = args.sampler {
+        s.sampler = p;
+    }
+    s.validate().map_err(invalid_option)?;
+    if args.samples == 0 {
+        bail!("invalid option: --samples must be at least 1");
+    }
+    let to_stdout = args.output.as_os_str() == "-";
+    if !to_stdout {
+        check_output_extension(&args.output, &["csv"])?;
+    }
+    let probes = read_probes(&args.points)?;
+    let settings = scene.settings.clone();
+    let session = Session::new(&args.scene.device()?, scene, &args.scene.bvh())?;
+    let out = session.probe(&probes, args.samples, &settings)?;
+    let csv = to_csv(&probes, &out.values);
+    if to_stdout {
+        print!("{csv}");
+    } else {
+        write_atomically(&args.output, csv.as_bytes())?;
+    }
+    eprintln!(
+        "{} probes × {} samples in {:.2} s ({:.1} M AO rays/s) on {}",
+        probes.len(),
+        args.samples,
+        out.seconds,
+        out.rays as f64 / out.seconds.max(1e-9) / 1e6,
+        out.adapter
+    );
+    Ok(())
+}
+
+/// Reads probes from a text file: one per line, `x y z nx ny nz` (whitespace or commas),
+/// `#` starts a comment. Errors name the file and line.
+pub fn read_probes(path: &Path) -> Result<Vec<Probe>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    parse_probes(&text).map_err(|m| anyhow!("{}: {m}", path.display()))
+}
+
+/// Parses the text of a probe file.
+pub fn parse_probes(text: &str) -> std::result::Result<Vec<Probe>, String> {
+    let mut probes = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("");
+        let fields: Vec<&str> = line.split(|c: char| c.is_whitespace() || c == ',').filter(|f| !f.is_empty()).collect();
+        if fields.is_empty() {
+            continue;
+        }
+        let at = |m: String| format!("line {}: {m}", i + 1);
+        if fields.len() != 6 {
+            return Err(at(format!("expected 6 numbers (x y z nx ny nz), found {}", fields.len())));
+        }
+        let mut v = [0f32; 6];
+        for (k, f) in fields.iter().enumerate() {
+            v[k] = f.parse().map_err(|_| at(format!("'{f}' is not a number")))?;
+        }
+        let probe = Probe::new(Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5])).map_err(|e| at(e.message()))?;
+        probes.push(probe);
+    }
+    if probes.is_empty() {
+        return Err("no probes".into());
+    }
+    Ok(probes)
+}
+
+/// The probe values as CSV: `x,y,z,nx,ny,nz,ao,std_error,samples`.
+pub fn to_csv(probes: &[Probe], values: &[ProbeValue]) -> String {
+    let mut out = String::from("x,y,z,nx,ny,nz,ao,std_error,samples\n");
+    for (p, v) in probes.iter().zip(values) {
+        let (a, n) = (p.position, p.normal);
+        out += &format!("{},{},{},{},{},{},{},{},{}\n", a.x, a.y, a.z, n.x, n.y, n.z, v.mean, v.std_error, v.samples);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_probe_lines() {
+        let p = parse_probes("# header\n1 2 3 0 0 2\n\n4,5,6, 0,-1,0 # trailing\n").unwrap();
+        assert_eq!(p.len(), 2);
+        assert_eq!(p[0].position, Vec3::new(1.0, 2.0, 3.0));
+        assert_eq!(p[0].normal, Vec3::Z);
+        assert_eq!(p[1].normal, -Vec3::Y);
+    }
+
+    #[test]
+    fn rejects_bad_probe_lines() {
+        for (text, expect) in [
+            ("1 2 3 0 0", "line 1: expected 6 numbers"),
+            ("1 2 3 0 0 1\n1 2 x 0 0 1", "line 2: 'x' is not a number"),
+            ("1 2 3 0 0 0", "line 1: zero normal"),
+            ("1 2 nan 0 0 1", "line 1: non-finite"),
+            ("1 2 3 0 0 inf", "line 1: non-finite"),
+            ("# nothing\n", "no probes"),
+        ] {
+            let e = parse_probes(text).unwrap_err();
+            assert!(e.contains(expect), "{text:?}: {e}");
+        }
+    }
+
+}

@@ -1,0 +1,255 @@
+//! `aorender render`: one image, with progress, a time limit, checkpoints, resuming,
+//! sample-range shards and signal handling.
+
+use crate::args::{
+    SceneArgs, SizeArgs, check_output_extension, check_writable, hemisphere_parser, invalid_option, sampler_parser,
+    write_json,
+};
+use crate::{memory, signals};
+use anyhow::{Result, bail};
+use aorender::output::{IMAGE_EXTENSIONS, write_image};
+use aorender::{Accumulation, Control, Hemisphere, ImageRequest, Progress, Sampler, Session};
+use std::io::{IsTerminal, Write};
+use std::ops::Range;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+#[derive(clap::Args)]
+pub struct RenderArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    #[command(flatten)]
+    size: SizeArgs,
+    /// Output image: .png (8-bit sRGB), .exr or .pfm (32-bit float, linear).
+    #[arg(short, long, default_value = "out.png")]
+    output: PathBuf,
+    /// Samples per pixel (default: the scene's).
+    #[arg(long)]
+    spp: Option<u32>,
+    /// AO direction distribution (default: the scene's, else cosine).
+    #[arg(long, value_parser = hemisphere_parser())]
+    hemisphere: Option<Hemisphere>,
+    /// Placement of the pixel and hemisphere numbers (default: the scene's, else independent).
+    #[arg(long, value_parser = sampler_parser())]
+    sampler: Option<Sampler>,
+    /// Stop after the pass that passes this many seconds, with the samples done so far.
+    #[arg(long, allow_negative_numbers = true)]
+    time_limit: Option<f64>,
+    /// Write render statistics as JSON.
+    #[arg(long)]
+    stats: Option<PathBuf>,
+    /// Save the raw accumulation to this file every --checkpoint-interval seconds and at
+    /// exit (atomically); an existing file is refused unless it is the one --resume names.
+    #[arg(long)]
+    checkpoint: Option<PathBuf>,
+    /// Continue the accumulation saved in this checkpoint (and keep saving to it unless
+    /// --checkpoint names another file).
+    #[arg(long)]
+    resume: Option<PathBuf>,
+    /// Seconds between checkpoints (stretched so that saving takes at most a tenth of the time).
+    #[arg(long, default_value_t = 5.0, allow_negative_numbers = true)]
+    checkpoint_interval: f64,
+    /// Render only the sample indices START..END of the --spp samples (a shard for
+    /// `aorender merge`; needs --checkpoint).
+    #[arg(long, value_name = "START..END", value_parser = parse_sample_range)]
+    sample_range: Option<Range<u32>>,
+}
+
+/// `START..END` with START < END.
+fn parse_sample_range(text: &str) -> Result<Range<u32>, String> {
+    let (a, b) = text.split_once("..").ok_or_else(|| format!("expected START..END, got '{text}'"))?;
+    let number = |t: &str, name: &str| match t.trim() {
+        "" => Err(format!("{name} is missing in '{text}' (expected START..END)")),
+        t => t.parse::<u32>().map_err(|e| format!("{name} '{t}' in '{text}' is not a sample index: {e}")),
+    };
+    let (a, b) = (number(a, "START")?, number(b, "END")?);
+    if a >= b {
+        return Err(format!("'{text}' is empty: START must be below END"));
+    }
+    Ok(a..b)
+}
+
+pub fn run(args: RenderArgs) -> Result<()> {
+    // Before loading: a signal while a large scene loads or its BVH builds ends the process.
+    let stop = Arc::new(AtomicBool::new(false));
+    signals::install(stop.clone())?;
+    let load_start = std::time::Instant::now();
+    let mut scene = args.scene.load()?;
+    let load_seconds = load_start.elapsed().as_secs_f64();
+    args.size.apply(&mut scene);
+    let s = &mut scene.settings;
+    if let Some(n) = args.spp {
+        s.spp = n;
+    }
+    if let Some(h) = args.hemisphere {
+        s.hemisphere = h;
+    }
+    if let Some(p) = args.sampler {
+        s.sampler = p;
+    }
+    s.validate().map_err(invalid_option)?;
+    if let Some(t) = args.time_limit
+        && (t.is_nan() || t <= 0.0)
+    {
+        bail!("invalid option: --time-limit must be positive, got {t}");
+    }
+    let interval = args.checkpoint_interval;
+    if !(interval.is_finite() && interval > 0.0) {
+        bail!("invalid option: --checkpoint-interval must be positive, got {interval}");
+    }
+    if let Some(r) = &args.sample_range
+        && r.end > s.spp
+    {
+        bail!("invalid option: --sample-range {}..{} ends past the {} samples per pixel", r.start, r.end, s.spp);
+    }
+    check_output_extension(&args.output, &IMAGE_EXTENSIONS)?;
+    let checkpoint_path = args.checkpoint.clone().or_else(|| args.resume.clone());
+    if args.sample_range.is_some() && checkpoint_path.is_none() {
+        bail!(
+            "invalid option: --sample-range needs --checkpoint FILE, the shard's accumulation that `aorender merge` combines"
+        );
+    }
+    if let Some(path) = &args.checkpoint
+        && args.resume.as_ref() != Some(path)
+        && path.exists()
+    {
+        bail!(
+            "{}: a checkpoint already exists: continue it with --resume {}, or remove it",
+            path.display(),
+            path.display()
+        );
+    }
+    let bvh = args.scene.bvh();
+    let resume = match &args.resume {
+        Some(path) => {
+            let saved = Accumulation::read(path)?;
+            // Before any work: the checkpoint must hold samples of this very render.
+            let s = &scene.settings;
+            let range = args.sample_range.clone().unwrap_or(0..s.spp);
+            saved.check_resume(&Accumulation::image(&scene, &scene.camera, s, range, args.scene.device.kind(), &bvh))?;
+            Some(saved)
+        }
+        None => None,
+    };
+    if let Some(path) = &checkpoint_path {
+        check_writable(path)?;
+    }
+    let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
+
+    let device = args.scene.device()?;
+    let session = Session::new(&device, scene, &bvh)?;
+    let request = ImageRequest { samples: args.sample_range.clone(), ..session.default_request() };
+    let mut render = session.render(&request)?;
+    if let Some(acc) = resume {
+        render.resume(acc)?;
+    }
+
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let bar = indicatif::ProgressBar::new(session.scene().settings.spp as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} spp  {msg}  eta {eta}")
+                .expect("valid template"),
+        );
+        bar
+    });
+    let mut on_progress = |p: &Progress| {
+        signals::first_pass_done();
+        if let Some(bar) = &bar {
+            bar.set_length(p.samples_total as u64);
+            bar.set_position(p.samples_done as u64);
+            bar.set_message(format!("{:.1} M rays/s", p.rays as f64 / p.elapsed.max(1e-9) / 1e6));
+        }
+    };
+    let mut save_to = |acc: &Accumulation| -> aorender::Result<()> {
+        match &checkpoint_path {
+            Some(path) => acc.write(path),
+            None => Ok(()),
+        }
+    };
+    let mut control = Control {
+        stop: Some(&stop),
+        time_limit: args.time_limit,
+        progress: Some(&mut on_progress),
+        save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None },
+        save_interval: interval,
+        ..Control::default()
+    };
+    let finished = render.run(&mut control).and_then(|_| render.finish());
+    let mut out = finished.map_err(|e| {
+        // The adapter failed mid-render: the last checkpoint saved before it is whole.
+        let adapter_failed = matches!(e, aorender::Error::DeviceLost { .. } | aorender::Error::OutOfMemory { .. });
+        match &checkpoint_path {
+            Some(path) if adapter_failed && path.exists() => anyhow::anyhow!(
+                "{e}; the last checkpoint, {}, is intact: continue with --resume {}",
+                path.display(),
+                path.display()
+            ),
+            _ => e.into(),
+        }
+    })?;
+    out.stats.load_seconds = load_seconds;
+    out.stats.heap_peak_bytes = memory::heap_peak_bytes();
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    let st = &out.stats;
+    let signal = signals::stop_signal();
+    if st.samples_per_pixel == 0 {
+        eprintln!(
+            "aorender: interrupted by {} before any sample was rendered; nothing was written",
+            signals::signal_name(signal)
+        );
+        std::process::exit(128 + signal);
+    }
+    write_image(&out.film, &args.output)?;
+    let json = serde_json::to_string_pretty(&out.stats)?;
+    if let Some(path) = &args.stats {
+        write_json(path, &json)?;
+    }
+    eprintln!(
+        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s, load {:.2} s, BVH {:.2} s) on {} ({}); mean {:.4}",
+        args.output.display(),
+        st.width,
+        st.height,
+        st.samples_per_pixel,
+        st.render_seconds,
+        st.rays_per_second / 1e6,
+        st.load_seconds,
+        st.bvh_build_seconds,
+        st.adapter,
+        st.backend,
+        st.image_mean
+    );
+    if let Some(adapter) = resumed_adapter
+        && adapter != st.adapter
+    {
+        eprintln!(
+            "note: the checkpoint was rendered on {adapter} and continued on {}: the sums equal an uninterrupted \
+             render's within float rounding, not bit for bit",
+            st.adapter
+        );
+    }
+    println!("{json}");
+    if st.interrupted {
+        let mut written = vec![args.output.display().to_string()];
+        written.extend(args.stats.as_ref().map(|p| p.display().to_string()));
+        let mut message = format!(
+            "interrupted by {} after {} of {} samples per pixel; {} hold them",
+            signals::signal_name(signal),
+            st.samples_per_pixel,
+            st.samples_requested,
+            written.join(" and ")
+        );
+        if let Some(path) = &checkpoint_path {
+            message += &format!("; continue with --resume {}", path.display());
+        }
+        eprintln!("aorender: {message}");
+        std::io::stdout().flush()?;
+        std::process::exit(128 + signal);
+    }
+    if st.samples_per_pixel < st.samples_requested {
+        eprintln!("time limit reached after {} of {} samples per pixel", st.samples_per_pixel, st.samples_requested);
+    }
+    Ok(())
+}

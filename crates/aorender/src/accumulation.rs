@@ -1,0 +1,513 @@
+//! The accumulation of a render: the exact sums of its finished blocks of samples and the
+//! device's sums of the block in progress, what the samples were rendered from, and the
+//! sample indices they cover. It can be continued from the same bits (`resume`), and
+//! accumulations of disjoint sample ranges merge exactly ([`merge`]). The checkpoint file
+//! format (`output::checkpoint`) stores it.
+//!
+//! Samples are summed in blocks of [`BLOCK_SAMPLES`] sample indices: the device sums a
+//! block in its own arithmetic, then the block is rounded once to fixed point and added to
+//! [`ExactSums`], where addition is exact.
+
+use crate::bvh::{BuildQuality, BvhLayout};
+use crate::device::{BvhOptions, DeviceKind};
+use crate::error::{Error, Result};
+use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, Film};
+use crate::probe::Probe;
+use crate::sampler::Sampler;
+use crate::sampling::Hemisphere;
+use crate::scene::{Camera, Projection, Scene, Settings};
+use std::path::PathBuf;
+
+/// Everything a sample's value depends on besides its index and the device: two
+/// accumulations with equal `SampleSettings` hold samples of the same render.
+#[derive(Clone, Debug)]
+pub struct SampleSettings {
+    /// BLAKE3 hash of the geometry (every triangle, sphere and plane with its albedo) and
+    /// the camera, as the renderers receive them.
+    pub scene_hash: [u8; 32],
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Samples per pixel of the render (with `strata`, what the cell samplers depend on).
+    pub spp: u32,
+    /// Cells per axis of the cell samplers ([`Sampler::strata_per_axis`]), 1 for the others.
+    pub strata: u32,
+    /// Hemisphere distribution.
+    pub hemisphere: Hemisphere,
+    /// Point sampler.
+    pub sampler: Sampler,
+    /// AO distance limit.
+    pub max_distance: Option<f32>,
+    /// Value of camera rays that miss.
+    pub background: f32,
+    /// Seed.
+    pub seed: u32,
+}
+
+impl SampleSettings {
+    /// The settings of an image of `settings` of `scene` seen by `camera`.
+    pub fn image(scene: &Scene, camera: &Camera, settings: &Settings) -> SampleSettings {
+        SampleSettings::with_hash(scene_hash(scene, camera), settings)
+    }
+
+    /// The settings of an image of `settings` whose scene and camera hash to `scene_hash`
+    /// ([`scene_hash`]).
+    pub fn with_hash(scene_hash: [u8; 32], settings: &Settings) -> SampleSettings {
+        let s = settings;
+        SampleSettings {
+            scene_hash,
+            width: s.width,
+            height: s.height,
+            spp: s.spp,
+            strata: s.sampler.strata_per_axis(s.spp),
+            hemisphere: s.hemisphere,
+            sampler: s.sampler,
+            max_distance: s.max_distance,
+            background: s.background,
+            seed: s.seed,
+        }
+    }
+
+    /// The settings of `points` probe points of `samples` samples each, spread over
+    /// `lanes` slots a point (the film's width), with the sampling of `settings`;
+    /// `points_hash` identifies the scene and the points ([`probes_hash`]).
+    pub fn probes(points_hash: [u8; 32], lanes: u32, points: u32, samples: u32, settings: &Settings) -> SampleSettings {
+        SampleSettings {
+            scene_hash: points_hash,
+            width: lanes,
+            height: points,
+            spp: samples,
+            strata: settings.sampler.strata_per_axis(samples),
+            hemisphere: settings.hemisphere,
+            sampler: settings.sampler,
+            max_distance: settings.max_distance,
+            background: settings.background,
+            seed: settings.seed,
+        }
+    }
+
+    /// What differs between `self` (a checkpoint's) and `other` (this render's) that
+    /// changes the samples, as "name: checkpoint's value, not this render's"; empty when
+    /// the samples are the same. The samples per pixel matter only through the strata.
+    pub fn differences(&self, other: &SampleSettings) -> Vec<String> {
+        let mut d = Vec::new();
+        let check = |d: &mut Vec<String>, name: &str, a: String, b: String| {
+            if a != b {
+                d.push(format!("{name} {a}, not {b}"));
+            }
+        };
+        check(&mut d, "size", format!("{}x{}", self.width, self.height), format!("{}x{}", other.width, other.height));
+        check(&mut d, "seed", self.seed.to_string(), other.seed.to_string());
+        check(&mut d, "hemisphere", self.hemisphere.name().into(), other.hemisphere.name().into());
+        check(&mut d, "sampler", self.sampler.name().into(), other.sampler.name().into());
+        if self.strata != other.strata {
+            d.push(format!(
+                "samples per pixel {} ({}×{} strata), not {} ({}×{} strata)",
+                self.spp, self.strata, self.strata, other.spp, other.strata, other.strata
+            ));
+        }
+        let distance = |m: Option<f32>| m.map_or("unlimited".to_string(), |m| format!("{m} ({:#010x})", m.to_bits()));
+        check(&mut d, "max distance", distance(self.max_distance), distance(other.max_distance));
+        check(
+            &mut d,
+            "background",
+            format!("{} ({:#010x})", self.background, self.background.to_bits()),
+            format!("{} ({:#010x})", other.background, other.background.to_bits()),
+        );
+        if self.scene_hash != other.scene_hash {
+            d.push("scene: its geometry or camera differ".into());
+        }
+        d
+    }
+}
+
+/// BLAKE3 hash of the scene's geometry and camera, with every float by its bits.
+pub fn scene_hash(scene: &Scene, camera: &Camera) -> [u8; 32] {
+    let mut h = blake3::Hasher::new();
+    h.update(b"aorender scene v1");
+    let c = camera;
+    let projection = match c.projection {
+        Projection::Perspective { vfov_deg } => [0.0, vfov_deg],
+        Projection::Orthographic { height } => [1.0, height],
+    };
+    let floats = [c.eye.x, c.eye.y, c.eye.z, c.look_at.x, c.look_at.y, c.look_at.z, c.up.x, c.up.y, c.up.z];
+    for f in floats.into_iter().chain(projection) {
+        h.update(&f.to_le_bytes());
+    }
+    hash_geometry(&mut h, scene);
+    *h.finalize().as_bytes()
+}
+
+/// Feeds `h` the counts of the scene's primitives, then every triangle, sphere, plane,
+/// instanced mesh and instance, every float by its bits.
+fn hash_geometry(h: &mut blake3::Hasher, scene: &Scene) {
+    let mut buf: Vec<u8> = Vec::with_capacity(1 << 16);
+    let put = |h: &mut blake3::Hasher, buf: &mut Vec<u8>, floats: &[f32]| {
+        for f in floats {
+            buf.extend_from_slice(&f.to_le_bytes());
+        }
+        if buf.len() >= 1 << 16 {
+            h.update(buf);
+            buf.clear();
+        }
+    };
+    for (name, count) in
+        [("triangles", scene.triangles.len()), ("spheres", scene.spheres.len()), ("planes", scene.planes.len())]
+    {
+        buf.extend_from_slice(name.as_bytes());
+        buf.extend_from_slice(&(count as u64).to_le_bytes());
+    }
+    for t in &scene.triangles {
+        let v = t.v;
+        put(h, &mut buf, &[v[0].x, v[0].y, v[0].z, v[1].x, v[1].y, v[1].z, v[2].x, v[2].y, v[2].z, t.albedo]);
+    }
+    for s in &scene.spheres {
+        put(h, &mut buf, &[s.center.x, s.center.y, s.center.z, s.radius, s.albedo]);
+    }
+    for p in &scene.planes {
+        put(h, &mut buf, &[p.normal.x, p.normal.y, p.normal.z, p.point.x, p.point.y, p.point.z, p.albedo]);
+    }
+    // Instanced meshes and their placements (nothing for a scene without them).
+    for m in &scene.meshes {
+        buf.extend_from_slice(b"mesh");
+        buf.extend_from_slice(&(m.triangles.len() as u64).to_le_bytes());
+        for [a, b, c] in &m.triangles {
+            put(h, &mut buf, &[a.x, a.y, a.z, b.x, b.y, b.z, c.x, c.y, c.z]);
+        }
+    }
+    for i in &scene.instances {
+        buf.extend_from_slice(b"instance");
+        buf.extend_from_slice(&i.mesh.to_le_bytes());
+        put(h, &mut buf, &i.to_world.to_cols_array());
+        put(h, &mut buf, &[i.albedo]);
+    }
+    h.update(&buf);
+}
+
+/// BLAKE3 hash of the scene's geometry alone, every float by its bits.
+pub fn geometry_hash(scene: &Scene) -> [u8; 32] {
+    let mut h = blake3::Hasher::new();
+    h.update(b"aorender geometry v1");
+    hash_geometry(&mut h, scene);
+    *h.finalize().as_bytes()
+}
+
+/// BLAKE3 hash of probe points, by their bits, over the scene whose geometry hashes to
+/// `geometry` ([`geometry_hash`]): what the samples of a probe request depend on besides
+/// their sampling.
+pub fn probes_hash(geometry: &[u8; 32], probes: &[Probe]) -> [u8; 32] {
+    let mut h = blake3::Hasher::new();
+    h.update(b"aorender probes v1");
+    h.update(geometry);
+    h.update(&(probes.len() as u64).to_le_bytes());
+    for p in probes {
+        for c in p.position.to_array().into_iter().chain(p.normal.to_array()) {
+            h.update(&c.to_le_bytes());
+        }
+    }
+    *h.finalize().as_bytes()
+}
+
+/// The largest magnitude a sample of `scene` can take with background `background`:
+/// twice the largest albedo (the uniform hemisphere's weight 2 cos θ is at most 2), or
+/// the background's.
+pub fn max_sample_value(scene: &Scene, background: f32) -> f64 {
+    let albedo = scene
+        .triangles
+        .iter()
+        .map(|t| t.albedo)
+        .chain(scene.spheres.iter().map(|s| s.albedo))
+        .chain(scene.instances.iter().map(|i| i.albedo))
+        .chain(scene.planes.iter().map(|p| p.albedo))
+        .fold(0.0f64, |m, a| m.max(a as f64));
+    (2.0 * albedo).max((background as f64).abs())
+}
+
+/// The accumulation of a render: the samples `first .. next` of every pixel, what they
+/// were rendered from, and how.
+#[derive(Clone, Debug)]
+pub struct Accumulation {
+    /// What the samples depend on.
+    pub settings: SampleSettings,
+    /// The device that rendered them.
+    pub device: DeviceKind,
+    /// BVH layout the GPU traversed.
+    pub bvh_layout: BvhLayout,
+    /// BVH build preset.
+    pub bvh_quality: BuildQuality,
+    /// Adapter name (`cpu` for the CPU reference).
+    pub adapter: String,
+    /// First sample index of the range rendered.
+    pub first: u32,
+    /// End of the range asked for.
+    pub end: u32,
+    /// Samples `first .. next` are in the sums.
+    pub next: u32,
+    /// Samples of the block in progress (in `partial`, not yet in `exact`).
+    pub partial_samples: u32,
+    /// False once the blocks no longer follow the absolute grid of [`BLOCK_SAMPLES`].
+    pub on_grid: bool,
+    /// AO rays traced so far.
+    pub ao_rays: u64,
+    /// Passes run so far.
+    pub passes: u32,
+    /// Seconds spent rendering so far.
+    pub render_seconds: f64,
+    /// Exact sums of the finished blocks.
+    pub exact: ExactSums,
+    /// The device's sums of the block in progress, when it has samples.
+    pub partial: Option<BlockSums>,
+    /// The file it was read from, for messages (not stored).
+    pub source: Option<PathBuf>,
+}
+
+impl Accumulation {
+    /// An empty accumulation of samples `first .. end` of a render of `settings`, on
+    /// `device` with the given BVH, whose samples are at most `max_value` in magnitude
+    /// ([`max_sample_value`]).
+    pub fn new(
+        settings: SampleSettings,
+        device: DeviceKind,
+        bvh_layout: BvhLayout,
+        bvh_quality: BuildQuality,
+        first: u32,
+        end: u32,
+        max_value: f64,
+    ) -> Accumulation {
+        let (width, height) = (settings.width, settings.height);
+        Accumulation {
+            settings,
+            device,
+            bvh_layout,
+            bvh_quality,
+            adapter: String::new(),
+            first,
+            end,
+            next: first,
+            partial_samples: 0,
+            on_grid: true,
+            ao_rays: 0,
+            passes: 0,
+            render_seconds: 0.0,
+            exact: ExactSums::new(width, height, max_value),
+            partial: None,
+            source: None,
+        }
+    }
+
+    /// An empty accumulation of samples `samples` of an image of `settings` of `scene`
+    /// seen by `camera`, on a device of `kind` with the BVH of `bvh`: what a render of it
+    /// starts from. [`Accumulation::check_resume`] against it tells whether a checkpoint
+    /// can be continued before any work is done.
+    pub fn image(
+        scene: &Scene,
+        camera: &Camera,
+        settings: &Settings,
+        samples: std::ops::Range<u32>,
+        kind: DeviceKind,
+        bvh: &BvhOptions,
+    ) -> Accumulation {
+        // The CPU reference always traverses obvhs's CWBVH.
+        let layout = if kind == DeviceKind::Cpu { BvhLayout::Cwbvh } else { bvh.layout };
+        Accumulation::new(
+            SampleSettings::image(scene, camera, settings),
+            kind,
+            layout,
+            bvh.quality,
+            samples.start,
+            samples.end,
+            max_sample_value(scene, settings.background),
+        )
+    }
+
+    /// Samples per pixel held.
+    pub fn samples(&self) -> u32 {
+        self.next - self.first
+    }
+
+    /// The sums as a film: the exact sums, plus the block in progress rounded to the same
+    /// quanta (as [`merge`] adds it).
+    pub fn film(&self) -> Result<Film> {
+        match &self.partial {
+            None => Ok(self.exact.to_film(self.samples() as u64)),
+            Some(_) => Ok(self.sums()?.to_film(self.samples() as u64)),
+        }
+    }
+
+    /// The exact sums with the block in progress, if any, rounded to the same quanta and
+    /// added.
+    pub fn sums(&self) -> Result<ExactSums> {
+        let mut exact = self.exact.clone();
+        if let Some(block) = &self.partial {
+            exact.add_block(block).map_err(|e| self.error(e))?;
+        }
+        Ok(exact)
+    }
+
+    /// [`Error::Checkpoint`] naming the file this accumulation was read from.
+    pub fn error(&self, message: impl std::fmt::Display) -> Error {
+        Error::checkpoint(self.source.clone().unwrap_or_else(|| "checkpoint".into()), message)
+    }
+
+    /// Why this accumulation cannot be continued by `other`, an empty accumulation of the
+    /// render asked for (its settings, device, BVH and sample range): an
+    /// [`Error::Checkpoint`]; `Ok` when it can.
+    pub fn check_resume(&self, other: &Accumulation) -> Result<()> {
+        let (device, bvh_layout, bvh_quality) = (other.device, other.bvh_layout, other.bvh_quality);
+        let (first, end) = (other.first, other.end);
+        let err = |m: String| Err(self.error(m));
+        let diff = self.settings.differences(&other.settings);
+        if !diff.is_empty() {
+            return err(format!(
+                "checkpoint of another scene or other settings: {} (checkpoint's value first)",
+                diff.join("; ")
+            ));
+        }
+        if self.device != device {
+            return err(format!(
+                "checkpoint rendered with --device {}, not {}: its sums continue only on the same device",
+                self.device.name(),
+                device.name()
+            ));
+        }
+        if self.bvh_layout != bvh_layout || self.bvh_quality != bvh_quality {
+            return err(format!(
+                "checkpoint rendered with --bvh-layout {} --bvh-quality {}, not {} {}",
+                self.bvh_layout.name(),
+                self.bvh_quality.name(),
+                bvh_layout.name(),
+                bvh_quality.name()
+            ));
+        }
+        if self.exact.sum_exponent != other.exact.sum_exponent {
+            return err("checkpoint's sums are scaled for other albedos".into());
+        }
+        if self.first != first {
+            return err(format!(
+                "checkpoint holds samples from index {} (--sample-range {}..{}), not from {first}",
+                self.first, self.first, self.end
+            ));
+        }
+        if self.next > end {
+            return err(format!(
+                "checkpoint already holds samples {}..{}, past the end {end} asked for",
+                self.first, self.next
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The result of [`merge`].
+#[derive(Clone, Debug)]
+pub struct Merged {
+    /// The merged sums.
+    pub film: Film,
+    /// First sample index held.
+    pub first: u32,
+    /// One past the last sample index held.
+    pub end: u32,
+    /// True when the merge has the same bits as one uninterrupted render of `first..end`
+    /// on the shards' adapter: every shard boundary is a multiple of [`BLOCK_SAMPLES`],
+    /// every shard's blocks follow that grid, and one adapter rendered them all.
+    pub same_as_single_run: bool,
+    /// The shards, in sample order.
+    pub shards: Vec<MergedShard>,
+}
+
+/// A shard of a [`Merged`] accumulation.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MergedShard {
+    /// Its file.
+    pub file: PathBuf,
+    /// First sample index.
+    pub first_sample: u32,
+    /// Samples per pixel it holds.
+    pub samples: u32,
+    /// The device's adapter.
+    pub adapter: String,
+}
+
+/// Combines accumulations of disjoint sample ranges of one render, given with their files.
+/// They must hold samples of the same scene and settings and together one contiguous range
+/// of sample indices; the order given does not matter. The exact sums are added as
+/// integers (each shard's block in progress, if any, rounded to the same quanta first), so
+/// the result does not depend on the order or grouping of the shards.
+pub fn merge(shards: &[(PathBuf, Accumulation)]) -> Result<Merged> {
+    let Some((first_path, first)) = shards.first() else {
+        return Err(Error::checkpoint("merge", "no accumulations given"));
+    };
+    for (path, a) in &shards[1..] {
+        let diff = a.settings.differences(&first.settings);
+        if !diff.is_empty() {
+            return Err(Error::checkpoint(
+                path,
+                format!("holds samples of another render than {}: {}", first_path.display(), diff.join("; ")),
+            ));
+        }
+        if a.exact.sum_exponent != first.exact.sum_exponent {
+            return Err(Error::checkpoint(path, "its sums are scaled differently"));
+        }
+    }
+    let mut order: Vec<&(PathBuf, Accumulation)> = shards.iter().collect();
+    order.sort_by_key(|(_, a)| (a.first, a.next));
+    for pair in order.windows(2) {
+        let ((pa, a), (pb, b)) = (pair[0], pair[1]);
+        if b.first < a.next {
+            return Err(Error::checkpoint(
+                pb,
+                format!(
+                    "its samples {}..{} overlap those of {} ({}..{})",
+                    b.first,
+                    b.next,
+                    pa.display(),
+                    a.first,
+                    a.next
+                ),
+            ));
+        }
+        if b.first > a.next {
+            return Err(Error::checkpoint(
+                pb,
+                format!(
+                    "samples {}..{} are missing between {} (which ends at {}) and this file (which starts at {}): \
+                     finish the shard that renders them (--resume) or render them",
+                    a.next,
+                    b.first,
+                    pa.display(),
+                    a.next,
+                    b.first
+                ),
+            ));
+        }
+    }
+    let mut exact = first.exact.clone();
+    exact.sum.fill(0);
+    exact.sum_sq.fill(0);
+    for (path, a) in &order {
+        exact.add(&a.exact).map_err(|m| Error::checkpoint(path, m))?;
+        if let Some(block) = &a.partial {
+            exact.add_block(block).map_err(|m| Error::checkpoint(path, m))?;
+        }
+    }
+    let (lo, hi) = (order[0].1.first, order[order.len() - 1].1.next);
+    let aligned = order.windows(2).all(|p| p[0].1.next % BLOCK_SAMPLES == 0);
+    let on_grid = order.iter().all(|(_, a)| a.on_grid);
+    let one_adapter = order.iter().all(|(_, a)| a.adapter == first.adapter && a.device == first.device);
+    Ok(Merged {
+        film: exact.to_film((hi - lo) as u64),
+        first: lo,
+        end: hi,
+        same_as_single_run: aligned && on_grid && one_adapter,
+        shards: order
+            .iter()
+            .map(|(path, a)| MergedShard {
+                file: path.clone(),
+                first_sample: a.first,
+                samples: a.samples(),
+                adapter: a.adapter.clone(),
+            })
+            .collect(),
+    })
+}

@@ -1,0 +1,287 @@
+//! A CWBVH over many primitives, built in octree cells so the build's workspace stays
+//! bounded.
+//!
+//! obvhs's PLOC builder and its BVH2 → CWBVH conversion hold about 300 bytes a primitive
+//! at their peak (two node arrays and the Morton codes, then the BVH2 and the conversion's
+//! table of decisions), eight times a triangle. Above `chunk` primitives the build here
+//! sorts the primitives' centroids along a Morton curve, cuts the curve at octree cell
+//! boundaries until no cell holds more than `chunk` primitives, builds each cell with
+//! obvhs (one cell a thread at a time) and joins the cells under 8-wide nodes quantized
+//! and ordered the way obvhs makes its own (Ylitie, Karras and Laine 2017). The workspace
+//! is then the sorted keys (8 bytes a primitive) and ~320 bytes × `chunk` for each cell
+//! being built, with no more cells at once than threads, nor than one per 16 cells' worth of
+//! primitives.
+
+use super::quality::BuildQuality;
+use glam::{UVec3, Vec3A};
+use obvhs::aabb::Aabb;
+use obvhs::cwbvh::{CwBvh, node::CwBvhNode};
+use rayon::prelude::*;
+use std::ops::Range;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// Bits of each axis in the Morton code; a cell finer than 2⁻¹⁰ of the centroids' box is
+/// cut by count instead.
+const MORTON_BITS: u32 = 10;
+
+/// Builds a CWBVH over primitives `0..count`, whose boxes `aabb` gives, in octree cells of
+/// at most `chunk` primitives. `None` when `count` is 0.
+pub fn build_cwbvh_in_cells(
+    count: usize,
+    aabb: &(dyn Fn(usize) -> Aabb + Sync),
+    quality: BuildQuality,
+    chunk: usize,
+) -> Option<CwBvh> {
+    assert!(count <= u32::MAX as usize, "primitive ids are 32-bit");
+    let chunk = chunk.max(1);
+    if count == 0 {
+        return None;
+    }
+    if count <= chunk {
+        let mut bvh = build_cell(&(0..count as u32).collect::<Vec<_>>(), aabb, quality);
+        bvh.primitive_indices.shrink_to_fit();
+        return Some(bvh);
+    }
+
+    let keys = morton_keys(count, aabb);
+    let mut cells = Vec::new();
+    let plan = plan(&keys, 0..count, 0, chunk, &mut cells);
+
+    // Each lane builds one cell at a time, so no more than `lanes` workspaces are live;
+    // one lane per 16 cells' worth of primitives keeps them within ~20 bytes a primitive.
+    let lanes = rayon::current_num_threads().min(count / chunk / 16).max(1);
+    let next = AtomicUsize::new(0);
+    let mut built: Vec<(usize, CwBvh)> = (0..lanes)
+        .into_par_iter()
+        .flat_map_iter(|_| {
+            std::iter::from_fn(|| {
+                let c = next.fetch_add(1, Ordering::Relaxed);
+                let range = cells.get(c)?.clone();
+                let ids: Vec<u32> = keys[range].iter().map(|&k| k as u32).collect();
+                Some((c, build_cell(&ids, aabb, quality)))
+            })
+        })
+        .collect();
+    drop(keys);
+    built.sort_unstable_by_key(|(c, _)| *c);
+    let boxes: Vec<Aabb> = built.iter().map(|(_, b)| b.total_aabb).collect();
+    let node_count = plan.inner_nodes() + built.iter().map(|(_, b)| b.nodes.len()).sum::<usize>();
+    let mut out = CwBvh {
+        nodes: Vec::with_capacity(node_count),
+        primitive_indices: Vec::with_capacity(count),
+        total_aabb: plan.bounds(&boxes),
+        exact_node_aabbs: None,
+        uses_spatial_splits: false,
+    };
+    out.nodes.push(CwBvhNode::default());
+    let mut built: Vec<Option<CwBvh>> = built.into_iter().map(|(_, b)| Some(b)).collect();
+    plan.join(0, &boxes, &mut built, &mut out);
+    debug_assert_eq!(out.nodes.len(), node_count);
+    Some(out)
+}
+
+/// obvhs's CWBVH over primitives `ids`, its primitive indices mapped back to those ids.
+fn build_cell(ids: &[u32], aabb: &(dyn Fn(usize) -> Aabb + Sync), quality: BuildQuality) -> CwBvh {
+    let boxes: Vec<Aabb> = ids.iter().map(|&i| aabb(i as usize)).collect();
+    let mut bvh = obvhs::cwbvh::builder::build_cwbvh(&boxes, quality.params(), &mut Default::default());
+    for p in &mut bvh.primitive_indices {
+        *p = ids[*p as usize];
+    }
+    // The conversion reserves a node per primitive; a cell keeps only what it uses.
+    bvh.nodes.shrink_to_fit();
+    bvh
+}
+
+/// Sorted keys: a 30-bit Morton code of each primitive's centroid above its 32-bit id.
+fn morton_keys(count: usize, aabb: &(dyn Fn(usize) -> Aabb + Sync)) -> Vec<u64> {
+    let bounds = (0..count)
+        .into_par_iter()
+        .map(|i| {
+            let c = aabb(i).center();
+            Aabb::new(c, c)
+        })
+        .reduce(Aabb::empty, |a, b| a.union(&b));
+    let cells = (1u32 << MORTON_BITS) as f32;
+    let scale = cells / (bounds.max - bounds.min).max(Vec3A::splat(f32::MIN_POSITIVE));
+    let mut keys: Vec<u64> = (0..count)
+        .into_par_iter()
+        .map(|i| {
+            // `as` saturates: NaN and negatives go to 0, the far face to the last cell.
+            let q = ((aabb(i).center() - bounds.min) * scale).as_uvec3().min(UVec3::splat((1 << MORTON_BITS) - 1));
+            (morton3(q) as u64) << 32 | i as u64
+        })
+        .collect();
+    keys.par_sort_unstable();
+    keys
+}
+
+/// Interleaves the low 10 bits of each axis, x highest in each group of three.
+fn morton3(q: UVec3) -> u32 {
+    fn spread(v: u32) -> u32 {
+        let mut v = v & 0x3ff;
+        v = (v | v << 16) & 0x0300_00ff;
+        v = (v | v << 8) & 0x0300_f00f;
+        v = (v | v << 4) & 0x030c_30c3;
+        (v | v << 2) & 0x0924_9249
+    }
+    spread(q.x) << 2 | spread(q.y) << 1 | spread(q.z)
+}
+
+/// The shape of the joined tree above the cells.
+enum Part {
+    /// A cell, built by obvhs: its index in build order.
+    Cell(usize),
+    /// A node made here over two to eight parts.
+    Node(Vec<Part>),
+}
+
+/// Cuts `range` of the sorted keys at the octree level `level` (0 = the whole box) until
+/// each piece holds at most `chunk` primitives; pushes the cells in order.
+fn plan(keys: &[u64], range: Range<usize>, level: u32, chunk: usize, cells: &mut Vec<Range<usize>>) -> Part {
+    if range.len() <= chunk {
+        cells.push(range);
+        return Part::Cell(cells.len() - 1);
+    }
+    let pieces: Vec<Range<usize>> = if level == MORTON_BITS {
+        // Centroids this close together: cut by count.
+        let step = range.len().div_ceil(8);
+        range.clone().step_by(step).map(|s| s..(s + step).min(range.end)).collect()
+    } else {
+        let shift = 32 + 3 * (MORTON_BITS - 1 - level);
+        let octant = |k: u64| (k >> shift) & 7;
+        let mut pieces = Vec::new();
+        let mut start = range.start;
+        for o in 0..8 {
+            let end = start + keys[start..range.end].partition_point(|&k| octant(k) <= o);
+            if end > start {
+                pieces.push(start..end);
+            }
+            start = end;
+        }
+        pieces
+    };
+    if pieces.len() == 1 {
+        return plan(keys, range, level + 1, chunk, cells);
+    }
+    let next = (level + 1).min(MORTON_BITS);
+    Part::Node(pieces.into_iter().map(|r| plan(keys, r, next, chunk, cells)).collect())
+}
+
+impl Part {
+    fn inner_nodes(&self) -> usize {
+        match self {
+            Part::Cell(_) => 0,
+            Part::Node(parts) => 1 + parts.iter().map(Part::inner_nodes).sum::<usize>(),
+        }
+    }
+
+    fn bounds(&self, cell_boxes: &[Aabb]) -> Aabb {
+        match self {
+            Part::Cell(c) => cell_boxes[*c],
+            Part::Node(parts) => parts.iter().fold(Aabb::empty(), |b, p| b.union(&p.bounds(cell_boxes))),
+        }
+    }
+
+    /// Writes this part's root into `out.nodes[slot]` and the rest of it after the end.
+    fn join(&self, slot: usize, cell_boxes: &[Aabb], cells: &mut [Option<CwBvh>], out: &mut CwBvh) {
+        match self {
+            Part::Cell(c) => {
+                let cell = cells[*c].take().expect("each cell is joined once");
+                // Node j > 0 of the cell moves to node_base + j - 1; its root to `slot`.
+                let node_base = out.nodes.len() as u32 - 1;
+                let prim_base = out.primitive_indices.len() as u32;
+                let moved = |n: &CwBvhNode| moved_node(n, node_base, prim_base);
+                out.nodes[slot] = moved_node(&cell.nodes[0], node_base, prim_base);
+                out.nodes.extend(cell.nodes[1..].iter().map(moved));
+                out.primitive_indices.extend_from_slice(&cell.primitive_indices);
+            }
+            Part::Node(parts) => {
+                let boxes: Vec<Aabb> = parts.iter().map(|p| p.bounds(cell_boxes)).collect();
+                let node_box = boxes.iter().fold(Aabb::empty(), |b, c| b.union(c));
+                let slots = child_slots(&node_box, &boxes);
+                // A node's inner children are stored contiguously, in slot order.
+                let mut order: Vec<usize> = (0..parts.len()).collect();
+                order.sort_unstable_by_key(|&c| slots[c]);
+                let base = out.nodes.len();
+                out.nodes.resize(base + parts.len(), CwBvhNode::default());
+                let children: Vec<(usize, Aabb)> = order.iter().map(|&c| (slots[c], boxes[c])).collect();
+                out.nodes[slot] = inner_node(&node_box, &children, base as u32, out.primitive_indices.len() as u32);
+                for (rank, &c) in order.iter().enumerate() {
+                    parts[c].join(base + rank, cell_boxes, cells, out);
+                }
+            }
+        }
+    }
+}
+
+/// `n` with its child and primitive indices moved by `node_base` and `prim_base`.
+fn moved_node(n: &CwBvhNode, node_base: u32, prim_base: u32) -> CwBvhNode {
+    CwBvhNode {
+        child_base_idx: n.child_base_idx + node_base,
+        primitive_base_idx: n.primitive_base_idx + prim_base,
+        ..*n
+    }
+}
+
+/// A CWBVH node whose children, all inner, are `(slot, box)`, quantized as obvhs's
+/// `Bvh2Converter` does: the node's minimum and a power-of-two step per axis, the child
+/// boxes rounded outwards to 8 bits.
+fn inner_node(node_box: &Aabb, children: &[(usize, Aabb)], child_base_idx: u32, primitive_base_idx: u32) -> CwBvhNode {
+    let p = node_box.min;
+    let e = ((node_box.max - node_box.min).max(Vec3A::splat(1e-20)) * (1.0 / 255.0)).log2().ceil().exp2();
+    let rcp_e = 1.0 / e;
+    let exponent = |x: f32| (x.to_bits() >> 23) as u8;
+    let mut node = CwBvhNode {
+        p: p.into(),
+        e: [exponent(e.x), exponent(e.y), exponent(e.z)],
+        child_base_idx,
+        primitive_base_idx,
+        ..Default::default()
+    };
+    for &(slot, b) in children {
+        let lo = ((b.min - p) * rcp_e).floor().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
+        let hi = ((b.max - p) * rcp_e).ceil().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
+        node.child_min_x[slot] = lo.x as u8;
+        node.child_min_y[slot] = lo.y as u8;
+        node.child_min_z[slot] = lo.z as u8;
+        node.child_max_x[slot] = hi.x as u8;
+        node.child_max_y[slot] = hi.y as u8;
+        node.child_max_z[slot] = hi.z as u8;
+        node.imask |= 1 << slot;
+        node.child_meta[slot] = (24 + slot as u8) | 0b0010_0000;
+    }
+    node
+}
+
+/// The slot of each child: slot s faces the direction whose signs are s's bits (x, y, z
+/// from the highest; a set bit is negative), and children are placed greedily, cheapest
+/// first, where their centre lies furthest against it, as obvhs's `order_children` does,
+/// so a ray's octant visits them near to far.
+fn child_slots(node_box: &Aabb, boxes: &[Aabb]) -> Vec<usize> {
+    let centre = node_box.center();
+    let direction = |s: usize| {
+        Vec3A::new(
+            if s & 4 != 0 { -1.0 } else { 1.0 },
+            if s & 2 != 0 { -1.0 } else { 1.0 },
+            if s & 1 != 0 { -1.0 } else { 1.0 },
+        )
+    };
+    let mut slot_of = vec![usize::MAX; boxes.len()];
+    let mut filled = [false; 8];
+    loop {
+        let mut best: Option<(f32, usize, usize)> = None;
+        for (c, b) in boxes.iter().enumerate().filter(|(c, _)| slot_of[*c] == usize::MAX) {
+            let v = b.center() - centre;
+            for s in (0..8).filter(|&s| !filled[s]) {
+                let cost = direction(s).dot(v);
+                if best.is_none_or(|(m, _, _)| cost < m) {
+                    best = Some((cost, s, c));
+                }
+            }
+        }
+        let Some((_, s, c)) = best else { break };
+        filled[s] = true;
+        slot_of[c] = s;
+    }
+    slot_of
+}

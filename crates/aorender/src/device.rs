@@ -1,0 +1,413 @@
+//! The two devices behind one interface: a GPU adapter (WGSL compute shaders through
+//! wgpu) or the CPU reference. [`Device`] is an opened one; preparing a scene on it
+//! ([`Prepared`]: BVH build and upload) and making a request's film on that ([`Passes`])
+//! is all the rest of the engine asks of a device.
+
+use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
+use crate::cpu::CpuTracer;
+use crate::error::{Error, Result};
+use crate::film::{BlockSums, Film};
+use crate::gpu::{AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget};
+use crate::probe::Probe;
+use crate::scene::{Camera, Scene, Settings};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// Which kind of device renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum DeviceKind {
+    /// WGSL compute shaders on a wgpu adapter.
+    #[default]
+    Gpu,
+    /// The multi-threaded CPU reference.
+    Cpu,
+}
+
+impl DeviceKind {
+    /// The name used on the command line: `gpu` or `cpu`.
+    pub fn name(self) -> &'static str {
+        match self {
+            DeviceKind::Gpu => "gpu",
+            DeviceKind::Cpu => "cpu",
+        }
+    }
+}
+
+/// An opened device: an adapter with its device and compiled pipelines, or the CPU
+/// reference. Cheap to clone; sessions on one device share its pipelines.
+#[derive(Clone)]
+pub struct Device(Opened);
+
+#[derive(Clone)]
+enum Opened {
+    Gpu(Arc<GpuDevice>),
+    Cpu(AdapterInfo),
+}
+
+impl Device {
+    /// Opens the best GPU adapter (discrete, then integrated, virtual, CPU such as
+    /// lavapipe), or the first whose name contains `adapter` (case-insensitive).
+    pub fn gpu(adapter: Option<&str>) -> Result<Device> {
+        Ok(Device::from_gpu(GpuDevice::open(adapter)?))
+    }
+
+    /// The CPU reference, on rayon's threads.
+    pub fn cpu() -> Device {
+        Device(Opened::Cpu(AdapterInfo {
+            name: "cpu".into(),
+            backend: "cpu".into(),
+            device_type: "Cpu".into(),
+            driver: format!("obvhs cwbvh, {} threads", rayon::current_num_threads()),
+        }))
+    }
+
+    /// Opens a device of `kind` (`adapter` names the GPU adapter, as in [`Device::gpu`]).
+    pub fn open(kind: DeviceKind, adapter: Option<&str>) -> Result<Device> {
+        match kind {
+            DeviceKind::Gpu => Device::gpu(adapter),
+            DeviceKind::Cpu => Ok(Device::cpu()),
+        }
+    }
+
+    /// A device on an opened GPU adapter (tests set limits on its context first).
+    pub fn from_gpu(gpu: GpuDevice) -> Device {
+        Device(Opened::Gpu(Arc::new(gpu)))
+    }
+
+    /// GPU or CPU.
+    pub fn kind(&self) -> DeviceKind {
+        match &self.0 {
+            Opened::Gpu(_) => DeviceKind::Gpu,
+            Opened::Cpu(_) => DeviceKind::Cpu,
+        }
+    }
+
+    /// The adapter's name, backend, type and driver (`cpu` for the reference).
+    pub fn info(&self) -> AdapterInfo {
+        match &self.0 {
+            Opened::Gpu(g) => g.ctx.description.clone(),
+            Opened::Cpu(info) => info.clone(),
+        }
+    }
+
+    /// Whether passes are timed on the adapter by timestamp queries (false on the CPU and
+    /// on adapters without them).
+    pub fn has_timestamps(&self) -> bool {
+        match &self.0 {
+            Opened::Gpu(g) => g.ctx.has_timestamps(),
+            Opened::Cpu(_) => false,
+        }
+    }
+
+    /// The GPU adapter, if this is one.
+    pub fn as_gpu(&self) -> Option<&Arc<GpuDevice>> {
+        match &self.0 {
+            Opened::Gpu(g) => Some(g),
+            Opened::Cpu(_) => None,
+        }
+    }
+}
+
+/// How the scene is prepared on a device.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BvhOptions {
+    /// obvhs's build preset.
+    pub quality: BuildQuality,
+    /// The node layout the GPU traverses (the CPU reference always traverses obvhs's
+    /// CWBVH).
+    pub layout: BvhLayout,
+    /// Where the GPU kernel reads the geometry from; `None` is the adapter's preference
+    /// ([`GeometryStorage::preferred`]).
+    pub geometry_storage: Option<GeometryStorage>,
+}
+
+/// What preparing a scene on a device took and holds.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    /// The adapter.
+    pub adapter: AdapterInfo,
+    /// The BVH layout traversed.
+    pub bvh_layout: BvhLayout,
+    /// Seconds to build the BVH, its conversion to the GPU's layout included.
+    pub bvh_build_seconds: f64,
+    /// Of those, seconds to convert obvhs's CWBVH to the GPU's layout (0 for BVH2 and on
+    /// the CPU).
+    pub bvh_convert_seconds: f64,
+    /// Nodes of the BVH as traversed.
+    pub bvh_nodes: usize,
+    /// Seconds to upload the geometry (GPU) or to lay out the tracer's records (CPU).
+    pub upload_seconds: f64,
+    /// Bytes of the BVH as traversed: nodes and primitive records, as uploaded (GPU) or
+    /// held by the tracer (CPU).
+    pub bvh_bytes: u64,
+    /// Bytes of device memory the geometry takes (GPU; 0 on the CPU).
+    pub device_bytes: u64,
+    /// Bindings holding the BVH nodes and the primitives (GPU; 0 on the CPU).
+    pub geometry_bindings: u32,
+    /// `buffers` or `textures` on the GPU, empty on the CPU.
+    pub geometry_storage: &'static str,
+}
+
+/// A scene prepared on a device: its BVH built and uploaded, ready for requests.
+pub(crate) enum Prepared {
+    /// The geometry on the adapter.
+    Gpu { dev: Arc<GpuDevice>, scene: GpuScene },
+    /// The CPU tracer.
+    Cpu(Arc<CpuTracer>),
+}
+
+impl Prepared {
+    /// Builds the BVH of `scene` and uploads it to `device`.
+    pub(crate) fn new(device: &Device, scene: &Scene, options: &BvhOptions) -> Result<(Prepared, Setup)> {
+        let adapter = device.info();
+        match &device.0 {
+            Opened::Gpu(dev) => {
+                // Build time includes the conversion to the GPU layout.
+                let build = Instant::now();
+                let (bvh, bvh_convert_seconds) = match options.layout {
+                    BvhLayout::Cwbvh => {
+                        let cwbvh = build_cwbvh(scene, options.quality);
+                        let convert = Instant::now();
+                        (GpuBvh::from_cwbvh(scene, &cwbvh), convert.elapsed().as_secs_f64())
+                    }
+                    BvhLayout::Bvh2 => (GpuBvh::build(scene, options.layout, options.quality), 0.0),
+                };
+                let bvh_build_seconds = build.elapsed().as_secs_f64();
+                let upload = Instant::now();
+                let storage = options.geometry_storage.unwrap_or_else(|| dev.ctx.preferred_storage());
+                let gpu_scene = GpuScene::upload(&dev.ctx, scene, &bvh, storage)?;
+                let setup = Setup {
+                    adapter,
+                    bvh_layout: options.layout,
+                    bvh_build_seconds,
+                    bvh_convert_seconds,
+                    bvh_nodes: bvh.node_count as usize,
+                    upload_seconds: upload.elapsed().as_secs_f64(),
+                    bvh_bytes: gpu_scene.bvh_bytes,
+                    device_bytes: gpu_scene.device_bytes(),
+                    geometry_bindings: gpu_scene.geometry_bindings(),
+                    geometry_storage: storage.name(),
+                };
+                Ok((Prepared::Gpu { dev: dev.clone(), scene: gpu_scene }, setup))
+            }
+            Opened::Cpu(_) => {
+                let build = Instant::now();
+                let cwbvh = build_cwbvh(scene, options.quality);
+                let bvh_build_seconds = build.elapsed().as_secs_f64();
+                let bvh_nodes = cwbvh.top.iter().chain(&cwbvh.meshes).map(|b| b.nodes.len()).sum();
+                let upload = Instant::now();
+                let tracer = CpuTracer::new(scene, cwbvh);
+                let setup = Setup {
+                    adapter,
+                    bvh_layout: BvhLayout::Cwbvh,
+                    bvh_build_seconds,
+                    bvh_convert_seconds: 0.0,
+                    bvh_nodes,
+                    upload_seconds: upload.elapsed().as_secs_f64(),
+                    bvh_bytes: tracer.bytes(),
+                    device_bytes: 0,
+                    geometry_bindings: 0,
+                    geometry_storage: "",
+                };
+                Ok((Prepared::Cpu(Arc::new(tracer)), setup))
+            }
+        }
+    }
+
+    /// The film of an image of `settings` seen by `camera`.
+    pub(crate) fn image(&self, camera: &Camera, settings: &Settings) -> Result<Box<dyn Passes>> {
+        match self {
+            Prepared::Gpu { dev, scene } => {
+                let frame = FrameUniforms::image(camera, settings, scene.node_count, scene.plane_count);
+                Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?))
+            }
+            Prepared::Cpu(tracer) => Ok(Box::new(CpuImage {
+                tracer: tracer.clone(),
+                camera: *camera,
+                settings: settings.clone(),
+                film: Film::new(settings.width, settings.height),
+            })),
+        }
+    }
+
+    /// The film of `probes`, `samples` samples each with the sampling of `settings`,
+    /// spread over `lanes` slots a probe.
+    pub(crate) fn probes(
+        &self,
+        probes: &[Probe],
+        lanes: u32,
+        samples: u32,
+        settings: &Settings,
+    ) -> Result<Box<dyn Passes>> {
+        match self {
+            Prepared::Gpu { dev, scene } => {
+                let frame = FrameUniforms::probes(
+                    settings,
+                    lanes,
+                    probes.len() as u32,
+                    samples,
+                    scene.node_count,
+                    scene.plane_count,
+                );
+                let points: Vec<GpuProbePoint> = probes
+                    .iter()
+                    .map(|p| GpuProbePoint {
+                        position: p.position.to_array(),
+                        _pad0: 0.0,
+                        normal: p.normal.to_array(),
+                        _pad1: 0.0,
+                    })
+                    .collect();
+                Ok(Box::new(GpuTarget::probes(dev, scene, frame, settings.sampler, settings.hemisphere, &points)?))
+            }
+            Prepared::Cpu(tracer) => Ok(Box::new(CpuProbes {
+                tracer: tracer.clone(),
+                settings: settings.clone(),
+                probes: probes.to_vec(),
+                samples,
+                film: Film::new(lanes, probes.len() as u32),
+            })),
+        }
+    }
+}
+
+/// What a pass did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PassReport {
+    /// AO rays traced.
+    pub ao_rays: u64,
+    /// The pass's time on the adapter by timestamp queries, where it has them.
+    pub gpu_seconds: Option<f64>,
+}
+
+/// A request's film on a device, one block of samples at a time: the one interface the
+/// pass loop drives, whatever the device.
+pub(crate) trait Passes {
+    /// Adds samples (or probe rounds) `first .. first + count` of every slot to the
+    /// block.
+    fn pass(&mut self, first: u32, count: u32) -> Result<PassReport>;
+    /// The block's sums so far.
+    fn read(&mut self) -> Result<BlockSums>;
+    /// The block's sums, leaving the block empty.
+    fn take(&mut self) -> Result<BlockSums>;
+    /// Replaces the block's sums (from a checkpoint).
+    fn load(&mut self, block: &BlockSums) -> Result<()>;
+    /// Bytes of device memory the film and its buffers take (0 on the CPU).
+    fn device_bytes(&self) -> u64;
+}
+
+impl Passes for GpuTarget {
+    fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
+        let c = self.render_pass(first, count)?;
+        Ok(PassReport { ao_rays: c.ao_rays, gpu_seconds: c.gpu_seconds })
+    }
+
+    fn read(&mut self) -> Result<BlockSums> {
+        Ok(BlockSums::Gpu(self.film_words()?))
+    }
+
+    fn take(&mut self) -> Result<BlockSums> {
+        let block = Passes::read(self)?;
+        self.clear_film()?;
+        Ok(block)
+    }
+
+    fn load(&mut self, block: &BlockSums) -> Result<()> {
+        match block {
+            BlockSums::Gpu(words) => self.set_film_words(words),
+            BlockSums::Cpu { .. } => Err(Error::Gpu("the CPU reference's sums cannot continue on the GPU".into())),
+        }
+    }
+
+    fn device_bytes(&self) -> u64 {
+        self.device_bytes
+    }
+}
+
+/// An image on the CPU reference.
+struct CpuImage {
+    tracer: Arc<CpuTracer>,
+    camera: Camera,
+    settings: Settings,
+    film: Film,
+}
+
+/// Probe points on the CPU reference.
+struct CpuProbes {
+    tracer: Arc<CpuTracer>,
+    settings: Settings,
+    probes: Vec<Probe>,
+    samples: u32,
+    /// Lanes × probes slots.
+    film: Film,
+}
+
+/// The block of a CPU film: its f64 sums.
+fn cpu_block(film: &Film) -> BlockSums {
+    BlockSums::Cpu { sum: film.sum.clone(), sum_sq: film.sum_sq.clone() }
+}
+
+/// The block of a CPU film, leaving it empty.
+fn take_cpu_block(film: &mut Film) -> BlockSums {
+    let empty = Film::new(film.width, film.height);
+    let film = std::mem::replace(film, empty);
+    BlockSums::Cpu { sum: film.sum, sum_sq: film.sum_sq }
+}
+
+/// Replaces a CPU film's sums with `block`'s.
+fn load_cpu_block(film: &mut Film, block: &BlockSums) -> Result<()> {
+    match block {
+        BlockSums::Cpu { sum, sum_sq } if sum.len() == film.sum.len() && sum_sq.len() == sum.len() => {
+            film.sum.clone_from(sum);
+            film.sum_sq.clone_from(sum_sq);
+            Ok(())
+        }
+        _ => Err(Error::settings("the checkpoint's block does not fit the CPU reference's film")),
+    }
+}
+
+impl Passes for CpuImage {
+    fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
+        let ao_rays = self.tracer.render_pass(&self.camera, &self.settings, &mut self.film, first, count);
+        Ok(PassReport { ao_rays, gpu_seconds: None })
+    }
+
+    fn read(&mut self) -> Result<BlockSums> {
+        Ok(cpu_block(&self.film))
+    }
+
+    fn take(&mut self) -> Result<BlockSums> {
+        Ok(take_cpu_block(&mut self.film))
+    }
+
+    fn load(&mut self, block: &BlockSums) -> Result<()> {
+        load_cpu_block(&mut self.film, block)
+    }
+
+    fn device_bytes(&self) -> u64 {
+        0
+    }
+}
+
+impl Passes for CpuProbes {
+    fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
+        let ao_rays = self.tracer.probe_pass(&self.settings, &self.probes, self.samples, &mut self.film, first, count);
+        Ok(PassReport { ao_rays, gpu_seconds: None })
+    }
+
+    fn read(&mut self) -> Result<BlockSums> {
+        Ok(cpu_block(&self.film))
+    }
+
+    fn take(&mut self) -> Result<BlockSums> {
+        Ok(take_cpu_block(&mut self.film))
+    }
+
+    fn load(&mut self, block: &BlockSums) -> Result<()> {
+        load_cpu_block(&mut self.film, block)
+    }
+
+    fn device_bytes(&self) -> u64 {
+        0
+    }
+}

@@ -1,0 +1,265 @@
+//! An adapter, its device and queue: opened with the adapter's own limits and features,
+//! with the device's errors captured (`fault`) rather than panicking, and the waits,
+//! submissions and read-backs every pass uses.
+
+use super::fault::{Fault, Faults, catch_panic};
+use super::shaders::GeometryStorage;
+use crate::error::{Error, Result};
+use std::sync::Arc;
+
+/// An adapter's name, backend, type and driver (the CPU reference has one too).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct AdapterInfo {
+    /// Adapter name.
+    pub name: String,
+    /// Backend (Vulkan, Metal, …).
+    pub backend: String,
+    /// Discrete, integrated, CPU, ….
+    pub device_type: String,
+    /// Driver name and version.
+    pub driver: String,
+}
+
+impl AdapterInfo {
+    fn new(info: &wgpu::AdapterInfo) -> Self {
+        AdapterInfo {
+            name: info.name.clone(),
+            backend: format!("{:?}", info.backend),
+            device_type: format!("{:?}", info.device_type),
+            driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+        }
+    }
+}
+
+fn instance() -> wgpu::Instance {
+    wgpu::Instance::new(wgpu::InstanceDescriptor {
+        backends: wgpu::Backends::PRIMARY,
+        ..wgpu::InstanceDescriptor::new_without_display_handle()
+    })
+}
+
+/// Every adapter wgpu finds.
+pub fn list_adapters() -> Vec<AdapterInfo> {
+    let adapters = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::PRIMARY));
+    adapters.iter().map(|a| AdapterInfo::new(&a.get_info())).collect()
+}
+
+/// An adapter, its device and queue, with device errors captured instead of panicking.
+pub struct GpuContext {
+    /// The adapter.
+    pub adapter: wgpu::Adapter,
+    /// The device, created with the adapter's own limits.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// The adapter's description.
+    pub description: AdapterInfo,
+    /// What the device's callbacks reported since the last check.
+    faults: Arc<Faults>,
+    /// Largest chunk of nodes or primitives in one binding, in bytes.
+    max_chunk_bytes: u64,
+    /// Largest width and height of a geometry texture (the adapter's limit, or less for tests).
+    max_texture_size: [u32; 2],
+    /// The kernel's `CPU_LANES`: the adapter is a CPU (or a test asks for its formulations).
+    cpu_lanes: bool,
+}
+
+impl GpuContext {
+    /// Opens the best adapter (discrete, then integrated, virtual, CPU), or the first
+    /// whose name contains `name_filter` (case-insensitive).
+    pub fn new(name_filter: Option<&str>) -> Result<GpuContext> {
+        let adapters = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::PRIMARY));
+        let rank = |t: wgpu::DeviceType| match t {
+            wgpu::DeviceType::DiscreteGpu => 0,
+            wgpu::DeviceType::IntegratedGpu => 1,
+            wgpu::DeviceType::VirtualGpu => 2,
+            wgpu::DeviceType::Cpu => 3,
+            wgpu::DeviceType::Other => 4,
+        };
+        let adapter = match name_filter {
+            Some(f) => {
+                let f = f.to_lowercase();
+                adapters
+                    .into_iter()
+                    .find(|a| a.get_info().name.to_lowercase().contains(&f))
+                    .ok_or_else(|| Error::Gpu(format!("no adapter's name contains '{f}' (see `aorender adapters`)")))?
+            }
+            None => adapters.into_iter().min_by_key(|a| rank(a.get_info().device_type)).ok_or_else(|| {
+                Error::Gpu(
+                    "no GPU adapter found: install a Vulkan driver (on Debian/Ubuntu, the \
+                     mesa-vulkan-drivers package provides lavapipe), or use --device cpu"
+                        .into(),
+                )
+            })?,
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("aorender"),
+            // Pass times from timestamp queries, and a traversal budget counted per
+            // SIMD batch from subgroup operations, where the adapter has them.
+            required_features: adapter.features() & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SUBGROUP),
+            // wgpu's defaults cap a storage binding at 128 MiB: ask for what the adapter has.
+            required_limits: adapter.limits(),
+            ..Default::default()
+        }))
+        .map_err(|e| Error::Gpu(format!("cannot open a device on the adapter: {e}")))?;
+        let faults = Arc::new(Faults::default());
+        let sink = faults.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            let text = e.to_string().lines().next().unwrap_or("").to_string();
+            sink.push(match e {
+                wgpu::Error::OutOfMemory { .. } => Fault::OutOfMemory(text),
+                // Work on a lost device fails with wgpu-core's `DeviceError::Lost` ("Parent
+                // device is lost") before the lost callback has run.
+                _ if text.to_lowercase().contains("device is lost") => Fault::Lost(text),
+                _ => Fault::Other(text),
+            });
+        }));
+        let sink = faults.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            let message = message.lines().next().unwrap_or("").trim().to_string();
+            sink.push(Fault::Lost(if message.is_empty() {
+                format!("{reason:?}")
+            } else {
+                format!("{message} ({reason:?})")
+            }));
+        });
+        let description = AdapterInfo::new(&adapter.get_info());
+        let limits = device.limits();
+        let max_chunk_bytes = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+        let max_texture_size = [limits.max_texture_dimension_2d; 2];
+        let cpu_lanes = adapter.get_info().device_type == wgpu::DeviceType::Cpu;
+        Ok(GpuContext { adapter, device, queue, description, faults, max_chunk_bytes, max_texture_size, cpu_lanes })
+    }
+
+    /// Where the kernel should read the BVH nodes and primitives from on this adapter:
+    /// textures on a CPU (lavapipe), storage buffers elsewhere
+    /// ([`GeometryStorage::preferred`]).
+    pub fn preferred_storage(&self) -> GeometryStorage {
+        GeometryStorage::preferred(self.adapter.get_info().device_type)
+    }
+
+    /// The kernel's `CPU_LANES`: true where the adapter is a CPU, unless a test chose.
+    pub(crate) fn cpu_lanes(&self) -> bool {
+        self.cpu_lanes
+    }
+
+    /// Largest bytes of nodes or primitives in one binding.
+    pub(crate) fn max_chunk_bytes(&self) -> u64 {
+        self.max_chunk_bytes
+    }
+
+    /// Largest width and height of a geometry texture.
+    pub(crate) fn max_texture_size(&self) -> [u32; 2] {
+        self.max_texture_size
+    }
+
+    /// Compiles kernels with `CPU_LANES` = `cpu_lanes` from now on (by default true where
+    /// the adapter is a CPU): the traversal then takes the formulations that compile to
+    /// fewer instructions on a CPU. Either choice runs on any adapter and renders the same
+    /// film (tests compare the two).
+    #[cfg(feature = "testing")]
+    pub fn set_cpu_lanes(&mut self, cpu_lanes: bool) {
+        self.cpu_lanes = cpu_lanes;
+    }
+
+    /// Caps the width and height of a geometry texture below the adapter's limit, so that
+    /// small scenes are split into several textures as large ones are (for testing the
+    /// split). The width is rounded down to a multiple of `ROW_TEXEL_MULTIPLE`.
+    #[cfg(feature = "testing")]
+    pub fn limit_texture_size(&mut self, width: u32, height: u32) {
+        self.max_texture_size = [self.max_texture_size[0].min(width), self.max_texture_size[1].min(height).max(1)];
+    }
+
+    /// Caps the bytes of nodes or primitives in one binding below the adapter's limit, so
+    /// that small scenes are split into chunks as large ones are (for testing the split).
+    #[cfg(feature = "testing")]
+    pub fn limit_chunk_bytes(&mut self, bytes: u64) {
+        self.max_chunk_bytes = self.max_chunk_bytes.min(bytes);
+    }
+
+    /// Whether the kernel counts a SIMD batch's traversal iterations together (the device
+    /// has subgroup operations): `shaders::batch_file`.
+    pub(crate) fn shared_steps(&self) -> bool {
+        self.device.features().contains(wgpu::Features::SUBGROUP)
+    }
+
+    /// Whether passes can be timed by timestamp queries.
+    pub(crate) fn has_timestamps(&self) -> bool {
+        self.device.features().contains(wgpu::Features::TIMESTAMP_QUERY)
+    }
+
+    /// The most serious device error since the last call, if any: a lost device, then
+    /// running out of memory, then the first other error.
+    pub(crate) fn take_error(&self) -> Result<()> {
+        self.faults.take(&self.description.name)
+    }
+
+    /// The recorded device error if there is one (a lost device explains most failures),
+    /// else `fallback`.
+    pub(crate) fn fault(&self, fallback: String) -> Error {
+        self.take_error().err().unwrap_or(Error::Gpu(fallback))
+    }
+
+    /// Submits `commands`; a panic inside wgpu becomes an error.
+    pub(crate) fn submit(&self, commands: impl IntoIterator<Item = wgpu::CommandBuffer>) -> Result<()> {
+        catch_panic("submitting work", || {
+            self.queue.submit(commands);
+        })?;
+        self.take_error()
+    }
+
+    /// Waits for the submitted work, running the callbacks it completes (buffer mappings,
+    /// device loss); a panic inside wgpu or a callback becomes an error.
+    pub fn wait(&self) -> Result<()> {
+        let polled = catch_panic("while waiting for the GPU", || self.device.poll(wgpu::PollType::wait_indefinitely()));
+        self.take_error()?;
+        polled?.map_err(|e| self.fault(format!("waiting for the GPU failed: {e}")))?;
+        Ok(())
+    }
+
+    /// Maps a readback buffer after the last submission and copies it out.
+    pub(crate) fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer) -> Result<Vec<T>> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        catch_panic("mapping a readback buffer", || {
+            buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+                let _ = tx.send(r);
+            })
+        })?;
+        self.wait()?;
+        rx.recv()
+            .map_err(|_| self.fault("buffer mapping was dropped".into()))?
+            .map_err(|e| self.fault(format!("cannot map a readback buffer: {e}")))?;
+        catch_panic("reading a readback buffer", || {
+            let data = {
+                let view =
+                    buffer.get_mapped_range(..).map_err(|e| self.fault(format!("cannot read a mapped buffer: {e}")))?;
+                bytemuck::cast_slice(&view).to_vec()
+            };
+            buffer.unmap();
+            Ok(data)
+        })?
+    }
+
+    /// Fails with [`Error::TooLarge`] when a buffer of `bytes` exceeds a binding or a buffer.
+    pub(crate) fn check_size(&self, what: &'static str, bytes: u64) -> Result<()> {
+        let limits = self.device.limits();
+        let binding = limits.max_storage_buffer_binding_size;
+        if bytes > binding {
+            return Err(Error::TooLarge {
+                what,
+                needed: bytes,
+                limit: binding,
+                limit_name: "max_storage_buffer_binding_size",
+            });
+        }
+        if bytes > limits.max_buffer_size {
+            return Err(Error::TooLarge {
+                what,
+                needed: bytes,
+                limit: limits.max_buffer_size,
+                limit_name: "max_buffer_size",
+            });
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,406 @@
+//! One request on the device: its film (per pixel, or per probe lane), the constants of
+//! the frame and of each dispatch, the pass counters, and the pipeline specialised for
+//! it, bound to the session's geometry. A pass adds a range of samples to the film.
+
+use super::budget::{PREFERRED_SAMPLES_PER_INVOCATION, dispatch_budget, safe_samples_per_invocation};
+use super::device::GpuDevice;
+use super::layout::{
+    COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, COUNTERS, DISPATCH, DISPATCH_STRIDE, DispatchUniforms, FILM,
+    FRAME, FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE,
+    WORKGROUP_SIZE,
+};
+use super::pipeline::{Kernel, PipelineKey};
+use super::upload::{GpuScene, storage_buffer};
+use crate::error::{Error, Result};
+use crate::sampler::Sampler;
+use crate::sampling::Hemisphere;
+use std::sync::Arc;
+use wgpu::util::DeviceExt;
+
+/// Test hook: with this environment variable set to N, a target destroys its device
+/// (`wgpu::Device::destroy`) before its pass N + 1, so that the real device-lost path runs.
+#[cfg(feature = "testing")]
+pub const TEST_LOSE_DEVICE_ENV: &str = "AORENDER_TEST_LOSE_DEVICE_AFTER_PASSES";
+
+/// Offset of the pass timestamps in the counters' readback buffer.
+const TIMESTAMPS_AT: u64 = 256;
+
+/// What one pass did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PassCounters {
+    /// AO rays traced.
+    pub ao_rays: u64,
+    /// Seconds between the pass's first and last GPU timestamps, where the adapter has
+    /// timestamp queries.
+    pub gpu_seconds: Option<f64>,
+}
+
+/// The AO pipeline bound to the session's geometry and one image (or one set of probe
+/// points), with its film.
+pub struct GpuTarget {
+    dev: Arc<GpuDevice>,
+    pipeline: wgpu::ComputePipeline,
+    bind_group: wgpu::BindGroup,
+    film: wgpu::Buffer,
+    film_readback: wgpu::Buffer,
+    dispatch: wgpu::Buffer,
+    counters: wgpu::Buffer,
+    counters_readback: wgpu::Buffer,
+    /// Start and end timestamps of a pass, resolved into a buffer, where the adapter has
+    /// timestamp queries.
+    timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
+    width: u32,
+    height: u32,
+    kernel: Kernel,
+    /// Samples (or probe rounds) each invocation renders in turn.
+    samples_per_invocation: u32,
+    /// The most that cannot run out of traversal budget.
+    safe_samples_per_invocation: u32,
+    /// Rays of one sample (or probe round) of one invocation.
+    rays_per_sample: u32,
+    /// The most traversal iterations one ray can take.
+    ray_steps: u64,
+    /// Bytes of device memory the target allocated (the session's geometry aside).
+    pub device_bytes: u64,
+    /// Passes started.
+    passes_run: u32,
+    /// The test hook's pass count.
+    lose_device_after: Option<u32>,
+}
+
+impl GpuTarget {
+    /// A target rendering an image with `frame`'s constants, sampled by `sampler` with
+    /// directions from `hemisphere`.
+    pub fn image(
+        dev: &Arc<GpuDevice>,
+        scene: &GpuScene,
+        frame: FrameUniforms,
+        sampler: Sampler,
+        hemisphere: Hemisphere,
+    ) -> Result<GpuTarget> {
+        GpuTarget::build(dev, scene, Kernel::Image, frame, sampler, hemisphere, &[])
+    }
+
+    /// A target estimating AO at `points`: `frame.width` film slots (lanes) per point
+    /// share the point's `frame.probe_samples` sample indices (see
+    /// [`GpuTarget::render_pass`]).
+    pub fn probes(
+        dev: &Arc<GpuDevice>,
+        scene: &GpuScene,
+        frame: FrameUniforms,
+        sampler: Sampler,
+        hemisphere: Hemisphere,
+        points: &[GpuProbePoint],
+    ) -> Result<GpuTarget> {
+        let lanes = frame.width;
+        let slots = lanes as u64 * points.len() as u64;
+        let limits = dev.ctx.device.limits();
+        let max_slots = limits.max_compute_workgroups_per_dimension as u64 * PROBE_WORKGROUP_SIZE as u64;
+        if slots > max_slots {
+            return Err(Error::Gpu(format!(
+                "{} probe points × {lanes} lanes need {slots} invocations per dispatch; the adapter allows {max_slots}",
+                points.len()
+            )));
+        }
+        GpuTarget::build(dev, scene, Kernel::Probe, frame, sampler, hemisphere, points)
+    }
+
+    fn build(
+        dev: &Arc<GpuDevice>,
+        scene: &GpuScene,
+        kernel: Kernel,
+        frame: FrameUniforms,
+        sampler: Sampler,
+        hemisphere: Hemisphere,
+        points: &[GpuProbePoint],
+    ) -> Result<GpuTarget> {
+        let ctx = &dev.ctx;
+        let device = &ctx.device;
+        let (width, height) = (frame.width, frame.height);
+        let frame = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("frame"),
+            contents: bytemuck::bytes_of(&frame),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let dispatch = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("dispatch"),
+            size: DISPATCH_STRIDE * MAX_PASS_SAMPLES as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let probe_points =
+            storage_buffer(ctx, "probe points", bytemuck::cast_slice(points), std::mem::size_of::<GpuProbePoint>())?;
+        let film_bytes = width as u64 * height as u64 * 16;
+        ctx.check_size("film", film_bytes)?;
+        let film = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("film"),
+            size: film_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let film_readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("film readback"),
+            size: film_bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let timestamps = ctx.has_timestamps().then(|| {
+            let set = device.create_query_set(&wgpu::QuerySetDescriptor {
+                label: Some("pass timestamps"),
+                ty: wgpu::QueryType::Timestamp,
+                count: 2,
+            });
+            let resolved = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("pass timestamps"),
+                size: 2 * wgpu::QUERY_SIZE as u64,
+                usage: wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: false,
+            });
+            (set, resolved)
+        });
+        let counters = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("counters"),
+            size: 4 * COUNTER_COUNT as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        // The counters, then the timestamps at TIMESTAMPS_AT.
+        let counters_readback = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("counters readback"),
+            size: TIMESTAMPS_AT + 2 * wgpu::QUERY_SIZE as u64,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+
+        let key = PipelineKey {
+            layout: scene.layout,
+            kernel,
+            chunks: scene.chunks,
+            instances: scene.has_instances,
+            spheres: scene.has_spheres,
+            triangles: scene.has_triangles,
+            planes: scene.has_planes,
+            sampler,
+            hemisphere,
+            stack_size: scene.stack_size,
+            cpu_lanes: ctx.cpu_lanes(),
+        };
+        let pipeline = dev.pipelines.get(ctx, key)?;
+        let dispatch_binding = wgpu::BufferBinding {
+            buffer: &dispatch,
+            offset: 0,
+            size: wgpu::BufferSize::new(std::mem::size_of::<DispatchUniforms>() as u64),
+        };
+        let mut entries = vec![
+            wgpu::BindGroupEntry { binding: FRAME.index, resource: frame.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: DISPATCH.index, resource: wgpu::BindingResource::Buffer(dispatch_binding) },
+            wgpu::BindGroupEntry { binding: PLANES.index, resource: scene.planes.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: FILM.index, resource: film.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: COUNTERS.index, resource: counters.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: PROBE_POINTS.index, resource: probe_points.as_entire_binding() },
+        ];
+        entries.extend(scene.bind_group_entries());
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("ao bindings"),
+            layout: &pipeline.bind_group_layout,
+            entries: &entries,
+        });
+        ctx.take_error()?;
+        // Some drivers (lavapipe) compile the kernel at its first dispatch: run one
+        // workgroup of a new pipeline now, so compilation counts as setup rather than
+        // render time, then clear what it wrote.
+        if pipeline.fresh {
+            let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("warm-up") });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("warm-up"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&pipeline.pipeline);
+                pass.set_bind_group(0, &bind_group, &[0]);
+                pass.dispatch_workgroups(1, 1, 1);
+            }
+            encoder.clear_buffer(&film, 0, None);
+            encoder.clear_buffer(&counters, 0, None);
+            ctx.submit([encoder.finish()])?;
+            ctx.wait()?;
+        }
+        ctx.take_error()?;
+        let device_bytes = [&frame, &dispatch, &probe_points, &film, &film_readback, &counters, &counters_readback]
+            .into_iter()
+            .map(|b| b.size())
+            .sum();
+        let rays_per_sample = match kernel {
+            Kernel::Image => 2,
+            Kernel::Probe => 1,
+        };
+        let safe_samples_per_invocation = safe_samples_per_invocation(rays_per_sample, scene.ray_steps);
+        #[cfg(feature = "testing")]
+        let lose_device_after = std::env::var(TEST_LOSE_DEVICE_ENV).ok().and_then(|v| v.trim().parse().ok());
+        #[cfg(not(feature = "testing"))]
+        let lose_device_after = None;
+        Ok(GpuTarget {
+            dev: dev.clone(),
+            pipeline: pipeline.pipeline,
+            bind_group,
+            film,
+            film_readback,
+            dispatch,
+            counters,
+            counters_readback,
+            timestamps,
+            width,
+            height,
+            kernel,
+            samples_per_invocation: safe_samples_per_invocation.max(PREFERRED_SAMPLES_PER_INVOCATION),
+            safe_samples_per_invocation,
+            rays_per_sample,
+            ray_steps: scene.ray_steps,
+            device_bytes,
+            passes_run: 0,
+            lose_device_after,
+        })
+    }
+
+    /// Film slots: pixels, or probe points × lanes.
+    pub fn slots(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Sets the samples each invocation renders in turn, at most [`MAX_PASS_SAMPLES`];
+    /// returns the value set. The film is the same, bit for bit, whatever the setting:
+    /// each invocation adds its samples in order, as one dispatch per sample would, and a
+    /// pass that runs out of budget with more than `safe_samples_per_invocation` is
+    /// rendered again with that many.
+    #[cfg(feature = "testing")]
+    pub fn set_samples_per_invocation(&mut self, samples: u32) -> u32 {
+        self.samples_per_invocation = samples.clamp(1, MAX_PASS_SAMPLES);
+        self.samples_per_invocation
+    }
+
+    /// Adds samples `first .. first + count` of every pixel to the film, in order, and
+    /// waits for them. For probes, `first .. first + count` are rounds: round r gives lane
+    /// l of every point the sample index r × lanes + l.
+    ///
+    /// With more samples per invocation than are safe, the film is copied aside first; if
+    /// a ray runs out of budget, the copy is put back and the pass rendered again with the
+    /// safe count, which the target keeps from then on.
+    pub fn render_pass(&mut self, first: u32, count: u32) -> Result<PassCounters> {
+        let per = self.samples_per_invocation;
+        let guarded = per.min(count) > self.safe_samples_per_invocation;
+        let (mut counters, mut truncated) = self.run_pass(first, count, guarded)?;
+        if truncated > 0 && guarded {
+            let words: Vec<[f32; 4]> = self.dev.ctx.read(&self.film_readback)?;
+            self.set_film_words(&words)?;
+            self.samples_per_invocation = self.safe_samples_per_invocation;
+            (counters, truncated) = self.run_pass(first, count, false)?;
+        }
+        if truncated == 0 {
+            return Ok(counters);
+        }
+        let budget = self.dispatch_budget(self.samples_per_invocation.min(count));
+        Err(Error::TraversalBudget { count: truncated, budget })
+    }
+
+    /// The traversal budget of a dispatch of `samples` samples per invocation.
+    fn dispatch_budget(&self, samples: u32) -> u32 {
+        dispatch_budget(samples, self.rays_per_sample, self.ray_steps, self.dev.ctx.shared_steps())
+    }
+
+    /// One try at [`GpuTarget::render_pass`], copying the film to the readback buffer
+    /// first where `keep_film` is set; returns its counters and how many samples ran out
+    /// of budget.
+    fn run_pass(&mut self, first: u32, count: u32, keep_film: bool) -> Result<(PassCounters, u64)> {
+        assert!((1..=MAX_PASS_SAMPLES).contains(&count), "pass of {count} samples");
+        let ctx = &self.dev.ctx;
+        if self.lose_device_after == Some(self.passes_run) {
+            ctx.device.destroy();
+        }
+        self.passes_run += 1;
+        let per = self.samples_per_invocation;
+        let dispatches = count.div_ceil(per);
+        let mut uniforms = vec![0u8; (DISPATCH_STRIDE * dispatches as u64) as usize];
+        for k in 0..dispatches {
+            let n = per.min(count - k * per);
+            let u = DispatchUniforms {
+                first_sample: first.wrapping_add(k * per),
+                sample_count: n,
+                traversal_budget: self.dispatch_budget(n),
+                _pad: 0,
+            };
+            let at = (DISPATCH_STRIDE * k as u64) as usize;
+            uniforms[at..at + std::mem::size_of::<DispatchUniforms>()].copy_from_slice(bytemuck::bytes_of(&u));
+        }
+        ctx.queue.write_buffer(&self.dispatch, 0, &uniforms);
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("pass") });
+        encoder.clear_buffer(&self.counters, 0, None);
+        if keep_film {
+            encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, None);
+        }
+        {
+            let timestamp_writes = self.timestamps.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
+                query_set: set,
+                beginning_of_pass_write_index: Some(0),
+                end_of_pass_write_index: Some(1),
+            });
+            let mut pass =
+                encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("ao"), timestamp_writes });
+            pass.set_pipeline(&self.pipeline);
+            let (groups_x, groups_y) = match self.kernel {
+                Kernel::Image => (self.width.div_ceil(WORKGROUP_SIZE[0]), self.height.div_ceil(WORKGROUP_SIZE[1])),
+                Kernel::Probe => ((self.width * self.height).div_ceil(PROBE_WORKGROUP_SIZE), 1),
+            };
+            for k in 0..dispatches {
+                pass.set_bind_group(0, &self.bind_group, &[(DISPATCH_STRIDE * k as u64) as u32]);
+                pass.dispatch_workgroups(groups_x, groups_y, 1);
+            }
+        }
+        encoder.copy_buffer_to_buffer(&self.counters, 0, &self.counters_readback, 0, Some(4 * COUNTER_COUNT as u64));
+        if let Some((set, resolved)) = &self.timestamps {
+            encoder.resolve_query_set(set, 0..2, resolved, 0);
+            encoder.copy_buffer_to_buffer(resolved, 0, &self.counters_readback, TIMESTAMPS_AT, None);
+        }
+        ctx.submit([encoder.finish()])?;
+        let words: Vec<u32> = ctx.read(&self.counters_readback)?;
+        let gpu_seconds = self.timestamps.as_ref().map(|_| {
+            let at = (TIMESTAMPS_AT / 4) as usize;
+            let tick = |k: usize| words[at + 2 * k] as u64 | (words[at + 2 * k + 1] as u64) << 32;
+            tick(1).wrapping_sub(tick(0)) as f64 * ctx.queue.get_timestamp_period() as f64 * 1e-9
+        });
+        let truncated = words[COUNTER_TRUNCATED as usize] as u64;
+        Ok((PassCounters { ao_rays: words[COUNTER_AO_RAYS as usize] as u64, gpu_seconds }, truncated))
+    }
+
+    /// The film's raw words, one `[Σv, compensation, Σv², compensation]` per slot, as
+    /// the kernel left them: with [`GpuTarget::set_film_words`], a render can stop and
+    /// go on later from the same bits.
+    pub fn film_words(&self) -> Result<Vec<[f32; 4]>> {
+        let ctx = &self.dev.ctx;
+        let mut encoder =
+            ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("film words") });
+        encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, None);
+        ctx.submit([encoder.finish()])?;
+        ctx.read(&self.film_readback)
+    }
+
+    /// Replaces the film with `words` (as [`GpuTarget::film_words`] returned them).
+    pub fn set_film_words(&mut self, words: &[[f32; 4]]) -> Result<()> {
+        let slots = self.slots();
+        if words.len() != slots {
+            return Err(Error::Gpu(format!("{} film slots given for a film of {slots}", words.len())));
+        }
+        let ctx = &self.dev.ctx;
+        ctx.queue.write_buffer(&self.film, 0, bytemuck::cast_slice(words));
+        ctx.submit([])?;
+        ctx.wait()
+    }
+
+    /// Zeroes the film.
+    pub fn clear_film(&mut self) -> Result<()> {
+        let ctx = &self.dev.ctx;
+        let mut encoder =
+            ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("clear film") });
+        encoder.clear_buffer(&self.film, 0, None);
+        ctx.submit([encoder.finish()])
+    }
+}

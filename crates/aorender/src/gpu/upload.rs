@@ -1,0 +1,350 @@
+//! The scene on the device: the BVH's nodes and the primitive records uploaded once per
+//! session, as storage buffers or read-only storage textures, split into chunks of at
+//! most one binding each; and the planes. Requests bind them as they are.
+
+use super::context::GpuContext;
+use super::layout::{GpuPlane, OTHER_STORAGE_BINDINGS};
+use super::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE};
+use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
+use crate::error::{Error, Result};
+use crate::scene::Scene;
+
+/// The scene's geometry on the device, and what the kernel needs to know of it.
+#[derive(Debug)]
+pub struct GpuScene {
+    /// The BVH layout the nodes are in.
+    pub layout: BvhLayout,
+    /// How nodes and primitives are split into bindings.
+    pub chunks: GeometryChunks,
+    /// Node chunks, in order.
+    nodes: Vec<Geometry>,
+    /// Primitive chunks, in order.
+    primitives: Vec<Geometry>,
+    /// The planes (one zeroed element when there are none).
+    pub(crate) planes: wgpu::Buffer,
+    /// Number of BVH nodes.
+    pub node_count: u32,
+    /// Number of planes.
+    pub plane_count: u32,
+    /// Entries of the traversal stack: the BVH's depth.
+    pub stack_size: u32,
+    /// The most traversal loop iterations one ray can take, the planes included.
+    pub ray_steps: u64,
+    /// The BVH has instances (a second level).
+    pub has_instances: bool,
+    /// The scene has spheres.
+    pub has_spheres: bool,
+    /// The scene has triangles, placed once or instanced.
+    pub has_triangles: bool,
+    /// The scene has planes.
+    pub has_planes: bool,
+    /// Bytes of the BVH as uploaded: its nodes and primitive records.
+    pub bvh_bytes: u64,
+}
+
+impl GpuScene {
+    /// Uploads `bvh` (built from `scene`) and the scene's planes, the geometry in
+    /// `storage`. The primitive records are made from the scene a piece at a time,
+    /// straight into the upload.
+    pub fn upload(ctx: &GpuContext, scene: &Scene, bvh: &GpuBvh, storage: GeometryStorage) -> Result<GpuScene> {
+        if bvh.depth > bvh.layout.stack_size() {
+            return Err(Error::Gpu(format!(
+                "the {} BVH is {} levels deep; the shader's traversal stack holds {}",
+                bvh.layout.name(),
+                bvh.depth,
+                bvh.layout.stack_size()
+            )));
+        }
+        let node_size = bvh.layout.node_size();
+        let record_count = bvh.records.len();
+        let chunks = geometry_chunks(ctx, storage, bvh.layout, bvh.node_count as usize, record_count)?;
+        let nodes: Vec<Geometry> = chunk_ranges(bvh.node_count as usize, chunks.nodes_per_chunk)
+            .map(|r| {
+                let bytes = &bvh.node_bytes[r.start * node_size..r.end * node_size];
+                Geometry::upload(ctx, "BVH nodes", bytes.len(), node_size, chunks, &mut |at, out| {
+                    out.copy_from_slice(&bytes[at..at + out.len()])
+                })
+            })
+            .collect::<Result<_>>()?;
+        let prim_size = std::mem::size_of::<GpuPrimitive>();
+        let mut piece: Vec<GpuPrimitive> = Vec::new();
+        let primitives: Vec<Geometry> = chunk_ranges(record_count, chunks.primitives_per_chunk)
+            .map(|r| {
+                Geometry::upload(ctx, "primitives", r.len() * prim_size, prim_size, chunks, &mut |at, out| {
+                    piece.resize(out.len() / prim_size, bytemuck::Zeroable::zeroed());
+                    bvh.records.write(scene, r.start + at / prim_size, &mut piece);
+                    out.copy_from_slice(bytemuck::cast_slice(&piece));
+                })
+            })
+            .collect::<Result<_>>()?;
+        let planes: Vec<GpuPlane> = scene.planes.iter().map(GpuPlane::from).collect();
+        let planes = storage_buffer(ctx, "planes", bytemuck::cast_slice(&planes), std::mem::size_of::<GpuPlane>())?;
+        ctx.take_error()?;
+        Ok(GpuScene {
+            layout: bvh.layout,
+            chunks,
+            nodes,
+            primitives,
+            planes,
+            node_count: bvh.node_count,
+            plane_count: scene.planes.len() as u32,
+            stack_size: bvh.stack_size(),
+            ray_steps: bvh.ray_steps(scene) + scene.planes.len() as u64,
+            // The BVH2 layout flattens instances.
+            has_instances: bvh.layout == BvhLayout::Cwbvh && !scene.instances.is_empty(),
+            has_spheres: !scene.spheres.is_empty(),
+            has_triangles: !scene.triangles.is_empty() || !scene.instances.is_empty(),
+            has_planes: !scene.planes.is_empty(),
+            bvh_bytes: bvh.bytes(),
+        })
+    }
+
+    /// Bindings holding the BVH nodes and the primitives.
+    pub fn geometry_bindings(&self) -> u32 {
+        (self.nodes.len() + self.primitives.len()) as u32
+    }
+
+    /// The geometry's bind group entries: node chunks, then primitive chunks.
+    pub(crate) fn bind_group_entries(&self) -> Vec<wgpu::BindGroupEntry<'_>> {
+        let nodes = self.nodes.iter().enumerate().map(|(k, g)| (GeometryChunks::node_binding(k as u32), g));
+        let prims = self.primitives.iter().enumerate().map(|(k, g)| (GeometryChunks::primitive_binding(k as u32), g));
+        nodes.chain(prims).map(|(binding, g)| wgpu::BindGroupEntry { binding, resource: g.resource() }).collect()
+    }
+
+    /// Bytes of device memory the geometry and the planes take.
+    pub fn device_bytes(&self) -> u64 {
+        self.planes.size() + self.nodes.iter().chain(&self.primitives).map(Geometry::bytes).sum::<u64>()
+    }
+}
+
+/// How `nodes` nodes and `primitives` primitives split into chunks of at most one binding
+/// each in `storage`, or an error with the numbers when the adapter has too few bindings
+/// per shader stage for them.
+fn geometry_chunks(
+    ctx: &GpuContext,
+    storage: GeometryStorage,
+    layout: BvhLayout,
+    nodes: usize,
+    primitives: usize,
+) -> Result<GeometryChunks> {
+        let node_size = layout.node_size();
+    let prim_size = std::mem::size_of::<GpuPrimitive>();
+    let limits = ctx.device.limits();
+    // Texels in a texture row (0 for buffers), and the bytes one binding holds at most.
+    let (row_texels, chunk_bytes) = match storage {
+        GeometryStorage::Buffers => (0, ctx.max_chunk_bytes()),
+        GeometryStorage::Textures => {
+            let [width, rows] = ctx.max_texture_size();
+            let row = width / ROW_TEXEL_MULTIPLE * ROW_TEXEL_MULTIPLE;
+            if row == 0 {
+                return Err(Error::Gpu(format!(
+                    "textures of {width} texels are too narrow for the geometry: it needs {ROW_TEXEL_MULTIPLE}"
+                )));
+            }
+            (row, row as u64 * rows as u64 * 16)
+        }
+    };
+    // An element is a whole number of texels and a row a whole number of elements, so
+    // a texture holds exactly chunk_bytes / size of them.
+    let per_chunk = |size: usize| (chunk_bytes / size as u64).clamp(1, u32::MAX as u64) as u32;
+    let (nodes_per_chunk, primitives_per_chunk) = (per_chunk(node_size), per_chunk(prim_size));
+    let chunks = GeometryChunks {
+        storage,
+        node_chunks: (nodes.div_ceil(nodes_per_chunk as usize) as u32).max(1),
+        nodes_per_chunk,
+        primitive_chunks: (primitives.div_ceil(primitives_per_chunk as usize) as u32).max(1),
+        primitives_per_chunk,
+        row_texels,
+    };
+    let (allowed, limit_name) = match storage {
+        GeometryStorage::Buffers => (
+            limits.max_storage_buffers_per_shader_stage.saturating_sub(OTHER_STORAGE_BINDINGS),
+            "max_storage_buffers_per_shader_stage (less the kernel's other bindings) \
+             × max_storage_buffer_binding_size",
+        ),
+        GeometryStorage::Textures => (
+            limits.max_storage_textures_per_shader_stage,
+            "max_storage_textures_per_shader_stage × the texels of a texture (max_texture_dimension_2d²)",
+        ),
+    };
+    if chunks.node_chunks + chunks.primitive_chunks > allowed {
+        return Err(Error::TooLarge {
+            what: "the BVH nodes and primitives",
+            needed: (nodes * node_size + primitives * prim_size) as u64,
+            limit: allowed as u64 * chunk_bytes,
+            limit_name,
+        });
+    }
+    Ok(chunks)
+}
+
+
+/// `bytes` in chunks of `per_chunk` elements of `element` bytes; one empty chunk when
+/// `bytes` is empty.
+fn chunk_ranges(count: usize, per_chunk: u32) -> impl Iterator<Item = std::ops::Range<usize>> {
+    let per_chunk = (per_chunk as usize).max(1);
+    let chunks = count.div_ceil(per_chunk).max(1);
+    (0..chunks).map(move |k| k * per_chunk..((k + 1) * per_chunk).min(count))
+}
+
+/// Bytes filled at a time when an upload is made piece by piece.
+const UPLOAD_PIECE: usize = 1 << 20;
+
+/// Makes bytes `0..len` a piece at a time: each piece, whole elements of about
+/// [`UPLOAD_PIECE`] bytes, is filled by `fill(offset, piece)` and handed to `put(offset,
+/// piece)`.
+fn fill_pieces(len: usize, element: usize, fill: &mut dyn FnMut(usize, &mut [u8]), put: &mut dyn FnMut(usize, &[u8])) {
+    let step = (UPLOAD_PIECE / element).max(1) * element;
+    let mut piece = Vec::with_capacity(step.min(len));
+    for at in (0..len).step_by(step) {
+        piece.resize(step.min(len - at), 0);
+        fill(at, &mut piece);
+        put(at, &piece);
+    }
+}
+
+/// A read-only storage buffer; `element` is the size of one array element in the shader.
+pub(crate) fn storage_buffer(ctx: &GpuContext, label: &'static str, bytes: &[u8], element: usize) -> Result<wgpu::Buffer> {
+    storage_filled(ctx, label, bytes.len(), element, &mut |at, out| out.copy_from_slice(&bytes[at..at + out.len()]))
+}
+
+/// A read-only storage buffer of `len` bytes written through its mapping by `fill(offset,
+/// piece)`, so no copy of the whole is needed on the host.
+fn storage_filled(
+    ctx: &GpuContext,
+    label: &'static str,
+    len: usize,
+    element: usize,
+    fill: &mut dyn FnMut(usize, &mut [u8]),
+) -> Result<wgpu::Buffer> {
+    // A binding may not be empty: absent data is one zeroed element (wgpu zeroes buffers).
+    let size = len.max(element) as u64;
+    ctx.check_size(label, size)?;
+    let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size,
+        usage: wgpu::BufferUsages::STORAGE,
+        mapped_at_creation: true,
+    });
+    let mut mapped = Ok(());
+    fill_pieces(len, element, fill, &mut |at, piece| {
+        let range = at as u64..(at + piece.len()) as u64;
+        match buffer.slice(range).get_mapped_range_mut() {
+            Ok(mut view) => view.copy_from_slice(piece),
+            Err(e) => mapped = Err(ctx.fault(format!("cannot write the mapped {label} buffer: {e}"))),
+        }
+    });
+    mapped?;
+    buffer.unmap();
+    Ok(buffer)
+}
+
+/// One chunk of nodes or primitives on the device.
+#[derive(Debug)]
+enum Geometry {
+    Buffer(wgpu::Buffer),
+    Texture(wgpu::TextureView, u64),
+}
+
+impl Geometry {
+    /// Uploads `len` bytes, elements of `element` bytes, as `chunks` says; `fill(offset,
+    /// piece)` writes them a piece at a time.
+    fn upload(
+        ctx: &GpuContext,
+        label: &'static str,
+        len: usize,
+        element: usize,
+        chunks: GeometryChunks,
+        fill: &mut dyn FnMut(usize, &mut [u8]),
+    ) -> Result<Geometry> {
+        match chunks.storage {
+            GeometryStorage::Buffers => storage_filled(ctx, label, len, element, fill).map(Geometry::Buffer),
+            GeometryStorage::Textures => texels(ctx, label, len, element, chunks.row_texels, fill),
+        }
+    }
+
+    fn resource(&self) -> wgpu::BindingResource<'_> {
+        match self {
+            Geometry::Buffer(b) => b.as_entire_binding(),
+            Geometry::Texture(view, _) => wgpu::BindingResource::TextureView(view),
+        }
+    }
+
+    fn bytes(&self) -> u64 {
+        match self {
+            Geometry::Buffer(b) => b.size(),
+            Geometry::Texture(_, bytes) => *bytes,
+        }
+    }
+}
+
+/// An `Rgba32Uint` texture `row_texels` wide holding `len` bytes row after row (elements
+/// of `element` bytes never straddle rows: `row_texels` is a multiple of their texels),
+/// written by `fill(offset, piece)` a few rows at a time.
+fn texels(
+    ctx: &GpuContext,
+    label: &'static str,
+    len: usize,
+    element: usize,
+    row_texels: u32,
+    fill: &mut dyn FnMut(usize, &mut [u8]),
+) -> Result<Geometry> {
+    const TEXEL: usize = 16;
+    debug_assert_eq!(len % TEXEL, 0);
+    let row_bytes = row_texels as usize * TEXEL;
+    debug_assert_eq!(row_bytes % element, 0);
+    let full_rows = (len / row_bytes) as u32;
+    let rest = len % row_bytes;
+    let rows = (full_rows + (rest > 0) as u32).max(1);
+    let max = ctx.device.limits().max_texture_dimension_2d;
+    if rows > max {
+        return Err(Error::TooLarge {
+            what: label,
+            needed: len as u64,
+            limit: max as u64 * row_bytes as u64,
+            limit_name: "max_texture_dimension_2d² texels of 16 bytes",
+        });
+    }
+    let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d { width: row_texels, height: rows, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba32Uint,
+        usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    let write = |y: u32, width: u32, height: u32, data: &[u8]| {
+        ctx.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d { x: 0, y, z: 0 },
+                aspect: wgpu::TextureAspect::All,
+            },
+            data,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(width * TEXEL as u32),
+                rows_per_image: Some(height),
+            },
+            wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+        );
+    };
+    // Pieces of whole rows, then the last, partial row on its own.
+    let whole = full_rows as usize * row_bytes;
+    fill_pieces(whole, row_bytes, fill, &mut |at, piece| {
+        write((at / row_bytes) as u32, row_texels, (piece.len() / row_bytes) as u32, piece)
+    });
+    if rest > 0 {
+        let mut piece = vec![0; rest];
+        fill(whole, &mut piece);
+        write(full_rows, (rest / TEXEL) as u32, 1, &piece);
+    }
+    // The writes wait in the queue's staging memory until a submission: send them now.
+    ctx.queue.submit([]);
+    let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+    Ok(Geometry::Texture(view, rows as u64 * row_bytes as u64))
+}
+

@@ -1,0 +1,81 @@
+//! aorender: ambient occlusion on the GPU (WGSL compute shaders through wgpu) over an
+//! obvhs BVH, with a multi-threaded CPU reference renderer that takes the same samples.
+//!
+//! A pixel's value is ρ/π ∫ V(x, ω) cos θ dω over the hemisphere at the surface point its
+//! camera ray hits, averaged over the pixel's area: fully open is the albedo ρ. AO at a
+//! given point and normal is the same integral with albedo 1.
+//!
+//! The data flows one way: a scene file is loaded into a [`Scene`]; a [`Session`] builds
+//! its BVH once and uploads it to a [`Device`] (a GPU adapter, or the CPU reference); each
+//! request — an image with any camera and sampling settings, or AO at probe points — is
+//! then rendered in passes ([`Render`]) into an [`Accumulation`] of exact sums, which gives
+//! the [`Film`], can be saved as a checkpoint and continued, and merges exactly with the
+//! accumulations of other sample ranges.
+//!
+//! ```no_run
+//! use aorender::{BvhOptions, Control, Device, Hemisphere, Probe, Sampler, Scene, Session};
+//! use glam::Vec3;
+//!
+//! # fn main() -> aorender::Result<()> {
+//! // The expensive work, once: open the adapter, build the BVH, upload it.
+//! let scene = Scene::default_scene();
+//! let device = Device::gpu(None)?; // or Device::cpu()
+//! let session = Session::new(&device, scene, &BvhOptions::default())?;
+//!
+//! // Many requests: the scene's own view at 64 samples per pixel, then cosine-weighted
+//! // Sobol samples, with a progress callback.
+//! let mut request = session.default_request();
+//! request.settings.spp = 64;
+//! let out = session.render(&request)?.complete(&mut Control::default())?;
+//! aorender::output::write_image(&out.film, "aobench.png".as_ref())?;
+//! println!("{:.1} M rays/s", out.stats.rays_per_second / 1e6);
+//!
+//! request.settings.hemisphere = Hemisphere::Cosine;
+//! request.settings.sampler = Sampler::Sobol;
+//! let mut on_progress = |p: &aorender::Progress| eprintln!("{}/{} spp", p.samples_done, p.samples_total);
+//! let mut control = Control { progress: Some(&mut on_progress), ..Control::default() };
+//! let sobol = session.render(&request)?.complete(&mut control)?;
+//! println!("image mean {:.4}", sobol.stats.image_mean);
+//!
+//! // AO at a point on the floor, facing up, with 4096 samples.
+//! let probe = Probe::new(Vec3::new(0.0, -0.5, -2.0), Vec3::Y)?;
+//! let ao = session.probe(&[probe], 4096, &request.settings)?;
+//! println!("AO {:.4} ± {:.4}", ao.values[0].mean, ao.values[0].std_error);
+//! # Ok(())
+//! # }
+//! ```
+
+/// Declares an internal module: private, but public to the crate's own tests and
+/// measurement programs when the `testing` feature is on (it is not part of the API).
+macro_rules! internal {
+    ($($name:ident),* $(,)?) => {
+        $(
+            #[cfg(feature = "testing")]
+            pub mod $name;
+            #[cfg(not(feature = "testing"))]
+            mod $name;
+        )*
+    };
+}
+
+internal!(accumulation, bvh, cpu, device, film, geometry, gpu, mirror, probe, render, sampler, sampling, session);
+
+pub mod closed_form;
+pub mod error;
+pub mod output;
+pub mod scene;
+
+pub use accumulation::{Accumulation, Merged, MergedShard, SampleSettings, merge, scene_hash};
+pub use bvh::{BuildQuality, BvhLayout};
+pub use device::{BvhOptions, Device, DeviceKind, Setup};
+pub use error::{Error, Result};
+pub use film::{BLOCK_SAMPLES, Film};
+pub use gpu::{AdapterInfo, GeometryStorage, catching_panics, list_adapters};
+pub use probe::{Probe, ProbeValue};
+pub use render::{
+    Control, PassSizing, PassTimes, Progress, Render, RenderOutput, RenderStats, RunEnd, SaveFn, peak_rss_bytes,
+};
+pub use sampler::Sampler;
+pub use sampling::Hemisphere;
+pub use scene::{Camera, Projection, Scene, Settings};
+pub use session::{ImageRequest, ProbeOutput, Session};

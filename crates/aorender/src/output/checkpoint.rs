@@ -1,0 +1,458 @@
+//! The checkpoint file: an [`Accumulation`] (the raw sums of a render, what it was
+//! rendered from, and the sample indices it holds) in a versioned little-endian file
+//! written atomically.
+//!
+//! An accumulation holds the exact fixed-point sums of the finished 256-sample blocks
+//! ([`ExactSums`], see [`BLOCK_SAMPLES`]) and the device's own sums of the block in
+//! progress (the GPU film's f32 words or the CPU reference's f64 sums). Loading it back
+//! into the same device continues the render from the same bits; adding the exact sums of
+//! accumulations of disjoint sample ranges (`accumulation::merge`) is exact integer
+//! addition.
+//!
+//! File layout (version 1), every number little-endian:
+//!
+//! | bytes | field |
+//! |---|---|
+//! | 8 | magic `AOCKPT\r\n` |
+//! | 4 | format version (u32) |
+//! | 32 | BLAKE3 hash of the scene's geometry and camera |
+//! | 4 × 4 | width, height, samples per pixel, strata per axis (u32) |
+//! | 8 × 1 | hemisphere, sampler, device, BVH layout, BVH quality (codes below), has max distance, has a block in progress, flags (u8) |
+//! | 4 × 3 | max distance, background (f32), seed (u32) |
+//! | 4 × 3 | exponents of the sums' quanta (i32 × 2), samples per block (u32) |
+//! | 4 × 4 | first sample, end of the range, next sample, samples of the block in progress (u32) |
+//! | 8 + 4 + 8 | AO rays (u64), passes (u32), render seconds (f64) |
+//! | 4 + n | adapter name: length (u32, at most 4096), UTF-8 |
+//! | 32 × pixels | exact sums: Σv for every pixel, then Σv² (i128) |
+//! | 16 × pixels | block in progress, when present: GPU, 4 × f32 per pixel; CPU, Σv then Σv² (f64) |
+//! | 32 | BLAKE3 hash of every byte before it |
+//!
+//! The reader checks the magic, the version and every field's range, computes the file's
+//! expected length from the header and compares it with the actual length before it
+//! allocates or reads the sums, then streams the sums (holding them once, never the file
+//! beside them) and checks the hash.
+//!
+//! The codes of the enumerations are fixed numbers of this format, independent of the
+//! order in which the command line lists the values:
+//!
+//! | field | codes |
+//! |---|---|
+//! | hemisphere | 0 uniform, 1 cosine, 2 cosine-polar |
+//! | sampler | 0 independent, 1 stratified, 2 grid, 3 sobol |
+//! | device | 0 GPU, 1 CPU |
+//! | BVH layout | 0 BVH2, 1 CWBVH |
+//! | BVH quality | 0 fastest, 1 fast, 2 medium, 3 slow |
+
+use super::atomic::write_atomically_with;
+use crate::accumulation::{Accumulation, SampleSettings};
+use crate::bvh::{BuildQuality, BvhLayout};
+use crate::device::DeviceKind;
+use crate::error::{Error, Result};
+use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums};
+use crate::sampler::Sampler;
+use crate::sampling::Hemisphere;
+use std::io::{Read, Write};
+use std::path::Path;
+
+/// The first bytes of a checkpoint file.
+pub const MAGIC: [u8; 8] = *b"AOCKPT\r\n";
+/// The format version this build writes and reads.
+pub const VERSION: u32 = 1;
+/// Longest adapter name stored.
+const MAX_ADAPTER_NAME: usize = 4096;
+/// Flag: the blocks follow the absolute grid of [`BLOCK_SAMPLES`] (cleared when a render
+/// whose last block was cut short by its end is continued past that end).
+const FLAG_ON_GRID: u8 = 1;
+
+/// The file's code of a hemisphere distribution.
+fn hemisphere_code(h: Hemisphere) -> u8 {
+    match h {
+        Hemisphere::Uniform => 0,
+        Hemisphere::Cosine => 1,
+        Hemisphere::CosinePolar => 2,
+    }
+}
+
+fn hemisphere_of(code: u8) -> Option<Hemisphere> {
+    Hemisphere::ALL.into_iter().find(|&h| hemisphere_code(h) == code)
+}
+
+/// The file's code of a sampler.
+fn sampler_code(s: Sampler) -> u8 {
+    match s {
+        Sampler::Independent => 0,
+        Sampler::Stratified => 1,
+        Sampler::Grid => 2,
+        Sampler::Sobol => 3,
+    }
+}
+
+fn sampler_of(code: u8) -> Option<Sampler> {
+    Sampler::ALL.into_iter().find(|&s| sampler_code(s) == code)
+}
+
+/// The file's code of a device.
+fn device_code(d: DeviceKind) -> u8 {
+    match d {
+        DeviceKind::Gpu => 0,
+        DeviceKind::Cpu => 1,
+    }
+}
+
+fn device_of(code: u8) -> Option<DeviceKind> {
+    [DeviceKind::Gpu, DeviceKind::Cpu].into_iter().find(|&d| device_code(d) == code)
+}
+
+/// The file's code of a BVH layout.
+fn layout_code(l: BvhLayout) -> u8 {
+    match l {
+        BvhLayout::Bvh2 => 0,
+        BvhLayout::Cwbvh => 1,
+    }
+}
+
+fn layout_of(code: u8) -> Option<BvhLayout> {
+    [BvhLayout::Bvh2, BvhLayout::Cwbvh].into_iter().find(|&l| layout_code(l) == code)
+}
+
+/// The file's code of a BVH build preset.
+fn quality_code(q: BuildQuality) -> u8 {
+    match q {
+        BuildQuality::Fastest => 0,
+        BuildQuality::Fast => 1,
+        BuildQuality::Medium => 2,
+        BuildQuality::Slow => 3,
+    }
+}
+
+fn quality_of(code: u8) -> Option<BuildQuality> {
+    BuildQuality::ALL.into_iter().find(|&q| quality_code(q) == code)
+}
+
+/// Why the bytes of a checkpoint are unusable, in one line (the file is named by the
+/// caller).
+struct Invalid(String);
+
+impl From<String> for Invalid {
+    fn from(message: String) -> Self {
+        Invalid(message)
+    }
+}
+
+impl From<&str> for Invalid {
+    fn from(message: &str) -> Self {
+        Invalid(message.to_string())
+    }
+}
+
+impl Accumulation {
+    /// Writes the checkpoint file atomically (to a temporary file beside it, then renamed).
+    pub fn write(&self, path: &Path) -> Result<()> {
+        write_atomically_with(path, &mut |w| {
+            let mut w = HashingWriter { inner: w, hasher: blake3::Hasher::new() };
+            self.write_body(&mut w)?;
+            let hash = *w.hasher.finalize().as_bytes();
+            w.inner.write_all(&hash)
+        })
+    }
+
+    fn write_body(&self, w: &mut dyn Write) -> std::io::Result<()> {
+        let s = &self.settings;
+        w.write_all(&MAGIC)?;
+        w.write_all(&VERSION.to_le_bytes())?;
+        w.write_all(&s.scene_hash)?;
+        for v in [s.width, s.height, s.spp, s.strata] {
+            w.write_all(&v.to_le_bytes())?;
+        }
+        w.write_all(&[
+            hemisphere_code(s.hemisphere),
+            sampler_code(s.sampler),
+            device_code(self.device),
+            layout_code(self.bvh_layout),
+            quality_code(self.bvh_quality),
+            s.max_distance.is_some() as u8,
+            self.partial.is_some() as u8,
+            if self.on_grid { FLAG_ON_GRID } else { 0 },
+        ])?;
+        w.write_all(&s.max_distance.unwrap_or(0.0).to_le_bytes())?;
+        w.write_all(&s.background.to_le_bytes())?;
+        w.write_all(&s.seed.to_le_bytes())?;
+        w.write_all(&self.exact.sum_exponent.to_le_bytes())?;
+        w.write_all(&self.exact.sq_exponent.to_le_bytes())?;
+        w.write_all(&BLOCK_SAMPLES.to_le_bytes())?;
+        for v in [self.first, self.end, self.next, self.partial_samples] {
+            w.write_all(&v.to_le_bytes())?;
+        }
+        w.write_all(&self.ao_rays.to_le_bytes())?;
+        w.write_all(&self.passes.to_le_bytes())?;
+        w.write_all(&self.render_seconds.to_le_bytes())?;
+        let name = &self.adapter.as_bytes()[..self.adapter.len().min(MAX_ADAPTER_NAME)];
+        w.write_all(&(name.len() as u32).to_le_bytes())?;
+        w.write_all(name)?;
+        let mut buf = Vec::with_capacity(1 << 16);
+        let flush = |w: &mut dyn Write, buf: &mut Vec<u8>, force: bool| -> std::io::Result<()> {
+            if force || buf.len() >= 1 << 16 {
+                w.write_all(buf)?;
+                buf.clear();
+            }
+            Ok(())
+        };
+        for v in self.exact.sum.iter().chain(&self.exact.sum_sq) {
+            buf.extend_from_slice(&v.to_le_bytes());
+            flush(w, &mut buf, false)?;
+        }
+        match &self.partial {
+            None => {}
+            Some(BlockSums::Gpu(words)) => {
+                for f in words.iter().flatten() {
+                    buf.extend_from_slice(&f.to_le_bytes());
+                    flush(w, &mut buf, false)?;
+                }
+            }
+            Some(BlockSums::Cpu { sum, sum_sq }) => {
+                for f in sum.iter().chain(sum_sq) {
+                    buf.extend_from_slice(&f.to_le_bytes());
+                    flush(w, &mut buf, false)?;
+                }
+            }
+        }
+        flush(w, &mut buf, true)
+    }
+
+    /// Reads a checkpoint file, checking it whole before use.
+    pub fn read(path: &Path) -> Result<Accumulation> {
+        let err = |m: String| Error::checkpoint(path, m);
+        let file = std::fs::File::open(path).map_err(|e| err(e.to_string()))?;
+        let len = file.metadata().map_err(|e| err(e.to_string()))?.len();
+        let mut acc = Accumulation::from_stream(&mut std::io::BufReader::new(file), len).map_err(|e| err(e.0))?;
+        acc.source = Some(path.to_path_buf());
+        Ok(acc)
+    }
+
+    /// Parses the bytes of a checkpoint file; the error says what is wrong in one line.
+    pub fn from_bytes(mut bytes: &[u8]) -> Result<Accumulation> {
+        let len = bytes.len() as u64;
+        Accumulation::from_stream(&mut bytes, len).map_err(|e| Error::checkpoint("checkpoint", e.0))
+    }
+
+    /// Parses a checkpoint of `len` bytes from `stream`. Memory is taken only after the
+    /// header's figures agree with `len`, so a damaged or hostile header cannot ask for
+    /// more than the file holds.
+    fn from_stream(stream: &mut dyn Read, len: u64) -> Result<Accumulation, Invalid> {
+        // The fixed fields (through the adapter name's length), and the name at most.
+        const FIXED_HEADER: usize = 8 + 4 + 32 + 16 + 8 + 12 + 12 + 16 + 20 + 4;
+        let mut head = Vec::new();
+        stream
+            .take((FIXED_HEADER + MAX_ADAPTER_NAME) as u64)
+            .read_to_end(&mut head)
+            .map_err(|e| format!("cannot read: {e}"))?;
+        let bytes = &head[..];
+        let mut r = Reader { bytes, at: 0, len };
+        if bytes.len() < MAGIC.len() || bytes[..MAGIC.len()] != MAGIC {
+            return Err("not an aorender checkpoint (no AOCKPT header)".into());
+        }
+        r.at = MAGIC.len();
+        let version = r.u32()?;
+        if version != VERSION {
+            return Err(format!("checkpoint format version {version}; this aorender reads version {VERSION}").into());
+        }
+        let scene_hash: [u8; 32] = r.take(32)?.try_into().expect("32 bytes");
+        let (width, height, spp, strata) = (r.u32()?, r.u32()?, r.u32()?, r.u32()?);
+        let codes = r.take(8)?;
+        let invalid = |what: &str, code: u8| Invalid(format!("invalid {what} code {code}"));
+        let hemisphere = hemisphere_of(codes[0]).ok_or_else(|| invalid("hemisphere", codes[0]))?;
+        let sampler = sampler_of(codes[1]).ok_or_else(|| invalid("sampler", codes[1]))?;
+        let device = device_of(codes[2]).ok_or_else(|| invalid("device", codes[2]))?;
+        let bvh_layout = layout_of(codes[3]).ok_or_else(|| invalid("BVH layout", codes[3]))?;
+        let bvh_quality = quality_of(codes[4]).ok_or_else(|| invalid("BVH quality", codes[4]))?;
+        let (has_max_distance, has_partial, flags) = (codes[5], codes[6], codes[7]);
+        if has_max_distance > 1 || has_partial > 1 || flags & !FLAG_ON_GRID != 0 {
+            return Err("invalid flags".into());
+        }
+        let (max_distance, background, seed) = (r.f32()?, r.f32()?, r.u32()?);
+        let (sum_exponent, sq_exponent, block) = (r.u32()? as i32, r.u32()? as i32, r.u32()?);
+        let (first, end, next, partial_samples) = (r.u32()?, r.u32()?, r.u32()?, r.u32()?);
+        let (ao_rays, passes, render_seconds) = (r.u64()?, r.u32()?, r.f64()?);
+        let name_len = r.u32()? as usize;
+        if name_len > MAX_ADAPTER_NAME {
+            return Err(format!("adapter name of {name_len} bytes (at most {MAX_ADAPTER_NAME})").into());
+        }
+        let adapter = String::from_utf8(r.take(name_len)?.to_vec()).map_err(|_| "adapter name is not UTF-8")?;
+
+        if !(1..=16384).contains(&width) || !(1..=16384).contains(&height) {
+            return Err(format!("invalid image size {width}x{height}").into());
+        }
+        if spp == 0 || strata != sampler.strata_per_axis(spp) {
+            return Err(format!("invalid samples per pixel {spp} or strata {strata}").into());
+        }
+        // A NaN distance is refused too.
+        if (has_max_distance == 1 && (max_distance.is_nan() || max_distance < 0.0)) || !background.is_finite() {
+            return Err("invalid max distance or background".into());
+        }
+        if block != BLOCK_SAMPLES {
+            return Err(format!("written with blocks of {block} samples; this aorender uses {BLOCK_SAMPLES}").into());
+        }
+        let e = sum_exponent - ExactSums::exponents(1.0).0;
+        if !(0..=256).contains(&e) || (sum_exponent, sq_exponent) != ExactSums::exponents(2f64.powi(e)) {
+            return Err(format!("invalid sum scales 2^{sum_exponent}, 2^{sq_exponent}").into());
+        }
+        if !(first <= next && next <= end && end <= spp) {
+            return Err(format!("invalid sample range: first {first}, next {next}, end {end}, of {spp}").into());
+        }
+        if partial_samples > next - first
+            || partial_samples > BLOCK_SAMPLES
+            || (partial_samples > 0) != (has_partial == 1)
+        {
+            return Err(format!("invalid block in progress of {partial_samples} samples").into());
+        }
+        if !(render_seconds >= 0.0 && render_seconds.is_finite()) {
+            return Err(format!("invalid render time {render_seconds}").into());
+        }
+        // The length the header implies, checked against the file's before reading the sums.
+        let pixels = width as u64 * height as u64;
+        let expected = r.at as u64 + 32 * pixels + if has_partial == 1 { 16 * pixels } else { 0 } + 32;
+        if len != expected {
+            return Err(format!("truncated or corrupt: {len} bytes, but its header describes {expected}").into());
+        }
+        let mut hasher = blake3::Hasher::new();
+        hasher.update(&bytes[..r.at]);
+        // The rest of the file: what `head` read past the header, then the stream.
+        let mut body = Body { stream: (&bytes[r.at..]).chain(stream), hasher, len };
+        let n = pixels as usize;
+        let sum = body.read_vec(n, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
+        let sum_sq = body.read_vec(n, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
+        let exact = ExactSums { width, height, sum_exponent, sq_exponent, sum, sum_sq };
+        let partial = if has_partial == 0 {
+            None
+        } else {
+            Some(match device {
+                DeviceKind::Gpu => BlockSums::Gpu(body.read_vec(n, 16, |c| {
+                    std::array::from_fn(|k| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes")))
+                })?),
+                DeviceKind::Cpu => {
+                    let f = |c: &[u8]| f64::from_le_bytes(c.try_into().expect("8 bytes"));
+                    BlockSums::Cpu { sum: body.read_vec(n, 8, f)?, sum_sq: body.read_vec(n, 8, f)? }
+                }
+            })
+        };
+        let computed = body.hasher.finalize();
+        let mut hash = [0u8; 32];
+        body.stream.read_exact(&mut hash).map_err(|e| body.truncated(e))?;
+        if computed.as_bytes() != &hash {
+            return Err("corrupt: its contents do not match their checksum".into());
+        }
+        Ok(Accumulation {
+            settings: SampleSettings {
+                scene_hash,
+                width,
+                height,
+                spp,
+                strata,
+                hemisphere,
+                sampler,
+                max_distance: (has_max_distance == 1).then_some(max_distance),
+                background,
+                seed,
+            },
+            device,
+            bvh_layout,
+            bvh_quality,
+            adapter,
+            first,
+            end,
+            next,
+            partial_samples,
+            on_grid: flags & FLAG_ON_GRID != 0,
+            ao_rays,
+            passes,
+            render_seconds,
+            exact,
+            partial,
+            source: None,
+        })
+    }
+}
+
+/// A writer that hashes what passes through it.
+struct HashingWriter<'a> {
+    inner: &'a mut dyn Write,
+    hasher: blake3::Hasher,
+}
+
+impl Write for HashingWriter<'_> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hasher.update(&buf[..n]);
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// The sums of a checkpoint after its header, hashed as they are read.
+struct Body<R: Read> {
+    stream: R,
+    hasher: blake3::Hasher,
+    /// The file's length, for messages.
+    len: u64,
+}
+
+impl<R: Read> Body<R> {
+    fn truncated(&self, e: std::io::Error) -> Invalid {
+        Invalid(format!("truncated or unreadable: {} bytes: {e}", self.len))
+    }
+
+    /// `n` elements of `size` bytes each, converted by `convert`.
+    fn read_vec<T>(&mut self, n: usize, size: usize, convert: impl Fn(&[u8]) -> T) -> Result<Vec<T>, Invalid> {
+        let mut out = Vec::new();
+        out.try_reserve_exact(n).map_err(|_| Invalid(format!("cannot allocate memory for {n} pixels of sums")))?;
+        let mut chunk = vec![0u8; size * 65_536];
+        let mut left = n;
+        while left > 0 {
+            let take = left.min(65_536);
+            let bytes = &mut chunk[..take * size];
+            self.stream.read_exact(bytes).map_err(|e| self.truncated(e))?;
+            self.hasher.update(bytes);
+            out.extend(bytes.chunks_exact(size).map(&convert));
+            left -= take;
+        }
+        Ok(out)
+    }
+}
+
+/// Bounds-checked little-endian reads of a header.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+    /// The whole file's length, for messages.
+    len: u64,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Result<&'a [u8], Invalid> {
+        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let end = end.ok_or_else(|| Invalid(format!("truncated: {} bytes, ends inside its header", self.len)))?;
+        let b = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(b)
+    }
+
+    fn u32(&mut self) -> Result<u32, Invalid> {
+        Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
+    }
+
+    fn u64(&mut self) -> Result<u64, Invalid> {
+        Ok(u64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
+    }
+
+    fn f32(&mut self) -> Result<f32, Invalid> {
+        Ok(f32::from_bits(self.u32()?))
+    }
+
+    fn f64(&mut self) -> Result<f64, Invalid> {
+        Ok(f64::from_bits(self.u64()?))
+    }
+}
+

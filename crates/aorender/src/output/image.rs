@@ -1,0 +1,65 @@
+//! Images of a film's per-pixel means: `.png` (8-bit, sRGB-encoded), `.exr` and `.pfm`
+//! (32-bit float, linear), written atomically.
+
+use super::atomic::write_atomically;
+use crate::error::{Error, Result};
+use crate::film::Film;
+use std::path::Path;
+
+/// The image formats, by extension.
+pub const IMAGE_EXTENSIONS: [&str; 3] = ["png", "exr", "pfm"];
+
+/// Writes the image; the extension picks the format: `.png` (8-bit sRGB-encoded,
+/// values clamped to [0, 1]), `.exr` or `.pfm` (32-bit float, linear).
+pub fn write_image(film: &Film, path: &Path) -> Result<()> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let out_err = |m: String| Error::output(path, m);
+    let mean: Vec<f32> = film.mean().into_iter().map(|v| v as f32).collect();
+    let (w, h) = (film.width, film.height);
+    let bytes = match ext.as_str() {
+        "png" => {
+            let px: Vec<u8> = mean.iter().map(|&v| linear_to_srgb8(v)).collect();
+            let img = image::GrayImage::from_raw(w, h, px).expect("buffer matches size");
+            encode(image::DynamicImage::ImageLuma8(img), image::ImageFormat::Png).map_err(|e| out_err(e.to_string()))?
+        }
+        "exr" => {
+            let rgb: Vec<f32> = mean.iter().flat_map(|&v| [v, v, v]).collect();
+            let img = image::Rgb32FImage::from_raw(w, h, rgb).expect("buffer matches size");
+            encode(image::DynamicImage::ImageRgb32F(img), image::ImageFormat::OpenExr).map_err(|e| out_err(e.to_string()))?
+        }
+        "pfm" => pfm_bytes(w, h, &mean),
+        "" => return Err(out_err("no file extension: expected .png, .exr or .pfm".into())),
+        e => return Err(out_err(format!("unsupported image format '.{e}': expected .png, .exr or .pfm"))),
+    };
+    write_atomically(path, &bytes)
+}
+
+/// A linear value as the 8-bit sRGB code `.png` images store.
+pub fn linear_to_srgb8(v: f32) -> u8 {
+    (linear_to_srgb(v) * 255.0 + 0.5) as u8
+}
+
+/// The sRGB transfer function (IEC 61966-2-1), on [0, 1].
+pub fn linear_to_srgb(v: f32) -> f32 {
+    let v = v.clamp(0.0, 1.0);
+    if v <= 0.0031308 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 }
+}
+
+/// The encoded bytes of `img`, or the encoder's message.
+pub fn encode(img: image::DynamicImage, format: image::ImageFormat) -> Result<Vec<u8>, image::ImageError> {
+    let mut buf = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut buf, format)?;
+    Ok(buf.into_inner())
+}
+
+/// Greyscale PFM ("Pf"): little-endian (scale -1), rows bottom to top.
+fn pfm_bytes(w: u32, h: u32, v: &[f32]) -> Vec<u8> {
+    let mut out = format!("Pf\n{w} {h}\n-1.0\n").into_bytes();
+    for row in v.chunks_exact(w as usize).rev() {
+        for x in row {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    out
+}
+

@@ -1,0 +1,97 @@
+//! AO at given points and normals: the hemisphere integral without a camera, for closed
+//! forms at exact locations and for baking AO into vertices.
+//!
+//! A probe is a position and a normal; its value is 1/π ∫ V(x, ω) cos θ dω over the
+//! hemisphere around the normal (albedo 1), estimated with a request's hemisphere
+//! distribution, sampler, seed and maximum distance. The AO rays start at the position
+//! itself, which is taken as lying on its surface. Sample `i` of probe `k` uses the
+//! sampler's numbers for pixel `(k, 0)` and index `i`, on the GPU and on the CPU reference
+//! alike; on either device a probe's samples are spread over several slots (lanes), and
+//! slot sums are added exactly.
+
+use crate::error::{Error, Result};
+use glam::Vec3;
+
+/// A point and the normal of its hemisphere.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Probe {
+    /// Position.
+    pub position: Vec3,
+    /// Unit normal.
+    pub normal: Vec3,
+}
+
+impl Probe {
+    /// A probe; the normal is normalised. [`Error::Probe`] (with index 0) names the
+    /// problem: a non-finite coordinate or a zero normal.
+    pub fn new(position: Vec3, normal: Vec3) -> Result<Probe> {
+        let bad = |message: &str| Error::Probe { index: 0, message: message.into() };
+        if !position.is_finite() || !normal.is_finite() {
+            return Err(bad("non-finite coordinate"));
+        }
+        let len = normal.length();
+        if !(len > 0.0 && len.is_finite()) {
+            return Err(bad("zero normal"));
+        }
+        Ok(Probe { position, normal: normal / len })
+    }
+}
+
+/// The estimate at one probe.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct ProbeValue {
+    /// Mean of the samples.
+    pub mean: f64,
+    /// Standard error of the mean, from the sample variance (an overestimate for the
+    /// stratified and Sobol samplers).
+    pub std_error: f64,
+    /// Samples taken.
+    pub samples: u64,
+}
+
+impl ProbeValue {
+    /// Mean and standard error of `n` samples whose sum is `sum` and sum of squares
+    /// `sum_sq`.
+    pub fn from_sums(sum: f64, sum_sq: f64, n: u64) -> ProbeValue {
+        let nf = n as f64;
+        let mean = sum / nf;
+        let var = if n > 1 { ((sum_sq - nf * mean * mean) / (nf - 1.0)).max(0.0) } else { 0.0 };
+        ProbeValue { mean, std_error: (var / nf).sqrt(), samples: n }
+    }
+}
+
+/// Film slots the probe kernel aims to keep busy per dispatch: points × lanes.
+pub const TARGET_SLOTS: u32 = 1 << 16;
+
+/// Lanes per probe: enough slots to fill the device, at most one per sample.
+pub fn lanes_for(points: usize, samples: u32) -> u32 {
+    (TARGET_SLOTS / points.max(1) as u32).clamp(1, samples.max(1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lanes_fill_the_device_without_exceeding_samples() {
+        assert_eq!(lanes_for(1, 1 << 20), TARGET_SLOTS);
+        assert_eq!(lanes_for(1, 100), 100);
+        assert_eq!(lanes_for(1 << 20, 1000), 1);
+        assert_eq!(lanes_for(64, 1 << 20), TARGET_SLOTS / 64);
+    }
+
+    #[test]
+    fn sums_give_mean_and_standard_error() {
+        // Samples 0, 1, 1, 0: mean 1/2, variance 1/3, standard error √(1/12).
+        let v = ProbeValue::from_sums(2.0, 2.0, 4);
+        assert_eq!(v.mean, 0.5);
+        assert!((v.std_error - (1.0f64 / 12.0).sqrt()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn bad_probes_are_refused() {
+        assert!(Probe::new(Vec3::ZERO, Vec3::ZERO).unwrap_err().to_string().contains("zero normal"));
+        assert!(Probe::new(Vec3::NAN, Vec3::Z).unwrap_err().to_string().contains("non-finite"));
+        assert_eq!(Probe::new(Vec3::ONE, Vec3::new(0.0, 0.0, 2.0)).unwrap().normal, Vec3::Z);
+    }
+}

@@ -1,0 +1,463 @@
+//! The pass loop: one request's samples rendered in passes of a few samples per pixel
+//! (or probe rounds), sized to a target time, until the sample range is done, a time
+//! limit is reached or a stop is asked for; each finished block of samples goes into the
+//! exact sums of the [`Accumulation`], which is handed to a save callback every few
+//! seconds. Every render, comparison cell, benchmark run and probe request runs here.
+
+use crate::accumulation::Accumulation;
+use crate::device::{Passes, Setup};
+use crate::error::Result;
+use crate::film::{BLOCK_SAMPLES, Film};
+use crate::gpu::MAX_PASS_SAMPLES;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+/// Seconds a pass aims for: long enough to amortise the round trip, short enough for
+/// progress, time limits and GPU watchdogs.
+const PASS_TARGET_SECONDS: f64 = 0.25;
+
+/// Progress after each pass.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    /// Samples per pixel done (with those of a checkpoint continued).
+    pub samples_done: u32,
+    /// Samples per pixel asked for: the length of the sample range.
+    pub samples_total: u32,
+    /// Camera and AO rays so far.
+    pub rays: u64,
+    /// Seconds of rendering so far.
+    pub elapsed: f64,
+}
+
+/// Receives an accumulation to save.
+pub type SaveFn<'a> = &'a mut dyn FnMut(&Accumulation) -> Result<()>;
+
+/// How many samples a pass takes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PassSizing {
+    /// As many as fit [`PASS_TARGET_SECONDS`] (and what is left of a time limit),
+    /// starting from one and growing at most eightfold a pass (the first passes' times
+    /// include warm-up): a fast adapter reaches full-size passes within three round trips.
+    Timed,
+    /// This many, or what is left before the next stop: fixed, comparable passes (the
+    /// benchmark's).
+    Fixed(u32),
+}
+
+/// What may end a run of passes early, and what it reports along the way.
+pub struct Control<'a> {
+    /// Set from another thread (a signal handler) to stop after the current pass.
+    pub stop: Option<&'a AtomicBool>,
+    /// Stop after the pass that crosses this many seconds of the run.
+    pub time_limit: Option<f64>,
+    /// Called after every pass.
+    pub progress: Option<&'a mut dyn FnMut(&Progress)>,
+    /// Receives the accumulation every `save_interval` seconds and when the run ends
+    /// (finished, out of time or stopped), not after an error: the last saved one stays.
+    pub save: Option<SaveFn<'a>>,
+    /// Seconds between two saves, at least; stretched so that saving takes at most a tenth
+    /// of the render's time. Zero or less saves after every pass, however long saving
+    /// takes.
+    pub save_interval: f64,
+    /// How passes are sized.
+    pub sizing: PassSizing,
+}
+
+impl Default for Control<'_> {
+    fn default() -> Self {
+        Control {
+            stop: None,
+            time_limit: None,
+            progress: None,
+            save: None,
+            save_interval: 5.0,
+            sizing: PassSizing::Timed,
+        }
+    }
+}
+
+/// How a run of passes ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunEnd {
+    /// Every sample asked for is in the accumulation.
+    Done,
+    /// The time limit was reached first.
+    TimeLimit,
+    /// A stop was asked for first.
+    Stopped,
+}
+
+/// Figures of a finished render (serialised by `aorender render --stats`).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RenderStats {
+    /// Scene name.
+    pub scene: String,
+    /// Samples per pixel in the accumulation (fewer than asked when the time limit or a
+    /// stop ended the render early), including those of a checkpoint it continued.
+    pub samples_per_pixel: u32,
+    /// Samples per pixel asked for: the length of the sample range.
+    pub samples_requested: u32,
+    /// First sample index of the range.
+    pub first_sample: u32,
+    /// Samples per pixel taken from the checkpoint the render continued (0 for none).
+    pub samples_resumed: u32,
+    /// True when a stop request ended the render before its range was done.
+    pub interrupted: bool,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Camera rays plus AO rays (including those of a checkpoint the render continued).
+    pub rays_traced: u64,
+    /// Camera rays.
+    pub camera_rays: u64,
+    /// AO rays (one per camera ray that hit something).
+    pub ao_rays: u64,
+    /// Seconds spent in passes and checkpoints (BVH build and upload excluded), including
+    /// those of a checkpoint the render continued.
+    pub render_seconds: f64,
+    /// Seconds to build the BVH.
+    pub bvh_build_seconds: f64,
+    /// Seconds to upload the geometry and create the pipeline (GPU), or to lay out the
+    /// tracer's records (CPU).
+    pub setup_seconds: f64,
+    /// rays_traced / render_seconds.
+    pub rays_per_second: f64,
+    /// Triangles in the scene.
+    pub triangles: usize,
+    /// Placements of meshes placed more than once (their triangles are in `triangles`).
+    pub instances: usize,
+    /// Spheres in the scene.
+    pub spheres: usize,
+    /// Planes in the scene.
+    pub planes: usize,
+    /// Adapter name ("cpu" for the reference).
+    pub adapter: String,
+    /// wgpu backend, or "cpu".
+    pub backend: String,
+    /// Adapter device type, or "cpu".
+    pub device_type: String,
+    /// Driver.
+    pub driver: String,
+    /// Hemisphere distribution.
+    pub hemisphere: String,
+    /// 2-D point sampler of the hemisphere and pixel numbers.
+    pub sampler: String,
+    /// Random seed.
+    pub seed: u32,
+    /// BVH layout traversed.
+    pub bvh_layout: String,
+    /// Bytes of device memory allocated (GPU only).
+    pub device_bytes: u64,
+    /// Storage bindings the BVH nodes and primitives were split into (GPU only; 2 when
+    /// each fits one binding).
+    pub geometry_bindings: u32,
+    /// What holds them on the device: `buffers` or `textures` (empty on the CPU).
+    pub geometry_storage: String,
+    /// Bytes of the scene's geometry on the host: its triangles, spheres and planes.
+    pub scene_bytes: u64,
+    /// Bytes of the BVH as traversed: its nodes and primitive records, as uploaded to the
+    /// device (GPU) or held by the tracer (CPU).
+    pub bvh_bytes: u64,
+    /// Peak resident memory of the process so far, in bytes (Linux; 0 elsewhere).
+    pub host_peak_bytes: u64,
+    /// The most bytes the program's own heap held at once so far: the loaded scene, the
+    /// BVH build's workspace, the bytes prepared for upload; not the driver's. Filled in
+    /// by a program that counts its allocations (`aorender` does); `None` otherwise.
+    pub heap_peak_bytes: Option<u64>,
+    /// Seconds to read and parse the scene and its meshes: set by the caller that loaded
+    /// it (`aorender render` does), 0 for a scene made in memory.
+    pub load_seconds: f64,
+    /// Passes run (including those of a checkpoint the render continued).
+    pub passes: u32,
+    /// Mean of the image.
+    pub image_mean: f64,
+}
+
+/// A finished render.
+pub struct RenderOutput {
+    /// The accumulation as per-pixel sums.
+    pub film: Film,
+    /// Its figures.
+    pub stats: RenderStats,
+    /// The raw accumulation, as a checkpoint stores it.
+    pub accumulation: Accumulation,
+}
+
+/// What a render reports besides its samples: the scene's and the session's figures.
+#[derive(Clone, Debug)]
+pub(crate) struct RenderInfo {
+    pub scene: String,
+    pub triangles: usize,
+    pub instances: usize,
+    pub spheres: usize,
+    pub planes: usize,
+    pub scene_bytes: u64,
+    pub setup: Setup,
+    /// Seconds to make this request's film and pipeline.
+    pub target_seconds: f64,
+}
+
+/// Seconds and rays of the passes run so far.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PassTimes {
+    /// Passes run by this render (a checkpoint's aside).
+    pub passes: u32,
+    /// Wall-clock seconds of the passes alone: submission and waiting, not reading the
+    /// film back or saving.
+    pub wall_seconds: f64,
+    /// The passes' time on the adapter by timestamp queries; `None` when a pass had none
+    /// (the CPU reference, or an adapter without timestamp queries).
+    pub gpu_seconds: Option<f64>,
+    /// AO rays the passes traced.
+    pub ao_rays: u64,
+}
+
+/// A request in progress: its film on the device and its accumulation. Made by
+/// `Session::render`; run with [`Render::run`] (or [`Render::run_to`], stopping at given
+/// sample counts), then [`Render::finish`].
+pub struct Render {
+    passes: Box<dyn Passes>,
+    acc: Accumulation,
+    info: RenderInfo,
+    /// Samples per pixel taken from a checkpoint.
+    resumed: u32,
+    /// Samples the next timed pass takes.
+    count: u32,
+    times: PassTimes,
+    interrupted: bool,
+}
+
+impl Render {
+    pub(crate) fn new(passes: Box<dyn Passes>, acc: Accumulation, info: RenderInfo) -> Render {
+        Render {
+            passes,
+            acc,
+            info,
+            resumed: 0,
+            count: 1,
+            times: PassTimes { gpu_seconds: Some(0.0), ..Default::default() },
+            interrupted: false,
+        }
+    }
+
+    /// Continues `saved`, an accumulation of the same scene, settings, device, BVH and
+    /// first sample (a checkpoint's): the samples it holds are kept, its block in
+    /// progress goes back onto the device, and the render goes on from its next sample to
+    /// the end of this request's range. On the same adapter the result has the same bits
+    /// as a render that never stopped.
+    pub fn resume(&mut self, mut saved: Accumulation) -> Result<()> {
+        saved.check_resume(&self.acc)?;
+        if saved.end != self.acc.end {
+            // A last block cut short by the old end was summed as a block of its own.
+            if saved.next == saved.end && saved.end % BLOCK_SAMPLES != 0 {
+                saved.on_grid = false;
+            }
+            saved.end = self.acc.end;
+        }
+        if let Some(block) = saved.partial.take() {
+            self.passes.load(&block).map_err(|e| saved.error(e.message()))?;
+        }
+        saved.adapter.clone_from(&self.acc.adapter);
+        self.resumed = saved.samples();
+        self.acc = saved;
+        Ok(())
+    }
+
+    /// Samples per pixel done.
+    pub fn samples(&self) -> u32 {
+        self.acc.samples()
+    }
+
+    /// The passes' seconds and rays so far.
+    pub fn times(&self) -> PassTimes {
+        self.times
+    }
+
+    /// Seconds it took to make this request's film and pipeline (compiling the pipeline
+    /// the first time the adapter saw its specialisation).
+    pub fn setup_seconds(&self) -> f64 {
+        self.info.target_seconds
+    }
+
+    /// Bytes of device memory the request's film and buffers take (GPU; 0 on the CPU).
+    pub fn device_bytes(&self) -> u64 {
+        self.passes.device_bytes()
+    }
+
+    /// Runs passes to the end of the request's range (or until `control` ends it).
+    pub fn run(&mut self, control: &mut Control) -> Result<RunEnd> {
+        self.run_to(self.acc.end - self.acc.first, control)
+    }
+
+    /// Runs passes until `samples` samples per pixel are done (at most the range's
+    /// length), the time limit is reached or a stop is asked for.
+    pub fn run_to(&mut self, samples: u32, control: &mut Control) -> Result<RunEnd> {
+        let acc = &mut self.acc;
+        let until = (acc.first + samples.min(acc.end - acc.first)).max(acc.next);
+        let pixels = acc.settings.width as u64 * acc.settings.height as u64;
+        let start = Instant::now();
+        let seconds_before = acc.render_seconds;
+        let total = acc.end - acc.first;
+        let mut passes = 0u32;
+        let mut end = RunEnd::Done;
+        let (mut last_save, mut save_seconds) = (Instant::now(), 0.0f64);
+        while acc.next < until {
+            if control.stop.is_some_and(|s| s.load(Ordering::SeqCst)) {
+                end = RunEnd::Stopped;
+                self.interrupted = true;
+                break;
+            }
+            if let Some(limit) = control.time_limit
+                && start.elapsed().as_secs_f64() >= limit
+                && passes > 0
+            {
+                end = RunEnd::TimeLimit;
+                break;
+            }
+            // A pass stays within one block.
+            let block_end = ((acc.next / BLOCK_SAMPLES) as u64 + 1) * BLOCK_SAMPLES as u64;
+            let block_end = block_end.min(acc.end as u64) as u32;
+            let count = match control.sizing {
+                PassSizing::Timed => self.count,
+                PassSizing::Fixed(n) => n.clamp(1, MAX_PASS_SAMPLES),
+            };
+            let count = count.min(block_end - acc.next).min(until - acc.next);
+            let pass_start = Instant::now();
+            let report = self.passes.pass(acc.next, count)?;
+            let seconds = pass_start.elapsed().as_secs_f64().max(1e-6);
+            self.times.passes += 1;
+            self.times.wall_seconds += seconds;
+            self.times.gpu_seconds = self.times.gpu_seconds.zip(report.gpu_seconds).map(|(a, b)| a + b);
+            self.times.ao_rays += report.ao_rays;
+            acc.ao_rays += report.ao_rays;
+            acc.next += count;
+            acc.partial_samples += count;
+            acc.passes += 1;
+            passes += 1;
+            if acc.next == block_end {
+                let block = self.passes.take()?;
+                acc.exact.add_block(&block).map_err(|e| acc.error(e))?;
+                acc.partial_samples = 0;
+            }
+            let mut target = PASS_TARGET_SECONDS;
+            if let Some(limit) = control.time_limit {
+                target = target.min((limit - start.elapsed().as_secs_f64()).max(0.0));
+            }
+            let per_sample = seconds / count as f64;
+            self.count = ((target / per_sample) as u32).clamp(1, (8 * self.count).min(MAX_PASS_SAMPLES));
+            acc.render_seconds = seconds_before + start.elapsed().as_secs_f64();
+            if let Some(progress) = control.progress.as_mut() {
+                progress(&Progress {
+                    samples_done: acc.samples(),
+                    samples_total: total,
+                    rays: acc.samples() as u64 * pixels + acc.ao_rays,
+                    elapsed: acc.render_seconds,
+                });
+            }
+            if let Some(save) = control.save.as_mut()
+                && acc.next < acc.end
+                && (control.save_interval <= 0.0
+                    || last_save.elapsed().as_secs_f64() >= control.save_interval.max(10.0 * save_seconds))
+            {
+                let t = Instant::now();
+                acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+                save(acc)?;
+                acc.partial = None;
+                save_seconds = t.elapsed().as_secs_f64();
+                last_save = Instant::now();
+            }
+        }
+        acc.render_seconds = seconds_before + start.elapsed().as_secs_f64();
+        // Without a pass the last checkpoint is already this accumulation.
+        if passes > 0
+            && let Some(save) = control.save.as_mut()
+        {
+            acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+            save(acc)?;
+            acc.partial = None;
+        }
+        Ok(end)
+    }
+
+    /// Runs passes to the end of the range (or until `control` ends them) and finishes:
+    /// [`Render::run`], then [`Render::finish`].
+    pub fn complete(mut self, control: &mut Control) -> Result<RenderOutput> {
+        self.run(control)?;
+        self.finish()
+    }
+
+    /// The accumulation as it stands, its block in progress read back from the device.
+    pub fn accumulation(&mut self) -> Result<Accumulation> {
+        let mut acc = self.acc.clone();
+        acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+        Ok(acc)
+    }
+
+    /// The per-pixel sums so far: the exact sums, plus the block in progress rounded to
+    /// the same quanta.
+    pub fn film(&mut self) -> Result<Film> {
+        self.accumulation()?.film()
+    }
+
+    /// The film, the figures and the accumulation of the render.
+    pub fn finish(mut self) -> Result<RenderOutput> {
+        let accumulation = self.accumulation()?;
+        let film = accumulation.film()?;
+        let acc = &accumulation;
+        let s = &acc.settings;
+        let info = &self.info;
+        let setup = &info.setup;
+        let done = acc.samples();
+        let camera_rays = done as u64 * s.width as u64 * s.height as u64;
+        let rays = camera_rays + acc.ao_rays;
+        let stats = RenderStats {
+            scene: info.scene.clone(),
+            samples_per_pixel: done,
+            samples_requested: acc.end - acc.first,
+            first_sample: acc.first,
+            samples_resumed: self.resumed,
+            interrupted: self.interrupted,
+            width: s.width,
+            height: s.height,
+            rays_traced: rays,
+            camera_rays,
+            ao_rays: acc.ao_rays,
+            render_seconds: acc.render_seconds,
+            bvh_build_seconds: setup.bvh_build_seconds,
+            setup_seconds: setup.upload_seconds + info.target_seconds,
+            rays_per_second: rays as f64 / acc.render_seconds.max(1e-9),
+            triangles: info.triangles,
+            instances: info.instances,
+            spheres: info.spheres,
+            planes: info.planes,
+            adapter: setup.adapter.name.clone(),
+            backend: setup.adapter.backend.clone(),
+            device_type: setup.adapter.device_type.clone(),
+            driver: setup.adapter.driver.clone(),
+            hemisphere: s.hemisphere.name().into(),
+            sampler: s.sampler.name().into(),
+            seed: s.seed,
+            bvh_layout: setup.bvh_layout.name().into(),
+            device_bytes: setup.device_bytes + self.passes.device_bytes(),
+            geometry_bindings: setup.geometry_bindings,
+            geometry_storage: setup.geometry_storage.into(),
+            scene_bytes: info.scene_bytes,
+            bvh_bytes: setup.bvh_bytes,
+            host_peak_bytes: peak_rss_bytes().unwrap_or(0),
+            heap_peak_bytes: None,
+            load_seconds: 0.0,
+            passes: acc.passes,
+            image_mean: film.image_mean(),
+        };
+        Ok(RenderOutput { film, stats, accumulation })
+    }
+}
+
+/// Peak resident memory of this process (Linux's `VmHWM`), in bytes.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}

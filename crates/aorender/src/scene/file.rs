@@ -1,0 +1,379 @@
+//! The TOML scene format (documented in the README). Unknown fields are errors.
+
+use super::camera::{Camera, Projection};
+use super::mesh::IndexedMesh;
+use super::meshes::{mesh_triangles, place_mesh, read_mesh, vertex_name};
+use super::types::{Instance, InstancedMesh, Scene, Settings, Sphere, Triangle, Warning, non_finite_coordinate};
+use crate::error::{Error, Result};
+use crate::geometry::Plane;
+use crate::sampler::Sampler;
+use crate::sampling::Hemisphere;
+use glam::{Mat4, Vec3};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// Fails when a vertex of `mesh` (as read from `path`) has a non-finite coordinate under `m`,
+/// naming it as `place_mesh` does.
+fn check_placement(path: &Path, mesh: &IndexedMesh, m: &Mat4) -> Result<(), Error> {
+    for (k, p) in mesh.positions.iter().enumerate() {
+        if let Some(c) = non_finite_coordinate(m.transform_point3(*p)) {
+            let name = vertex_name(&mesh.names, k, *p);
+            return Err(Error::scene(path, format!("{name} has a non-finite coordinate after the transform ({c})")));
+        }
+    }
+    Ok(())
+}
+
+/// The default scene's text, compiled in so the binary renders without any files.
+pub const DEFAULT_SCENE: &str = include_str!("../../../../scenes/aobench.toml");
+/// Name reported for the built-in scene.
+pub const DEFAULT_SCENE_NAME: &str = "scenes/aobench.toml";
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    #[serde(default)]
+    image: ImageSection,
+    #[serde(default)]
+    sampling: SamplingSection,
+    camera: CameraSection,
+    #[serde(default, rename = "object")]
+    objects: Vec<Object>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct ImageSection {
+    width: Option<u32>,
+    height: Option<u32>,
+    background: Option<f32>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct SamplingSection {
+    spp: Option<u32>,
+    hemisphere: Option<Hemisphere>,
+    sampler: Option<Sampler>,
+    max_distance: Option<f32>,
+    seed: Option<u32>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields, rename_all = "lowercase")]
+enum CameraKind {
+    Perspective,
+    Orthographic,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraSection {
+    #[serde(rename = "type")]
+    kind: CameraKind,
+    eye: [f32; 3],
+    look_at: [f32; 3],
+    #[serde(default = "default_up")]
+    up: [f32; 3],
+    /// Vertical field of view in degrees (perspective).
+    fov: Option<f32>,
+    /// View height in world units (orthographic).
+    height: Option<f32>,
+}
+
+fn default_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+fn default_albedo() -> f32 {
+    1.0
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+enum Object {
+    Mesh(MeshObject),
+    Sphere(SphereObject),
+    Plane(PlaneObject),
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MeshObject {
+    file: String,
+    #[serde(default = "default_albedo")]
+    albedo: f32,
+    transform: Option<Transform>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SphereObject {
+    center: [f32; 3],
+    radius: f32,
+    #[serde(default = "default_albedo")]
+    albedo: f32,
+    transform: Option<Transform>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PlaneObject {
+    point: [f32; 3],
+    normal: [f32; 3],
+    #[serde(default = "default_albedo")]
+    albedo: f32,
+    transform: Option<Transform>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum Scale {
+    Uniform(f32),
+    Axes([f32; 3]),
+}
+
+/// Applied as scale, then rotation (about x, then y, then z, in degrees), then
+/// translation; or a full row-major 4×4 `matrix` instead of those.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Transform {
+    scale: Option<Scale>,
+    rotate: Option<[f32; 3]>,
+    translate: Option<[f32; 3]>,
+    matrix: Option<[[f32; 4]; 4]>,
+}
+
+/// "has a non-finite entry (NaN)" for the first NaN or infinity in `values`.
+fn non_finite_entry(values: &[f32]) -> Option<String> {
+    values.iter().find(|v| !v.is_finite()).map(|v| format!("has a non-finite entry ({v})"))
+}
+
+/// Why a transform is unusable, in one line.
+struct TransformError(String);
+
+impl Transform {
+    fn matrix(&self) -> Result<Mat4, TransformError> {
+        let scale: Option<Vec<f32>> = self.scale.as_ref().map(|s| match s {
+            Scale::Uniform(s) => vec![*s],
+            Scale::Axes(a) => a.to_vec(),
+        });
+        let fields = [
+            ("scale", scale),
+            ("rotate", self.rotate.map(|r| r.to_vec())),
+            ("translate", self.translate.map(|t| t.to_vec())),
+            ("matrix", self.matrix.map(|m| m.concat())),
+        ];
+        for (name, values) in fields {
+            if let Some(e) = values.and_then(|v| non_finite_entry(&v)) {
+                return Err(TransformError(format!("transform: {name} {e}")));
+            }
+        }
+        let m = if let Some(rows) = self.matrix {
+            if self.scale.is_some() || self.rotate.is_some() || self.translate.is_some() {
+                return Err(TransformError("transform: give either matrix or scale/rotate/translate, not both".into()));
+            }
+            Mat4::from_cols_array_2d(&rows).transpose()
+        } else {
+            let s = match self.scale {
+                None => Vec3::ONE,
+                Some(Scale::Uniform(s)) => Vec3::splat(s),
+                Some(Scale::Axes(a)) => Vec3::from(a),
+            };
+            let r = self.rotate.map(Vec3::from).unwrap_or(Vec3::ZERO);
+            let rotation =
+                glam::Quat::from_euler(glam::EulerRot::ZYX, r.z.to_radians(), r.y.to_radians(), r.x.to_radians());
+            let t = self.translate.map(Vec3::from).unwrap_or(Vec3::ZERO);
+            Mat4::from_scale_rotation_translation(s, rotation, t)
+        };
+        if !m.is_finite() {
+            return Err(TransformError("transform has a NaN or infinite entry".into()));
+        }
+        if m.determinant() == 0.0 {
+            return Err(TransformError("transform is singular".into()));
+        }
+        Ok(m)
+    }
+}
+
+/// One-line form of a TOML error: message and line.
+fn toml_error(text: &str, e: &toml::de::Error) -> String {
+    let msg = e.message().replace('\n', " ");
+    match e.span() {
+        Some(span) => {
+            let line = text[..span.start.min(text.len())].matches('\n').count() + 1;
+            format!("line {line}: {}", msg.trim())
+        }
+        None => msg.trim().to_string(),
+    }
+}
+
+/// A mesh file, the objects still to place it, and its index in the scene's meshes with
+/// its vertices once read.
+type MeshUse = (PathBuf, usize, Option<(u32, IndexedMesh)>);
+
+/// Parses the text of a scene file read from `path`; mesh paths resolve against `base_dir`.
+pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Scene> {
+    let file: SceneFile = toml::from_str(text).map_err(|e| Error::scene(path, toml_error(text, &e)))?;
+    let err = |m: String| Error::scene(path, m);
+
+    let defaults = Settings::default();
+    let settings = Settings {
+        width: file.image.width.unwrap_or(defaults.width),
+        height: file.image.height.unwrap_or(defaults.height),
+        background: file.image.background.unwrap_or(defaults.background),
+        spp: file.sampling.spp.unwrap_or(defaults.spp),
+        hemisphere: file.sampling.hemisphere.unwrap_or(defaults.hemisphere),
+        sampler: file.sampling.sampler.unwrap_or(defaults.sampler),
+        max_distance: file.sampling.max_distance,
+        seed: file.sampling.seed.unwrap_or(defaults.seed),
+    };
+    settings.validate().map_err(|e| err(e.message()))?;
+
+    let c = &file.camera;
+    let projection = match c.kind {
+        CameraKind::Perspective => {
+            if c.height.is_some() {
+                return Err(err("camera: 'height' is for orthographic cameras; use 'fov'".into()));
+            }
+            Projection::Perspective { vfov_deg: c.fov.ok_or_else(|| err("camera: perspective needs 'fov'".into()))? }
+        }
+        CameraKind::Orthographic => {
+            if c.fov.is_some() {
+                return Err(err("camera: 'fov' is for perspective cameras; use 'height'".into()));
+            }
+            Projection::Orthographic {
+                height: c.height.ok_or_else(|| err("camera: orthographic needs 'height'".into()))?,
+            }
+        }
+    };
+    for (name, p) in [("eye", c.eye), ("look_at", c.look_at), ("up", c.up)] {
+        if let Some(coordinate) = non_finite_coordinate(p.into()) {
+            return Err(err(format!("camera: {name} has a non-finite coordinate ({coordinate})")));
+        }
+    }
+    let camera = Camera { eye: c.eye.into(), look_at: c.look_at.into(), up: c.up.into(), projection };
+    camera.validate().map_err(|e| err(e.message()))?;
+
+    let mut triangles: Vec<Triangle> = Vec::new();
+    let mut spheres = Vec::new();
+    let mut planes = Vec::new();
+    // Mesh files placed by several objects become instanced meshes: read once, kept in
+    // their own space, each object an instance. (path, objects placing it, its index in
+    // `meshes` once read).
+    let mut mesh_uses: Vec<MeshUse> = Vec::new();
+    let mut warnings: Vec<Warning> = Vec::new();
+    let mut meshes: Vec<InstancedMesh> = Vec::new();
+    let mut instances: Vec<Instance> = Vec::new();
+    for object in &file.objects {
+        if let Object::Mesh(m) = object {
+            let path = base_dir.join(&m.file);
+            match mesh_uses.iter_mut().find(|(p, _, _)| *p == path) {
+                Some((_, uses, _)) => *uses += 1,
+                None => mesh_uses.push((path, 1, None)),
+            }
+        }
+    }
+    for (i, object) in file.objects.iter().enumerate() {
+        // Names the object in errors: `object 3 (mesh "bunny.obj")`, `object 1 (sphere)`.
+        let (kind, albedo, transform) = match object {
+            Object::Mesh(m) => (format!("mesh {:?}", m.file), m.albedo, &m.transform),
+            Object::Sphere(s) => ("sphere".to_string(), s.albedo, &s.transform),
+            Object::Plane(p) => ("plane".to_string(), p.albedo, &p.transform),
+        };
+        let object_name = format!("object {} ({kind})", i + 1);
+        let fail = |message: String| err(format!("{object_name}: {message}"));
+        if !(albedo.is_finite() && albedo >= 0.0) {
+            return Err(fail(format!("albedo must be finite and non-negative, got {albedo}")));
+        }
+        let m = match transform {
+            Some(t) => t.matrix().map_err(|e| fail(e.0))?,
+            None => Mat4::IDENTITY,
+        };
+        match object {
+            Object::Mesh(mesh) => {
+                // Errors in the mesh file name the scene file, the object and the mesh.
+                let path = base_dir.join(&mesh.file);
+                let in_scene_error = |e| match e {
+                    Error::Scene { message, .. } => fail(message),
+                    e => e,
+                };
+                let entry = mesh_uses.iter_mut().find(|(p, _, _)| *p == path).expect("every mesh path was counted");
+                if entry.1 == 1 && entry.2.is_none() {
+                    let mut read = read_mesh(&path).map_err(in_scene_error)?;
+                    warnings.extend(read.warnings.drain(..).map(|message| Warning { path: path.clone(), message }));
+                    let positions = std::mem::take(&mut read.positions);
+                    let placed = place_mesh(&path, positions, &read, albedo, &m).map_err(in_scene_error)?;
+                    // Exact growth: the scene never reserves room it will not fill (a large
+                    // array grows by remapping its pages, not by copying them).
+                    triangles.reserve_exact(placed.len());
+                    triangles.extend(placed);
+                    continue;
+                }
+                if entry.2.is_none() {
+                    let mut read = read_mesh(&path).map_err(in_scene_error)?;
+                    warnings.extend(read.warnings.drain(..).map(|message| Warning { path: path.clone(), message }));
+                    let tris = read.triangles.iter().map(|t| t.map(|k| read.positions[k as usize]));
+                    let tris = mesh_triangles(&path, tris, albedo).map_err(in_scene_error)?;
+                    meshes.push(InstancedMesh {
+                        name: path.display().to_string(),
+                        triangles: tris.into_iter().map(|t| t.v).collect(),
+                    });
+                    entry.2 = Some((meshes.len() as u32 - 1, read));
+                }
+                let (index, read) = entry.2.as_ref().expect("read above");
+                check_placement(&path, read, &m).map_err(in_scene_error)?;
+                instances.push(Instance { mesh: *index, to_world: m, albedo });
+                // The file's vertices are kept for the checks of its later instances only.
+                entry.1 -= 1;
+                if entry.1 == 0 {
+                    entry.2 = None;
+                }
+            }
+            Object::Sphere(s) => {
+                let (center, radius) = (Vec3::from(s.center), s.radius);
+                if let Some(c) = non_finite_coordinate(center) {
+                    return Err(fail(format!("centre has a non-finite coordinate ({c})")));
+                }
+                if !(radius.is_finite() && radius > 0.0) {
+                    return Err(fail(format!("radius must be finite and positive, got {radius}")));
+                }
+                // Spheres stay exact: only similarity transforms keep them spheres.
+                let (scale, _, _) = m.to_scale_rotation_translation();
+                let max_rel = (scale.abs().max_element() - scale.abs().min_element()) / scale.abs().max_element();
+                if max_rel > 1e-5 || m.row(3) != glam::Vec4::W {
+                    return Err(fail(
+                        "transform must be a similarity (uniform scale, rotation, translation) to keep a sphere exact"
+                            .into(),
+                    ));
+                }
+                let center = m.transform_point3(center);
+                let radius = radius * scale.abs().x;
+                if !center.is_finite() || !radius.is_finite() {
+                    return Err(fail("the transformed sphere is not finite".into()));
+                }
+                spheres.push(Sphere { center, radius, albedo });
+            }
+            Object::Plane(p) => {
+                let (point, normal) = (Vec3::from(p.point), Vec3::from(p.normal));
+                for (what, v) in [("point", point), ("normal", normal)] {
+                    if let Some(c) = non_finite_coordinate(v) {
+                        return Err(fail(format!("{what} has a non-finite coordinate ({c})")));
+                    }
+                }
+                if normal.length_squared() == 0.0 {
+                    return Err(fail("normal must be non-zero".into()));
+                }
+                let point = m.transform_point3(point);
+                // Normals transform by the inverse transpose.
+                let normal = m.inverse().transpose().transform_vector3(normal).normalize();
+                if !point.is_finite() || !normal.is_finite() {
+                    return Err(fail("the transformed plane is not finite".into()));
+                }
+                planes.push(Plane { normal, point, albedo });
+            }
+        }
+    }
+    let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
+    Ok(Scene { name, camera, settings, triangles, meshes, instances, spheres, planes, warnings })
+}

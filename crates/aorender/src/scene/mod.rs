@@ -1,0 +1,27 @@
+//! Scene files and mesh formats → one in-memory [`Scene`]: primitives as the scene file
+//! states them (triangles, exact spheres, infinite planes, instanced meshes), a camera and
+//! the render settings. The loaders keep only what ambient occlusion needs (positions and
+//! faces); what they skip is reported in [`Scene::warnings`].
+
+mod camera;
+mod file;
+mod gltf;
+mod input;
+mod load;
+mod mesh;
+mod meshes;
+mod obj;
+mod ply;
+mod types;
+
+pub use crate::geometry::Plane;
+pub use camera::{Camera, Projection, RayGen};
+pub use file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME};
+pub use meshes::mesh_triangles;
+pub use types::{
+    Bounds, Instance, InstancedMesh, MAX_IMAGE_SIDE, MAX_NORMAL_LENGTH_SQUARED, MIN_NORMAL_LENGTH_SQUARED, Scene,
+    Settings, Sphere, Triangle, Warning,
+};
+
+#[cfg(feature = "testing")]
+pub use meshes::load_mesh;

@@ -1,0 +1,361 @@
+//! Stanford PLY through `ply-rs-bw`: ascii, binary_little_endian and binary_big_endian,
+//! plain or gzipped. The `vertex` element's `x`, `y`, `z` (any scalar type) and the `face`
+//! element's `vertex_indices` (or `vertex_index`) list (any integer types) are kept;
+//! polygons become triangle fans; every other element and property is read and ignored.
+//!
+//! The crate parses the header and one element at a time; this module owns the storage,
+//! so the counts in the header never size an allocation beyond what the rest of the file
+//! could hold (see [`Input::remaining_bound`]).
+
+use super::input::{Input, one_line};
+use super::mesh::{IndexedMesh, VertexNames};
+use super::types::non_finite_coordinate;
+use crate::error::{Error, Result};
+use glam::Vec3;
+use ply_rs_bw::parser::{ParseError, Parser, Reader};
+use ply_rs_bw::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyAccessResult, PropertyType, ScalarType};
+use std::io::{BufRead, ErrorKind};
+use std::path::Path;
+
+/// A header longer than this is refused rather than read into memory.
+const MAX_HEADER_BYTES: u64 = 1 << 20;
+
+/// Names of the face element's index list, in order of preference.
+const INDEX_LISTS: [&str; 2] = ["vertex_indices", "vertex_index"];
+
+/// The coordinates of one `vertex` element.
+#[derive(Default)]
+struct PlyVertex {
+    p: [f32; 3],
+}
+
+/// A scalar property as `f32`: the nearest value (a `double` beyond the `f32` range
+/// becomes infinite, and is then refused as non-finite).
+fn scalar_as_f32(property: &Property) -> Option<f32> {
+    Some(match *property {
+        Property::Char(v) => v.into(),
+        Property::UChar(v) => v.into(),
+        Property::Short(v) => v.into(),
+        Property::UShort(v) => v.into(),
+        Property::Int(v) => v as f32,
+        Property::UInt(v) => v as f32,
+        Property::Float(v) => v,
+        Property::Double(v) => v as f32,
+        _ => return None,
+    })
+}
+
+impl PropertyAccess for PlyVertex {
+    fn new() -> Self {
+        Self::default()
+    }
+
+    fn set_property(&mut self, name: &str, property: Property) -> PropertyAccessResult {
+        let axis = match name {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            _ => return PropertyAccessResult::Ignored,
+        };
+        match scalar_as_f32(&property) {
+            Some(v) => {
+                self.p[axis] = v;
+                PropertyAccessResult::Set
+            }
+            None => PropertyAccessResult::UnsupportedType,
+        }
+    }
+}
+
+/// The vertex indices of one `face` element; negative ones stay negative to be reported.
+#[derive(Default)]
+struct PlyFace {
+    indices: Vec<i64>,
+}
+
+impl PropertyAccess for PlyFace {
+    fn new() -> Self {
+        Self::default()
+    }
+
+    fn set_property(&mut self, name: &str, property: Property) -> PropertyAccessResult {
+        if !INDEX_LISTS.contains(&name) {
+            return PropertyAccessResult::Ignored;
+        }
+        self.indices = match property {
+            Property::ListChar(v) => v.into_iter().map(i64::from).collect(),
+            Property::ListUChar(v) => v.into_iter().map(i64::from).collect(),
+            Property::ListShort(v) => v.into_iter().map(i64::from).collect(),
+            Property::ListUShort(v) => v.into_iter().map(i64::from).collect(),
+            Property::ListInt(v) => v.into_iter().map(i64::from).collect(),
+            Property::ListUInt(v) => v.into_iter().map(i64::from).collect(),
+            _ => return PropertyAccessResult::UnsupportedType,
+        };
+        PropertyAccessResult::Set
+    }
+}
+
+/// An element read only to be skipped.
+struct Skipped;
+
+impl PropertyAccess for Skipped {
+    fn new() -> Self {
+        Skipped
+    }
+}
+
+fn scalar_bytes(t: &ScalarType) -> u64 {
+    match t {
+        ScalarType::Char | ScalarType::UChar => 1,
+        ScalarType::Short | ScalarType::UShort => 2,
+        ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+        ScalarType::Double => 8,
+    }
+}
+
+fn is_integer(t: &ScalarType) -> bool {
+    !matches!(t, ScalarType::Float | ScalarType::Double)
+}
+
+/// The fewest bytes one element of `def` can take in the file. The index list of a face
+/// counts with three entries: a shorter face is an error. In ascii every value takes at
+/// least a digit and a separator.
+fn min_element_bytes(def: &ElementDef, encoding: Encoding, index_list: Option<&str>) -> u64 {
+    let binary = encoding != Encoding::Ascii;
+    let mut bytes = 0;
+    for (name, p) in &def.properties {
+        let entries = if index_list == Some(name.as_str()) { 3 } else { 0 };
+        bytes += match &p.data_type {
+            PropertyType::Scalar(t) if binary => scalar_bytes(t),
+            PropertyType::List(count, item) if binary => scalar_bytes(count) + entries * scalar_bytes(item),
+            PropertyType::Scalar(_) => 2,
+            PropertyType::List(..) => 2 + entries * 2,
+        };
+    }
+    bytes.max(1)
+}
+
+/// How many elements of `def` to reserve room for: the header's count, but no more than
+/// the rest of the input could hold.
+fn capacity(def: &ElementDef, input: &Input, encoding: Encoding, index_list: Option<&str>) -> usize {
+    let fit = input.remaining_bound() / min_element_bytes(def, encoding, index_list);
+    def.count.min(usize::try_from(fit).unwrap_or(usize::MAX))
+}
+
+fn out_of_memory(path: &Path, n: usize, what: &str) -> Error {
+    Error::scene(path, format!("not enough memory for {n} {what}"))
+}
+
+/// Reads the `def.count` elements of `def`, passing each with its number to `each`.
+fn read_elements<E: PropertyAccess>(
+    path: &Path,
+    input: &mut Input,
+    encoding: Encoding,
+    def: &ElementDef,
+    mut each: impl FnMut(usize, E) -> Result<()>,
+) -> Result<()> {
+    if encoding != Encoding::Ascii && def.properties.is_empty() {
+        // Elements without properties take no bytes: nothing to read.
+        return Ok(());
+    }
+    let parser = Parser::<E>::new();
+    let mut line = String::new();
+    for i in 0..def.count {
+        let element = match encoding {
+            Encoding::Ascii => {
+                line.clear();
+                match input.read_line(&mut line) {
+                    Ok(0) => Err(ParseError::from(std::io::Error::from(ErrorKind::UnexpectedEof))),
+                    Ok(_) => parser.read_ascii_element(&line, def),
+                    Err(e) => Err(ParseError::from(e)),
+                }
+            }
+            Encoding::BinaryLittleEndian => parser.read_little_endian_element(input, def),
+            Encoding::BinaryBigEndian => parser.read_big_endian_element(input, def),
+        };
+        let element = element.map_err(|e| {
+            let what = format!("{} {i} of {}", def.name, def.count);
+            let message = if let Some(stream) = input.stream_error() {
+                format!("{what}: {stream}")
+            } else if e.kind() == ErrorKind::UnexpectedEof {
+                format!("unexpected end of file in {what}")
+            } else {
+                format!("{what}: {}", one_line(&e.to_string()))
+            };
+            Error::scene(path, message)
+        })?;
+        each(i, element)?;
+    }
+    Ok(())
+}
+
+/// A header error of the crate in one line: its message with the offending line, without
+/// the grammar's internal state.
+fn header_message(e: &ParseError) -> String {
+    let text = e.to_string();
+    let parts: Vec<&str> = text.split('\n').map(str::trim).filter(|p| !p.starts_with("Error:")).collect();
+    one_line(&parts.join(" "))
+}
+
+/// The name of the face element's index list, checked to be a list of integers.
+fn index_list_name(path: &Path, face: &ElementDef) -> Result<String> {
+    let Some((name, def)) = INDEX_LISTS.iter().find_map(|n| face.properties.get_key_value(*n)) else {
+        return Err(Error::scene(path, "the face element has no vertex_indices list"));
+    };
+    match &def.data_type {
+        PropertyType::List(count, item) if is_integer(count) && is_integer(item) => Ok(name.clone()),
+        t => Err(Error::scene(path, format!("face property {name} must be a list of integers, not {t:?}"))),
+    }
+}
+
+/// Reads a PLY file (`.ply` or `.ply.gz`). Vertices and faces are numbered from 0, as the
+/// faces' indices count them.
+pub(super) fn load_ply(path: &Path) -> Result<IndexedMesh> {
+    let mut input = Input::open(path)?;
+    input.set_limit(Some(MAX_HEADER_BYTES));
+    let mut reader = Reader::new(input);
+    let header = Parser::<Skipped>::new().read_header(&mut reader);
+    let mut input = reader.into_inner();
+    let header = header.map_err(|e| {
+        let message = if let Some(stream) = input.stream_error() {
+            stream.to_string()
+        } else if input.at_limit() {
+            format!("the PLY header is longer than {MAX_HEADER_BYTES} bytes")
+        } else if e.line() == Some(1) {
+            "not a PLY file: the first line is not 'ply'".to_string()
+        } else {
+            format!("invalid PLY header: {}", header_message(&e))
+        };
+        Error::scene(path, message)
+    })?;
+    input.set_limit(None);
+    let encoding = header.encoding;
+
+    let vertex_def = header.elements.get("vertex").ok_or_else(|| Error::scene(path, "no vertex element"))?;
+    for axis in ["x", "y", "z"] {
+        match vertex_def.properties.get(axis).map(|p| &p.data_type) {
+            Some(PropertyType::Scalar(_)) => {}
+            Some(t) => return Err(Error::scene(path, format!("vertex property {axis} must be a number, not {t:?}"))),
+            None => return Err(Error::scene(path, format!("the vertex element has no {axis} property"))),
+        }
+    }
+    let vertex_count = vertex_def.count;
+    let face_def = header.elements.get("face").ok_or_else(|| Error::scene(path, "no face element"))?;
+    let index_list = index_list_name(path, face_def)?;
+
+    let mut mesh = IndexedMesh { names: VertexNames::FromZero, ..Default::default() };
+    for (name, def) in &header.elements {
+        match name.as_str() {
+            "vertex" => {
+                let n = capacity(def, &input, encoding, None);
+                mesh.positions.try_reserve_exact(n).map_err(|_| out_of_memory(path, n, "vertices"))?;
+                read_elements(path, &mut input, encoding, def, |i, v: PlyVertex| {
+                    let p = Vec3::from(v.p);
+                    if let Some(c) = non_finite_coordinate(p) {
+                        return Err(Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})")));
+                    }
+                    mesh.positions.push(p);
+                    Ok(())
+                })?;
+            }
+            "face" => {
+                let n = capacity(def, &input, encoding, Some(&index_list));
+                mesh.triangles.try_reserve_exact(n).map_err(|_| out_of_memory(path, n, "triangles"))?;
+                read_elements(path, &mut input, encoding, def, |i, f: PlyFace| {
+                    let n = f.indices.len();
+                    if n < 3 {
+                        return Err(Error::scene(path, format!("face {i} has {n} vertices; a face needs at least 3")));
+                    }
+                    let mut index = [0u32; 3];
+                    for (slot, &v) in f.indices.iter().enumerate() {
+                        let valid = usize::try_from(v).ok().filter(|&v| v < vertex_count);
+                        let Some(v) = valid.and_then(|v| u32::try_from(v).ok()) else {
+                            return Err(Error::scene(
+                                path,
+                                format!(
+                                    "face {i}: vertex index {v} is out of range (the file has {vertex_count} vertices)"
+                                ),
+                            ));
+                        };
+                        // A fan: (v0, v1, v2), (v0, v2, v3), ...
+                        match slot {
+                            0 | 1 => index[slot] = v,
+                            _ => {
+                                index[2] = v;
+                                mesh.triangles.push(index);
+                                index[1] = v;
+                            }
+                        }
+                    }
+                    Ok(())
+                })?;
+            }
+            _ => read_elements(path, &mut input, encoding, def, |_, _: Skipped| Ok(()))?,
+        }
+    }
+    check_end(path, &mut input, encoding)?;
+    Ok(mesh)
+}
+
+/// After the last element only white space may follow in ascii, nothing in binary: more
+/// data means the header's counts do not match the file. Reading to the end also checks
+/// a gzip stream's trailer.
+fn check_end(path: &Path, input: &mut Input, encoding: Encoding) -> Result<()> {
+    loop {
+        let buf = match input.fill_buf() {
+            Ok(buf) => buf,
+            Err(e) => {
+                let message = input.stream_error().map_or_else(|| e.to_string(), str::to_string);
+                return Err(Error::scene(path, message));
+            }
+        };
+        if buf.is_empty() {
+            return Ok(());
+        }
+        let extra = match encoding {
+            Encoding::Ascii => buf.iter().any(|b| !b.is_ascii_whitespace()),
+            _ => true,
+        };
+        if extra {
+            return Err(Error::scene(
+                path,
+                format!(
+                    "data after the last element at byte {} of the data: the header's element counts do not match the file",
+                    input.consumed()
+                ),
+            ));
+        }
+        let n = buf.len();
+        input.consume(n);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_full_dragon_has_871414_faces_108_of_them_with_coincident_corners() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/dragon_vrip.ply.gz");
+        let mesh = load_ply(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((mesh.positions.len(), mesh.triangles.len()), (437_645, 871_414));
+        let p = |i: u32| mesh.positions[i as usize];
+        let repeated = mesh.triangles.iter().filter(|t| t[0] == t[1] || t[1] == t[2] || t[0] == t[2]).count();
+        let coincident =
+            mesh.triangles.iter().filter(|t| p(t[0]) == p(t[1]) || p(t[1]) == p(t[2]) || p(t[0]) == p(t[2])).count();
+        assert_eq!((repeated, coincident), (0, 108));
+    }
+
+    #[test]
+    fn element_sizes_bound_the_reserved_counts() {
+        let text = "ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty double x\nproperty float y\n\
+                    property float z\nproperty list uchar float uv\nelement face 2\nproperty uchar flags\n\
+                    property list uint ushort vertex_indices\nend_header\n";
+        let header = Parser::<Skipped>::new().read_header(&mut Reader::new(text.as_bytes())).unwrap();
+        let (vertex, face) = (&header.elements["vertex"], &header.elements["face"]);
+        assert_eq!(min_element_bytes(vertex, Encoding::BinaryLittleEndian, None), 8 + 4 + 4 + 1);
+        assert_eq!(min_element_bytes(face, Encoding::BinaryLittleEndian, Some("vertex_indices")), 1 + 4 + 3 * 2);
+        assert_eq!(min_element_bytes(vertex, Encoding::Ascii, None), 4 * 2);
+        assert_eq!(min_element_bytes(face, Encoding::Ascii, Some("vertex_indices")), 2 + 2 + 3 * 2);
+    }
+}

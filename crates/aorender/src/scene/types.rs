@@ -1,0 +1,291 @@
+//! The in-memory scene: primitives as the scene file states them (triangles, exact
+//! spheres, infinite planes, instanced meshes), a camera and the render settings.
+
+use super::camera::{Camera, Projection};
+use crate::error::{Error, Result};
+use crate::geometry::{AffineRows, InverseAffine, Plane};
+use crate::sampler::Sampler;
+use crate::sampling::Hemisphere;
+use glam::Vec3;
+use std::path::PathBuf;
+
+/// A triangle with its albedo.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Triangle {
+    /// Vertices, world space.
+    pub v: [Vec3; 3],
+    /// Diffuse reflectance ρ.
+    pub albedo: f32,
+}
+
+/// An exact sphere.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sphere {
+    /// Centre, world space.
+    pub center: Vec3,
+    /// Radius.
+    pub radius: f32,
+    /// Diffuse reflectance ρ.
+    pub albedo: f32,
+}
+
+/// A mesh placed by several objects of a scene file, kept once in its own space: each
+/// placement is an [`Instance`] that carries rays into this space rather than copying the
+/// triangles into the world (two-level BVH, `src/bvh/mod.rs`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct InstancedMesh {
+    /// The mesh file, for messages.
+    pub name: String,
+    /// Triangles in the mesh's own space, degenerate ones dropped.
+    pub triangles: Vec<[Vec3; 3]>,
+}
+
+/// One placement of an [`InstancedMesh`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Instance {
+    /// Index into `Scene::meshes`.
+    pub mesh: u32,
+    /// Object to world, as the scene file gives it: every vertex of the mesh is finite
+    /// under it.
+    pub to_world: glam::Mat4,
+    /// Diffuse reflectance ρ of this placement.
+    pub albedo: f32,
+}
+
+impl Instance {
+    /// Object to world as three rows `(m0, m1, m2, t)` (what the kernels read).
+    pub fn to_world_rows(&self) -> AffineRows {
+        AffineRows::from_mat4(&self.to_world)
+    }
+
+    /// World to object: the inverse of `to_world`.
+    pub fn to_object(&self) -> InverseAffine {
+        InverseAffine::of(&self.to_world)
+    }
+}
+
+/// Largest image width and height.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+/// Something a loader skipped that still leaves a valid scene (for example, glTF
+/// primitives that are not triangles): reported to the caller rather than printed.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Warning {
+    /// The file it concerns.
+    pub path: PathBuf,
+    /// What was skipped, in one line.
+    pub message: String,
+}
+
+impl std::fmt::Display for Warning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}: {}", self.path.display(), self.message)
+    }
+}
+
+/// Image size and sampling: the scene file's defaults, and what a render request asks for.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Settings {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Samples per pixel (each: one camera ray and at most one AO ray).
+    pub spp: u32,
+    /// AO direction distribution.
+    pub hemisphere: Hemisphere,
+    /// Placement of the pixel-jitter and hemisphere numbers.
+    pub sampler: Sampler,
+    /// AO rays longer than this are unoccluded; `None` is no limit.
+    pub max_distance: Option<f32>,
+    /// Value of camera rays that hit nothing.
+    pub background: f32,
+    /// Seed of the random numbers.
+    pub seed: u32,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            width: 512,
+            height: 512,
+            spp: 64,
+            hemisphere: Hemisphere::Cosine,
+            sampler: Sampler::Independent,
+            max_distance: None,
+            background: 0.0,
+            seed: 0,
+        }
+    }
+}
+
+impl Settings {
+    /// Checks ranges: [`Error::Settings`] naming the offending setting.
+    pub fn validate(&self) -> Result<()> {
+        if self.width == 0 || self.height == 0 {
+            return Err(Error::settings(format!("image size must be positive, got {}x{}", self.width, self.height)));
+        }
+        if self.width > MAX_IMAGE_SIDE || self.height > MAX_IMAGE_SIDE {
+            return Err(Error::settings(format!(
+                "image size {}x{} exceeds {MAX_IMAGE_SIDE} on a side",
+                self.width, self.height
+            )));
+        }
+        if self.spp == 0 {
+            return Err(Error::settings("samples per pixel must be at least 1"));
+        }
+        if let Some(d) = self.max_distance
+            && (d.is_nan() || d < 0.0)
+        {
+            return Err(Error::settings(format!("max distance must be zero or positive, got {d}")));
+        }
+        if !self.background.is_finite() {
+            return Err(Error::settings("background must be finite"));
+        }
+        Ok(())
+    }
+}
+
+/// A scene ready to render.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Human-readable name (file stem or "aobench").
+    pub name: String,
+    /// The camera.
+    pub camera: Camera,
+    /// Render settings.
+    pub settings: Settings,
+    /// Triangles of meshes placed once, transformed to world space.
+    pub triangles: Vec<Triangle>,
+    /// Meshes placed more than once, each in its own space.
+    pub meshes: Vec<InstancedMesh>,
+    /// Placements of `meshes`.
+    pub instances: Vec<Instance>,
+    /// Spheres.
+    pub spheres: Vec<Sphere>,
+    /// Infinite planes.
+    pub planes: Vec<Plane>,
+    /// What the loaders skipped (empty for a scene made in memory).
+    pub warnings: Vec<Warning>,
+}
+
+/// Axis-aligned bounds of the finite primitives.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bounds {
+    /// Minimum corner.
+    pub min: Vec3,
+    /// Maximum corner.
+    pub max: Vec3,
+}
+
+impl Scene {
+    /// The automatic framing used for bare meshes.
+    pub fn auto_camera(&self) -> Camera {
+        let b = self.bounds().unwrap_or(Bounds { min: Vec3::splat(-1.0), max: Vec3::splat(1.0) });
+        let centre = 0.5 * (b.min + b.max);
+        let diagonal = (b.max - b.min).length().max(f32::MIN_POSITIVE);
+        Camera {
+            eye: centre + Vec3::new(0.6, 0.45, 1.0).normalize() * 1.2 * diagonal,
+            look_at: centre,
+            up: Vec3::Y,
+            projection: Projection::Perspective { vfov_deg: 45.0 },
+        }
+    }
+
+    /// Bytes of the geometry held on the host: triangles, instanced meshes, instances,
+    /// spheres and planes.
+    pub fn geometry_bytes(&self) -> u64 {
+        let mesh_triangles: usize = self.meshes.iter().map(|m| m.triangles.len()).sum();
+        (self.triangles.len() * std::mem::size_of::<Triangle>()
+            + mesh_triangles * std::mem::size_of::<[Vec3; 3]>()
+            + self.instances.len() * std::mem::size_of::<Instance>()
+            + self.spheres.len() * std::mem::size_of::<Sphere>()
+            + self.planes.len() * std::mem::size_of::<Plane>()) as u64
+    }
+
+    /// Triangles in the world: those placed once and every placement of an instanced mesh.
+    pub fn world_triangle_count(&self) -> usize {
+        self.triangles.len()
+            + self.instances.iter().map(|i| self.meshes[i.mesh as usize].triangles.len()).sum::<usize>()
+    }
+
+    /// The scene with every instance's triangles transformed into the world and added to
+    /// `triangles`, as the loader placed meshes before instancing (each vertex through
+    /// `Mat4::transform_point3`, degenerate results dropped).
+    pub fn flattened(&self) -> Scene {
+        let mut scene = Scene { meshes: Vec::new(), instances: Vec::new(), ..self.clone() };
+        for instance in &self.instances {
+            let m = &instance.to_world;
+            let world = self.meshes[instance.mesh as usize].triangles.iter().map(|t| t.map(|v| m.transform_point3(v)));
+            scene
+                .triangles
+                .extend(world.filter(|&v| !is_degenerate(v)).map(|v| Triangle { v, albedo: instance.albedo }));
+        }
+        scene
+    }
+
+    /// Bounds of triangles, instances and spheres; `None` when the scene has none.
+    pub fn bounds(&self) -> Option<Bounds> {
+        let mut min = Vec3::splat(f32::INFINITY);
+        let mut max = Vec3::splat(f32::NEG_INFINITY);
+        for t in &self.triangles {
+            for v in t.v {
+                min = min.min(v);
+                max = max.max(v);
+            }
+        }
+        for instance in &self.instances {
+            for t in &self.meshes[instance.mesh as usize].triangles {
+                for v in t {
+                    let w = instance.to_world.transform_point3(*v);
+                    min = min.min(w);
+                    max = max.max(w);
+                }
+            }
+        }
+        for s in &self.spheres {
+            min = min.min(s.center - s.radius);
+            max = max.max(s.center + s.radius);
+        }
+        (min.x <= max.x).then_some(Bounds { min, max })
+    }
+
+    /// Number of primitives the top-level BVH holds (triangles, spheres and instances).
+    pub fn finite_primitive_count(&self) -> usize {
+        self.triangles.len() + self.spheres.len() + self.instances.len()
+    }
+}
+
+/// Smallest squared length of `(v1 - v0) × (v2 - v0)` of a triangle that is kept: below
+/// it the geometric normal is zero or too small to normalize in f32 (on the GPU, where
+/// denormals may flush to zero, too), so the triangle is dropped. Such a triangle has no
+/// area to hit (twice its area is below 2^-60 ≈ 8.7e-19 world units²).
+pub const MIN_NORMAL_LENGTH_SQUARED: f32 = f32::from_bits((127 - 120) << 23); // 2^-120
+/// Whether a triangle's normal is too small to keep (see [`MIN_NORMAL_LENGTH_SQUARED`]).
+// Negated so that a NaN normal counts as degenerate.
+#[allow(clippy::neg_cmp_op_on_partial_ord)]
+pub(crate) fn is_degenerate(v: [Vec3; 3]) -> bool {
+    let n = (v[1] - v[0]).cross(v[2] - v[0]);
+    !(n.dot(n) >= MIN_NORMAL_LENGTH_SQUARED)
+}
+
+/// Largest squared normal length accepted: above it normalizing could overflow.
+pub const MAX_NORMAL_LENGTH_SQUARED: f32 = f32::from_bits((127 + 120) << 23); // 2^120
+
+/// "x = NaN", naming the first non-finite coordinate of `p`; `None` when it is finite.
+pub(crate) fn non_finite_coordinate(p: Vec3) -> Option<String> {
+    let axes = ["x", "y", "z"];
+    p.to_array().iter().zip(axes).find(|(c, _)| !c.is_finite()).map(|(c, axis)| format!("{axis} = {c}"))
+}
+
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn normal_length_bounds_are_powers_of_two() {
+        assert_eq!(MIN_NORMAL_LENGTH_SQUARED as f64, 2f64.powi(-120));
+        assert_eq!(MAX_NORMAL_LENGTH_SQUARED as f64, 2f64.powi(120));
+    }
+}

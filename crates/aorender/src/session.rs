@@ -1,0 +1,211 @@
+//! A session: a scene prepared once on a device (the BVH built, the geometry uploaded)
+//! and then asked for many things — images with any camera and sampling settings,
+//! progressively, and AO at given points — without rebuilding or re-uploading anything.
+//! Pipelines are compiled once per adapter for each specialisation a request needs.
+
+use crate::accumulation::{Accumulation, SampleSettings, geometry_hash, max_sample_value, probes_hash, scene_hash};
+use crate::device::{BvhOptions, Device, Prepared, Setup};
+use crate::error::{Error, Result};
+use crate::probe::{Probe, ProbeValue, lanes_for};
+use crate::render::{Control, Render, RenderInfo};
+use crate::scene::{Camera, Scene, Settings};
+use std::ops::Range;
+use std::sync::{Mutex, OnceLock};
+use std::time::Instant;
+
+/// An image to render: a view of the session's scene, its sampling, and which of its
+/// sample indices.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageRequest {
+    /// The camera.
+    pub camera: Camera,
+    /// Image size and sampling.
+    pub settings: Settings,
+    /// Sample indices to render, `start..end` with `end` at most the samples per pixel;
+    /// `None` is all of them, `0..spp`. The cell samplers still place their cells for
+    /// `spp` samples, so disjoint ranges are parts of one render.
+    pub samples: Option<Range<u32>>,
+}
+
+/// AO estimates at probe points.
+#[derive(Clone, Debug)]
+pub struct ProbeOutput {
+    /// One value per probe, in input order.
+    pub values: Vec<ProbeValue>,
+    /// AO rays traced.
+    pub rays: u64,
+    /// Seconds spent tracing (BVH build and setup excluded).
+    pub seconds: f64,
+    /// Adapter name, or "cpu".
+    pub adapter: String,
+}
+
+/// A scene prepared on a device, answering requests.
+pub struct Session {
+    scene: Scene,
+    device: Device,
+    options: BvhOptions,
+    prepared: Prepared,
+    setup: Setup,
+    /// The last camera's scene hash (a checkpoint's identity), kept for the next request.
+    camera_hash: Mutex<Option<(Camera, [u8; 32])>>,
+    /// The geometry's hash, for probe requests.
+    geometry_hash: OnceLock<[u8; 32]>,
+}
+
+impl Session {
+    /// Builds the BVH of `scene` and uploads it to `device`: the work every request then
+    /// shares.
+    pub fn new(device: &Device, scene: Scene, options: &BvhOptions) -> Result<Session> {
+        let (prepared, setup) = Prepared::new(device, &scene, options)?;
+        Ok(Session {
+            scene,
+            device: device.clone(),
+            options: *options,
+            prepared,
+            setup,
+            camera_hash: Mutex::new(None),
+            geometry_hash: OnceLock::new(),
+        })
+    }
+
+    /// The scene.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The device.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// How the scene was prepared: the adapter, the BVH and what it took.
+    pub fn setup(&self) -> &Setup {
+        &self.setup
+    }
+
+    /// The scene's own view: its camera and settings, all sample indices.
+    pub fn default_request(&self) -> ImageRequest {
+        ImageRequest { camera: self.scene.camera, settings: self.scene.settings.clone(), samples: None }
+    }
+
+    /// The scene's hash with `camera` ([`scene_hash`]), computed once per camera.
+    fn scene_hash(&self, camera: &Camera) -> [u8; 32] {
+        let mut cached = self.camera_hash.lock().unwrap_or_else(|e| e.into_inner());
+        match *cached {
+            Some((c, hash)) if c == *camera => hash,
+            _ => {
+                let hash = scene_hash(&self.scene, camera);
+                *cached = Some((*camera, hash));
+                hash
+            }
+        }
+    }
+
+    /// What every render of this session reports about the scene and its setup.
+    fn info(&self, target_seconds: f64) -> RenderInfo {
+        let scene = &self.scene;
+        RenderInfo {
+            scene: scene.name.clone(),
+            triangles: scene.world_triangle_count(),
+            instances: scene.instances.len(),
+            spheres: scene.spheres.len(),
+            planes: scene.planes.len(),
+            scene_bytes: scene.geometry_bytes(),
+            setup: self.setup.clone(),
+            target_seconds,
+        }
+    }
+
+    /// Starts an image: checks the request and makes its film on the device (and its
+    /// pipeline, the first time this adapter sees its specialisation). Run it with
+    /// [`Render::run`].
+    pub fn render(&self, request: &ImageRequest) -> Result<Render> {
+        let s = &request.settings;
+        s.validate()?;
+        request.camera.validate()?;
+        let range = request.samples.clone().unwrap_or(0..s.spp);
+        if range.start >= range.end || range.end > s.spp {
+            return Err(Error::settings(format!(
+                "sample range {}..{} must be non-empty and end at most at the {} samples per pixel",
+                range.start, range.end, s.spp
+            )));
+        }
+        let start = Instant::now();
+        let passes = self.prepared.image(&request.camera, s)?;
+        let target_seconds = start.elapsed().as_secs_f64();
+        let settings = SampleSettings::with_hash(self.scene_hash(&request.camera), s);
+        let mut acc = Accumulation::new(
+            settings,
+            self.device.kind(),
+            self.setup.bvh_layout,
+            self.options.quality,
+            range.start,
+            range.end,
+            max_sample_value(&self.scene, s.background),
+        );
+        acc.adapter = self.setup.adapter.name.clone();
+        Ok(Render::new(passes, acc, self.info(target_seconds)))
+    }
+
+    /// Estimates AO at every probe with `samples` samples each, with the hemisphere,
+    /// sampler, seed and maximum distance of `settings` (its image size and samples per
+    /// pixel are not used). The probes' samples are spread over several slots (lanes)
+    /// each and their sums added exactly.
+    pub fn probe(&self, probes: &[Probe], samples: u32, settings: &Settings) -> Result<ProbeOutput> {
+        self.probe_with(probes, samples, settings, &mut Control::default())
+    }
+
+    /// [`Session::probe`] under `control`: a stop flag, a time limit (the values then
+    /// hold fewer samples, as [`ProbeValue::samples`] says) and progress in rounds.
+    pub fn probe_with(
+        &self,
+        probes: &[Probe],
+        samples: u32,
+        settings: &Settings,
+        control: &mut Control,
+    ) -> Result<ProbeOutput> {
+        settings.validate()?;
+        if samples == 0 {
+            return Err(Error::settings("samples per probe must be at least 1"));
+        }
+        for (index, p) in probes.iter().enumerate() {
+            Probe::new(p.position, p.normal).map_err(|e| Error::Probe { index, message: e.message() })?;
+        }
+        let adapter = self.setup.adapter.name.clone();
+        if probes.is_empty() {
+            return Ok(ProbeOutput { values: Vec::new(), rays: 0, seconds: 0.0, adapter });
+        }
+        let lanes = lanes_for(probes.len(), samples);
+        let rounds = samples.div_ceil(lanes);
+        let passes = self.prepared.probes(probes, lanes, samples, settings)?;
+        let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
+        let sample_settings =
+            SampleSettings::probes(probes_hash(geometry, probes), lanes, probes.len() as u32, samples, settings);
+        // A probe sample is a hemisphere weight: at most 2 (the uniform hemisphere's).
+        let acc = Accumulation::new(
+            sample_settings,
+            self.device.kind(),
+            self.setup.bvh_layout,
+            self.options.quality,
+            0,
+            rounds,
+            2.0,
+        );
+        let mut render = Render::new(passes, acc, self.info(0.0));
+        render.run(control)?;
+        let acc = render.accumulation()?;
+        let sums = acc.sums()?;
+        let rounds_done = acc.samples() as u64;
+        // Round r gives lane l of a point the sample r × lanes + l, below `samples`.
+        let lane_samples = |l: u64| rounds_done.min((samples as u64).saturating_sub(l).div_ceil(lanes as u64));
+        let point_samples: u64 = (0..lanes as u64).map(lane_samples).sum();
+        let values = (0..probes.len())
+            .map(|k| {
+                let (sum, sum_sq) = sums.sum_range(k * lanes as usize..(k + 1) * lanes as usize);
+                ProbeValue::from_sums(sum, sum_sq, point_samples)
+            })
+            .collect();
+        Ok(ProbeOutput { values, rays: acc.ao_rays, seconds: acc.render_seconds, adapter })
+    }
+}
