@@ -5,7 +5,8 @@
 //! rotation and translation. Flattened, every copy's triangles are transformed to world
 //! space and one CWBVH holds all of them (A; what `Scene::flattened` gives, and what the
 //! renderer did before it kept instances). The alternative, which the renderer now uses
-//! (`src/bvh/mod.rs`), is two levels (B): one CWBVH over the mesh in its own space (the BLAS), a CWBVH over the nine
+//! (`crates/aorender/src/bvh/mod.rs`), is two levels (B): one CWBVH over the mesh in its
+//! own space (the BLAS), a CWBVH over the nine
 //! instances' world-space boxes (the TLAS), and each ray carried into an instance's space by
 //! the inverse of its affine transform. The direction is transformed but not renormalized,
 //! so a hit distance `t` means the same in both spaces, scaled instances included, and one
@@ -41,7 +42,7 @@
 use anyhow::{Context, Result, ensure};
 use aorender::Scene;
 use aorender::bvh::{BuildQuality, SceneCwbvh, build_cwbvh};
-use aorender::cpu::{CpuTracer, HitKind};
+use aorender::cpu::tracer::{CpuTracer, HitKind};
 use aorender::geometry::{intersect_plane, intersect_triangle, plane_hit_point, triangle_hit_point};
 use aorender::sampling::{local_to_world, offset_ray_origin, sample_cosine_hemisphere, sample_uniforms};
 use aorender::scene::{Plane, Triangle, load_mesh};

@@ -71,7 +71,7 @@ impl SampleSettings {
 
     /// The settings of `points` probe points of `samples` samples each, spread over
     /// `lanes` slots a point (the film's width), with the sampling of `settings`;
-    /// `points_hash` identifies the scene and the points ([`probes_hash`]).
+    /// `points_hash` identifies the scene and the points (`probes_hash`).
     pub fn probes(points_hash: [u8; 32], lanes: u32, points: u32, samples: u32, settings: &Settings) -> SampleSettings {
         SampleSettings {
             scene_hash: points_hash,
@@ -265,7 +265,7 @@ pub struct Accumulation {
 impl Accumulation {
     /// An empty accumulation of samples `first .. end` of a render of `settings`, on
     /// `device` with the given BVH, whose samples are at most `max_value` in magnitude
-    /// ([`max_sample_value`]).
+    /// (`max_sample_value`: twice the largest albedo, or the background's magnitude).
     pub fn new(
         settings: SampleSettings,
         device: DeviceKind,

@@ -48,7 +48,7 @@ impl Device {
     /// Opens the best GPU adapter (discrete, then integrated, virtual, CPU such as
     /// lavapipe), or the first whose name contains `adapter` (case-insensitive).
     pub fn gpu(adapter: Option<&str>) -> Result<Device> {
-        Ok(Device::from_gpu(GpuDevice::open(adapter)?))
+        Ok(Device(Opened::Gpu(Arc::new(GpuDevice::open(adapter)?))))
     }
 
     /// The CPU reference, on rayon's threads.
@@ -70,6 +70,7 @@ impl Device {
     }
 
     /// A device on an opened GPU adapter (tests set limits on its context first).
+    #[cfg(feature = "testing")]
     pub fn from_gpu(gpu: GpuDevice) -> Device {
         Device(Opened::Gpu(Arc::new(gpu)))
     }
@@ -100,6 +101,7 @@ impl Device {
     }
 
     /// The GPU adapter, if this is one.
+    #[cfg(feature = "testing")]
     pub fn as_gpu(&self) -> Option<&Arc<GpuDevice>> {
         match &self.0 {
             Opened::Gpu(g) => Some(g),

@@ -60,7 +60,7 @@ impl Film {
 /// `256k .. 256k + 256` (cut short by the ends of the rendered range). A device sums one
 /// block at a time in its own arithmetic (compensated f32 on the GPU, f64 on the CPU);
 /// each finished block is rounded once to a fixed-point integer and added to
-/// [`ExactSums`], where addition is exact, so the result does not depend on how the
+/// exact fixed-point sums, where addition is exact, so the result does not depend on how the
 /// blocks were grouped into passes, runs or shards.
 pub const BLOCK_SAMPLES: u32 = 256;
 
@@ -174,7 +174,9 @@ impl ExactSums {
         let w = self.width.max(1) as usize;
         for i in 0..self.sum.len() {
             let (s, q) = block.pixel(i);
-            let bad = || SumsError(format!("pixel ({}, {}): a sum of samples ({s}, squares {q}) is out of range", i % w, i / w));
+            let bad = || {
+                SumsError(format!("pixel ({}, {}): a sum of samples ({s}, squares {q}) is out of range", i % w, i / w))
+            };
             let s = quantize(s, self.sum_exponent).ok_or_else(bad)?;
             let q = quantize(q, self.sq_exponent).ok_or_else(bad)?;
             self.sum[i] = self.sum[i].checked_add(s).ok_or_else(bad)?;
@@ -223,4 +225,3 @@ fn quantize(x: f64, exponent: i32) -> Option<i128> {
     let y = (x * pow2(-exponent)).round();
     (y.abs() < pow2(MAGNITUDE_LOG2)).then_some(y as i128)
 }
-

@@ -12,53 +12,94 @@
 //! the [`Film`], can be saved as a checkpoint and continued, and merges exactly with the
 //! accumulations of other sample ranges.
 //!
-//! ```no_run
+//! ```
 //! use aorender::{BvhOptions, Control, Device, Hemisphere, Probe, Sampler, Scene, Session};
 //! use glam::Vec3;
 //!
 //! # fn main() -> aorender::Result<()> {
-//! // The expensive work, once: open the adapter, build the BVH, upload it.
+//! // The expensive work, once: open the device, build the BVH, upload it.
 //! let scene = Scene::default_scene();
-//! let device = Device::gpu(None)?; // or Device::cpu()
+//! let device = Device::cpu(); // or Device::gpu(None)? for the best adapter
 //! let session = Session::new(&device, scene, &BvhOptions::default())?;
 //!
-//! // Many requests: the scene's own view at 64 samples per pixel, then cosine-weighted
-//! // Sobol samples, with a progress callback.
+//! // Many requests: the scene's own view, smaller, at 16 samples per pixel …
 //! let mut request = session.default_request();
-//! request.settings.spp = 64;
+//! (request.settings.width, request.settings.height, request.settings.spp) = (64, 64, 16);
 //! let out = session.render(&request)?.complete(&mut Control::default())?;
-//! aorender::output::write_image(&out.film, "aobench.png".as_ref())?;
-//! println!("{:.1} M rays/s", out.stats.rays_per_second / 1e6);
+//! aorender::output::write_image(&out.film, &std::env::temp_dir().join("aobench.png"))?;
+//! println!("{:.1} M rays/s, image mean {:.4}", out.stats.rays_per_second / 1e6, out.stats.image_mean);
 //!
-//! request.settings.hemisphere = Hemisphere::Cosine;
+//! // … then uniform directions from a Sobol sequence, with a progress callback …
+//! request.settings.hemisphere = Hemisphere::Uniform;
 //! request.settings.sampler = Sampler::Sobol;
 //! let mut on_progress = |p: &aorender::Progress| eprintln!("{}/{} spp", p.samples_done, p.samples_total);
 //! let mut control = Control { progress: Some(&mut on_progress), ..Control::default() };
 //! let sobol = session.render(&request)?.complete(&mut control)?;
-//! println!("image mean {:.4}", sobol.stats.image_mean);
+//! assert_eq!(sobol.stats.samples_per_pixel, 16);
 //!
-//! // AO at a point on the floor, facing up, with 4096 samples.
+//! // … and AO at a point on the floor, facing up: the same session, no rebuild.
 //! let probe = Probe::new(Vec3::new(0.0, -0.5, -2.0), Vec3::Y)?;
 //! let ao = session.probe(&[probe], 4096, &request.settings)?;
 //! println!("AO {:.4} ± {:.4}", ao.values[0].mean, ao.values[0].std_error);
+//! assert!(ao.values[0].mean > 0.0 && ao.values[0].mean < 1.0);
 //! # Ok(())
 //! # }
 //! ```
 
-/// Declares an internal module: private, but public to the crate's own tests and
-/// measurement programs when the `testing` feature is on (it is not part of the API).
-macro_rules! internal {
-    ($($name:ident),* $(,)?) => {
-        $(
-            #[cfg(feature = "testing")]
-            pub mod $name;
-            #[cfg(not(feature = "testing"))]
-            mod $name;
-        )*
-    };
-}
-
-internal!(accumulation, bvh, cpu, device, film, geometry, gpu, mirror, probe, render, sampler, sampling, session);
+// The internal modules: private, but public to the crate's own tests and measurement
+// programs when the `testing` feature is on (they are not part of the API).
+#[cfg(feature = "testing")]
+pub mod accumulation;
+#[cfg(not(feature = "testing"))]
+mod accumulation;
+#[cfg(feature = "testing")]
+pub mod bvh;
+#[cfg(not(feature = "testing"))]
+mod bvh;
+#[cfg(feature = "testing")]
+pub mod cpu;
+#[cfg(not(feature = "testing"))]
+mod cpu;
+#[cfg(feature = "testing")]
+pub mod device;
+#[cfg(not(feature = "testing"))]
+mod device;
+#[cfg(feature = "testing")]
+pub mod film;
+#[cfg(not(feature = "testing"))]
+mod film;
+#[cfg(feature = "testing")]
+pub mod geometry;
+#[cfg(not(feature = "testing"))]
+mod geometry;
+#[cfg(feature = "testing")]
+pub mod gpu;
+#[cfg(not(feature = "testing"))]
+mod gpu;
+#[cfg(feature = "testing")]
+pub mod mirror;
+#[cfg(not(feature = "testing"))]
+mod mirror;
+#[cfg(feature = "testing")]
+pub mod probe;
+#[cfg(not(feature = "testing"))]
+mod probe;
+#[cfg(feature = "testing")]
+pub mod render;
+#[cfg(not(feature = "testing"))]
+mod render;
+#[cfg(feature = "testing")]
+pub mod sampler;
+#[cfg(not(feature = "testing"))]
+mod sampler;
+#[cfg(feature = "testing")]
+pub mod sampling;
+#[cfg(not(feature = "testing"))]
+mod sampling;
+#[cfg(feature = "testing")]
+pub mod session;
+#[cfg(not(feature = "testing"))]
+mod session;
 
 pub mod closed_form;
 pub mod error;

@@ -35,7 +35,7 @@ pub type SaveFn<'a> = &'a mut dyn FnMut(&Accumulation) -> Result<()>;
 /// How many samples a pass takes.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum PassSizing {
-    /// As many as fit [`PASS_TARGET_SECONDS`] (and what is left of a time limit),
+    /// As many as fit a quarter of a second (and what is left of a time limit),
     /// starting from one and growing at most eightfold a pass (the first passes' times
     /// include warm-up): a fast adapter reaches full-size passes within three round trips.
     Timed,
@@ -250,7 +250,7 @@ impl Render {
         saved.check_resume(&self.acc)?;
         if saved.end != self.acc.end {
             // A last block cut short by the old end was summed as a block of its own.
-            if saved.next == saved.end && saved.end % BLOCK_SAMPLES != 0 {
+            if saved.next == saved.end && !saved.end.is_multiple_of(BLOCK_SAMPLES) {
                 saved.on_grid = false;
             }
             saved.end = self.acc.end;

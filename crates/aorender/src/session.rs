@@ -165,7 +165,7 @@ impl Session {
         settings: &Settings,
         control: &mut Control,
     ) -> Result<ProbeOutput> {
-        settings.validate()?;
+        settings.validate_sampling()?;
         if samples == 0 {
             return Err(Error::settings("samples per probe must be at least 1"));
         }

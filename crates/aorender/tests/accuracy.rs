@@ -1,4 +1,4 @@
-//! The closed-form suite at the extremes (`aorender::accuracy`): every case in every
+//! The closed-form suite at the extremes (`aorender::closed_form`): every case in every
 //! variant — scale 1, 1e-4 and 1e6 and translation by 1e6, with the normal along each
 //! ±axis — on the CPU reference and the adapter, with every unbiased sampler, within 4
 //! standard errors of the exact value. The base orientation (+y) of each scale runs every
@@ -6,20 +6,18 @@
 //! rotating, so that every pair meets every scale.
 
 mod common;
-use aorender::accuracy::{Case, Variant, agrees, cases, configurations, run};
-use aorender::gpu::GpuContext;
-use aorender::{Device, Hemisphere, Sampler};
-use common::gpu_available;
+use aorender::closed_form::{Case, Variant, agrees, cases, configurations};
+use aorender::{Device, Hemisphere, Sampler, Session};
+use common::{gpu_available, gpu_device};
 
 const SAMPLES: u32 = 1 << 14;
 
 /// Runs every case of the variants with `scale` and `offset` in every configuration on
 /// every device; panics listing every estimate that disagrees.
 fn check_variants(scale: f64, offset: f64) {
-    let ctx = gpu_available().then(|| GpuContext::new(None).expect("adapter"));
-    let mut devices = vec![Device::Cpu];
-    if ctx.is_some() {
-        devices.push(Device::Gpu);
+    let mut devices = vec![Device::cpu()];
+    if gpu_available() {
+        devices.push(gpu_device());
     }
     let variants: Vec<Variant> =
         Variant::all().into_iter().filter(|v| v.scale == scale && v.offset == offset).collect();
@@ -33,10 +31,17 @@ fn check_variants(scale: f64, offset: f64) {
             let configs: Vec<_> =
                 configurations().into_iter().enumerate().filter(|(k, _)| vi == 0 || (k / 3 + vi) % 3 == 0).collect();
             assert!(configs.len() >= 3);
+            // The case prepared once on each device, then probed in every configuration.
+            let sessions: Vec<Session> = devices
+                .iter()
+                .map(|d| case.session(d).unwrap_or_else(|e| panic!("{} {}: {e}", case.name, v.name())))
+                .collect();
             for (k, config) in configs {
-                for &device in &devices {
+                for session in &sessions {
+                    let device = session.device().kind();
                     let seed = (vi * 1000 + ci * 10 + k) as u32;
-                    let values = run(ctx.as_ref(), case, device, config, seed, SAMPLES)
+                    let values = case
+                        .estimate(session, config, seed, SAMPLES)
                         .unwrap_or_else(|e| panic!("{} {}: {e}", case.name, v.name()));
                     for (p, (value, &expected)) in values.iter().zip(&case.expected).enumerate() {
                         checks += 1;

@@ -4,7 +4,8 @@
 
 mod common;
 use aorender::Scene;
-use aorender::bvh::{BuildQuality, build_cwbvh_in_cells, primitive_aabbs};
+use aorender::bvh::BuildQuality;
+use aorender::bvh::build::{build_cwbvh_in_cells, primitive_aabbs};
 use aorender::cpu::CpuTracer;
 use common::*;
 use glam::Vec3;

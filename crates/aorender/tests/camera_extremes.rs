@@ -1,15 +1,14 @@
 //! The extremes that need the camera path (hit points computed from rays, then offset):
 //! 2^20 samples per pixel accumulated in passes, and grazing camera rays, at every scale
-//! and position of `aorender::accuracy::Variant`.
+//! and position of `aorender::closed_form::Variant`.
 
 mod common;
-use aorender::accuracy::Variant;
 use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
-use aorender::camera::{Camera, Projection};
+use aorender::closed_form::Variant;
 use aorender::cpu::CpuTracer;
-use aorender::gpu::{GpuContext, GpuRenderer, MAX_PASS_SAMPLES};
-use aorender::scene::{Plane, Settings, Sphere};
-use aorender::{Device, Film, Hemisphere, RenderOptions, Sampler, Scene};
+use aorender::gpu::MAX_PASS_SAMPLES;
+use aorender::scene::{Camera, Plane, Projection, Settings, Sphere};
+use aorender::{DeviceKind, Film, Hemisphere, Sampler, Scene};
 use common::*;
 use glam::{DVec3, Vec3};
 
@@ -23,6 +22,7 @@ fn scene(camera: Camera, planes: Vec<Plane>, spheres: Vec<Sphere>, width: u32, s
         instances: Vec::new(),
         spheres,
         planes,
+        warnings: Vec::new(),
     }
 }
 
@@ -67,7 +67,7 @@ fn two_to_the_twenty_samples_converge_to_the_closed_form() {
     for &target in &checkpoints {
         while done < target {
             let count = (target - done).min(1 << 14);
-            tracer.render_pass(&s, &mut cpu, done, count);
+            tracer.render_pass(&s.camera, &s.settings, &mut cpu, done, count);
             done += count;
         }
         cpu_at.push(cpu.clone());
@@ -93,9 +93,8 @@ fn two_to_the_twenty_samples_converge_to_the_closed_form() {
     if !gpu_available() {
         return;
     }
-    let ctx = GpuContext::new(None).unwrap();
     let bvh = GpuBvh::build(&s, BvhLayout::Cwbvh, BuildQuality::default());
-    let mut renderer = GpuRenderer::new(&ctx, &s, &bvh).unwrap();
+    let (_, mut renderer) = gpu_image(&gpu_adapter(), &s, &bvh, None).unwrap();
     let mut gpu_scaled = Vec::new();
     let mut done = 0;
     for (k, &target) in checkpoints.iter().enumerate() {
@@ -122,9 +121,9 @@ fn two_to_the_twenty_samples_converge_to_the_closed_form() {
 /// and position, both devices.
 #[test]
 fn grazing_camera_rays_see_one_half_everywhere() {
-    let mut devices = vec![Device::Cpu];
+    let mut devices = vec![DeviceKind::Cpu];
     if gpu_available() {
-        devices.push(Device::Gpu);
+        devices.push(DeviceKind::Gpu);
     }
     for v in Variant::all().into_iter().filter(|v| v.axis == 1 && !v.negative) {
         // At 1e6 from the origin an ulp is 1/16, and a hit within half an ulp of the floor–
@@ -148,7 +147,7 @@ fn grazing_camera_rays_see_one_half_everywhere() {
             let wall = Plane { normal: -Vec3::X, point: at(DVec3::new(4.0, 0.0, 0.0)), albedo: 1.0 };
             let s = scene(camera, vec![floor, wall], Vec::new(), 16, 64);
             for &device in &devices {
-                let film = render_with(&s, &RenderOptions { device, ..Default::default() });
+                let film = render_on(&s, device);
                 let (mean, se) = mean_and_error(&film);
                 let what = format!("{} angle {angle:e} {device:?}", v.name());
                 eprintln!("{what}: {mean:.5} ± {se:.1e}");

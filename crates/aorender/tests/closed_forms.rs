@@ -11,11 +11,12 @@ use std::path::Path;
 /// and BVH layout with each of `hemispheres`; `check(film, what)` judges each image.
 fn for_each_render(dir: &Path, spp: u32, body: &str, hemispheres: &[Hemisphere], check: impl Fn(&Film, &str)) {
     let text = format!("[image]\nwidth = 16\nheight = 16\n[sampling]\nspp = {spp}\n{body}");
-    for options in all_options() {
+    let mut scene = scene_from_toml(&text, dir);
+    for options in all_configs() {
+        let session = session(&scene, &options);
         for &hemisphere in hemispheres {
-            let mut scene = scene_from_toml(&text, dir);
             scene.settings.hemisphere = hemisphere;
-            let film = render_with(&scene, &options);
+            let film = render_settings(&session, &scene.settings);
             check(&film, &format!("{} {}", label(&options), hemisphere.name()));
         }
     }

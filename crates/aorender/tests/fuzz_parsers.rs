@@ -20,9 +20,8 @@
 //! left at `target/tmp/fuzz/FORMAT/` as the last case run; the watchdog aborts a case that
 //! runs over a minute and names that file.
 
-use aorender::Scene;
-use aorender::checkpoint::Accumulation;
 use aorender::film::BlockSums;
+use aorender::{Accumulation, BvhOptions, DeviceKind, Scene};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -290,7 +289,8 @@ fn scene_with_meshes() -> String {
 fn checkpoint_bytes() -> Vec<u8> {
     let mut scene = Scene::default_scene();
     (scene.settings.width, scene.settings.height) = (4, 3);
-    let mut acc = Accumulation::new(&scene, aorender::Device::Cpu, Default::default(), Default::default(), 0, 64);
+    let mut acc =
+        Accumulation::image(&scene, &scene.camera, &scene.settings, 0..64, DeviceKind::Cpu, &BvhOptions::default());
     acc.next = 5;
     acc.partial_samples = 5;
     acc.partial = Some(BlockSums::Cpu { sum: vec![2.5; 12], sum_sq: vec![1.25; 12] });

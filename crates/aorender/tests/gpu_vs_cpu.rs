@@ -4,9 +4,9 @@
 
 mod common;
 use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
-use aorender::gpu::{GpuContext, GpuRenderer};
-use aorender::shaders::GeometryStorage;
-use aorender::{Device, Hemisphere, Sampler, Scene};
+use aorender::gpu::GpuScene;
+use aorender::gpu::context::GpuContext;
+use aorender::{DeviceKind, GeometryStorage, Hemisphere, Sampler, Scene};
 use common::*;
 
 /// A small mesh scene: a bumpy grid floor with a box standing on it, written as OBJ.
@@ -33,22 +33,27 @@ fn check_scene(mut scene: Scene, what: &str) {
     if !gpu_available() {
         return;
     }
-    for (hemisphere, options) in
-        Hemisphere::ALL.into_iter().flat_map(|h| gpu_options().into_iter().map(move |o| (h, o)))
+    // The scene prepared once on the CPU and on the adapter in each layout; each render
+    // below asks them for other settings.
+    let cpu_session = session(&scene, &Config::cpu());
+    let gpu_sessions: Vec<(Config, aorender::Session)> =
+        gpu_configs().into_iter().map(|c| (c, session(&scene, &c))).collect();
+    for (hemisphere, (options, gpu_session)) in
+        Hemisphere::ALL.into_iter().flat_map(|h| gpu_sessions.iter().map(move |o| (h, o)))
     {
         scene.settings.hemisphere = hemisphere;
         for sampler in Sampler::ALL {
-            let what = format!("{what}, {}, {}, {}", hemisphere.name(), sampler.name(), label(&options));
+            let what = format!("{what}, {}, {}, {}", hemisphere.name(), sampler.name(), label(options));
             scene.settings.sampler = sampler;
             scene.settings.seed = 1;
-            let gpu = render_with(&scene, &options);
+            let gpu = render_settings(gpu_session, &scene.settings);
             // Same seed: the same random numbers, so the same samples up to rounding in
             // traversal (different BVH layouts); a pixel may differ where a ray grazes an edge.
-            let cpu_same_seed = render_on(&scene, Device::Cpu);
+            let cpu_same_seed = render_settings(&cpu_session, &scene.settings);
             if sampler == Sampler::Independent {
                 // The per-pixel z-test needs independent samples within each pixel.
                 scene.settings.seed = 2;
-                let cpu = render_on(&scene, Device::Cpu);
+                let cpu = render_settings(&cpu_session, &scene.settings);
                 assert_ne!(cpu.mean(), cpu_same_seed.mean(), "{what}: seeds must change the image");
                 assert_statistical_agreement(&gpu, &cpu, &what);
             }
@@ -81,7 +86,8 @@ fn gpu_render_is_reproducible() {
     }
     let mut scene = aobench();
     scene.settings.spp = 8;
-    for options in gpu_options() {
+    for options in gpu_configs() {
+        // Two sessions: each builds and uploads the BVH anew.
         let a = render_with(&scene, &options);
         let b = render_with(&scene, &options);
         assert_eq!(a.sum, b.sum, "{}: same seed, same adapter: identical accumulation", label(&options));
@@ -98,7 +104,7 @@ fn samples_per_invocation_leave_the_film_unchanged() {
     if !gpu_available() {
         return;
     }
-    let ctx = GpuContext::new(None).unwrap();
+    let dev = gpu_adapter();
     let dir = temp_dir();
     for (mut scene, what) in [(aobench(), "aobench"), (mesh_scene(dir.path()), "mesh")] {
         scene.settings.hemisphere = Hemisphere::Uniform;
@@ -106,7 +112,7 @@ fn samples_per_invocation_leave_the_film_unchanged() {
             let bvh = GpuBvh::build(&scene, layout, BuildQuality::default());
             let mut films = Vec::new();
             for per in [1, 3, u32::MAX] {
-                let mut renderer = GpuRenderer::new(&ctx, &scene, &bvh).unwrap();
+                let (_, mut renderer) = gpu_image(&dev, &scene, &bvh, None).unwrap();
                 let per = renderer.set_samples_per_invocation(per);
                 renderer.render_pass(0, 7).unwrap();
                 renderer.render_pass(7, 57).unwrap();
@@ -129,14 +135,14 @@ fn passes_report_gpu_time_from_timestamps() {
     if !gpu_available() {
         return;
     }
-    let ctx = GpuContext::new(None).unwrap();
+    let dev = gpu_adapter();
     let scene = aobench();
     let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
-    let mut renderer = GpuRenderer::new(&ctx, &scene, &bvh).unwrap();
+    let (_, mut renderer) = gpu_image(&dev, &scene, &bvh, None).unwrap();
     let start = std::time::Instant::now();
     let pass = renderer.render_pass(0, 16).unwrap();
     let wall = start.elapsed().as_secs_f64();
-    let has_timestamps = ctx.device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+    let has_timestamps = dev.ctx.device.features().contains(wgpu::Features::TIMESTAMP_QUERY);
     assert_eq!(pass.gpu_seconds.is_some(), has_timestamps);
     if let Some(gpu) = pass.gpu_seconds {
         eprintln!("pass of 16 spp at 64²: {gpu:.6} s on the GPU, {wall:.6} s on the clock");
@@ -156,30 +162,27 @@ fn geometry_in_buffers_or_textures_whole_or_split_renders_the_same_film() {
     let dir = temp_dir();
     let mut scene = mesh_scene(dir.path());
     scene.settings.hemisphere = Hemisphere::Uniform;
-    let context = |storage: GeometryStorage, split: bool| {
-        let mut ctx = GpuContext::new(None).unwrap();
-        ctx.set_geometry_storage(storage);
-        if split {
-            ctx.limit_chunk_bytes(8_000);
-            ctx.limit_texture_size(600, 2);
-        }
-        ctx
-    };
+    // The geometry's storage is chosen at upload: one device whole, one split.
+    let whole = gpu_adapter();
+    let split = gpu_device_with(|ctx| {
+        ctx.limit_chunk_bytes(8_000);
+        ctx.limit_texture_size(600, 2);
+    });
     let contexts = [
-        context(GeometryStorage::Buffers, false),
-        context(GeometryStorage::Buffers, true),
-        context(GeometryStorage::Textures, false),
-        context(GeometryStorage::Textures, true),
+        (&whole, GeometryStorage::Buffers),
+        (&split, GeometryStorage::Buffers),
+        (&whole, GeometryStorage::Textures),
+        (&split, GeometryStorage::Textures),
     ];
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
         let bvh = GpuBvh::build(&scene, layout, BuildQuality::default());
         // 400 primitives fill one 600 × 2 texture: the split takes three or more.
         assert!(bvh.records.len() > 2 * 400);
         assert!(bvh.records.len() * std::mem::size_of::<aorender::bvh::GpuPrimitive>() > 3 * 8_000);
-        let render = |ctx: &GpuContext| {
-            let mut renderer = GpuRenderer::new(ctx, &scene, &bvh).unwrap();
-            assert_eq!(renderer.geometry_storage, ctx.geometry_storage());
-            let bindings = renderer.geometry_bindings;
+        let render = |&(dev, storage): &(&std::sync::Arc<aorender::gpu::GpuDevice>, GeometryStorage)| {
+            let (gs, mut renderer) = gpu_image(dev, &scene, &bvh, Some(storage)).unwrap();
+            assert_eq!(gs.chunks.storage, storage);
+            let bindings = gs.geometry_bindings();
             renderer.render_pass(0, 16).unwrap();
             (renderer.read_film(16).unwrap(), bindings)
         };
@@ -195,10 +198,11 @@ fn geometry_in_buffers_or_textures_whole_or_split_renders_the_same_film() {
         }
     }
     let mut tiny = GpuContext::new(None).unwrap();
-    tiny.set_geometry_storage(GeometryStorage::Buffers);
     tiny.limit_chunk_bytes(64);
     let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
-    let e = GpuRenderer::new(&tiny, &scene, &bvh).err().expect("too many chunks for the adapter").to_string();
+    let e = GpuScene::upload(&tiny, &scene, &bvh, GeometryStorage::Buffers)
+        .expect_err("too many chunks for the adapter")
+        .to_string();
     assert!(e.contains("max_storage_buffers_per_shader_stage"), "{e}");
 }
 
@@ -215,9 +219,8 @@ fn cpu_lane_formulations_render_the_same_film() {
     for scene in [bunny, aobench()] {
         let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
         let films = [false, true].map(|cpu_lanes| {
-            let mut ctx = GpuContext::new(None).unwrap();
-            ctx.set_cpu_lanes(cpu_lanes);
-            let mut renderer = GpuRenderer::new(&ctx, &scene, &bvh).unwrap();
+            let dev = gpu_device_with(|ctx| ctx.set_cpu_lanes(cpu_lanes));
+            let (_, mut renderer) = gpu_image(&dev, &scene, &bvh, None).unwrap();
             renderer.render_pass(0, 16).unwrap();
             renderer.read_film(16).unwrap()
         });
@@ -240,14 +243,13 @@ fn a_mesh_uploaded_in_pieces_agrees_with_cpu() {
     scene.settings.width = 32;
     scene.settings.height = 32;
     scene.settings.spp = 16;
-    let cpu = render_on(&scene, Device::Cpu);
+    let cpu = render_on(&scene, DeviceKind::Cpu);
     let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
     let record_bytes = bvh.records.len() * std::mem::size_of::<aorender::bvh::GpuPrimitive>();
     assert!(record_bytes > 8 << 20, "{record_bytes} bytes of records: too few pieces to test");
+    let dev = gpu_adapter();
     for storage in [GeometryStorage::Buffers, GeometryStorage::Textures] {
-        let mut ctx = GpuContext::new(None).unwrap();
-        ctx.set_geometry_storage(storage);
-        let mut renderer = GpuRenderer::new(&ctx, &scene, &bvh).unwrap();
+        let (_, mut renderer) = gpu_image(&dev, &scene, &bvh, Some(storage)).unwrap();
         renderer.render_pass(0, 16).unwrap();
         let gpu = renderer.read_film(16).unwrap();
         let (a, b) = (gpu.mean(), cpu.mean());

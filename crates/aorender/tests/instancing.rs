@@ -13,7 +13,7 @@
 
 mod common;
 use aorender::bvh::BvhLayout;
-use aorender::{Device, Hemisphere, RenderOptions, Sampler};
+use aorender::{DeviceKind, Hemisphere, Sampler};
 use common::*;
 use std::path::Path;
 
@@ -93,12 +93,10 @@ fn instanced_and_flattened_scenes_agree() {
     scene.settings.seed = 1;
     let mut flat = scene.flattened();
     flat.settings.seed = 2;
-    let options = RenderOptions { device: Device::Cpu, ..Default::default() };
-    let (a, b) = (render_with(&scene, &options), render_with(&flat, &options));
+    let (a, b) = (render_on(&scene, DeviceKind::Cpu), render_on(&flat, DeviceKind::Cpu));
     assert_statistical_agreement(&a, &b, "instanced (cpu) vs flattened (cpu)");
     if gpu_available() {
-        let gpu = RenderOptions { device: Device::Gpu, ..Default::default() };
-        assert_statistical_agreement(&render_with(&scene, &gpu), &b, "instanced (gpu) vs flattened (cpu)");
+        assert_statistical_agreement(&render_on(&scene, DeviceKind::Gpu), &b, "instanced (gpu) vs flattened (cpu)");
     }
 }
 
@@ -110,14 +108,17 @@ fn gpu_and_cpu_trace_instances_alike() {
     let dir = temp_dir();
     write_mesh(dir.path());
     let mut scene = scene_from_toml(&scene_text(&PLACEMENTS), dir.path());
+    let cpu_session = session(&scene, &Config::cpu());
+    let gpu_sessions: Vec<(Config, aorender::Session)> =
+        gpu_configs().into_iter().map(|c| (c, session(&scene, &c))).collect();
     for hemisphere in Hemisphere::ALL {
         for sampler in [Sampler::Independent, Sampler::Sobol] {
             scene.settings.hemisphere = hemisphere;
             scene.settings.sampler = sampler;
-            let cpu = render_on(&scene, Device::Cpu).mean();
-            for options in gpu_options() {
-                let what = format!("{} {} {}", hemisphere.name(), sampler.name(), label(&options));
-                let gpu = render_with(&scene, &options).mean();
+            let cpu = render_settings(&cpu_session, &scene.settings).mean();
+            for (options, gpu_session) in &gpu_sessions {
+                let what = format!("{} {} {}", hemisphere.name(), sampler.name(), label(options));
+                let gpu = render_settings(gpu_session, &scene.settings).mean();
                 let equal = gpu.iter().zip(&cpu).filter(|(a, b)| a == b).count();
                 let close = gpu.iter().zip(&cpu).filter(|(a, b)| (*a - *b).abs() <= 1e-4).count();
                 eprintln!("{what}: {equal} of {} pixels equal, {close} within 1e-4", gpu.len());
@@ -168,9 +169,8 @@ fn gpu_and_cpu_trace_a_grid_of_instances_alike() {
     }
     let scene = scene_from_toml(&text, dir.path());
     assert_eq!(scene.instances.len(), 4096);
-    let cpu = render_on(&scene, Device::Cpu).mean();
-    let options = RenderOptions { device: Device::Gpu, bvh_layout: BvhLayout::Cwbvh, ..Default::default() };
-    let gpu = render_with(&scene, &options).mean();
+    let cpu = render_on(&scene, DeviceKind::Cpu).mean();
+    let gpu = render_with(&scene, &Config::gpu(BvhLayout::Cwbvh)).mean();
     let lit = cpu.iter().filter(|v| **v > 0.0).count();
     assert!(lit > cpu.len() / 3, "only {lit} of {} pixels see a sphere", cpu.len());
     let close = gpu.iter().zip(&cpu).filter(|(a, b)| (*a - *b).abs() <= 1e-4).count();
@@ -179,7 +179,7 @@ fn gpu_and_cpu_trace_a_grid_of_instances_alike() {
 
 /// The icosphere of subdivision level 2 (radius 1, 320 triangles) of the accuracy suite.
 fn icosphere() -> Vec<[[f32; 3]; 3]> {
-    let m = aorender::accuracy::unit_icosphere(2);
+    let m = aorender::closed_form::unit_icosphere(2);
     m.triangles.iter().map(|t| t.map(|i| m.vertices[i].as_vec3().to_array())).collect()
 }
 
@@ -229,10 +229,11 @@ fn inside_an_instanced_closed_mesh_is_black() {
         let text = two_instances(&camera, scale, offset, 1.0, rotate, [5.0, 0.0, 0.0]);
         let mut scene = scene_from_toml(&text, dir.path());
         assert_eq!(scene.instances.len(), 2);
-        for options in all_options() {
+        for options in all_configs() {
+            let session = session(&scene, &options);
             for hemisphere in Hemisphere::ALL {
                 scene.settings.hemisphere = hemisphere;
-                let film = render_with(&scene, &options);
+                let film = render_settings(&session, &scene.settings);
                 let lit = film.mean().iter().filter(|v| **v != 0.0).count();
                 eprintln!("scale {scale} offset {offset} {} {}: {lit} lit pixels", label(&options), hemisphere.name());
                 assert_eq!(
@@ -265,10 +266,11 @@ fn an_open_instanced_floor_returns_its_albedo() {
         let text = two_instances(&camera, scale, offset, 0.0, rotate, [5.0, -3.0, 0.0]);
         let mut scene = scene_from_toml(&text, dir.path());
         assert_eq!(scene.instances.len(), 2);
-        for options in all_options() {
+        for options in all_configs() {
+            let session = session(&scene, &options);
             for hemisphere in [Hemisphere::Cosine, Hemisphere::CosinePolar] {
                 scene.settings.hemisphere = hemisphere;
-                let film = render_with(&scene, &options);
+                let film = render_settings(&session, &scene.settings);
                 let off: Vec<f64> = film.mean().iter().copied().filter(|v| *v != 0.5).collect();
                 let what = format!("scale {scale} offset {offset} {} {}", label(&options), hemisphere.name());
                 eprintln!("{what}: {} of {} pixels not 0.5", off.len(), film.mean().len());

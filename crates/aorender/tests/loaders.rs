@@ -9,7 +9,7 @@
 
 mod common;
 use aorender::scene::load_mesh;
-use aorender::{Device, Hemisphere, RenderOptions, Sampler, Scene};
+use aorender::{DeviceKind, Hemisphere, Sampler, Scene};
 use base64::Engine;
 use common::*;
 use glam::{Mat4, Vec3};
@@ -660,36 +660,13 @@ fn gltf_primitive_modes_and_index_types() {
     ];
     let path = write_gltf(dir.path(), "modes", "data", doc, &buffer);
     assert_eq!(triangles(&path), want);
-
-    // The skipped POINTS and LINES primitives are one warning line; the render succeeds.
-    let output = aorender(
-        &[
-            "render",
-            path.to_str().unwrap(),
-            "--device",
-            "cpu",
-            "--width",
-            "8",
-            "--height",
-            "8",
-            "--spp",
-            "1",
-            "-o",
-            "m.png",
-        ],
-        dir.path(),
-    );
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(output.status.success(), "{stderr}");
-    let lines: Vec<&str> = stderr.lines().filter(|l| l.starts_with("aorender:")).collect();
-    assert_eq!(lines.len(), 1, "{stderr}");
-    assert!(
-        lines[0].starts_with("aorender: warning: ")
-            && lines[0].contains("modes_data.gltf")
-            && lines[0].ends_with("skipped 2 primitives that are not triangles: 1 LINES, 1 POINTS"),
-        "{}",
-        lines[0]
-    );
+    // The skipped points and lines reach the caller as a warning naming the file, not as
+    // output of the library.
+    let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(scene.warnings.len(), 1, "{:?}", scene.warnings);
+    let warning = scene.warnings[0].to_string();
+    assert!(warning.contains("modes_data.gltf"), "{warning}");
+    assert!(warning.ends_with("skipped 2 primitives that are not triangles: 1 LINES, 1 POINTS"), "{warning}");
 }
 
 #[test]
@@ -877,40 +854,6 @@ fn loading_holds_at_most_two_copies_of_the_geometry() {
     }
 }
 
-/// From loading to the last pass, `aorender render` holds at most two copies of the
-/// geometry on its own heap: the loaded scene, its BVH, the build's workspace (octree
-/// cells built a few at a time) and the primitive records, made piece by piece as they
-/// are uploaded, together stay under twice the scene's bytes. The binary counts its heap
-/// (`heap_peak_bytes`); the driver's memory (on lavapipe, the device buffers) is not in
-/// it. The full dragon (871k triangles), and nine of it flattened into one BVH (7.8M).
-#[test]
-fn rendering_holds_at_most_two_copies_of_the_geometry() {
-    if !gpu_available() {
-        return;
-    }
-    let dir = temp_dir();
-    let d = dir.path();
-    for scene in [repo().join("scenes/dragon_vrip.ply.gz"), flattened_dragons(d)] {
-        let name = scene.file_name().unwrap().to_string_lossy().to_string();
-        let args = ["--width", "16", "--height", "16", "--spp", "1", "-o", "out.png", "--stats", "stats.json"];
-        let out = aorender(&[&["render", scene.to_str().unwrap()][..], &args].concat(), d);
-        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
-        let json: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("stats.json")).unwrap()).unwrap();
-        let scene_bytes = json["scene_bytes"].as_u64().unwrap();
-        let peak = json["heap_peak_bytes"].as_u64().expect("the binary counts its heap");
-        let triangles = json["triangles"].as_u64().unwrap();
-        eprintln!(
-            "{name}: {triangles} triangles, scene {scene_bytes} bytes, heap peak {peak} bytes ({:.2} copies), \
-             resident peak {}",
-            peak as f64 / scene_bytes as f64,
-            json["host_peak_bytes"]
-        );
-        assert!(triangles > 800_000, "{name}: {triangles} triangles");
-        assert!(peak >= scene_bytes, "{name}: a heap peak of {peak} bytes cannot hold the {scene_bytes}-byte scene");
-        assert!(peak <= 2 * scene_bytes, "{name}: heap peak {peak} bytes > two copies of {scene_bytes}");
-    }
-}
-
 #[test]
 fn gpu_and_cpu_agree_on_loaded_meshes() {
     if !gpu_available() {
@@ -924,9 +867,9 @@ fn gpu_and_cpu_agree_on_loaded_meshes() {
         scene.settings.hemisphere = Hemisphere::Cosine;
         scene.settings.sampler = Sampler::Independent;
         scene.settings.seed = 1;
-        let gpu = render_with(&scene, &RenderOptions { device: Device::Gpu, ..Default::default() });
+        let gpu = render_on(&scene, DeviceKind::Gpu);
         scene.settings.seed = 2;
-        let cpu = render_on(&scene, Device::Cpu);
+        let cpu = render_on(&scene, DeviceKind::Cpu);
         // Independent renders: the image means within 4 combined standard errors.
         let (mg, mc) = (gpu.image_mean(), cpu.image_mean());
         let (sg, sc) = (image_mean_std_error(&gpu), image_mean_std_error(&cpu));
@@ -982,7 +925,7 @@ const MALFORMED: &[(&str, &str)] = &[
 
 #[test]
 fn malformed_files_are_errors_without_panics_or_large_allocations() {
-    let dir = repo().join("tests/malformed");
+    let dir = crate_dir().join("tests/malformed");
     let mut files: Vec<String> =
         std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     files.sort();

@@ -1,21 +1,21 @@
-//! `aorender probe`: AO at exact points against closed forms (albedo 1, cosine-weighted
-//! visibility), on the CPU reference and the adapter, for every hemisphere and unbiased
-//! sampler; the same numbers on both; and the command's input checks.
+//! Probes (`Session::probe`): AO at exact points against closed forms (albedo 1,
+//! cosine-weighted visibility), on the CPU reference and the adapter, for every hemisphere
+//! and unbiased sampler; and the same numbers on both.
 
 mod common;
 use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
-use aorender::gpu::{GpuContext, GpuProbePoint, GpuRenderer};
-use aorender::probe::{Probe, probe};
-use aorender::{Device, Hemisphere, RenderOptions, Sampler, Scene};
+use aorender::gpu::layout::{FrameUniforms, GpuProbePoint};
+use aorender::gpu::{GpuScene, GpuTarget};
+use aorender::{Hemisphere, Probe, Sampler, Scene};
 use common::*;
 use glam::Vec3;
 
 const SAMPLES: u32 = 1 << 14;
 
-fn devices() -> Vec<RenderOptions> {
-    let mut all = vec![RenderOptions { device: Device::Cpu, ..Default::default() }];
+fn devices() -> Vec<Config> {
+    let mut all = vec![Config::cpu()];
     if gpu_available() {
-        all.push(RenderOptions { device: Device::Gpu, ..Default::default() });
+        all.push(Config::default());
     }
     all
 }
@@ -46,11 +46,12 @@ fn sphere(center: [f64; 3], radius: f64) -> String {
 /// demands the exact value.
 fn check(what: &str, scene: &mut Scene, probes: &[Probe], expected: &[f64]) {
     for options in devices() {
+        let session = session(scene, &options);
         for hemisphere in Hemisphere::ALL {
             for sampler in Sampler::ALL.into_iter().filter(|s| s.is_unbiased()) {
                 scene.settings.hemisphere = hemisphere;
                 scene.settings.sampler = sampler;
-                let out = probe(scene, &options, probes, SAMPLES).expect("probe runs");
+                let out = session.probe(probes, SAMPLES, &scene.settings).expect("probe runs");
                 for (k, (v, &e)) in out.values.iter().zip(expected).enumerate() {
                     let tag = format!("{what} probe {k}, {} {} {}", label(&options), hemisphere.name(), sampler.name());
                     assert_eq!(v.samples, SAMPLES as u64, "{tag}");
@@ -114,47 +115,15 @@ fn gpu_and_cpu_take_the_same_samples() {
     let mut s = scene(&(plane([0.0; 3], [0.0, 1.0, 0.0]) + &sphere([0.3, 0.8, 0.1], 0.4)), None);
     let probes: Vec<Probe> =
         (0..50).map(|i| Probe::new(Vec3::new(i as f32 * 0.05 - 1.0, 0.0, 0.2), Vec3::Y).unwrap()).collect();
+    let (cpu_session, gpu_session) = (session(&s, &Config::cpu()), session(&s, &Config::default()));
     for sampler in Sampler::ALL {
         s.settings.sampler = sampler;
-        let cpu = probe(&s, &RenderOptions { device: Device::Cpu, ..Default::default() }, &probes, 1000).unwrap();
-        let gpu = probe(&s, &RenderOptions { device: Device::Gpu, ..Default::default() }, &probes, 1000).unwrap();
+        let cpu = cpu_session.probe(&probes, 1000, &s.settings).unwrap();
+        let gpu = gpu_session.probe(&probes, 1000, &s.settings).unwrap();
         for (k, (c, g)) in cpu.values.iter().zip(&gpu.values).enumerate() {
             assert!((c.mean - g.mean).abs() < 1e-6, "{} probe {k}: cpu {} gpu {}", sampler.name(), c.mean, g.mean);
         }
     }
-}
-
-#[test]
-fn command_writes_csv_and_rejects_bad_points() {
-    let dir = temp_dir();
-    let d = dir.path();
-    std::fs::write(d.join("points.txt"), "# x y z nx ny nz\n0 0 0 0 1 0\n5 0 0 0 2 0\n").unwrap();
-    let out = aorender(&["probe", "--points", "points.txt", "-o", "ao.csv", "--samples", "64", "--device", "cpu"], d);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let csv = std::fs::read_to_string(d.join("ao.csv")).unwrap();
-    let lines: Vec<&str> = csv.lines().collect();
-    assert_eq!(lines[0], "x,y,z,nx,ny,nz,ao,std_error,samples");
-    assert_eq!(lines.len(), 3);
-    assert!(lines[2].starts_with("5,0,0,0,1,0,"), "normal normalised: {}", lines[2]);
-    assert!(lines[2].ends_with(",64"));
-
-    for (points, message) in [
-        ("0 0 0 0 1\n", "points.txt: line 1: expected 6 numbers"),
-        ("0 0 0 0 0 0\n", "points.txt: line 1: zero normal"),
-        ("0 0 nan 0 1 0\n", "points.txt: line 1: non-finite"),
-        ("", "points.txt: no probes"),
-    ] {
-        std::fs::write(d.join("points.txt"), points).unwrap();
-        let out = aorender(&["probe", "--points", "points.txt", "-o", "bad.csv", "--device", "cpu"], d);
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{points:?}: {err}");
-        assert!(err.contains(message) && err.lines().count() == 1, "{points:?}: {err}");
-        assert!(!d.join("bad.csv").exists(), "{points:?}: output written");
-    }
-    let out = aorender(&["probe", "--points", "missing.txt", "--device", "cpu"], d);
-    assert!(String::from_utf8_lossy(&out.stderr).contains("missing.txt: cannot read"));
-    let out = aorender(&["probe", "--points", "points.txt", "--samples", "0", "--device", "cpu"], d);
-    assert!(!out.status.success());
 }
 
 /// Probe invocations that render several rounds add them in the same order as one
@@ -174,12 +143,16 @@ fn rounds_per_invocation_leave_the_sums_unchanged() {
         .collect();
     let (lanes, samples) = (4u32, 1001u32);
     let rounds = samples.div_ceil(lanes);
-    let ctx = GpuContext::new(None).unwrap();
+    let dev = gpu_adapter();
+    let settings = &s.settings;
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
         let bvh = GpuBvh::build(&s, layout, BuildQuality::default());
+        let gs = GpuScene::upload(&dev.ctx, &s, &bvh, dev.ctx.preferred_storage()).unwrap();
+        let frame = FrameUniforms::probes(settings, lanes, points.len() as u32, samples, gs.node_count, gs.plane_count);
         let mut sums = Vec::new();
         for per in [1, 5, u32::MAX] {
-            let mut renderer = GpuRenderer::for_probes(&ctx, &s, &bvh, &points, lanes, samples).unwrap();
+            let mut renderer =
+                GpuTarget::probes(&dev, &gs, frame, settings.sampler, settings.hemisphere, &points).unwrap();
             let per = renderer.set_samples_per_invocation(per);
             let mut done = 0;
             while done < rounds {

@@ -8,7 +8,7 @@
 //! chi-square tests, each at α = 0.001 with a Šidák correction over all the file's tests.
 
 mod common;
-use aorender::{Film, Hemisphere, RenderOptions, Sampler, Scene};
+use aorender::{Film, Hemisphere, Sampler, Scene};
 use common::*;
 use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor};
 use std::f64::consts::PI;
@@ -92,9 +92,10 @@ struct Measured {
 
 /// Renders every hemisphere × sampler at each count, each with its own seed so the
 /// estimates compared by the F-tests are independent.
-fn measure(options: &RenderOptions) -> Vec<Measured> {
+fn measure(options: &Config) -> Vec<Measured> {
     let dir = temp_dir();
     let mut scene = scene(dir.path());
+    let session = session(&scene, options);
     let mut out = Vec::new();
     let mut seed = 100;
     for spp in COUNTS {
@@ -105,7 +106,7 @@ fn measure(options: &RenderOptions) -> Vec<Measured> {
                 scene.settings.hemisphere = hemisphere;
                 scene.settings.sampler = sampler;
                 scene.settings.seed = seed;
-                let (mean, var) = pixel_statistics(&render_with(&scene, options));
+                let (mean, var) = pixel_statistics(&render_settings(&session, &scene.settings));
                 out.push(Measured { hemisphere, sampler, spp, mean, var });
             }
         }
@@ -121,7 +122,7 @@ fn sidak_alpha(devices: usize) -> f64 {
     1.0 - (1.0 - ALPHA).powf(1.0 / (devices * TESTS_PER_DEVICE) as f64)
 }
 
-fn check_device(options: &RenderOptions, devices: usize) {
+fn check_device(options: &Config, devices: usize) {
     let what = label(options);
     let all = measure(options);
     let n = (SIDE * SIDE) as f64;
@@ -202,9 +203,9 @@ fn check_device(options: &RenderOptions, devices: usize) {
 
 #[test]
 fn variance_and_bias_of_every_sampler() {
-    let mut devices = vec![RenderOptions { device: aorender::Device::Cpu, ..Default::default() }];
+    let mut devices = vec![Config::cpu()];
     if gpu_available() {
-        devices.push(RenderOptions { device: aorender::Device::Gpu, ..Default::default() });
+        devices.push(Config::default());
     }
     for options in &devices {
         check_device(options, devices.len());

@@ -2,8 +2,8 @@
 //! host structs match the WGSL structs' sizes.
 
 use aorender::bvh::{BvhLayout, GpuNode, GpuPrimitive};
-use aorender::gpu::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint};
-use aorender::shaders::{GeometryChunks, GeometryStorage, batch_file, compose_with, geometry_files};
+use aorender::gpu::layout::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint, wgsl_bindings};
+use aorender::gpu::shaders::{GeometryChunks, GeometryStorage, batch_file, compose_with, geometry_files};
 use obvhs::cwbvh::node::CwBvhNode;
 use std::collections::BTreeMap;
 
@@ -32,7 +32,7 @@ fn validate_chunked(
     // With batch_max from subgroup operations and without.
     let [module, _] = [true, false].map(|subgroups| {
         let [nodes, primitives] = geometry_files(layout, chunks, layout.stack_size());
-        let generated = [nodes, primitives, batch_file(subgroups)];
+        let generated = [nodes, primitives, batch_file(subgroups), ("resources.wgsl", wgsl_bindings())];
         let lookup = |n: &str| {
             if let Some((_, text)) = generated.iter().find(|(f, _)| *f == n) {
                 return Some(text.as_str());
@@ -84,11 +84,11 @@ fn every_shader_file_validates() {
         |chunks: GeometryChunks| GeometryChunks { storage: GeometryStorage::Textures, row_texels: 600, ..chunks };
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
         for chunks in [GeometryChunks::SINGLE, split, textures(GeometryChunks::SINGLE), textures(split)] {
-            let module = validate_chunked("ao.wgsl", aorender::shaders::traversal_file(layout), chunks, &files);
+            let module = validate_chunked("ao.wgsl", aorender::gpu::shaders::traversal_file(layout), chunks, &files);
             let bound = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).count() as u32;
             assert_eq!(
                 bound,
-                aorender::gpu::OTHER_STORAGE_BINDINGS + chunks.node_chunks + chunks.primitive_chunks,
+                aorender::gpu::layout::OTHER_STORAGE_BINDINGS + chunks.node_chunks + chunks.primitive_chunks,
                 "{layout:?} {chunks:?}"
             );
         }
@@ -99,8 +99,8 @@ fn every_shader_file_validates() {
 fn compiled_in_shaders_are_the_files_on_disk() {
     let files = shader_files();
     let compiled: BTreeMap<String, String> =
-        aorender::shaders::FILES.iter().map(|(n, t)| (n.to_string(), t.to_string())).collect();
-    assert_eq!(files, compiled, "src/shaders.rs FILES must list every file in shaders/");
+        aorender::gpu::shaders::FILES.iter().map(|(n, t)| (n.to_string(), t.to_string())).collect();
+    assert_eq!(files, compiled, "src/gpu/shaders.rs FILES must list every file in shaders/");
 }
 
 #[test]
@@ -110,7 +110,8 @@ fn host_structs_match_wgsl_layout() {
     let cw_module = validate_with("ao.wgsl", "trace_cwbvh.wgsl", &files);
     assert_eq!(wgsl_size(&cw_module, "CwNode") as usize, std::mem::size_of::<CwBvhNode>());
     let size_of = |name: &str| wgsl_size(&module, name);
-    assert_eq!(size_of("Frame") as usize, size_of_val(&FrameUniforms::new(&aorender::Scene::default_scene(), 0)));
+    let scene = aorender::Scene::default_scene();
+    assert_eq!(size_of("Frame") as usize, size_of_val(&FrameUniforms::image(&scene.camera, &scene.settings, 0, 0)));
     assert_eq!(size_of("Dispatch") as usize, std::mem::size_of::<DispatchUniforms>());
     assert_eq!(size_of("Node") as usize, std::mem::size_of::<GpuNode>());
     assert_eq!(size_of("Primitive") as usize, std::mem::size_of::<GpuPrimitive>());
@@ -119,11 +120,11 @@ fn host_structs_match_wgsl_layout() {
     // Geometry textures hold each element in whole texels, and a row in whole elements.
     for (layout, node_size) in [(BvhLayout::Bvh2, size_of("Node")), (BvhLayout::Cwbvh, wgsl_size(&cw_module, "CwNode"))]
     {
-        let (node_texels, prim_texels) = aorender::shaders::element_texels(layout);
+        let (node_texels, prim_texels) = aorender::gpu::shaders::element_texels(layout);
         assert_eq!(16 * node_texels, node_size, "{layout:?}");
         assert_eq!(16 * prim_texels, size_of("Primitive"));
         for texels in [node_texels, prim_texels] {
-            assert_eq!(aorender::shaders::ROW_TEXEL_MULTIPLE % texels, 0);
+            assert_eq!(aorender::gpu::shaders::ROW_TEXEL_MULTIPLE % texels, 0);
         }
     }
 }
@@ -134,7 +135,7 @@ fn host_structs_match_wgsl_layout() {
 fn kernel_binds_no_uniform_buffer() {
     let files = shader_files();
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
-        let module = validate_with("ao.wgsl", aorender::shaders::traversal_file(layout), &files);
+        let module = validate_with("ao.wgsl", aorender::gpu::shaders::traversal_file(layout), &files);
         let bound: Vec<_> = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).collect();
         assert!(bound.len() >= 8, "{} bindings found", bound.len());
         for (_, g) in bound {

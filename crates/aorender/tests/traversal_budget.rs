@@ -9,7 +9,7 @@
 //! are many, which the renderer refuses before it traces.)
 
 mod common;
-use aorender::{Device, Error, Scene, render};
+use aorender::{Control, DeviceKind, Error, Scene, Session};
 use common::*;
 
 /// `count` thin slivers along the diagonal of the square [-1, 1]², one above the other
@@ -26,8 +26,8 @@ fn slivers(count: usize, height: f32) -> Vec<[[f32; 3]; 3]> {
 /// Renders `scene` on every GPU option and on the CPU, and checks that every pixel is
 /// 0.5 (the albedo, no AO ray reaching anything) and that the two agree.
 fn assert_every_pixel_is_one_half(scene: &Scene) {
-    let cpu = render_on(scene, Device::Cpu);
-    for options in gpu_options() {
+    let cpu = render_on(scene, DeviceKind::Cpu);
+    for options in gpu_configs() {
         let film = render_with(scene, &options);
         for v in film.mean() {
             assert_eq!(v as f32, 0.5, "{}: pixel value {v}: a traversal was cut short", label(&options));
@@ -72,8 +72,10 @@ fn a_traversal_over_budget_is_reported_not_truncated() {
     }
     let dir = temp_dir();
     let scene = sliver_stack(80_000, dir.path());
-    for options in gpu_options() {
-        match render(&scene, &options, &mut |_| {}) {
+    for options in gpu_configs() {
+        let rendered = Session::new(&device(options.device), scene.clone(), &options.bvh)
+            .and_then(|session| session.render(&session.default_request())?.complete(&mut Control::default()));
+        match rendered {
             Err(Error::TraversalBudget { count, .. }) => assert!(count > 0),
             Err(e) => panic!("{}: expected a traversal-budget error, got: {e}", label(&options)),
             Ok(out) => {

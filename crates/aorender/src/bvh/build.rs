@@ -119,4 +119,3 @@ pub fn build_cwbvh_in_cells(scene: &Scene, quality: BuildQuality, cell: usize) -
     let top = chunked::build_cwbvh_in_cells(boxes.len(), &|id| boxes.get(id), quality, cell);
     SceneCwbvh { top, meshes }
 }
-

@@ -242,6 +242,12 @@ impl GpuRecords {
         }
     }
 
+    /// Whether there are none.
+    #[cfg(feature = "testing")]
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
     /// Writes records `first..first + out.len()` into `out`. `scene` must be the scene the
     /// BVH was built from.
     pub fn write(&self, scene: &Scene, first: usize, out: &mut [GpuPrimitive]) {

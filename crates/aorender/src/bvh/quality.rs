@@ -18,7 +18,8 @@ pub enum BuildQuality {
 
 impl BuildQuality {
     /// Every preset, fastest build first.
-    pub const ALL: [BuildQuality; 4] = [BuildQuality::Fastest, BuildQuality::Fast, BuildQuality::Medium, BuildQuality::Slow];
+    pub const ALL: [BuildQuality; 4] =
+        [BuildQuality::Fastest, BuildQuality::Fast, BuildQuality::Medium, BuildQuality::Slow];
 
     /// The name used on the command line and in stats.
     pub fn name(self) -> &'static str {

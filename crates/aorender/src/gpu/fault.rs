@@ -12,8 +12,8 @@ thread_local! {
     static CATCHING: Cell<u32> = const { Cell::new(0) };
 }
 
-/// True while [`catch_panic`] runs on this thread: a panic hook can stay quiet about a
-/// panic that becomes an error.
+/// True while the library runs wgpu code on this thread whose panics it turns into
+/// errors: a program's panic hook can stay quiet about a panic that becomes an error.
 pub fn catching_panics() -> bool {
     CATCHING.with(Cell::get) > 0
 }

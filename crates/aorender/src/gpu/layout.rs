@@ -4,12 +4,12 @@
 //! generated from these tables ([`wgsl_header`], [`wgsl_bindings`]); the layout test
 //! compares each struct's size and field offsets with naga's.
 
-use crate::bvh::{CWBVH_STACK_SIZE, CwNodeWords, GpuNode, GpuPrimitive, INVALID_INDEX, PRIM_INSTANCE, PRIM_SPHERE};
 use crate::bvh::PRIM_TRIANGLE;
+use crate::bvh::{CWBVH_STACK_SIZE, CwNodeWords, GpuNode, GpuPrimitive, INVALID_INDEX, PRIM_INSTANCE, PRIM_SPHERE};
 use crate::geometry::{BOX_EXIT_WIDENING, Plane, gamma};
 use crate::mirror::{GpuStruct, StructLayout, gpu_struct};
-use crate::sampler::{ONE_MINUS_EPSILON, PERMUTE_WALK_LIMIT, SOBOL_SCRAMBLE_SALT, SOBOL_SHUFFLE_SALT, STRATA_SALT};
 use crate::sampler::Sampler;
+use crate::sampler::{ONE_MINUS_EPSILON, PERMUTE_WALK_LIMIT, SOBOL_SCRAMBLE_SALT, SOBOL_SHUFFLE_SALT, STRATA_SALT};
 use crate::sampling::Hemisphere;
 use crate::scene::{Camera, Settings};
 
@@ -152,7 +152,14 @@ impl FrameUniforms {
 
     /// The constants of `points` probe points of `samples` samples each, spread over
     /// `lanes` slots a point, with the sampling of `settings`.
-    pub fn probes(settings: &Settings, lanes: u32, points: u32, samples: u32, node_count: u32, plane_count: u32) -> Self {
+    pub fn probes(
+        settings: &Settings,
+        lanes: u32,
+        points: u32,
+        samples: u32,
+        node_count: u32,
+        plane_count: u32,
+    ) -> Self {
         FrameUniforms {
             eye: [0.0; 3],
             orthographic: 0,

@@ -116,6 +116,7 @@ pub struct GeometryChunks {
 
 impl GeometryChunks {
     /// Everything in one storage buffer each.
+    #[cfg(feature = "testing")]
     pub const SINGLE: GeometryChunks = GeometryChunks {
         storage: GeometryStorage::Buffers,
         node_chunks: 1,

@@ -6,8 +6,7 @@ use super::budget::{PREFERRED_SAMPLES_PER_INVOCATION, dispatch_budget, safe_samp
 use super::device::GpuDevice;
 use super::layout::{
     COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, COUNTERS, DISPATCH, DISPATCH_STRIDE, DispatchUniforms, FILM,
-    FRAME, FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE,
-    WORKGROUP_SIZE,
+    FRAME, FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE, WORKGROUP_SIZE,
 };
 use super::pipeline::{Kernel, PipelineKey};
 use super::upload::{GpuScene, storage_buffer};
@@ -369,6 +368,19 @@ impl GpuTarget {
         });
         let truncated = words[COUNTER_TRUNCATED as usize] as u64;
         Ok((PassCounters { ao_rays: words[COUNTER_AO_RAYS as usize] as u64, gpu_seconds }, truncated))
+    }
+
+    /// The film as per-slot f64 sums (each compensated pair added in f64), labelled as
+    /// holding `samples` samples.
+    #[cfg(feature = "testing")]
+    pub fn read_film(&self, samples: u64) -> Result<crate::film::Film> {
+        let mut film = crate::film::Film::new(self.width, self.height);
+        film.samples = samples;
+        for (i, t) in self.film_words()?.iter().enumerate() {
+            film.sum[i] = t[0] as f64 + t[1] as f64;
+            film.sum_sq[i] = t[2] as f64 + t[3] as f64;
+        }
+        Ok(film)
     }
 
     /// The film's raw words, one `[Σv, compensation, Σv², compensation]` per slot, as

@@ -127,7 +127,7 @@ fn geometry_chunks(
     nodes: usize,
     primitives: usize,
 ) -> Result<GeometryChunks> {
-        let node_size = layout.node_size();
+    let node_size = layout.node_size();
     let prim_size = std::mem::size_of::<GpuPrimitive>();
     let limits = ctx.device.limits();
     // Texels in a texture row (0 for buffers), and the bytes one binding holds at most.
@@ -178,7 +178,6 @@ fn geometry_chunks(
     Ok(chunks)
 }
 
-
 /// `bytes` in chunks of `per_chunk` elements of `element` bytes; one empty chunk when
 /// `bytes` is empty.
 fn chunk_ranges(count: usize, per_chunk: u32) -> impl Iterator<Item = std::ops::Range<usize>> {
@@ -204,7 +203,12 @@ fn fill_pieces(len: usize, element: usize, fill: &mut dyn FnMut(usize, &mut [u8]
 }
 
 /// A read-only storage buffer; `element` is the size of one array element in the shader.
-pub(crate) fn storage_buffer(ctx: &GpuContext, label: &'static str, bytes: &[u8], element: usize) -> Result<wgpu::Buffer> {
+pub(crate) fn storage_buffer(
+    ctx: &GpuContext,
+    label: &'static str,
+    bytes: &[u8],
+    element: usize,
+) -> Result<wgpu::Buffer> {
     storage_filled(ctx, label, bytes.len(), element, &mut |at, out| out.copy_from_slice(&bytes[at..at + out.len()]))
 }
 
@@ -347,4 +351,3 @@ fn texels(
     let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
     Ok(Geometry::Texture(view, rows as u64 * row_bytes as u64))
 }
-

@@ -455,4 +455,3 @@ impl<'a> Reader<'a> {
         Ok(f64::from_bits(self.u64()?))
     }
 }
-

@@ -25,7 +25,8 @@ pub fn write_image(film: &Film, path: &Path) -> Result<()> {
         "exr" => {
             let rgb: Vec<f32> = mean.iter().flat_map(|&v| [v, v, v]).collect();
             let img = image::Rgb32FImage::from_raw(w, h, rgb).expect("buffer matches size");
-            encode(image::DynamicImage::ImageRgb32F(img), image::ImageFormat::OpenExr).map_err(|e| out_err(e.to_string()))?
+            encode(image::DynamicImage::ImageRgb32F(img), image::ImageFormat::OpenExr)
+                .map_err(|e| out_err(e.to_string()))?
         }
         "pfm" => pfm_bytes(w, h, &mean),
         "" => return Err(out_err("no file extension: expected .png, .exr or .pfm".into())),
@@ -62,4 +63,3 @@ fn pfm_bytes(w: u32, h: u32, v: &[f32]) -> Vec<u8> {
     }
     out
 }
-

@@ -657,7 +657,7 @@ mod tests {
 
     #[test]
     fn the_engine_has_121496_triangles_through_its_node_hierarchy() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/2CylinderEngine.glb");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/2CylinderEngine.glb");
         let mesh = load_gltf(&path).unwrap_or_else(|e| panic!("{e}"));
         // 75,730 triangles in its 29 meshes, placed by 67 nodes.
         assert_eq!(mesh.triangles.len(), 121_496);

@@ -115,7 +115,6 @@ pub(crate) fn stem(path: &Path) -> String {
     inner.and_then(Path::file_stem).and_then(|s| s.to_str()).unwrap_or("scene").to_string()
 }
 
-
 /// The name of vertex `k` of a mesh, whose position in the file is `position`, as its
 /// file would number it.
 pub(crate) fn vertex_name(names: &VertexNames, k: usize, position: Vec3) -> String {

@@ -336,7 +336,7 @@ mod tests {
 
     #[test]
     fn the_full_dragon_has_871414_faces_108_of_them_with_coincident_corners() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/dragon_vrip.ply.gz");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/dragon_vrip.ply.gz");
         let mesh = load_ply(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!((mesh.positions.len(), mesh.triangles.len()), (437_645, 871_414));
         let p = |i: u32| mesh.positions[i as usize];

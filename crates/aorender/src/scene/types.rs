@@ -134,13 +134,20 @@ impl Settings {
         if self.spp == 0 {
             return Err(Error::settings("samples per pixel must be at least 1"));
         }
+        self.validate_sampling()?;
+        if !self.background.is_finite() {
+            return Err(Error::settings("background must be finite"));
+        }
+        Ok(())
+    }
+
+    /// Checks what AO at a point depends on besides the hemisphere, sampler and seed (the
+    /// maximum distance), leaving the image's settings aside.
+    pub fn validate_sampling(&self) -> Result<()> {
         if let Some(d) = self.max_distance
             && (d.is_nan() || d < 0.0)
         {
             return Err(Error::settings(format!("max distance must be zero or positive, got {d}")));
-        }
-        if !self.background.is_finite() {
-            return Err(Error::settings("background must be finite"));
         }
         Ok(())
     }
@@ -277,7 +284,6 @@ pub(crate) fn non_finite_coordinate(p: Vec3) -> Option<String> {
     let axes = ["x", "y", "z"];
     p.to_array().iter().zip(axes).find(|(c, _)| !c.is_finite()).map(|(c, axis)| format!("{axis} = {c}"))
 }
-
 
 #[cfg(test)]
 mod tests {

@@ -6,7 +6,7 @@
 //! takes its linear index as `gid.x + gid.y * num_workgroups.x * 64` (the host spreads
 //! large dispatches over a 2-D grid of workgroups).
 
-use aorender::gpu::GpuContext;
+use aorender::gpu::context::GpuContext;
 use wgpu::util::DeviceExt;
 
 /// Invocations per workgroup of every test kernel.
@@ -15,9 +15,13 @@ const WORKGROUP: u32 = 64;
 /// `source` (the text of `tests/kernels/{name}`) behind its `//#import`ed library shaders.
 pub fn compose(name: &str, source: &str) -> String {
     let lookup = |n: &str| {
-        if n == name { Some(source) } else { aorender::shaders::FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t) }
+        if n == name {
+            Some(source)
+        } else {
+            aorender::gpu::shaders::FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t)
+        }
     };
-    aorender::shaders::compose_with(name, &lookup).expect("the kernel's imports resolve")
+    aorender::gpu::shaders::compose_with(name, &lookup).expect("the kernel's imports resolve")
 }
 
 /// Parses and validates a composed kernel with naga, panicking with the diagnostic.

@@ -3,15 +3,27 @@
 
 pub mod kernel;
 
-use aorender::bvh::BvhLayout;
-use aorender::gpu::GpuContext;
-use aorender::{Device, Film, RenderOptions, Scene, render};
+use aorender::bvh::GpuBvh;
+use aorender::gpu::context::GpuContext;
+use aorender::gpu::device::GpuDevice;
+use aorender::gpu::layout::FrameUniforms;
+use aorender::gpu::{GpuScene, GpuTarget};
+use aorender::{
+    BvhLayout, BvhOptions, Control, Device, DeviceKind, Film, GeometryStorage, ImageRequest, Scene, Session, Settings,
+};
 use std::path::PathBuf;
+use std::sync::{Arc, OnceLock};
+
+/// The GPU device the tests of one binary share, opened on first use, or why none opens.
+fn shared_gpu() -> &'static Result<Device, String> {
+    static GPU: OnceLock<Result<Device, String>> = OnceLock::new();
+    GPU.get_or_init(|| Device::gpu(None).map_err(|e| e.to_string()))
+}
 
 /// True when a GPU adapter can be opened. In CI (`CI` set) a missing adapter fails the
 /// test; elsewhere the test is skipped, loudly, with the reason.
 pub fn gpu_available() -> bool {
-    match GpuContext::new(None) {
+    match shared_gpu() {
         Ok(_) => true,
         Err(e) if std::env::var_os("CI").is_some() => panic!("CI requires a GPU adapter: {e}"),
         Err(e) => {
@@ -21,42 +33,129 @@ pub fn gpu_available() -> bool {
     }
 }
 
-/// Renders on `device`, panicking with the error's text on failure.
-pub fn render_on(scene: &Scene, device: Device) -> Film {
-    render_with(scene, &RenderOptions { device, ..Default::default() })
+/// The shared GPU device (check [`gpu_available`] first).
+pub fn gpu_device() -> Device {
+    shared_gpu().clone().unwrap_or_else(|e| panic!("no GPU adapter: {e}"))
 }
 
-/// Renders with `options`, panicking with the error's text on failure.
-pub fn render_with(scene: &Scene, options: &RenderOptions) -> Film {
-    match render(scene, options, &mut |_| {}) {
-        Ok(out) => out.film,
-        Err(e) => panic!("{} render of {} failed: {e}", label(options), scene.name),
+/// A device of `kind`: the shared GPU device, or the CPU reference.
+pub fn device(kind: DeviceKind) -> Device {
+    match kind {
+        DeviceKind::Gpu => gpu_device(),
+        DeviceKind::Cpu => Device::cpu(),
+    }
+}
+
+/// Where and how a test renders: the device, and how the scene is prepared on it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Config {
+    /// GPU or CPU.
+    pub device: DeviceKind,
+    /// BVH build, layout and geometry storage.
+    pub bvh: BvhOptions,
+}
+
+impl Config {
+    /// The CPU reference.
+    pub fn cpu() -> Config {
+        Config { device: DeviceKind::Cpu, ..Default::default() }
+    }
+
+    /// The GPU with the BVH in `layout`.
+    pub fn gpu(layout: BvhLayout) -> Config {
+        Config { device: DeviceKind::Gpu, bvh: BvhOptions { layout, ..Default::default() } }
     }
 }
 
 /// The GPU configurations: one per BVH layout.
-pub fn gpu_options() -> Vec<RenderOptions> {
-    [BvhLayout::Bvh2, BvhLayout::Cwbvh]
-        .into_iter()
-        .map(|bvh_layout| RenderOptions { device: Device::Gpu, bvh_layout, ..Default::default() })
-        .collect()
+pub fn gpu_configs() -> Vec<Config> {
+    [BvhLayout::Bvh2, BvhLayout::Cwbvh].into_iter().map(Config::gpu).collect()
 }
 
 /// The CPU reference, then every GPU configuration when an adapter exists.
-pub fn all_options() -> Vec<RenderOptions> {
-    let mut all = vec![RenderOptions { device: Device::Cpu, ..Default::default() }];
+pub fn all_configs() -> Vec<Config> {
+    let mut all = vec![Config::cpu()];
     if gpu_available() {
-        all.extend(gpu_options());
+        all.extend(gpu_configs());
     }
     all
 }
 
 /// "cpu", or "gpu/LAYOUT".
-pub fn label(options: &RenderOptions) -> String {
-    match options.device {
-        Device::Cpu => "cpu".into(),
-        Device::Gpu => format!("gpu/{}", options.bvh_layout.name()),
+pub fn label(config: &Config) -> String {
+    match config.device {
+        DeviceKind::Cpu => "cpu".into(),
+        DeviceKind::Gpu => format!("gpu/{}", config.bvh.layout.name()),
     }
+}
+
+/// "cpu", or "gpu/LAYOUT", of a session.
+pub fn session_label(session: &Session) -> String {
+    match session.device().kind() {
+        DeviceKind::Cpu => "cpu".into(),
+        DeviceKind::Gpu => format!("gpu/{}", session.setup().bvh_layout.name()),
+    }
+}
+
+/// `scene` prepared as `config` says (its BVH built and uploaded), panicking with the
+/// error's text on failure.
+pub fn session(scene: &Scene, config: &Config) -> Session {
+    Session::new(&device(config.device), scene.clone(), &config.bvh)
+        .unwrap_or_else(|e| panic!("{} session of {} failed: {e}", label(config), scene.name))
+}
+
+/// Renders `request` to the end of its samples, panicking with the error's text on failure.
+pub fn render_request(session: &Session, request: &ImageRequest) -> Film {
+    match session.render(request).and_then(|r| r.complete(&mut Control::default())) {
+        Ok(out) => out.film,
+        Err(e) => panic!("{} render of {} failed: {e}", session_label(session), session.scene().name),
+    }
+}
+
+/// Renders the session's scene through its own camera with `settings`, every sample.
+pub fn render_settings(session: &Session, settings: &Settings) -> Film {
+    render_request(session, &ImageRequest { camera: session.scene().camera, settings: settings.clone(), samples: None })
+}
+
+/// Renders `scene` (its camera and settings) as `config` says, panicking with the
+/// error's text on failure.
+pub fn render_with(scene: &Scene, config: &Config) -> Film {
+    render_settings(&session(scene, config), &scene.settings)
+}
+
+/// Renders `scene` on a device of `kind` with the default BVH options.
+pub fn render_on(scene: &Scene, kind: DeviceKind) -> Film {
+    render_with(scene, &Config { device: kind, ..Default::default() })
+}
+
+/// The shared GPU device's adapter and pipelines (check [`gpu_available`] first).
+pub fn gpu_adapter() -> Arc<GpuDevice> {
+    gpu_device().as_gpu().expect("a GPU device").clone()
+}
+
+/// A GPU device on a context of its own, opened on the default adapter and set up by
+/// `setup` (test limits, `CPU_LANES`) before it is used.
+pub fn gpu_device_with(setup: impl FnOnce(&mut GpuContext)) -> Arc<GpuDevice> {
+    let mut ctx = GpuContext::new(None).expect("adapter opens");
+    setup(&mut ctx);
+    Arc::new(GpuDevice::new(ctx))
+}
+
+/// `bvh` (built from `scene`) uploaded to `dev` with the geometry in `storage` (the
+/// adapter's preference when `None`), and a target rendering the image of the scene's
+/// camera and settings on it.
+pub fn gpu_image(
+    dev: &Arc<GpuDevice>,
+    scene: &Scene,
+    bvh: &GpuBvh,
+    storage: Option<GeometryStorage>,
+) -> aorender::Result<(GpuScene, GpuTarget)> {
+    let storage = storage.unwrap_or_else(|| dev.ctx.preferred_storage());
+    let gs = GpuScene::upload(&dev.ctx, scene, bvh, storage)?;
+    let s = &scene.settings;
+    let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count);
+    let target = GpuTarget::image(dev, &gs, frame, s.sampler, s.hemisphere)?;
+    Ok((gs, target))
 }
 
 /// A scene from TOML text; mesh paths resolve against `dir`.
@@ -75,8 +174,13 @@ pub fn temp_dir() -> tempfile::TempDir {
     tempfile::tempdir().expect("temporary directory")
 }
 
-/// The repository root.
+/// The repository root (the workspace's, where `scenes/` is).
 pub fn repo() -> PathBuf {
+    crate_dir().ancestors().nth(2).expect("the crate lies two levels below the workspace").to_path_buf()
+}
+
+/// The library crate's directory (where `tests/` and `shaders/` are).
+pub fn crate_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
@@ -92,16 +196,6 @@ pub fn write_obj(path: &std::path::Path, triangles: &[[[f32; 3]; 3]]) {
         text += &format!("f {} {} {}\n", 3 * i + 1, 3 * i + 2, 3 * i + 3);
     }
     std::fs::write(path, text).expect("write OBJ");
-}
-
-/// Runs the `aorender` binary with `args` in `cwd`.
-pub fn aorender(args: &[&str], cwd: &std::path::Path) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_aorender"))
-        .args(args)
-        .current_dir(cwd)
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .expect("aorender runs")
 }
 
 /// Independent renders agree: the image means within 4 standard errors, and the
@@ -160,20 +254,4 @@ pub fn floor_and_box() -> Vec<[[f32; 3]; 3]> {
         tris.push([q[0], q[2], q[3]]);
     }
     tris
-}
-
-/// `scenes/dragons.toml` written into `dir` with each of its nine dragons read through a
-/// file name of its own (links to the one file), so they are not instances of one mesh
-/// but 7.8M triangles in one BVH. Returns the scene file.
-pub fn flattened_dragons(dir: &std::path::Path) -> PathBuf {
-    let mut text = std::fs::read_to_string(repo().join("scenes/dragons.toml")).unwrap();
-    for i in 0..9 {
-        let name = format!("dragon{i}.ply.gz");
-        std::os::unix::fs::symlink(repo().join("scenes/dragon_vrip.ply.gz"), dir.join(&name)).unwrap();
-        text = text.replacen("file = \"dragon_vrip.ply.gz\"", &format!("file = \"{name}\""), 1);
-    }
-    assert!(!text.contains("dragon_vrip"));
-    let scene = dir.join("dragons.toml");
-    std::fs::write(&scene, text).unwrap();
-    scene
 }
