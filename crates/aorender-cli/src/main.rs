@@ -2,15 +2,10 @@
 //! check closed forms, merge shards, benchmark, list adapters. The command line,
 //! progress bars, signals and printing live here; the engine is the `aorender` library.
 
-mod args;
-mod bench;
-mod commands;
-mod memory;
-mod signals;
-
 use anyhow::{Result, bail};
+use aorender_cli::commands::{accuracy, compare, merge, probe, render};
+use aorender_cli::{bench, memory};
 use clap::{Parser, Subcommand};
-use commands::{accuracy, compare, merge, probe, render};
 
 #[derive(Parser)]
 #[command(name = "aorender", version, about = "GPU ambient-occlusion renderer")]

@@ -12,7 +12,7 @@ var<workgroup> workgroup_counters: array<atomic<u32>, COUNTER_COUNT>;
 var<private> ao_rays: u32 = 0u;
 
 // The render's point sampler (SAMPLER_*) and hemisphere mapping (HEMISPHERE_*), set per
-// pipeline by src/gpu/mod.rs, so that only the chosen one is compiled in.
+// pipeline by src/gpu/pipeline.rs, so that only the chosen one is compiled in.
 override SAMPLER: u32;
 override HEMISPHERE: u32;
 

@@ -15,7 +15,7 @@ const HIT_PLANE: u32 = 2u;
 // Top-level traversal (no instance entered).
 const NO_INSTANCE: u32 = 0xffffffffu;
 
-// What the scene holds (src/gpu/mod.rs sets these per scene; the defaults keep every
+// What the scene holds (src/gpu/pipeline.rs sets these per scene; the defaults keep every
 // path). The compiler drops the paths of what a scene lacks: lavapipe runs a SIMD batch's
 // lanes in lockstep and executes every branch that is not constant, taken or not.
 // Instances in the BVH.
@@ -104,7 +104,7 @@ fn trace_planes(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     return hit;
 }
 
-// Record `slot` as an affine map (one of an instance's rows records, src/bvh.rs).
+// Record `slot` as an affine map (one of an instance's rows records, src/bvh/layout.rs).
 fn load_affine(slot: u32) -> Affine {
     let p = load_primitive(slot);
     return Affine(p.a, p.b, p.c);

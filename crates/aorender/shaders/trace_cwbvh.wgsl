@@ -124,7 +124,7 @@ var<workgroup> stacks: array<vec2u, STACK_SIZE * TRAVERSAL_LANES>;
 const NEAR_ENTRIES: u32 = 2u;
 
 // Closest hit within (0, t_max) or, with any_hit, the first hit found. A leaf entry that
-// is an instance (src/bvh.rs PRIM_INSTANCE) carries the ray into its mesh's space and
+// is an instance (src/bvh/layout.rs PRIM_INSTANCE) carries the ray into its mesh's space and
 // continues at its mesh's root, stacking on top of the top level's entries; once those
 // are done, the top level resumes where it left off. The direction is not renormalized,
 // so t means the same in both spaces.

@@ -493,7 +493,7 @@ fn inside_a_closed_box_mesh_is_black_on_the_gpu() {
 
 /// obvhs's CWBVH node test clamps a child's entry distance to `t >= 1e-4`, so AO rays
 /// starting within 1e-4 of the adjacent face near an edge used to skip that face and
-/// escape; the CPU reference now traverses from an origin moved back (src/cpu.rs).
+/// escape; the CPU reference traverses from an origin moved back (src/cpu/tracer.rs).
 #[test]
 fn inside_a_closed_box_mesh_is_black_on_the_cpu() {
     let dir = temp_dir();

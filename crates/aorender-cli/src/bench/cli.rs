@@ -3,8 +3,8 @@
 
 use super::{Plan, Progress, Results, ScenePlan, plot, report};
 use crate::args::{hemisphere_parser, sampler_parser};
-use aorender::{Hemisphere, Sampler, Scene};
 use anyhow::{Context, Result, bail};
+use aorender::{Hemisphere, Sampler, Scene};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 

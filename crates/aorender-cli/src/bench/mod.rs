@@ -6,7 +6,7 @@
 //! pixel and measures its error against a converged reference image: the same scene and
 //! view rendered with a different seed at many more samples, with independent samples
 //! (whose per-pixel variance is then known), cached on disk by a hash of the scene and
-//! settings (see [`cache`]). The reference's own variance is taken out of each error
+//! settings (see `cache`). The reference's own variance is taken out of each error
 //! ([`metrics::ErrorMetrics`]). The same run measures the CPU reference renderer on the
 //! cosine / independent configuration, the BVH build presets (build time against the
 //! trace speed they give), and how the cost per ray scales with triangles, resolution and
@@ -453,7 +453,13 @@ fn measure(session: &Session, request: &ImageRequest, targets: &[u32], tracker: 
     }
     let film = film.ok_or_else(|| anyhow!("a run without checkpoints"))?;
     let timestamps = render.times().gpu_seconds.is_some();
-    Ok(RawRun { setup_seconds, device_bytes: session.setup().device_bytes + render.device_bytes(), timestamps, checkpoints, film })
+    Ok(RawRun {
+        setup_seconds,
+        device_bytes: session.setup().device_bytes + render.device_bytes(),
+        timestamps,
+        checkpoints,
+        film,
+    })
 }
 
 /// `run` measured against `reference`.
@@ -738,7 +744,9 @@ fn bench_scene(
             }
             let gpu_default = raw_runs
                 .iter()
-                .find(|(r, _)| r.settings.hemisphere == Hemisphere::Cosine && r.settings.sampler == Sampler::Independent)
+                .find(|(r, _)| {
+                    r.settings.hemisphere == Hemisphere::Cosine && r.settings.sampler == Sampler::Independent
+                })
                 .map(|(_, r)| r);
             let speed = |r: &RawRun| {
                 let c = r.checkpoints.last().expect("checkpoints");

@@ -8,7 +8,9 @@
 //! One session serves every cell: the BVH is built and uploaded once, and each cell is a
 //! request with its own settings.
 
-use crate::args::{SceneArgs, SizeArgs, check_output_extension, hemisphere_parser, invalid_option, sampler_parser, write_json};
+use crate::args::{
+    SceneArgs, SizeArgs, check_output_extension, hemisphere_parser, invalid_option, sampler_parser, write_json,
+};
 use anyhow::{Result, anyhow};
 use aorender::output::{linear_to_srgb8, write_atomically};
 use aorender::{Control, Hemisphere, ImageRequest, Progress, Sampler, Session};
@@ -295,9 +297,7 @@ impl Comparison {
     /// Writes [`Comparison::image`] as an 8-bit PNG, atomically, whatever the extension.
     pub fn write_png(&self, path: &Path) -> Result<()> {
         let mut buf = std::io::Cursor::new(Vec::new());
-        self.image()
-            .write_to(&mut buf, image::ImageFormat::Png)
-            .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        self.image().write_to(&mut buf, image::ImageFormat::Png).map_err(|e| anyhow!("{}: {e}", path.display()))?;
         write_atomically(path, buf.get_ref())?;
         Ok(())
     }
@@ -402,6 +402,121 @@ fn draw_text(img: &mut GrayImage, x: u32, y: u32, text: &str) {
                     }
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The sRGB code of a linear value, computed independently of the library.
+    fn srgb8(v: f64) -> u8 {
+        let v = v.clamp(0.0, 1.0);
+        let s = if v <= 0.0031308 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+        (s * 255.0).round() as u8
+    }
+
+    /// Bounding box (x0, y0, x1, y1), exclusive ends, and count of the pixels equal to `value`.
+    fn pixels_equal_to(img: &GrayImage, value: u8) -> ((u32, u32, u32, u32), usize) {
+        let (mut x0, mut y0, mut x1, mut y1, mut n) = (u32::MAX, u32::MAX, 0, 0, 0);
+        for (x, y, p) in img.enumerate_pixels() {
+            if p.0[0] == value {
+                (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x + 1), y1.max(y + 1));
+                n += 1;
+            }
+        }
+        ((x0, y0, x1, y1), n)
+    }
+
+    /// Pixels darker than the tiles' darkest value inside the rectangle [x0, x1) × [y0, y1).
+    fn dark_pixels(img: &GrayImage, (x0, y0, x1, y1): (u32, u32, u32, u32)) -> usize {
+        (y0..y1).flat_map(|y| (x0..x1).map(move |x| (x, y))).filter(|&(x, y)| img.get_pixel(x, y).0[0] < 32).count()
+    }
+
+    #[test]
+    fn grid_places_constant_tiles_and_dark_labels() {
+        let (tw, th) = (120u32, 48u32);
+        // Distinct sRGB codes, none of them the background or the text: each tile can be found
+        // by its value. 4.0 is clamped to white.
+        let values = [0.02, 0.1, 0.25, 0.5, 0.75, 4.0];
+        let tiles: Vec<Vec<f64>> = values.iter().map(|&v| vec![v; (tw * th) as usize]).collect();
+        let columns: Vec<String> = ["1 spp", "4 spp", "16 spp"].map(String::from).to_vec();
+        let rows = vec![vec!["uniform".to_string(), "independent".to_string()], vec!["cosine".into(), "sobol".into()]];
+        let img = compose_grid(&Grid {
+            title: "test scene",
+            columns: &columns,
+            rows: &rows,
+            tile_width: tw,
+            tile_height: th,
+            tiles: &tiles,
+        });
+
+        let mut boxes = Vec::new();
+        for &v in &values {
+            assert_eq!(linear_to_srgb8(v as f32), srgb8(v), "sRGB code of {v}");
+            let (bbox, n) = pixels_equal_to(&img, srgb8(v));
+            assert_eq!(n, (tw * th) as usize, "pixels of the tile of value {v}");
+            assert_eq!((bbox.2 - bbox.0, bbox.3 - bbox.1), (tw, th), "tile of value {v} is not one rectangle");
+            boxes.push(bbox);
+        }
+        assert_eq!(linear_to_srgb8(-1.0f32), 0);
+        assert_eq!(linear_to_srgb8(f32::NAN), 0);
+
+        // Row-major order, aligned, separated by a small gap.
+        let gap_x = boxes[1].0 - boxes[0].2;
+        let gap_y = boxes[3].1 - boxes[0].3;
+        assert!((1..=16).contains(&gap_x) && (1..=16).contains(&gap_y), "gaps {gap_x}, {gap_y}");
+        for r in 0..2 {
+            for c in 0..3 {
+                let b = boxes[r * 3 + c];
+                assert_eq!(b.0, boxes[0].0 + c as u32 * (tw + gap_x), "tile {r},{c} x");
+                assert_eq!(b.1, boxes[0].1 + r as u32 * (th + gap_y), "tile {r},{c} y");
+            }
+        }
+        // The image: the tiles, labels above and left of them, and a narrow border.
+        let last = boxes[5];
+        assert!((1..=32).contains(&(img.width() - last.2)), "right border of {}", img.width() - last.2);
+        assert!((1..=32).contains(&(img.height() - last.3)), "bottom border of {}", img.height() - last.3);
+        let label_w = "independent".len() as u32 * 16;
+        assert!(boxes[0].0 >= label_w, "row labels need {label_w} px, tiles start at {}", boxes[0].0);
+        assert!(boxes[0].1 >= 2 * 16, "title and column labels need two lines, tiles start at {}", boxes[0].1);
+
+        // Background is light; labels are dark text in their places.
+        assert!(img.get_pixel(0, 0).0[0] > 200, "background is light");
+        let top = boxes[0].1;
+        let title_band = (0, 0, img.width(), top / 2);
+        assert!(dark_pixels(&img, title_band) > 20, "title has no text");
+        for (c, b) in boxes[..3].iter().enumerate() {
+            assert!(dark_pixels(&img, (b.0, top / 2, b.2, top)) > 20, "column label {c} has no text");
+        }
+        for (r, b) in [boxes[0], boxes[3]].iter().enumerate() {
+            let upper = dark_pixels(&img, (0, b.1, b.0, b.1 + th / 2));
+            let lower = dark_pixels(&img, (0, b.1 + th / 2, b.0, b.3));
+            assert!(upper > 20 && lower > 20, "row label {r} lacks a line of text: {upper}, {lower}");
+        }
+        // Nothing dark between the tiles.
+        assert_eq!(dark_pixels(&img, (boxes[0].2, boxes[0].1, boxes[1].0, boxes[0].3)), 0);
+    }
+
+    #[test]
+    fn lists_are_validated() {
+        let (h, s) = ([Hemisphere::Cosine], [Sampler::Independent]);
+        assert!(validate(&[1, 4], &h, &s).is_ok());
+        /// Sample counts, hemispheres, samplers, and a word the message must contain.
+        type Case<'a> = (&'a [u32], &'a [Hemisphere], &'a [Sampler], &'a str);
+        let cases: &[Case] = &[
+            (&[], &h, &s, "empty"),
+            (&[1], &[], &s, "empty"),
+            (&[1], &h, &[], "empty"),
+            (&[1, 0], &h, &s, "at least 1"),
+            (&[4, 1, 4], &h, &s, "4"),
+            (&[1], &[Hemisphere::Uniform, Hemisphere::Uniform], &s, "uniform"),
+            (&[1], &h, &[Sampler::Sobol, Sampler::Grid, Sampler::Sobol], "sobol"),
+        ];
+        for (spps, hemispheres, samplers, expect) in cases {
+            let e = validate(spps, hemispheres, samplers).expect_err("invalid lists");
+            assert!(e.contains(expect) && !e.contains('\n'), "{spps:?} {hemispheres:?} {samplers:?}: {e}");
         }
     }
 }

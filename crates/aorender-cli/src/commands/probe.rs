@@ -90,7 +90,8 @@ pub fn parse_probes(text: &str) -> std::result::Result<Vec<Probe>, String> {
         for (k, f) in fields.iter().enumerate() {
             v[k] = f.parse().map_err(|_| at(format!("'{f}' is not a number")))?;
         }
-        let probe = Probe::new(Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5])).map_err(|e| at(e.message()))?;
+        let probe =
+            Probe::new(Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5])).map_err(|e| at(e.message()))?;
         probes.push(probe);
     }
     if probes.is_empty() {
@@ -136,5 +137,4 @@ mod tests {
             assert!(e.contains(expect), "{text:?}: {e}");
         }
     }
-
 }

@@ -8,7 +8,7 @@ use crate::args::{
 use crate::{memory, signals};
 use anyhow::{Result, bail};
 use aorender::output::{IMAGE_EXTENSIONS, write_image};
-use aorender::{Accumulation, Control, Hemisphere, ImageRequest, Progress, Sampler, Session};
+use aorender::{Accumulation, Control, Device, Hemisphere, ImageRequest, Progress, Sampler, Session};
 use std::io::{IsTerminal, Write};
 use std::ops::Range;
 use std::path::PathBuf;
@@ -127,7 +127,14 @@ pub fn run(args: RenderArgs) -> Result<()> {
             // Before any work: the checkpoint must hold samples of this very render.
             let s = &scene.settings;
             let range = args.sample_range.clone().unwrap_or(0..s.spp);
-            saved.check_resume(&Accumulation::image(&scene, &scene.camera, s, range, args.scene.device.kind(), &bvh))?;
+            saved.check_resume(&Accumulation::image(
+                &scene,
+                &scene.camera,
+                s,
+                range,
+                args.scene.device.kind(),
+                &bvh,
+            ))?;
             Some(saved)
         }
         None => None,
@@ -137,16 +144,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
 
-    let device = args.scene.device()?;
-    let session = Session::new(&device, scene, &bvh)?;
-    let request = ImageRequest { samples: args.sample_range.clone(), ..session.default_request() };
-    let mut render = session.render(&request)?;
-    if let Some(acc) = resume {
-        render.resume(acc)?;
-    }
-
     let bar = std::io::stderr().is_terminal().then(|| {
-        let bar = indicatif::ProgressBar::new(session.scene().settings.spp as u64);
+        let bar = indicatif::ProgressBar::new(scene.settings.spp as u64);
         bar.set_style(
             indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} spp  {msg}  eta {eta}")
                 .expect("valid template"),
@@ -175,9 +174,20 @@ pub fn run(args: RenderArgs) -> Result<()> {
         save_interval: interval,
         ..Control::default()
     };
-    let finished = render.run(&mut control).and_then(|_| render.finish());
-    let mut out = finished.map_err(|e| {
-        // The adapter failed mid-render: the last checkpoint saved before it is whole.
+    let rendered = (|| {
+        let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
+        let session = Session::new(&device, scene, &bvh)?;
+        let request = ImageRequest { samples: args.sample_range.clone(), ..session.default_request() };
+        let mut render = session.render(&request)?;
+        if let Some(acc) = resume {
+            render.resume(acc)?;
+        }
+        render.run(&mut control)?;
+        render.finish()
+    })();
+    let mut out = rendered.map_err(|e| {
+        // The adapter failed (setting up or mid-render): the last checkpoint saved before
+        // it is whole.
         let adapter_failed = matches!(e, aorender::Error::DeviceLost { .. } | aorender::Error::OutOfMemory { .. });
         match &checkpoint_path {
             Some(path) if adapter_failed && path.exists() => anyhow::anyhow!(

@@ -1,0 +1,195 @@
+//! The `aorender` command: a render writes its image and stats; bad input gives one line
+//! naming the file and the problem, a non-zero exit, no panic, and no output file (an
+//! existing one is left as it was).
+
+mod common;
+use common::*;
+use std::path::Path;
+
+/// Runs a render that must fail; checks exit, message and that `out` is untouched.
+fn assert_rejected(args: &[&str], cwd: &Path, expect_in_message: &[&str]) {
+    let out_path = cwd.join("out.png");
+    std::fs::write(&out_path, b"previous image").unwrap();
+    let output = aorender(args, cwd);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{args:?} succeeded; stderr: {stderr}");
+    assert!(!stderr.contains("panicked"), "{args:?} panicked: {stderr}");
+    let lines: Vec<&str> = stderr.lines().filter(|l| l.starts_with("aorender:")).collect();
+    assert_eq!(lines.len(), 1, "{args:?}: expected one error line, got: {stderr}");
+    for part in expect_in_message {
+        assert!(lines[0].contains(part), "{args:?}: '{}' does not mention '{part}'", lines[0]);
+    }
+    assert_eq!(std::fs::read(&out_path).unwrap(), b"previous image", "{args:?} touched the output");
+    let leftovers: Vec<_> = std::fs::read_dir(cwd)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().to_string())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "{args:?} left temporary files: {leftovers:?}");
+}
+
+#[test]
+fn bad_input_is_one_line_with_the_file_and_no_output() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let write = |name: &str, text: &str| std::fs::write(d.join(name), text).unwrap();
+    let scene = |objects: &str| {
+        format!("[camera]\ntype = \"perspective\"\neye = [0, 0, 5]\nlook_at = [0, 0, 0]\nfov = 45\n{objects}")
+    };
+    write("malformed.toml", "[camera\ntype = ");
+    write("unknown_field.toml", &(scene("") + "\n[image]\nwidht = 10\n"));
+    write("unknown_value.toml", &(scene("") + "\n[sampling]\nhemisphere = \"spherical\"\n"));
+    write("empty.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n");
+    write("nan.obj", "v 0 0 0\nv NaN 0 0\nv 0 1 0\nf 1 2 3\n");
+    write("bad_index.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n");
+    write("uses_nan.toml", &scene("[[object]]\ntype = \"mesh\"\nfile = \"nan.obj\"\n"));
+    write("uses_missing.toml", &scene("[[object]]\ntype = \"mesh\"\nfile = \"missing.obj\"\n"));
+    write(
+        "bad_sphere.toml",
+        &scene("[[object]]\ntype = \"sphere\"\ncenter = [0, 0, 0]\nradius = 1\ntransform = { scale = [1, 2, 1] }\n"),
+    );
+    let cases: &[(&[&str], &[&str])] = &[
+        (&["render", "missing.toml", "-o", "out.png"], &["missing.toml"]),
+        (&["render", "malformed.toml", "-o", "out.png"], &["malformed.toml", "line"]),
+        (&["render", "unknown_field.toml", "-o", "out.png"], &["unknown_field.toml", "widht"]),
+        (&["render", "unknown_value.toml", "-o", "out.png"], &["unknown_value.toml", "spherical"]),
+        (&["render", "empty.obj", "-o", "out.png"], &["empty.obj", "no triangles"]),
+        (&["render", "nan.obj", "-o", "out.png"], &["nan.obj", "NaN"]),
+        (&["render", "bad_index.obj", "-o", "out.png"], &["bad_index.obj"]),
+        (&["render", "uses_nan.toml", "-o", "out.png"], &["nan.obj", "NaN"]),
+        (&["render", "uses_missing.toml", "-o", "out.png"], &["missing.obj"]),
+        (&["render", "bad_sphere.toml", "-o", "out.png"], &["bad_sphere.toml", "similarity"]),
+        (&["render", "scene.xyz", "-o", "out.png"], &["scene.xyz"]),
+        (&["render", "--hemisphere", "spherical", "-o", "out.png"], &["spherical"]),
+        (&["render", "--spp", "0", "-o", "out.png"], &["samples per pixel"]),
+        (&["render", "--max-distance", "-1", "-o", "out.png"], &["max distance"]),
+        (&["render", "-o", "out.tiff"], &["out.tiff"]),
+    ];
+    for (args, expect) in cases {
+        assert_rejected(args, d, expect);
+    }
+}
+
+#[test]
+fn render_writes_image_and_stats() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let mut devices = vec!["cpu"];
+    if gpu_available() {
+        devices.push("gpu");
+    }
+    for device in devices {
+        for ext in ["png", "exr", "pfm"] {
+            let image = format!("aobench_{device}.{ext}");
+            let stats = format!("stats_{device}.json");
+            let args = ["render", "--width", "32", "--height", "24", "--spp", "4", "-o", &image, "--stats", &stats];
+            let output = aorender(&[&args[..], &["--device", device]].concat(), d);
+            assert!(output.status.success(), "{device}: {}", String::from_utf8_lossy(&output.stderr));
+            let bytes = std::fs::read(d.join(&image)).unwrap();
+            match ext {
+                "png" => {
+                    let img = image::load_from_memory(&bytes).unwrap();
+                    assert_eq!((img.width(), img.height()), (32, 24));
+                }
+                "exr" => {
+                    let img = image::load_from_memory(&bytes).unwrap();
+                    assert_eq!((img.width(), img.height()), (32, 24));
+                }
+                _ => {
+                    assert!(bytes.starts_with(b"Pf\n32 24\n-1.0\n"));
+                    assert_eq!(bytes.len(), "Pf\n32 24\n-1.0\n".len() + 32 * 24 * 4);
+                }
+            }
+            let json: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join(&stats)).unwrap()).unwrap();
+            for key in [
+                "samples_per_pixel",
+                "width",
+                "height",
+                "rays_traced",
+                "render_seconds",
+                "bvh_build_seconds",
+                "rays_per_second",
+                "triangles",
+                "adapter",
+                "backend",
+                "hemisphere",
+                "sampler",
+                "seed",
+                "load_seconds",
+                "scene_bytes",
+                "host_peak_bytes",
+                "heap_peak_bytes",
+                "bvh_bytes",
+                "device_bytes",
+            ] {
+                assert!(json.get(key).is_some(), "{device}: stats lack {key}");
+            }
+            // Three spheres and a plane, and a process that holds them.
+            let scene_bytes = json["scene_bytes"].as_u64().unwrap();
+            let expected =
+                3 * std::mem::size_of::<aorender::scene::Sphere>() + std::mem::size_of::<aorender::scene::Plane>();
+            assert_eq!(scene_bytes, expected as u64, "{device}");
+            let peak = json["host_peak_bytes"].as_u64().unwrap();
+            assert!(peak > 1 << 20, "{device}: peak resident memory {peak} bytes");
+            let heap = json["heap_peak_bytes"].as_u64().expect("the binary counts its heap");
+            assert!(heap >= scene_bytes && heap <= peak, "{device}: heap peak {heap} bytes, resident peak {peak}");
+            assert!(json["bvh_bytes"].as_u64().unwrap() > 0, "{device}");
+            assert!(json["load_seconds"].as_f64().unwrap() > 0.0, "{device}");
+            if device == "gpu" {
+                assert!(json["device_bytes"].as_u64().unwrap() > 0, "{device}");
+            }
+            assert_eq!(json["samples_per_pixel"], 4);
+            assert_eq!(json["width"], 32);
+            // aobench: every camera ray is traced, and the floor fills the lower half.
+            let rays = json["rays_traced"].as_u64().unwrap();
+            assert!(rays > 32 * 24 * 4 && rays < 2 * 32 * 24 * 4, "{device}: {rays} rays");
+        }
+    }
+}
+
+/// Every file of the malformed-mesh corpus (`crates/aorender/tests/malformed/`), rendered
+/// as a bare mesh: one error line naming the file, a non-zero exit, no panic and no output.
+#[test]
+fn malformed_meshes_are_one_line_errors() {
+    let dir = temp_dir();
+    let corpus = repo().join("crates/aorender/tests/malformed");
+    let mut files: Vec<String> =
+        std::fs::read_dir(&corpus).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    files.sort();
+    assert!(files.len() >= 10, "the corpus has only {} files", files.len());
+    for file in &files {
+        let path = corpus.join(file);
+        assert_rejected(&["render", path.to_str().unwrap(), "-o", "out.png"], dir.path(), &[file]);
+    }
+}
+
+/// `--sample-range START..END`: an empty or reversed range, an end past the samples per
+/// pixel, a missing bound or `..`, and anything but two sample indices are one line naming
+/// the option and the problem; nothing is written, not even the shard's checkpoint.
+#[test]
+fn bad_sample_ranges_are_refused() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let cases: &[(&str, &[&str])] = &[
+        ("5..3", &["--sample-range", "5..3", "START must be below END"]),
+        ("3..3", &["--sample-range", "3..3", "START must be below END"]),
+        ("0..9", &["--sample-range", "0..9", "past the 8 samples per pixel"]),
+        ("8..9", &["--sample-range", "8..9", "past the 8 samples per pixel"]),
+        ("a..3", &["--sample-range", "START 'a'", "not a sample index"]),
+        ("1..b", &["--sample-range", "END 'b'", "not a sample index"]),
+        ("-1..3", &["--sample-range", "START '-1'", "not a sample index"]),
+        ("0..4294967296", &["--sample-range", "END '4294967296'", "too large"]),
+        ("1..2..3", &["--sample-range", "END '2..3'"]),
+        ("5", &["--sample-range", "expected START..END"]),
+        ("", &["--sample-range", "expected START..END"]),
+        ("..4", &["--sample-range", "START is missing"]),
+        ("2..", &["--sample-range", "END is missing"]),
+    ];
+    for (range, expect) in cases {
+        let option = format!("--sample-range={range}");
+        let args = ["render", "--device", "cpu", "--spp", "8", &option, "--checkpoint", "x.ck", "-o", "out.png"];
+        assert_rejected(&args, d, expect);
+        assert!(!d.join("x.ck").exists(), "{range}: a checkpoint was written");
+    }
+}

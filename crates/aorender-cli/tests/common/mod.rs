@@ -1,0 +1,90 @@
+//! Helpers shared by the command-line tests.
+#![allow(dead_code)]
+
+use aorender::gpu::context::GpuContext;
+use aorender::{BvhLayout, BvhOptions, DeviceKind};
+use std::path::PathBuf;
+
+/// True when a GPU adapter can be opened. In CI (`CI` set) a missing adapter fails the
+/// test; elsewhere the test is skipped, loudly, with the reason.
+pub fn gpu_available() -> bool {
+    match GpuContext::new(None) {
+        Ok(_) => true,
+        Err(e) if std::env::var_os("CI").is_some() => panic!("CI requires a GPU adapter: {e}"),
+        Err(e) => {
+            eprintln!("SKIPPED: no GPU adapter ({e})");
+            false
+        }
+    }
+}
+
+/// How a library render runs: the device and how the scene is prepared on it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RenderOptions {
+    /// GPU or CPU.
+    pub device: DeviceKind,
+    /// BVH build preset, layout and geometry storage.
+    pub bvh: BvhOptions,
+}
+
+/// The GPU configurations: one per BVH layout.
+pub fn gpu_options() -> Vec<RenderOptions> {
+    [BvhLayout::Bvh2, BvhLayout::Cwbvh]
+        .into_iter()
+        .map(|layout| RenderOptions { device: DeviceKind::Gpu, bvh: BvhOptions { layout, ..Default::default() } })
+        .collect()
+}
+
+/// The CPU reference, then every GPU configuration when an adapter exists.
+pub fn all_options() -> Vec<RenderOptions> {
+    let mut all = vec![RenderOptions { device: DeviceKind::Cpu, ..Default::default() }];
+    if gpu_available() {
+        all.extend(gpu_options());
+    }
+    all
+}
+
+/// "cpu", or "gpu/LAYOUT".
+pub fn label(options: &RenderOptions) -> String {
+    match options.device {
+        DeviceKind::Cpu => "cpu".into(),
+        DeviceKind::Gpu => format!("gpu/{}", options.bvh.layout.name()),
+    }
+}
+
+/// A temporary directory for files a test writes.
+pub fn temp_dir() -> tempfile::TempDir {
+    tempfile::tempdir().expect("temporary directory")
+}
+
+/// The repository root (two levels above this crate).
+pub fn repo() -> PathBuf {
+    let manifest = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    manifest.parent().and_then(std::path::Path::parent).expect("crates/aorender-cli is two levels down").to_path_buf()
+}
+
+/// Runs the `aorender` binary with `args` in `cwd`.
+pub fn aorender(args: &[&str], cwd: &std::path::Path) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_aorender"))
+        .args(args)
+        .current_dir(cwd)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .output()
+        .expect("aorender runs")
+}
+
+/// `scenes/dragons.toml` written into `dir` with each of its nine dragons read through a
+/// file name of its own (links to the one file), so they are not instances of one mesh
+/// but 7.8M triangles in one BVH. Returns the scene file.
+pub fn flattened_dragons(dir: &std::path::Path) -> PathBuf {
+    let mut text = std::fs::read_to_string(repo().join("scenes/dragons.toml")).unwrap();
+    for i in 0..9 {
+        let name = format!("dragon{i}.ply.gz");
+        std::os::unix::fs::symlink(repo().join("scenes/dragon_vrip.ply.gz"), dir.join(&name)).unwrap();
+        text = text.replacen("file = \"dragon_vrip.ply.gz\"", &format!("file = \"{name}\""), 1);
+    }
+    assert!(!text.contains("dragon_vrip"));
+    let scene = dir.join("dragons.toml");
+    std::fs::write(&scene, text).unwrap();
+    scene
+}

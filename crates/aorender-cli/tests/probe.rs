@@ -1,0 +1,37 @@
+//! `aorender probe`: the command's CSV output and its input checks.
+
+mod common;
+use common::*;
+
+#[test]
+fn command_writes_csv_and_rejects_bad_points() {
+    let dir = temp_dir();
+    let d = dir.path();
+    std::fs::write(d.join("points.txt"), "# x y z nx ny nz\n0 0 0 0 1 0\n5 0 0 0 2 0\n").unwrap();
+    let out = aorender(&["probe", "--points", "points.txt", "-o", "ao.csv", "--samples", "64", "--device", "cpu"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let csv = std::fs::read_to_string(d.join("ao.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines[0], "x,y,z,nx,ny,nz,ao,std_error,samples");
+    assert_eq!(lines.len(), 3);
+    assert!(lines[2].starts_with("5,0,0,0,1,0,"), "normal normalised: {}", lines[2]);
+    assert!(lines[2].ends_with(",64"));
+
+    for (points, message) in [
+        ("0 0 0 0 1\n", "points.txt: line 1: expected 6 numbers"),
+        ("0 0 0 0 0 0\n", "points.txt: line 1: zero normal"),
+        ("0 0 nan 0 1 0\n", "points.txt: line 1: non-finite"),
+        ("", "points.txt: no probes"),
+    ] {
+        std::fs::write(d.join("points.txt"), points).unwrap();
+        let out = aorender(&["probe", "--points", "points.txt", "-o", "bad.csv", "--device", "cpu"], d);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{points:?}: {err}");
+        assert!(err.contains(message) && err.lines().count() == 1, "{points:?}: {err}");
+        assert!(!d.join("bad.csv").exists(), "{points:?}: output written");
+    }
+    let out = aorender(&["probe", "--points", "missing.txt", "--device", "cpu"], d);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("missing.txt: cannot read"));
+    let out = aorender(&["probe", "--points", "points.txt", "--samples", "0", "--device", "cpu"], d);
+    assert!(!out.status.success());
+}
