@@ -159,61 +159,75 @@ pub(crate) enum Prepared {
 }
 
 impl Prepared {
-    /// Builds the BVH of `scene` and uploads it to `device`.
-    pub(crate) fn new(device: &Device, scene: &Scene, options: &BvhOptions) -> Result<(Prepared, Setup)> {
-        let adapter = device.info();
-        match &device.0 {
-            Opened::Gpu(dev) => {
-                // Build time includes the conversion to the GPU layout.
-                let build = Instant::now();
-                let (bvh, bvh_convert_seconds) = match options.layout {
-                    BvhLayout::Cwbvh => {
-                        let cwbvh = build_cwbvh(scene, options.quality);
-                        let convert = Instant::now();
-                        (GpuBvh::from_cwbvh(scene, &cwbvh), convert.elapsed().as_secs_f64())
-                    }
-                    BvhLayout::Bvh2 => (GpuBvh::build(scene, options.layout, options.quality), 0.0),
-                };
-                let bvh_build_seconds = build.elapsed().as_secs_f64();
-                let upload = Instant::now();
-                let storage = options.geometry_storage.unwrap_or_else(|| dev.ctx.preferred_storage());
-                let gpu_scene = GpuScene::upload(&dev.ctx, scene, &bvh, storage)?;
-                let setup = Setup {
-                    adapter,
-                    bvh_layout: options.layout,
-                    bvh_build_seconds,
-                    bvh_convert_seconds,
-                    bvh_nodes: bvh.node_count as usize,
-                    upload_seconds: upload.elapsed().as_secs_f64(),
-                    bvh_bytes: gpu_scene.bvh_bytes,
-                    device_bytes: gpu_scene.device_bytes(),
-                    geometry_bindings: gpu_scene.geometry_bindings(),
-                    geometry_storage: storage.name(),
-                };
-                Ok((Prepared::Gpu { dev: dev.clone(), scene: gpu_scene }, setup))
-            }
-            Opened::Cpu(_) => {
-                let build = Instant::now();
-                let cwbvh = build_cwbvh(scene, options.quality);
-                let bvh_build_seconds = build.elapsed().as_secs_f64();
-                let bvh_nodes = cwbvh.top.iter().chain(&cwbvh.meshes).map(|b| b.nodes.len()).sum();
-                let upload = Instant::now();
-                let tracer = CpuTracer::new(scene, cwbvh);
-                let setup = Setup {
-                    adapter,
-                    bvh_layout: BvhLayout::Cwbvh,
-                    bvh_build_seconds,
-                    bvh_convert_seconds: 0.0,
-                    bvh_nodes,
-                    upload_seconds: upload.elapsed().as_secs_f64(),
-                    bvh_bytes: tracer.bytes(),
-                    device_bytes: 0,
-                    geometry_bindings: 0,
-                    geometry_storage: "",
-                };
-                Ok((Prepared::Cpu(Arc::new(tracer)), setup))
+    /// Builds the BVH of `scene` once and prepares it on each of `devices`: the GPU's
+    /// layout converted from obvhs's CWBVH (or its BVH2 built) and uploaded, or the CPU
+    /// tracer laid out. Each setup reports the shared build's time.
+    pub(crate) fn new(devices: &[Device], scene: &Scene, options: &BvhOptions) -> Result<Vec<(Prepared, Setup)>> {
+        // obvhs's CWBVH, built once for every device that traverses it: the CPU reference,
+        // and a GPU in the CWBVH layout.
+        let uses_cwbvh = |d: &Device| d.kind() == DeviceKind::Cpu || options.layout == BvhLayout::Cwbvh;
+        let build = Instant::now();
+        let mut cwbvh = devices.iter().any(uses_cwbvh).then(|| build_cwbvh(scene, options.quality));
+        let cwbvh_seconds = build.elapsed().as_secs_f64();
+        let mut out = Vec::with_capacity(devices.len());
+        for (i, device) in devices.iter().enumerate() {
+            let adapter = device.info();
+            match &device.0 {
+                Opened::Gpu(dev) => {
+                    // Build time includes the conversion to the GPU layout.
+                    let convert = Instant::now();
+                    let (bvh, bvh_build_seconds, bvh_convert_seconds) = match (options.layout, &cwbvh) {
+                        (BvhLayout::Cwbvh, Some(cwbvh)) => {
+                            let bvh = GpuBvh::from_cwbvh(scene, cwbvh);
+                            let seconds = convert.elapsed().as_secs_f64();
+                            (bvh, cwbvh_seconds + seconds, seconds)
+                        }
+                        (layout, _) => {
+                            let bvh = GpuBvh::build(scene, layout, options.quality);
+                            (bvh, convert.elapsed().as_secs_f64(), 0.0)
+                        }
+                    };
+                    let upload = Instant::now();
+                    let storage = options.geometry_storage.unwrap_or_else(|| dev.ctx.preferred_storage());
+                    let gpu_scene = GpuScene::upload(&dev.ctx, scene, &bvh, storage)?;
+                    let setup = Setup {
+                        adapter,
+                        bvh_layout: options.layout,
+                        bvh_build_seconds,
+                        bvh_convert_seconds,
+                        bvh_nodes: bvh.node_count as usize,
+                        upload_seconds: upload.elapsed().as_secs_f64(),
+                        bvh_bytes: gpu_scene.bvh_bytes,
+                        device_bytes: gpu_scene.device_bytes(),
+                        geometry_bindings: gpu_scene.geometry_bindings(),
+                        geometry_storage: storage.name(),
+                    };
+                    out.push((Prepared::Gpu { dev: dev.clone(), scene: gpu_scene }, setup));
+                }
+                Opened::Cpu(_) => {
+                    // The last device that needs the CWBVH takes it; the others copy it.
+                    let last = !devices[i + 1..].iter().any(uses_cwbvh);
+                    let cwbvh = if last { cwbvh.take() } else { cwbvh.clone() }.expect("built for the CPU");
+                    let bvh_nodes = cwbvh.top.iter().chain(&cwbvh.meshes).map(|b| b.nodes.len()).sum();
+                    let upload = Instant::now();
+                    let tracer = CpuTracer::new(scene, cwbvh);
+                    let setup = Setup {
+                        adapter,
+                        bvh_layout: BvhLayout::Cwbvh,
+                        bvh_build_seconds: cwbvh_seconds,
+                        bvh_convert_seconds: 0.0,
+                        bvh_nodes,
+                        upload_seconds: upload.elapsed().as_secs_f64(),
+                        bvh_bytes: tracer.bytes(),
+                        device_bytes: 0,
+                        geometry_bindings: 0,
+                        geometry_storage: "",
+                    };
+                    out.push((Prepared::Cpu(Arc::new(tracer)), setup));
+                }
             }
         }
+        Ok(out)
     }
 
     /// The film of an image of `settings` seen by `camera`.

@@ -264,6 +264,26 @@ impl Render {
         Ok(())
     }
 
+    /// Empties the film and the accumulation, keeping the film and pipeline made for the
+    /// request: the render starts again from its first sample (after a warm-up pass that
+    /// is not to be measured, say).
+    pub fn restart(&mut self) -> Result<()> {
+        if self.acc.partial_samples > 0 {
+            self.passes.take()?;
+        }
+        let acc = &mut self.acc;
+        acc.exact.sum.fill(0);
+        acc.exact.sum_sq.fill(0);
+        (acc.next, acc.partial_samples, acc.on_grid) = (acc.first, 0, true);
+        (acc.ao_rays, acc.passes, acc.render_seconds) = (0, 0, 0.0);
+        acc.partial = None;
+        self.resumed = 0;
+        self.count = 1;
+        self.times = PassTimes { gpu_seconds: Some(0.0), ..Default::default() };
+        self.interrupted = false;
+        Ok(())
+    }
+
     /// Samples per pixel done.
     pub fn samples(&self) -> u32 {
         self.acc.samples()

@@ -10,7 +10,7 @@ use crate::probe::{Probe, ProbeValue, lanes_for};
 use crate::render::{Control, Render, RenderInfo};
 use crate::scene::{Camera, Scene, Settings};
 use std::ops::Range;
-use std::sync::{Mutex, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
 /// An image to render: a view of the session's scene, its sampling, and which of its
@@ -42,7 +42,7 @@ pub struct ProbeOutput {
 
 /// A scene prepared on a device, answering requests.
 pub struct Session {
-    scene: Scene,
+    scene: Arc<Scene>,
     device: Device,
     options: BvhOptions,
     prepared: Prepared,
@@ -57,16 +57,28 @@ impl Session {
     /// Builds the BVH of `scene` and uploads it to `device`: the work every request then
     /// shares.
     pub fn new(device: &Device, scene: Scene, options: &BvhOptions) -> Result<Session> {
-        let (prepared, setup) = Prepared::new(device, &scene, options)?;
-        Ok(Session {
-            scene,
-            device: device.clone(),
-            options: *options,
-            prepared,
-            setup,
-            camera_hash: Mutex::new(None),
-            geometry_hash: OnceLock::new(),
-        })
+        let mut sessions = Session::on_devices(std::slice::from_ref(device), scene, options)?;
+        Ok(sessions.pop().expect("one session per device"))
+    }
+
+    /// One session of `scene` on each of `devices` (a GPU and the CPU reference, to compare
+    /// them), the BVH built once for all and the scene shared.
+    pub fn on_devices(devices: &[Device], scene: Scene, options: &BvhOptions) -> Result<Vec<Session>> {
+        let scene = Arc::new(scene);
+        let prepared = Prepared::new(devices, &scene, options)?;
+        Ok(devices
+            .iter()
+            .zip(prepared)
+            .map(|(device, (prepared, setup))| Session {
+                scene: scene.clone(),
+                device: device.clone(),
+                options: *options,
+                prepared,
+                setup,
+                camera_hash: Mutex::new(None),
+                geometry_hash: OnceLock::new(),
+            })
+            .collect())
     }
 
     /// The scene.

@@ -85,6 +85,28 @@ fn one_session_answers_many_requests_like_fresh_sessions() {
     }
 }
 
+/// Sessions made together on several devices share one BVH build (their setups report
+/// the same build) and render what separate sessions render, bit for bit.
+#[test]
+fn sessions_on_several_devices_share_the_build() {
+    let devices: Vec<Device> = devices().into_iter().chain([Device::cpu()]).collect();
+    let scene = aobench(8);
+    let sessions = Session::on_devices(&devices, scene.clone(), &BvhOptions::default()).expect("sessions");
+    assert_eq!(sessions.len(), devices.len());
+    let build = sessions[0].setup().bvh_build_seconds - sessions[0].setup().bvh_convert_seconds;
+    for (session, device) in sessions.iter().zip(&devices) {
+        let setup = session.setup();
+        // The same measured build (up to the rounding of taking the conversion back out).
+        let own = setup.bvh_build_seconds - setup.bvh_convert_seconds;
+        assert!((own - build).abs() <= 1e-12, "{}: a build of {own} s, not {build} s", device.info().name);
+        let request = session.default_request();
+        let shared = session.render(&request).unwrap().complete(&mut Control::default()).unwrap();
+        let alone = Session::new(device, scene.clone(), &BvhOptions::default()).unwrap();
+        let alone = alone.render(&request).unwrap().complete(&mut Control::default()).unwrap();
+        assert_eq!(shared.film.sum, alone.film.sum, "{}", device.info().name);
+    }
+}
+
 /// A request the session cannot render is refused with the setting named, before any work.
 #[test]
 fn invalid_requests_name_the_setting() {

@@ -14,9 +14,9 @@
 //!
 //! Timings are reported, never asserted: on the GPU a pass's time is the span between its
 //! first and last timestamp queries where the adapter has them, else the wall clock
-//! around the pass; the CPU reference is timed by the wall clock. Each scene is prepared
-//! once per device and BVH preset (a session); every configuration, resolution and the
-//! reference are requests on it.
+//! around the pass; the CPU reference is timed by the wall clock. Each scene's BVH is
+//! built once per preset and prepared on the GPU and the CPU reference (a session each);
+//! every configuration, resolution and the reference are requests on those sessions.
 
 mod cache;
 mod cli;
@@ -423,10 +423,9 @@ impl RawCheckpoint {
 /// passes of at most [`PASS_SAMPLES`] up to each of `targets` samples per pixel, timing
 /// the passes only, keeping the image at each target.
 fn measure(session: &Session, request: &ImageRequest, targets: &[u32], tracker: &mut Tracker) -> Result<RawRun> {
-    let mut warm_up = session.render(request)?;
-    warm_up.run_to(1, &mut Control::default())?;
-    drop(warm_up);
     let mut render = session.render(request)?;
+    render.run_to(1, &mut Control::default())?;
+    render.restart()?;
     let setup_seconds = session.setup().upload_seconds + render.setup_seconds();
     let pixels = request.settings.width as u64 * request.settings.height as u64;
     let mut checkpoints = Vec::with_capacity(targets.len());
@@ -676,8 +675,11 @@ fn bench_scene(
     let targets = checkpoints(sp.max_spp);
 
     tracker.stage(format!("{prefix}: building the BVH ({} triangles)", scene.world_triangle_count()));
-    let cpu_scene = plan.cpu.then(|| scene.clone());
-    let session = Session::new(gpu, scene, &BvhOptions::default())?;
+    // The GPU's session, and the CPU reference's over the same BVH build.
+    let devices: Vec<Device> = std::iter::once(gpu.clone()).chain(plan.cpu.then(Device::cpu)).collect();
+    let mut sessions = Session::on_devices(&devices, scene, &BvhOptions::default())?.into_iter();
+    let session = sessions.next().expect("the GPU's session");
+    let cpu_session = sessions.next();
     let setup = session.setup().clone();
 
     let mut raw_runs: Vec<(ImageRequest, RawRun)> = Vec::new();
@@ -706,10 +708,6 @@ fn bench_scene(
         }
     }
 
-    let cpu_session = match cpu_scene {
-        Some(scene) => Some(Session::new(&Device::cpu(), scene, &BvhOptions::default())?),
-        None => None,
-    };
     let mut cpu_raw = None;
     if let Some(cpu) = &cpu_session {
         tracker.stage(format!("{prefix}: CPU cosine/independent to {} spp", sp.max_spp));
@@ -901,7 +899,9 @@ fn bvh_presets(
     for q in BuildQuality::ALL {
         tracker.stage(format!("{prefix}: BVH preset {}", q.name()));
         let options = BvhOptions { quality: q, ..BvhOptions::default() };
-        let session = Session::new(gpu, scene.clone(), &options)?;
+        let devices: Vec<Device> = std::iter::once(gpu.clone()).chain(plan.cpu.then(Device::cpu)).collect();
+        let mut sessions = Session::on_devices(&devices, scene.clone(), &options)?.into_iter();
+        let session = sessions.next().expect("the GPU's session");
         let setup = session.setup();
         let (build_seconds, convert_seconds) =
             (setup.bvh_build_seconds - setup.bvh_convert_seconds, setup.bvh_convert_seconds);
@@ -911,13 +911,13 @@ fn bvh_presets(
         drop(session);
         let c = raw.checkpoints.last().expect("checkpoints");
         let gpu_rays_per_second = c.rays as f64 / c.seconds(raw.timestamps).max(1e-12);
-        let cpu_rays_per_second = if plan.cpu {
-            let cpu = Session::new(&Device::cpu(), scene.clone(), &options)?;
-            let raw = measure(&cpu, &request, &[plan.scaling_spp], tracker)?;
-            let c = raw.checkpoints.last().expect("checkpoints");
-            Some(c.rays as f64 / c.wall_seconds.max(1e-12))
-        } else {
-            None
+        let cpu_rays_per_second = match sessions.next() {
+            Some(cpu) => {
+                let raw = measure(&cpu, &request, &[plan.scaling_spp], tracker)?;
+                let c = raw.checkpoints.last().expect("checkpoints");
+                Some(c.rays as f64 / c.wall_seconds.max(1e-12))
+            }
+            None => None,
         };
         let gpu_break_even_rays = out.first().and_then(|fastest| {
             let extra = build_seconds - fastest.build_seconds;
