@@ -237,10 +237,8 @@ impl Prepared {
                 let frame = FrameUniforms::image(camera, settings, scene.node_count, scene.plane_count);
                 Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?))
             }
-            Prepared::Cpu(tracer) => Ok(Box::new(CpuImage {
-                tracer: tracer.clone(),
-                camera: *camera,
-                settings: settings.clone(),
+            Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
+                work: CpuImage { tracer: tracer.clone(), camera: *camera, settings: settings.clone() },
                 film: Film::new(settings.width, settings.height),
             })),
         }
@@ -276,11 +274,13 @@ impl Prepared {
                     .collect();
                 Ok(Box::new(GpuTarget::probes(dev, scene, frame, settings.sampler, settings.hemisphere, &points)?))
             }
-            Prepared::Cpu(tracer) => Ok(Box::new(CpuProbes {
-                tracer: tracer.clone(),
-                settings: settings.clone(),
-                probes: probes.to_vec(),
-                samples,
+            Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
+                work: CpuProbes {
+                    tracer: tracer.clone(),
+                    settings: settings.clone(),
+                    probes: probes.to_vec(),
+                    samples,
+                },
                 film: Film::new(lanes, probes.len() as u32),
             })),
         }
@@ -340,87 +340,71 @@ impl Passes for GpuTarget {
     }
 }
 
+/// What the CPU reference traces into a film: an image, or probe points.
+trait CpuWork {
+    /// Adds samples (or probe rounds) `first .. first + count` to `film`; returns the AO
+    /// rays traced.
+    fn pass(&self, film: &mut Film, first: u32, count: u32) -> u64;
+}
+
 /// An image on the CPU reference.
 struct CpuImage {
     tracer: Arc<CpuTracer>,
     camera: Camera,
     settings: Settings,
-    film: Film,
 }
 
-/// Probe points on the CPU reference.
+impl CpuWork for CpuImage {
+    fn pass(&self, film: &mut Film, first: u32, count: u32) -> u64 {
+        self.tracer.render_pass(&self.camera, &self.settings, film, first, count)
+    }
+}
+
+/// Probe points on the CPU reference; the film's slots are lanes × probes.
 struct CpuProbes {
     tracer: Arc<CpuTracer>,
     settings: Settings,
     probes: Vec<Probe>,
     samples: u32,
-    /// Lanes × probes slots.
+}
+
+impl CpuWork for CpuProbes {
+    fn pass(&self, film: &mut Film, first: u32, count: u32) -> u64 {
+        self.tracer.probe_pass(&self.settings, &self.probes, self.samples, film, first, count)
+    }
+}
+
+/// A request on the CPU reference and its film: f64 sums per slot.
+struct CpuTarget<W> {
+    work: W,
     film: Film,
 }
 
-/// The block of a CPU film: its f64 sums.
-fn cpu_block(film: &Film) -> BlockSums {
-    BlockSums::Cpu { sum: film.sum.clone(), sum_sq: film.sum_sq.clone() }
-}
+impl<W: CpuWork> Passes for CpuTarget<W> {
+    fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
+        Ok(PassReport { ao_rays: self.work.pass(&mut self.film, first, count), gpu_seconds: None })
+    }
 
-/// The block of a CPU film, leaving it empty.
-fn take_cpu_block(film: &mut Film) -> BlockSums {
-    let empty = Film::new(film.width, film.height);
-    let film = std::mem::replace(film, empty);
-    BlockSums::Cpu { sum: film.sum, sum_sq: film.sum_sq }
-}
+    fn read(&mut self) -> Result<BlockSums> {
+        Ok(BlockSums::Cpu { sum: self.film.sum.clone(), sum_sq: self.film.sum_sq.clone() })
+    }
 
-/// Replaces a CPU film's sums with `block`'s.
-fn load_cpu_block(film: &mut Film, block: &BlockSums) -> Result<()> {
-    match block {
-        BlockSums::Cpu { sum, sum_sq } if sum.len() == film.sum.len() && sum_sq.len() == sum.len() => {
-            film.sum.clone_from(sum);
-            film.sum_sq.clone_from(sum_sq);
-            Ok(())
+    fn take(&mut self) -> Result<BlockSums> {
+        let empty = Film::new(self.film.width, self.film.height);
+        let film = std::mem::replace(&mut self.film, empty);
+        Ok(BlockSums::Cpu { sum: film.sum, sum_sq: film.sum_sq })
+    }
+
+    fn load(&mut self, block: &BlockSums) -> Result<()> {
+        let film = &mut self.film;
+        match block {
+            BlockSums::Cpu { sum, sum_sq } if sum.len() == film.sum.len() && sum_sq.len() == sum.len() => {
+                film.sum.clone_from(sum);
+                film.sum_sq.clone_from(sum_sq);
+                Ok(())
+            }
+            _ => Err(Error::settings("the checkpoint's block does not fit the CPU reference's film")),
         }
-        _ => Err(Error::settings("the checkpoint's block does not fit the CPU reference's film")),
-    }
-}
-
-impl Passes for CpuImage {
-    fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
-        let ao_rays = self.tracer.render_pass(&self.camera, &self.settings, &mut self.film, first, count);
-        Ok(PassReport { ao_rays, gpu_seconds: None })
-    }
-
-    fn read(&mut self) -> Result<BlockSums> {
-        Ok(cpu_block(&self.film))
-    }
-
-    fn take(&mut self) -> Result<BlockSums> {
-        Ok(take_cpu_block(&mut self.film))
-    }
-
-    fn load(&mut self, block: &BlockSums) -> Result<()> {
-        load_cpu_block(&mut self.film, block)
-    }
-
-    fn device_bytes(&self) -> u64 {
-        0
-    }
-}
-
-impl Passes for CpuProbes {
-    fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
-        let ao_rays = self.tracer.probe_pass(&self.settings, &self.probes, self.samples, &mut self.film, first, count);
-        Ok(PassReport { ao_rays, gpu_seconds: None })
-    }
-
-    fn read(&mut self) -> Result<BlockSums> {
-        Ok(cpu_block(&self.film))
-    }
-
-    fn take(&mut self) -> Result<BlockSums> {
-        Ok(take_cpu_block(&mut self.film))
-    }
-
-    fn load(&mut self, block: &BlockSums) -> Result<()> {
-        load_cpu_block(&mut self.film, block)
     }
 
     fn device_bytes(&self) -> u64 {
