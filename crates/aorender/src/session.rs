@@ -162,14 +162,16 @@ impl Session {
 
     /// Estimates AO at every probe with `samples` samples each, with the hemisphere,
     /// sampler, seed and maximum distance of `settings` (its image size and samples per
-    /// pixel are not used). The probes' samples are spread over several slots (lanes)
-    /// each and their sums added exactly.
+    /// pixel are not used). A probe's normal need not be of unit length; a zero or
+    /// non-finite one is an [`Error::Probe`] naming the probe. The probes' samples are
+    /// spread over several slots (lanes) each and their sums added exactly.
     pub fn probe(&self, probes: &[Probe], samples: u32, settings: &Settings) -> Result<ProbeOutput> {
         self.probe_with(probes, samples, settings, &mut Control::default())
     }
 
     /// [`Session::probe`] under `control`: a stop flag, a time limit (the values then
-    /// hold fewer samples, as [`ProbeValue::samples`] says) and progress in rounds.
+    /// hold fewer samples, as [`ProbeValue::samples`] says; with none, their mean is NaN)
+    /// and progress in rounds.
     pub fn probe_with(
         &self,
         probes: &[Probe],
@@ -181,9 +183,15 @@ impl Session {
         if samples == 0 {
             return Err(Error::settings("samples per probe must be at least 1"));
         }
-        for (index, p) in probes.iter().enumerate() {
-            Probe::new(p.position, p.normal).map_err(|e| Error::Probe { index, message: e.message() })?;
-        }
+        // Checked, and with unit normals however they were given.
+        let probes: Vec<Probe> = probes
+            .iter()
+            .enumerate()
+            .map(|(index, p)| {
+                Probe::new(p.position, p.normal).map_err(|e| Error::Probe { index, message: e.message() })
+            })
+            .collect::<Result<_>>()?;
+        let probes = &probes[..];
         let adapter = self.setup.adapter.name.clone();
         if probes.is_empty() {
             return Ok(ProbeOutput { values: Vec::new(), rays: 0, seconds: 0.0, adapter });

@@ -124,6 +124,12 @@ fn invalid_requests_name_the_setting() {
     let bad = Probe { position: glam::Vec3::ZERO, normal: glam::Vec3::ZERO };
     let e = session.probe(&[Probe::new(glam::Vec3::ONE, glam::Vec3::Z).unwrap(), bad], 16, &r.settings).unwrap_err();
     assert_eq!(e.to_string(), "probe 1: zero normal");
+    // A normal of any length is the direction it gives.
+    let unit = Probe::new(glam::Vec3::new(0.0, -0.5, -2.0), glam::Vec3::Y).unwrap();
+    let long = Probe { normal: glam::Vec3::new(0.0, 3.0, 0.0), ..unit };
+    let a = session.probe(&[unit], 64, &r.settings).unwrap();
+    let b = session.probe(&[long], 64, &r.settings).unwrap();
+    assert_eq!(a.values, b.values);
 }
 
 /// Checkpoints of format version 1, written before the engine was reorganised
