@@ -31,7 +31,7 @@
 //! Run it with
 //!
 //! ```text
-//! cargo run --release --example instancing [-- scenes/dragons.toml]
+//! cargo run --release -p aorender --features testing --example instancing [-- scenes/dragons.toml]
 //! ```
 //!
 //! Any scene file made of triangle meshes and planes can be given; mesh objects that name
