@@ -4,7 +4,7 @@
 //! the library's modules form no cycle.
 
 mod common;
-use aorender::gpu::layout::{Access, BINDINGS, STRUCTS, constants, wgsl_header};
+use aorender::gpu::layout::{Access, BINDINGS, STRUCTS, constants, node_binding, primitive_binding, wgsl_header};
 use aorender::gpu::shaders::{GeometryChunks, compose};
 use aorender::{
     Accumulation, BvhLayout, BvhOptions, Control, Device, DeviceKind, Hemisphere, ImageRequest, Probe, Sampler, Scene,
@@ -266,7 +266,7 @@ fn the_kernel_binds_what_the_table_lists() {
                 b.index
             );
         }
-        let geometry = [GeometryChunks::node_binding(0), GeometryChunks::primitive_binding(0)];
+        let geometry = [node_binding(0), primitive_binding(0)];
         assert_eq!(bound.len(), BINDINGS.len() + geometry.len(), "{layout:?}: {bound:?}");
         assert!(geometry.iter().all(|g| bound.contains_key(g)));
     }

@@ -3,7 +3,7 @@
 //! suite's thousands of probe runs, a comparison grid's cells) compile each variant once.
 
 use super::context::GpuContext;
-use super::layout::{Access, BINDINGS};
+use super::layout::{Access, BINDINGS, node_binding, primitive_binding};
 use super::shaders::{GeometryChunks, GeometryStorage, compose};
 use crate::bvh::BvhLayout;
 use crate::error::Result;
@@ -129,8 +129,8 @@ impl Pipelines {
         };
         let mut entries: Vec<wgpu::BindGroupLayoutEntry> =
             BINDINGS.iter().map(|b| buffer(b.index, b.access == Access::Read, b.dynamic_offset)).collect();
-        entries.extend((0..chunks.node_chunks).map(|k| geometry(GeometryChunks::node_binding(k))));
-        entries.extend((0..chunks.primitive_chunks).map(|k| geometry(GeometryChunks::primitive_binding(k))));
+        entries.extend((0..chunks.node_chunks).map(|k| geometry(node_binding(k))));
+        entries.extend((0..chunks.primitive_chunks).map(|k| geometry(primitive_binding(k))));
         let bind_group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("ao bindings"),
             entries: &entries,

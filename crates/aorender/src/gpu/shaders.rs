@@ -125,16 +125,6 @@ impl GeometryChunks {
         primitives_per_chunk: u32::MAX,
         row_texels: 0,
     };
-
-    /// The binding of node chunk `k` ([`node_binding`]).
-    pub fn node_binding(k: u32) -> u32 {
-        node_binding(k)
-    }
-
-    /// The binding of primitive chunk `k` ([`primitive_binding`]).
-    pub fn primitive_binding(k: u32) -> u32 {
-        primitive_binding(k)
-    }
 }
 
 /// A geometry element type of the kernel as the texels that hold it.
@@ -229,7 +219,7 @@ pub fn geometry_files(layout: BvhLayout, chunks: GeometryChunks, stack_size: u32
                     "load_node",
                     chunks.node_chunks,
                     chunks.nodes_per_chunk,
-                    GeometryChunks::node_binding,
+                    node_binding,
                     chunks
                 )
             ),
@@ -244,7 +234,7 @@ pub fn geometry_files(layout: BvhLayout, chunks: GeometryChunks, stack_size: u32
                     "load_primitive",
                     chunks.primitive_chunks,
                     chunks.primitives_per_chunk,
-                    GeometryChunks::primitive_binding,
+                    primitive_binding,
                     chunks
                 )
             ),

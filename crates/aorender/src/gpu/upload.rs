@@ -3,7 +3,7 @@
 //! most one binding each; and the planes. Requests bind them as they are.
 
 use super::context::GpuContext;
-use super::layout::{GpuPlane, OTHER_STORAGE_BINDINGS};
+use super::layout::{GpuPlane, OTHER_STORAGE_BINDINGS, node_binding, primitive_binding};
 use super::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE};
 use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
@@ -106,8 +106,8 @@ impl GpuScene {
 
     /// The geometry's bind group entries: node chunks, then primitive chunks.
     pub(crate) fn bind_group_entries(&self) -> Vec<wgpu::BindGroupEntry<'_>> {
-        let nodes = self.nodes.iter().enumerate().map(|(k, g)| (GeometryChunks::node_binding(k as u32), g));
-        let prims = self.primitives.iter().enumerate().map(|(k, g)| (GeometryChunks::primitive_binding(k as u32), g));
+        let nodes = self.nodes.iter().enumerate().map(|(k, g)| (node_binding(k as u32), g));
+        let prims = self.primitives.iter().enumerate().map(|(k, g)| (primitive_binding(k as u32), g));
         nodes.chain(prims).map(|(binding, g)| wgpu::BindGroupEntry { binding, resource: g.resource() }).collect()
     }
 
