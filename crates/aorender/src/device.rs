@@ -166,6 +166,8 @@ impl Prepared {
         // obvhs's CWBVH, built once for every device that traverses it: the CPU reference,
         // and a GPU in the CWBVH layout.
         let uses_cwbvh = |d: &Device| d.kind() == DeviceKind::Cpu || options.layout == BvhLayout::Cwbvh;
+        #[cfg(feature = "testing")]
+        crate::phase::enter("bvh");
         let build = Instant::now();
         let mut cwbvh = devices.iter().any(uses_cwbvh).then(|| build_cwbvh(scene, options.quality));
         let cwbvh_seconds = build.elapsed().as_secs_f64();

@@ -81,6 +81,8 @@ pub mod mirror;
 #[cfg(not(feature = "testing"))]
 mod mirror;
 #[cfg(feature = "testing")]
+pub mod phase;
+#[cfg(feature = "testing")]
 pub mod probe;
 #[cfg(not(feature = "testing"))]
 mod probe;

@@ -15,6 +15,8 @@ impl Scene {
     /// also gzipped as `.gz`), framed automatically. What the loaders skipped is in
     /// [`Scene::warnings`].
     pub fn load(path: &Path) -> Result<Scene> {
+        #[cfg(feature = "testing")]
+        crate::phase::enter("load");
         match extension(path).as_str() {
             "toml" if input::is_gzip(path) => Err(Error::scene(path, "a scene file cannot be gzipped")),
             "toml" => {
