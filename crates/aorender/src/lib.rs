@@ -103,6 +103,7 @@ pub mod session;
 #[cfg(not(feature = "testing"))]
 mod session;
 
+pub mod bake;
 pub mod closed_form;
 pub mod error;
 pub mod output;

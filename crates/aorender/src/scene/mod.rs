@@ -5,19 +5,20 @@
 
 mod camera;
 mod file;
-mod gltf;
-mod input;
+pub(crate) mod gltf;
+pub(crate) mod input;
 mod load;
-mod mesh;
-mod meshes;
-mod obj;
-mod ply;
+pub(crate) mod mesh;
+pub(crate) mod meshes;
+pub(crate) mod obj;
+pub(crate) mod ply;
 mod types;
 
 pub use crate::geometry::Plane;
 pub use camera::{Camera, Projection, RayGen};
 pub use file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME};
 pub use meshes::mesh_triangles;
+pub(crate) use meshes::extension;
 pub use types::{
     Bounds, Instance, InstancedMesh, MAX_IMAGE_SIDE, MAX_NORMAL_LENGTH_SQUARED, MIN_NORMAL_LENGTH_SQUARED, Scene,
     Settings, Sphere, Triangle, Warning,

@@ -1,0 +1,27 @@
+//! Baking into GLTF files (not yet written).
+
+use super::{Asset, AssetMesh, BakedValues, WriteOptions};
+use crate::error::{Error, Result};
+use std::path::Path;
+
+/// A GLTF file read for baking.
+pub struct GltfAsset {
+    meshes: Vec<AssetMesh>,
+}
+
+impl GltfAsset {
+    /// Reads `path` for baking.
+    pub fn read(path: &Path) -> Result<GltfAsset> {
+        Err(Error::scene(path, "baking into this format is not available yet"))
+    }
+}
+
+impl Asset for GltfAsset {
+    fn meshes(&self) -> &[AssetMesh] {
+        &self.meshes
+    }
+
+    fn write(&self, path: &Path, _values: &[BakedValues], _options: &WriteOptions) -> Result<Vec<String>> {
+        Err(Error::output(path, "baking into this format is not available yet"))
+    }
+}

@@ -1,0 +1,27 @@
+//! Baking into OBJ files (not yet written).
+
+use super::{Asset, AssetMesh, BakedValues, WriteOptions};
+use crate::error::{Error, Result};
+use std::path::Path;
+
+/// A OBJ file read for baking.
+pub struct ObjAsset {
+    meshes: Vec<AssetMesh>,
+}
+
+impl ObjAsset {
+    /// Reads `path` for baking.
+    pub fn read(path: &Path) -> Result<ObjAsset> {
+        Err(Error::scene(path, "baking into this format is not available yet"))
+    }
+}
+
+impl Asset for ObjAsset {
+    fn meshes(&self) -> &[AssetMesh] {
+        &self.meshes
+    }
+
+    fn write(&self, path: &Path, _values: &[BakedValues], _options: &WriteOptions) -> Result<Vec<String>> {
+        Err(Error::output(path, "baking into this format is not available yet"))
+    }
+}
