@@ -5,6 +5,7 @@ use anyhow::{Context, Result, bail};
 use aorender::{BuildQuality, BvhLayout, BvhOptions, Device, DeviceKind, GeometryStorage, Hemisphere, Sampler, Scene};
 use clap::ValueEnum;
 use clap::builder::TypedValueParser as _;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 /// `--hemisphere` values: the library's names.
@@ -200,4 +201,18 @@ pub fn check_writable(path: &Path) -> Result<()> {
 pub fn write_json(path: &Path, json: &str) -> Result<()> {
     aorender::output::write_atomically(path, format!("{json}\n").as_bytes())?;
     Ok(())
+}
+
+/// `--sample-range START..END`: a non-empty range of sample indices.
+pub fn parse_sample_range(text: &str) -> Result<Range<u32>, String> {
+    let (a, b) = text.split_once("..").ok_or_else(|| format!("expected START..END, got '{text}'"))?;
+    let number = |t: &str, name: &str| match t.trim() {
+        "" => Err(format!("{name} is missing in '{text}' (expected START..END)")),
+        t => t.parse::<u32>().map_err(|e| format!("{name} '{t}' in '{text}' is not a sample index: {e}")),
+    };
+    let (a, b) = (number(a, "START")?, number(b, "END")?);
+    if a >= b {
+        return Err(format!("'{text}' is empty: START must be below END"));
+    }
+    Ok(a..b)
 }

@@ -3,7 +3,7 @@
 //! progress bars, signals and printing live here; the engine is the `aorender` library.
 
 use anyhow::{Result, bail};
-use aorender_cli::commands::{accuracy, compare, merge, probe, render};
+use aorender_cli::commands::{accuracy, bake, compare, merge, probe, render};
 use aorender_cli::{bench, memory};
 use clap::{Parser, Subcommand};
 
@@ -22,6 +22,9 @@ enum Command {
     Compare(compare::CompareArgs),
     /// AO at points and normals read from a file (x y z nx ny nz per line), written as CSV.
     Probe(probe::ProbeArgs),
+    /// Bake AO into a mesh file's vertices or faces (PLY, OBJ, glTF/GLB), or into every mesh
+    /// object of a scene file.
+    Bake(bake::BakeArgs),
     /// Run the closed-form accuracy suite on the CPU reference and the adapter and write its
     /// table as Markdown (docs/accuracy.md).
     Accuracy(accuracy::AccuracyArgs),
@@ -83,6 +86,7 @@ fn run() -> Result<()> {
         Command::Render(args) => render::run(args),
         Command::Compare(args) => compare::command(args),
         Command::Probe(args) => probe::run(args),
+        Command::Bake(args) => bake::run(args),
         Command::Accuracy(args) => accuracy::run(args),
         Command::Merge(args) => merge::run(args),
         Command::Bench(args) => bench::command(args),

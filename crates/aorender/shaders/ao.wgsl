@@ -200,8 +200,8 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
                 break;
             }
             let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata);
-            // A probe point is exact as given: no offset.
-            acc = accumulate(acc, ao_value(q.position, q.normal, 0.0, u.zw));
+            // Pushed off its surface by its error bound (zero for a point exactly on it).
+            acc = accumulate(acc, ao_value(q.position, q.normal, q.error, u.zw));
         }
         film[slot] = acc;
         atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);

@@ -12,7 +12,7 @@ use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
 use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, Film};
-use crate::probe::Probe;
+use crate::probe::{Probe, ProbeValue};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::{Camera, Projection, Scene, Settings};
@@ -198,16 +198,20 @@ pub fn geometry_hash(scene: &Scene) -> [u8; 32] {
 /// their sampling.
 pub fn probes_hash(geometry: &[u8; 32], probes: &[Probe]) -> [u8; 32] {
     let mut h = blake3::Hasher::new();
-    h.update(b"aorender probes v1");
+    h.update(b"aorender probes v2");
     h.update(geometry);
     h.update(&(probes.len() as u64).to_le_bytes());
     for p in probes {
-        for c in p.position.to_array().into_iter().chain(p.normal.to_array()) {
+        for c in p.position.to_array().into_iter().chain(p.normal.to_array()).chain([p.error]) {
             h.update(&c.to_le_bytes());
         }
     }
     *h.finalize().as_bytes()
 }
+
+/// The largest magnitude of a probe sample: a hemisphere weight, at most 2 (the uniform
+/// hemisphere's 2 cos θ).
+pub const MAX_PROBE_SAMPLE: f64 = 2.0;
 
 /// The largest magnitude a sample of `scene` can take with background `background`:
 /// twice the largest albedo (the uniform hemisphere's weight 2 cos θ is at most 2), or
@@ -319,6 +323,36 @@ impl Accumulation {
             samples.end,
             max_sample_value(scene, settings.background),
         )
+    }
+
+    /// An empty accumulation of sample indices `samples` (of `spp` a probe) at `probes` in
+    /// `scene`, one film slot per probe, with the sampling of `settings`, on a device of
+    /// `kind` with the BVH of `bvh`: what `Session::probe_render` starts from, so that a
+    /// checkpoint can be checked against it before any work is done.
+    pub fn probes(
+        scene: &Scene,
+        probes: &[Probe],
+        spp: u32,
+        samples: std::ops::Range<u32>,
+        settings: &Settings,
+        kind: DeviceKind,
+        bvh: &BvhOptions,
+    ) -> Accumulation {
+        let layout = if kind == DeviceKind::Cpu { BvhLayout::Cwbvh } else { bvh.layout };
+        let hash = probes_hash(&geometry_hash(scene), probes);
+        let settings = SampleSettings::probes(hash, 1, probes.len() as u32, spp, settings);
+        Accumulation::new(settings, kind, layout, bvh.quality, samples.start, samples.end, MAX_PROBE_SAMPLE)
+    }
+
+    /// The estimate at each probe of an accumulation of probes with one slot each (a
+    /// `Session::probe_render`'s): mean and standard error of the samples held.
+    pub fn probe_values(&self) -> Result<Vec<ProbeValue>> {
+        if self.settings.width != 1 {
+            return Err(self.error(format!("holds {} slots a point, not one", self.settings.width)));
+        }
+        let film = self.film()?;
+        let n = self.samples() as u64;
+        Ok(film.sum.iter().zip(&film.sum_sq).map(|(&s, &s2)| ProbeValue::from_sums(s, s2, n)).collect())
     }
 
     /// Samples per pixel held.

@@ -111,6 +111,7 @@ fn empty_scene(name: &str, v: &Variant) -> Scene {
         spheres: Vec::new(),
         planes: Vec::new(),
         warnings: Vec::new(),
+        mesh_objects: Vec::new(),
     }
 }
 

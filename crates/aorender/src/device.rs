@@ -269,7 +269,7 @@ impl Prepared {
                     .iter()
                     .map(|p| GpuProbePoint {
                         position: p.position.to_array(),
-                        _pad0: 0.0,
+                        error: p.error,
                         normal: p.normal.to_array(),
                         _pad1: 0.0,
                     })

@@ -311,13 +311,28 @@ pub fn instance_hit_point(
 ) -> SurfacePoint {
     let (oo, od) = (to_object.point(o), to_object.vector(d));
     let (p_object, n_object, e_object) = triangle_hit(oo, od, t, v[0], v[1], v[2]);
+    let n = to_object.0.transpose_vector(n_object).normalize();
+    instance_point(to_world, to_object, p_object, e_object, n)
+}
+
+/// A point of an instance's surface carried into the world, `p_object` within `e_object`
+/// (componentwise) of the surface in the mesh's space, with world normal `n`: the point
+/// and the bound of [`instance_hit_point`], which an AO ray from it is offset by. A mesh
+/// vertex is exactly on its triangles (`e_object` zero): what a bake of an instanced mesh
+/// starts its rays from.
+pub fn instance_point(
+    to_world: &AffineRows,
+    to_object: &InverseAffine,
+    p_object: Vec3,
+    e_object: Vec3,
+    n: Vec3,
+) -> SurfacePoint {
     let p = to_world.point(p_object);
     let forward = gamma(3) * to_world.abs_apply(p_object.abs(), 0.0)
         + gamma(1) * p.abs()
         + (1.0 + gamma(3)) * to_world.abs_apply(e_object, 0.0);
     let q = (p - to_world.translation()).abs() + 2.0 * forward;
     let back = to_world.abs_apply(gamma(5) * to_object.0.abs_apply(q, 0.0), 0.0);
-    let n = to_object.0.transpose_vector(n_object).normalize();
     SurfacePoint { p, n, error: n.abs().dot(forward + back) * (1.0 + gamma(16)) }
 }
 

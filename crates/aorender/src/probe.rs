@@ -3,8 +3,9 @@
 //!
 //! A probe is a position and a normal; its value is 1/π ∫ V(x, ω) cos θ dω over the
 //! hemisphere around the normal (albedo 1), estimated with a request's hemisphere
-//! distribution, sampler, seed and maximum distance. The AO rays start at the position
-//! itself, which is taken as lying on its surface. Sample `i` of probe `k` uses the
+//! distribution, sampler, seed and maximum distance. The AO rays start at the position,
+//! pushed off along the normal by the probe's error bound (zero for a point given exactly
+//! on its surface: a ray that starts on a triangle never hits it). Sample `i` of probe `k` uses the
 //! sampler's numbers for pixel `(k, 0)` and index `i`, on the GPU and on the CPU reference
 //! alike; on either device a probe's samples are spread over several slots (lanes), and
 //! slot sums are added exactly.
@@ -19,6 +20,9 @@ pub struct Probe {
     pub position: Vec3,
     /// Unit normal.
     pub normal: Vec3,
+    /// Bound on the distance, along the normal, between `position` and the surface the
+    /// probe lies on (zero when it is exactly on it): the AO rays start that far off.
+    pub error: f32,
 }
 
 impl Probe {
@@ -33,7 +37,20 @@ impl Probe {
         if !(len > 0.0 && len.is_finite()) {
             return Err(bad("zero normal"));
         }
-        Ok(Probe { position, normal: normal / len })
+        Ok(Probe { position, normal: normal / len, error: 0.0 })
+    }
+
+    /// [`Probe::new`] for a position within `error` of its surface along the normal (a
+    /// vertex carried into the world by an instance's transform, for example). A negative
+    /// or non-finite bound is refused.
+    pub fn with_error(position: Vec3, normal: Vec3, error: f32) -> Result<Probe> {
+        if !(error.is_finite() && error >= 0.0) {
+            return Err(Error::Probe {
+                index: 0,
+                message: format!("error bound must be finite and non-negative, got {error}"),
+            });
+        }
+        Ok(Probe { error, ..Probe::new(position, normal)? })
     }
 }
 

@@ -3,7 +3,9 @@
 //! progressively, and AO at given points — without rebuilding or re-uploading anything.
 //! Pipelines are compiled once per adapter for each specialisation a request needs.
 
-use crate::accumulation::{Accumulation, SampleSettings, geometry_hash, max_sample_value, probes_hash, scene_hash};
+use crate::accumulation::{
+    Accumulation, MAX_PROBE_SAMPLE, SampleSettings, geometry_hash, max_sample_value, probes_hash, scene_hash,
+};
 use crate::device::{BvhOptions, Device, Prepared, Setup};
 use crate::error::{Error, Result};
 use crate::probe::{Probe, ProbeValue, lanes_for};
@@ -160,6 +162,52 @@ impl Session {
         Ok(Render::new(passes, acc, self.info(target_seconds)))
     }
 
+    /// AO at `probes` as a render that runs, saves, resumes and merges like an image: one
+    /// film slot per probe, sample indices `samples` (all `0..spp` for `None`) of `spp` a
+    /// probe, with the hemisphere, sampler, seed and maximum distance of `settings`. Its
+    /// accumulation is [`Accumulation::probes`]'s, and [`Accumulation::probe_values`]
+    /// reads the estimates off it. What `aorender bake` runs.
+    pub fn probe_render(
+        &self,
+        probes: &[Probe],
+        spp: u32,
+        samples: Option<Range<u32>>,
+        settings: &Settings,
+    ) -> Result<Render> {
+        settings.validate_sampling()?;
+        if spp == 0 {
+            return Err(Error::settings("samples per point must be at least 1"));
+        }
+        let range = samples.unwrap_or(0..spp);
+        if range.start >= range.end || range.end > spp {
+            return Err(Error::settings(format!(
+                "sample range {}..{} must be non-empty and end at most at the {spp} samples per point",
+                range.start, range.end
+            )));
+        }
+        if probes.is_empty() {
+            return Err(Error::settings("no points to estimate AO at"));
+        }
+        let probes = checked_probes(probes)?;
+        let start = Instant::now();
+        let passes = self.prepared.probes(&probes, 1, spp, settings)?;
+        let target_seconds = start.elapsed().as_secs_f64();
+        let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
+        let sample_settings =
+            SampleSettings::probes(probes_hash(geometry, &probes), 1, probes.len() as u32, spp, settings);
+        let mut acc = Accumulation::new(
+            sample_settings,
+            self.device.kind(),
+            self.setup.bvh_layout,
+            self.options.quality,
+            range.start,
+            range.end,
+            MAX_PROBE_SAMPLE,
+        );
+        acc.adapter = self.setup.adapter.name.clone();
+        Ok(Render::new(passes, acc, self.info(target_seconds)))
+    }
+
     /// Estimates AO at every probe with `samples` samples each, with the hemisphere,
     /// sampler, seed and maximum distance of `settings` (its image size and samples per
     /// pixel are not used). A probe's normal need not be of unit length; a zero or
@@ -183,15 +231,7 @@ impl Session {
         if samples == 0 {
             return Err(Error::settings("samples per probe must be at least 1"));
         }
-        // Checked, and with unit normals however they were given.
-        let probes: Vec<Probe> = probes
-            .iter()
-            .enumerate()
-            .map(|(index, p)| {
-                Probe::new(p.position, p.normal).map_err(|e| Error::Probe { index, message: e.message() })
-            })
-            .collect::<Result<_>>()?;
-        let probes = &probes[..];
+        let probes = &checked_probes(probes)?[..];
         let adapter = self.setup.adapter.name.clone();
         if probes.is_empty() {
             return Ok(ProbeOutput { values: Vec::new(), rays: 0, seconds: 0.0, adapter });
@@ -202,7 +242,6 @@ impl Session {
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let sample_settings =
             SampleSettings::probes(probes_hash(geometry, probes), lanes, probes.len() as u32, samples, settings);
-        // A probe sample is a hemisphere weight: at most 2 (the uniform hemisphere's).
         let acc = Accumulation::new(
             sample_settings,
             self.device.kind(),
@@ -210,7 +249,7 @@ impl Session {
             self.options.quality,
             0,
             rounds,
-            2.0,
+            MAX_PROBE_SAMPLE,
         );
         let mut render = Render::new(passes, acc, self.info(0.0));
         render.run(control)?;
@@ -228,4 +267,16 @@ impl Session {
             .collect();
         Ok(ProbeOutput { values, rays: acc.ao_rays, seconds: acc.render_seconds, adapter })
     }
+}
+
+/// The probes checked, with unit normals however they were given: [`Error::Probe`] names
+/// the first bad one.
+fn checked_probes(probes: &[Probe]) -> Result<Vec<Probe>> {
+    probes
+        .iter()
+        .enumerate()
+        .map(|(index, p)| {
+            Probe::with_error(p.position, p.normal, p.error).map_err(|e| Error::Probe { index, message: e.message() })
+        })
+        .collect()
 }

@@ -23,6 +23,7 @@ fn scene(camera: Camera, planes: Vec<Plane>, spheres: Vec<Sphere>, width: u32, s
         spheres,
         planes,
         warnings: Vec::new(),
+        mesh_objects: Vec::new(),
     }
 }
 

@@ -2,8 +2,8 @@
 //! sample-range shards and signal handling.
 
 use crate::args::{
-    SceneArgs, SizeArgs, check_output_extension, check_writable, hemisphere_parser, invalid_option, sampler_parser,
-    write_json,
+    SceneArgs, SizeArgs, check_output_extension, check_writable, hemisphere_parser, invalid_option, parse_sample_range,
+    sampler_parser, write_json,
 };
 use crate::{memory, signals};
 use anyhow::{Result, bail};
@@ -57,19 +57,6 @@ pub struct RenderArgs {
 }
 
 /// `START..END` with START < END.
-fn parse_sample_range(text: &str) -> Result<Range<u32>, String> {
-    let (a, b) = text.split_once("..").ok_or_else(|| format!("expected START..END, got '{text}'"))?;
-    let number = |t: &str, name: &str| match t.trim() {
-        "" => Err(format!("{name} is missing in '{text}' (expected START..END)")),
-        t => t.parse::<u32>().map_err(|e| format!("{name} '{t}' in '{text}' is not a sample index: {e}")),
-    };
-    let (a, b) = (number(a, "START")?, number(b, "END")?);
-    if a >= b {
-        return Err(format!("'{text}' is empty: START must be below END"));
-    }
-    Ok(a..b)
-}
-
 pub fn run(args: RenderArgs) -> Result<()> {
     // Before loading: a signal while a large scene loads or its BVH builds ends the process.
     let stop = Arc::new(AtomicBool::new(false));

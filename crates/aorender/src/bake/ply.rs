@@ -1,6 +1,6 @@
 //! Baking into PLY files (not yet written).
 
-use super::{Asset, AssetMesh, BakedValues, WriteOptions};
+use super::asset::{Asset, AssetMesh, BakedValues, WriteOptions};
 use crate::error::{Error, Result};
 use std::path::Path;
 

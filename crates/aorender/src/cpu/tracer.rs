@@ -314,8 +314,8 @@ impl CpuTracer {
                         break;
                     }
                     let u = sampler.uniforms(k as u32, 0, index as u32);
-                    // A probe point is exact as given: no offset.
-                    let v = self.ao_at(p.position, p.normal, 0.0, glam::Vec2::new(u[2], u[3]), settings) as f64;
+                    // Pushed off its surface by its error bound (zero for a point exactly on it).
+                    let v = self.ao_at(p.position, p.normal, p.error, glam::Vec2::new(u[2], u[3]), settings) as f64;
                     *sum += v;
                     *sum_sq += v * v;
                     rays += 1;

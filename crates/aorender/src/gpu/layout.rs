@@ -96,8 +96,8 @@ gpu_struct! {
     pub struct GpuProbePoint as "ProbePoint" {
         /// Position.
         pub position: [f32; 3] = "vec3f",
-        /// Padding.
-        pub _pad0: f32 = "f32",
+        /// Bound on the distance to its surface along the normal: the AO ray's offset.
+        pub error: f32 = "f32",
         /// Unit normal of the hemisphere.
         pub normal: [f32; 3] = "vec3f",
         /// Padding.

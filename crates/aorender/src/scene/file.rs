@@ -3,7 +3,10 @@
 use super::camera::{Camera, Projection};
 use super::mesh::IndexedMesh;
 use super::meshes::{mesh_triangles, place_mesh, read_mesh, vertex_name};
-use super::types::{Instance, InstancedMesh, Scene, Settings, Sphere, Triangle, Warning, non_finite_coordinate};
+use super::types::{
+    Instance, InstancedMesh, MeshObject as PlacedMesh, Scene, Settings, Sphere, Triangle, Warning,
+    non_finite_coordinate,
+};
 use crate::error::{Error, Result};
 use crate::geometry::Plane;
 use crate::sampler::Sampler;
@@ -265,6 +268,7 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
     let mut warnings: Vec<Warning> = Vec::new();
     let mut meshes: Vec<InstancedMesh> = Vec::new();
     let mut instances: Vec<Instance> = Vec::new();
+    let mut mesh_objects: Vec<PlacedMesh> = Vec::new();
     for object in &file.objects {
         if let Object::Mesh(m) = object {
             let path = base_dir.join(&m.file);
@@ -308,6 +312,7 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
                     // array grows by remapping its pages, not by copying them).
                     triangles.reserve_exact(placed.len());
                     triangles.extend(placed);
+                    mesh_objects.push(PlacedMesh { number: i + 1, path, to_world: m, instance: None });
                     continue;
                 }
                 if entry.2.is_none() {
@@ -324,6 +329,8 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
                 let (index, read) = entry.2.as_ref().expect("read above");
                 check_placement(&path, read, &m).map_err(in_scene_error)?;
                 instances.push(Instance { mesh: *index, to_world: m, albedo });
+                let instance = Some(instances.len() as u32 - 1);
+                mesh_objects.push(PlacedMesh { number: i + 1, path: path.clone(), to_world: m, instance });
                 // The file's vertices are kept for the checks of its later instances only.
                 entry.1 -= 1;
                 if entry.1 == 0 {
@@ -375,5 +382,5 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
         }
     }
     let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
-    Ok(Scene { name, camera, settings, triangles, meshes, instances, spheres, planes, warnings })
+    Ok(Scene { name, camera, settings, triangles, meshes, instances, spheres, planes, warnings, mesh_objects })
 }

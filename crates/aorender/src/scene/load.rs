@@ -5,7 +5,7 @@ use super::camera::{Camera, Projection};
 use super::file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, parse_scene};
 use super::input;
 use super::meshes::{MESH_EXTENSIONS, MESH_FORMATS, extension, place_mesh, read_mesh, stem};
-use super::types::{Scene, Settings, Warning};
+use super::types::{MeshObject, Scene, Settings, Warning};
 use crate::error::{Error, Result};
 use glam::Vec3;
 use std::path::Path;
@@ -61,6 +61,12 @@ impl Scene {
             spheres: Vec::new(),
             planes: Vec::new(),
             warnings: warnings.collect(),
+            mesh_objects: vec![MeshObject {
+                number: 1,
+                path: path.to_path_buf(),
+                to_world: glam::Mat4::IDENTITY,
+                instance: None,
+            }],
         };
         scene.camera = scene.auto_camera();
         Ok(scene)

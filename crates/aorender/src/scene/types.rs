@@ -64,6 +64,22 @@ impl Instance {
     }
 }
 
+/// A mesh object of a scene file (or the one mesh of a mesh file), as placed: what a
+/// bake computes AO on and writes back to.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MeshObject {
+    /// The object's number in the scene file, from 1 (1 for a mesh file).
+    pub number: usize,
+    /// The mesh file.
+    pub path: PathBuf,
+    /// Object to world.
+    pub to_world: glam::Mat4,
+    /// Its placement in `Scene::instances` when the mesh file is placed by several
+    /// objects; `None` when its triangles went into `Scene::triangles`, each distinct
+    /// vertex through `Mat4::transform_point3` once.
+    pub instance: Option<u32>,
+}
+
 /// Largest image width and height.
 pub const MAX_IMAGE_SIDE: u32 = 16384;
 
@@ -174,6 +190,8 @@ pub struct Scene {
     pub planes: Vec<Plane>,
     /// What the loaders skipped (empty for a scene made in memory).
     pub warnings: Vec<Warning>,
+    /// The mesh objects, in the scene file's order (empty for a scene made in memory).
+    pub mesh_objects: Vec<MeshObject>,
 }
 
 /// Axis-aligned bounds of the finite primitives.
@@ -221,6 +239,9 @@ impl Scene {
     /// `Mat4::transform_point3`, degenerate results dropped).
     pub fn flattened(&self) -> Scene {
         let mut scene = Scene { meshes: Vec::new(), instances: Vec::new(), ..self.clone() };
+        for object in &mut scene.mesh_objects {
+            object.instance = None;
+        }
         for instance in &self.instances {
             let m = &instance.to_world;
             let world = self.meshes[instance.mesh as usize].triangles.iter().map(|t| t.map(|v| m.transform_point3(v)));

@@ -1,0 +1,95 @@
+//! What the bake and the formats share: the meshes of an asset as the bake sees them, the
+//! values it computed for them, and the writing options.
+
+use crate::error::Result;
+use glam::Vec3;
+use std::path::Path;
+
+/// Where AO is baked.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum BakeAt {
+    /// At every vertex, about its normal.
+    #[default]
+    Vertices,
+    /// At every face's centroid, about the face's normal.
+    Faces,
+}
+
+impl BakeAt {
+    /// The option's value: `vertices` or `faces`.
+    pub fn name(self) -> &'static str {
+        match self {
+            BakeAt::Vertices => "vertices",
+            BakeAt::Faces => "faces",
+        }
+    }
+}
+
+/// One mesh of an asset as the bake sees it: one placement of it in the asset's space
+/// (for glTF, one primitive under one node, the node hierarchy applied; for PLY and OBJ,
+/// the file's one mesh).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AssetMesh {
+    /// Names the mesh in messages: the file, or the glTF node, mesh and primitive.
+    pub label: String,
+    /// Vertex positions, bit for bit as the scene loader reads them (so a vertex lies
+    /// exactly on the triangles the rays are traced against).
+    pub positions: Vec<Vec3>,
+    /// The file's normal per vertex, in the same space as `positions`, not normalised;
+    /// `None` when the file has none. A zero or non-finite one is unusable: the bake falls
+    /// back to the area-weighted face normal there.
+    pub normals: Option<Vec<Vec3>>,
+    /// Face `f` has the corners `face_indices[face_starts[f] .. face_starts[f + 1]]`
+    /// (indices into `positions`); `face_starts` has one entry more than there are faces.
+    /// Faces are the file's, in its order (polygons are not triangulated here).
+    pub face_starts: Vec<u32>,
+    /// Corners of all faces, in order.
+    pub face_indices: Vec<u32>,
+}
+
+impl AssetMesh {
+    /// Number of faces.
+    pub fn face_count(&self) -> usize {
+        self.face_starts.len().saturating_sub(1)
+    }
+
+    /// The corners of face `f`.
+    pub fn face(&self, f: usize) -> &[u32] {
+        &self.face_indices[self.face_starts[f] as usize..self.face_starts[f + 1] as usize]
+    }
+}
+
+/// What a bake computed for one [`AssetMesh`]: one entry per vertex (or per face, for
+/// [`BakeAt::Faces`]).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BakedValues {
+    /// AO, 1 fully open.
+    pub ao: Vec<f32>,
+    /// Standard error of each value.
+    pub std_error: Vec<f32>,
+    /// Bent normals (unit mean unoccluded direction), when asked for.
+    pub bent_normals: Option<Vec<Vec3>>,
+}
+
+/// What to write besides the AO itself.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct WriteOptions {
+    /// Vertices or faces.
+    pub at: BakeAt,
+    /// Write the standard error of each value.
+    pub std_error: bool,
+    /// Write AO as a grey colour too (PLY `red green blue`; OBJ and glTF always do).
+    pub colors: bool,
+}
+
+/// A mesh file read for baking: its meshes, and whatever of the file is needed to write
+/// it back with the values added.
+pub trait Asset: Send + Sync {
+    /// The meshes to bake, in the order [`Asset::write`] takes their values.
+    fn meshes(&self) -> &[AssetMesh];
+
+    /// Writes the file to `path` (atomically: the old file or the whole new one) with
+    /// `values[i]` added to mesh `i`. Returns notes for the user, one line each (for
+    /// example, a glTF primitive whose own `COLOR_0` was kept).
+    fn write(&self, path: &Path, values: &[BakedValues], options: &WriteOptions) -> Result<Vec<String>>;
+}

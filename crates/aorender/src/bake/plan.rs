@@ -1,0 +1,206 @@
+//! The points of a bake: every vertex (or face centroid) of every baked mesh placed in
+//! the world as a probe, with its normal and the bound on its distance to the surface the
+//! rays are traced against; and the probes' estimates handed back per mesh.
+
+use super::asset::{AssetMesh, BakeAt, BakedValues};
+use crate::geometry::{AffineRows, InverseAffine, gamma, instance_point};
+use crate::probe::{Probe, ProbeValue};
+use crate::scene::{MIN_NORMAL_LENGTH_SQUARED, MeshObject};
+use glam::{DVec3, Mat3, Mat4, Vec3};
+
+/// How a baked mesh is placed in the scene: by `to_world` into the scene's triangles (each
+/// vertex through `Mat4::transform_point3`, as the loader placed it), or as an instance
+/// whose rays are carried into the mesh's own space.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Placement {
+    /// Object to world.
+    pub to_world: Mat4,
+    /// Whether the scene holds the mesh as an instance (`Scene::instances`) rather than
+    /// as world-space triangles.
+    pub instanced: bool,
+}
+
+impl Placement {
+    /// The placement of `object` in `scene`.
+    pub fn of(object: &MeshObject) -> Placement {
+        Placement { to_world: object.to_world, instanced: object.instance.is_some() }
+    }
+}
+
+/// The value an entry without a usable normal gets (a vertex no face uses, or whose
+/// faces and file normal are all degenerate): 1, fully open, with standard error 0 — it
+/// darkens nothing it is multiplied into. [`BakePlan::unusable`] counts them.
+pub const UNUSABLE_VALUE: f32 = 1.0;
+
+/// Where an entry's value comes from in [`BakePlan`]: a probe's index, or none.
+const NO_PROBE: u32 = u32::MAX;
+
+/// The points of a bake: every vertex (or face) of every baked mesh as a probe — its
+/// position in the world, its normal, and the bound on its distance to the surface the
+/// rays are traced against — and where each probe's value goes back to.
+#[derive(Clone, Debug, Default)]
+pub struct BakePlan {
+    /// The probes, mesh after mesh.
+    pub probes: Vec<Probe>,
+    /// For each mesh, for each entry: the index of its probe, or [`NO_PROBE`].
+    entries: Vec<Vec<u32>>,
+    /// Entries without a usable normal: they get [`UNUSABLE_VALUE`].
+    pub unusable: usize,
+    /// Entries whose normal is the file's.
+    pub file_normals: usize,
+}
+
+impl BakePlan {
+    /// The plan of baking `meshes`, each with its placement, at `at`.
+    pub fn new<'a>(meshes: impl IntoIterator<Item = (&'a AssetMesh, Placement)>, at: BakeAt) -> BakePlan {
+        let mut plan = BakePlan::default();
+        for (mesh, placement) in meshes {
+            let entries = match at {
+                BakeAt::Vertices => plan.add_vertices(mesh, &placement),
+                BakeAt::Faces => plan.add_faces(mesh, &placement),
+            };
+            plan.entries.push(entries);
+        }
+        plan
+    }
+
+    /// Number of meshes.
+    pub fn mesh_count(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Number of entries (vertices or faces) in all meshes.
+    pub fn entry_count(&self) -> usize {
+        self.entries.iter().map(Vec::len).sum()
+    }
+
+    /// The values of every mesh from the probes' estimates (`values[k]` of `probes[k]`).
+    pub fn values(&self, values: &[ProbeValue]) -> Vec<BakedValues> {
+        self.entries
+            .iter()
+            .map(|entries| {
+                let value = |&k: &u32| (k != NO_PROBE).then(|| values[k as usize]);
+                BakedValues {
+                    ao: entries.iter().map(|k| value(k).map_or(UNUSABLE_VALUE, |v| v.mean as f32)).collect(),
+                    std_error: entries.iter().map(|k| value(k).map_or(0.0, |v| v.std_error as f32)).collect(),
+                    bent_normals: None,
+                }
+            })
+            .collect()
+    }
+
+    /// Adds a probe at `p` (in the mesh's space) with world normal `n` (usable), `p`
+    /// within `e` (componentwise) of the mesh's surface; returns its index.
+    fn push(&mut self, placement: &Placement, p: Vec3, e: Vec3, n: Vec3) -> u32 {
+        let n = n.normalize();
+        let probe = if placement.instanced {
+            let rows = AffineRows::from_mat4(&placement.to_world);
+            let back = InverseAffine::of(&placement.to_world);
+            let point = instance_point(&rows, &back, p, e, n);
+            Probe { position: point.p, normal: n, error: point.error }
+        } else {
+            // A vertex, as the loader placed it: exactly on the world's triangles. (Face
+            // centroids are placed in the world by `add_faces` and come with `e` zero.)
+            Probe { position: placement.to_world.transform_point3(p), normal: n, error: n.abs().dot(e) }
+        };
+        self.probes.push(probe);
+        self.probes.len() as u32 - 1
+    }
+
+    fn add_vertices(&mut self, mesh: &AssetMesh, placement: &Placement) -> Vec<u32> {
+        let m = placement.to_world;
+        let normal_matrix = Mat3::from_mat4(m).as_dmat3().inverse().transpose();
+        // Area-weighted face normals (twice the area), in the world, summed per vertex.
+        let world: Vec<DVec3> = mesh.positions.iter().map(|&p| m.transform_point3(p).as_dvec3()).collect();
+        let mut area = vec![DVec3::ZERO; mesh.positions.len()];
+        for f in 0..mesh.face_count() {
+            let face = mesh.face(f);
+            let n = polygon_area_vector(face.iter().map(|&i| world[i as usize]));
+            for &i in face {
+                area[i as usize] += n;
+            }
+        }
+        (0..mesh.positions.len())
+            .map(|i| {
+                let file = mesh.normals.as_ref().map(|n| (normal_matrix * n[i].as_dvec3()).as_vec3());
+                let normal = match file {
+                    Some(n) if usable(n) => {
+                        self.file_normals += 1;
+                        n
+                    }
+                    _ => area[i].as_vec3(),
+                };
+                if !usable(normal) {
+                    self.unusable += 1;
+                    return NO_PROBE;
+                }
+                self.push(placement, mesh.positions[i], Vec3::ZERO, normal)
+            })
+            .collect()
+    }
+
+    fn add_faces(&mut self, mesh: &AssetMesh, placement: &Placement) -> Vec<u32> {
+        let m = placement.to_world;
+        (0..mesh.face_count())
+            .map(|f| {
+                let face = mesh.face(f);
+                let world: Vec<DVec3> =
+                    face.iter().map(|&i| m.transform_point3(mesh.positions[i as usize]).as_dvec3()).collect();
+                let normal = polygon_area_vector(world.iter().copied()).as_vec3();
+                if face.len() < 3 || !usable(normal) {
+                    self.unusable += 1;
+                    return NO_PROBE;
+                }
+                // The area-weighted centroid of the fan triangles and its largest distance to
+                // their planes (a polygon need not be planar; the rounding of the centroid
+                // to f32 is included): in the world, from the corners as the scene holds
+                // them, for triangles placed into the world; in the mesh's space for an
+                // instance, whose rays meet the mesh there.
+                let corners: Vec<DVec3> = if placement.instanced {
+                    face.iter().map(|&i| mesh.positions[i as usize].as_dvec3()).collect()
+                } else {
+                    world
+                };
+                let (c, distance) = centroid(&corners);
+                if placement.instanced {
+                    return self.push(placement, c, Vec3::splat(distance), normal);
+                }
+                let n = normal.normalize();
+                self.probes.push(Probe { position: c, normal: n, error: distance });
+                self.probes.len() as u32 - 1
+            })
+            .collect()
+    }
+}
+
+/// The area-weighted centroid of a polygon's fan triangles, rounded to f32, and a bound on
+/// its distance to their planes.
+fn centroid(corners: &[DVec3]) -> (Vec3, f32) {
+    let (mut sum, mut total) = (DVec3::ZERO, 0.0);
+    for k in 1..corners.len() - 1 {
+        let a = (corners[k] - corners[0]).cross(corners[k + 1] - corners[0]).length();
+        sum += a * (corners[0] + corners[k] + corners[k + 1]) / 3.0;
+        total += a;
+    }
+    let c = if total > 0.0 { sum / total } else { corners.iter().sum::<DVec3>() / corners.len() as f64 };
+    let c = c.as_vec3();
+    let mut distance = 0.0f64;
+    for k in 1..corners.len() - 1 {
+        let n = (corners[k] - corners[0]).cross(corners[k + 1] - corners[0]);
+        if n.length() > 0.0 {
+            distance = distance.max((c.as_dvec3() - corners[0]).dot(n.normalize()).abs());
+        }
+    }
+    // The f64 arithmetic's own rounding, generously.
+    (c, (distance * (1.0 + 1e-9) + 1e-12 * c.as_dvec3().abs().max_element()) as f32 * (1.0 + gamma(1)))
+}
+/// Twice the area times the unit normal of a polygon, summed over its fan triangles.
+fn polygon_area_vector(corners: impl Iterator<Item = DVec3>) -> DVec3 {
+    let corners: Vec<DVec3> = corners.collect();
+    (1..corners.len().saturating_sub(1)).map(|k| (corners[k] - corners[0]).cross(corners[k + 1] - corners[0])).sum()
+}
+
+/// Whether a normal can be normalised in f32.
+fn usable(n: Vec3) -> bool {
+    n.is_finite() && n.length_squared() >= MIN_NORMAL_LENGTH_SQUARED && n.length_squared().is_finite()
+}
