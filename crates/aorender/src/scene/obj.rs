@@ -1,7 +1,8 @@
 //! Wavefront OBJ through `tobj`: polygons triangulated as fans, every object and group
-//! merged, points and lines ignored. The file is streamed (`.obj.gz` decompressed on the
-//! way) past a scanner that checks each `v` line as `tobj` reads it, so a non-finite vertex
-//! is reported with its number and line from the same single pass.
+//! merged, points and lines ignored, materials ignored (a missing, empty or malformed
+//! material library never stops a load). The file is streamed (`.obj.gz` decompressed on
+//! the way) past a scanner that checks each `v` line as `tobj` reads it, so a non-finite
+//! vertex is reported with its number and line from the same single pass.
 
 use super::input::Input;
 use super::mesh::{IndexedMesh, VertexNames, vertex_index};
@@ -14,7 +15,7 @@ use std::path::Path;
 /// The position of a `v` line as `tobj` parses it (`f32::from_str`, which accepts "nan"
 /// and "inf"; a homogeneous `w` divided out); `None` for other lines and for `v` lines
 /// `tobj` will refuse itself.
-fn parse_vertex_line(line: &str) -> Option<Vec3> {
+pub(crate) fn parse_vertex_line(line: &str) -> Option<Vec3> {
     let mut words = line.split_whitespace();
     if words.next() != Some("v") {
         return None;
@@ -88,14 +89,66 @@ impl<R: Read> Read for VertexScanner<R> {
     }
 }
 
+/// Whether `tobj` must not see `line`: material lines (`mtllib`, `usemtl`: materials are
+/// not AO's business, and `tobj` refuses a `usemtl` without a name) and polylines (`l`,
+/// which `tobj` would triangulate when they have three points or more).
+fn is_hidden_line(line: &[u8]) -> bool {
+    matches!(String::from_utf8_lossy(line).split_whitespace().next(), Some("mtllib" | "usemtl" | "l"))
+}
+
+/// The lines of an OBJ stream with those of [`is_hidden_line`] made empty.
+struct GeometryLines<B> {
+    inner: B,
+    /// The current line, served from `pos` on.
+    line: Vec<u8>,
+    pos: usize,
+}
+
+impl<B> GeometryLines<B> {
+    fn new(inner: B) -> Self {
+        GeometryLines { inner, line: Vec::new(), pos: 0 }
+    }
+}
+
+impl<B: BufRead> BufRead for GeometryLines<B> {
+    fn fill_buf(&mut self) -> io::Result<&[u8]> {
+        if self.pos == self.line.len() {
+            self.line.clear();
+            self.pos = 0;
+            self.inner.read_until(b'\n', &mut self.line)?;
+            if is_hidden_line(&self.line) {
+                // An empty line, not nothing: nothing would end the stream.
+                self.line.clear();
+                self.line.push(b'\n');
+            }
+        }
+        Ok(&self.line[self.pos..])
+    }
+
+    fn consume(&mut self, amount: usize) {
+        self.pos = (self.pos + amount).min(self.line.len());
+    }
+}
+
+impl<B: BufRead> Read for GeometryLines<B> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let available = self.fill_buf()?;
+        let n = available.len().min(buf.len());
+        buf[..n].copy_from_slice(&available[..n]);
+        self.consume(n);
+        Ok(n)
+    }
+}
+
 /// Reads an OBJ file (`.obj` or `.obj.gz`); rejects a vertex with a NaN or infinite
 /// coordinate, naming it by its number (from 1, as faces count) and line.
-pub(super) fn load_obj(path: &Path) -> Result<IndexedMesh> {
+pub(crate) fn load_obj(path: &Path) -> Result<IndexedMesh> {
     let mut scanner = VertexScanner::new(Input::open(path)?);
     let options = tobj::LoadOptions { triangulate: true, single_index: false, ignore_points: true, ignore_lines: true };
-    // Materials are not part of an AO scene: ignore mtllib references.
+    // Materials are not part of an AO scene: material lines never reach `tobj`, and the
+    // material loader (never called then) would load nothing.
     let loaded =
-        tobj::load_obj_buf(&mut BufReader::new(&mut scanner), &options, |_| Err(tobj::LoadError::OpenFileFailed));
+        tobj::load_obj_buf(&mut GeometryLines::new(BufReader::new(&mut scanner)), &options, |_| Ok(Default::default()));
     if let Some(message) = scanner.inner.stream_error() {
         return Err(Error::scene(path, message));
     }
@@ -190,6 +243,56 @@ mod tests {
                 Some("vertex 4 (line 5) has a non-finite coordinate (y = NaN)"),
                 "reads of {chunk}"
             );
+        }
+    }
+
+    /// Writes `files` (name, text) into a new directory and loads the first as OBJ.
+    fn load_files(files: &[(&str, &str)]) -> Result<IndexedMesh> {
+        let dir = tempfile::tempdir().unwrap();
+        for (name, text) in files {
+            std::fs::write(dir.path().join(name), text).unwrap();
+        }
+        load_obj(&dir.path().join(files[0].0))
+    }
+
+    const SQUARE: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n";
+
+    #[test]
+    fn a_missing_material_library_is_ignored() {
+        let mesh = load_files(&[("m.obj", &format!("mtllib none.mtl\n{SQUARE}usemtl red\nf 1 2 3 4\n"))]).unwrap();
+        assert_eq!(mesh.triangles.len(), 2);
+    }
+
+    #[test]
+    fn a_material_with_an_empty_name_is_ignored() {
+        let obj = format!("mtllib m.mtl\n{SQUARE}usemtl\nf 1 2 3\nusemtl  \r\nf 1 3 4\n");
+        let mesh = load_files(&[("m.obj", &obj), ("m.mtl", "newmtl\nKd 1 0 0\n")]).unwrap();
+        assert_eq!(mesh.triangles.len(), 2);
+    }
+
+    #[test]
+    fn a_malformed_material_library_is_ignored() {
+        let obj = format!("mtllib m.mtl\n{SQUARE}usemtl a\nf 1 2 3 4\n");
+        let mtl = "newmtl a\nKd red green\nNs\nmap_Kd\n\u{0}\u{ff}";
+        let mesh = load_files(&[("m.obj", &obj), ("m.mtl", mtl)]).unwrap();
+        assert_eq!(mesh.triangles.len(), 2);
+    }
+
+    #[test]
+    fn polylines_and_points_make_no_triangles() {
+        let mesh = load_files(&[("m.obj", &format!("{SQUARE}l 1 2 3 4\nf 1 2\np 1 2 3\nf 1 2 3\n  l 1 2 3"))]).unwrap();
+        assert_eq!(mesh.triangles.len(), 1);
+    }
+
+    #[test]
+    fn broken_geometry_is_still_refused() {
+        for (text, want) in [
+            (format!("{SQUARE}usemtl\nf 1 2 5\n"), "out of bounds"),
+            (format!("{SQUARE}f 1 2 x\n"), "face"),
+            ("v 0 0\n".to_string(), "position"),
+        ] {
+            let e = load_files(&[("m.obj", &text)]).unwrap_err().to_string();
+            assert!(e.to_lowercase().contains(want), "{text:?}: {e}");
         }
     }
 }
