@@ -6,7 +6,8 @@
 
 use super::input::Input;
 use super::mesh::{IndexedMesh, VertexNames, vertex_index};
-use super::types::non_finite_coordinate;
+// Re-exported for the OBJ bake, which checks `v` lines as this loader does.
+pub(crate) use super::types::non_finite_coordinate;
 use crate::error::{Error, Result};
 use glam::Vec3;
 use std::io::{self, BufRead, BufReader, Read};
@@ -89,14 +90,31 @@ impl<R: Read> Read for VertexScanner<R> {
     }
 }
 
-/// Whether `tobj` must not see `line`: material lines (`mtllib`, `usemtl`: materials are
-/// not AO's business, and `tobj` refuses a `usemtl` without a name) and polylines (`l`,
-/// which `tobj` would triangulate when they have three points or more).
-fn is_hidden_line(line: &[u8]) -> bool {
-    matches!(String::from_utf8_lossy(line).split_whitespace().next(), Some("mtllib" | "usemtl" | "l"))
+/// Cuts from `line` what `tobj` must not see: material lines (`mtllib`, `usemtl`:
+/// materials are not AO's business, and `tobj` refuses a `usemtl` without a name) and
+/// polylines (`l`, which `tobj` would triangulate when they have three points or more)
+/// become empty; a vertex's colour (`v x y z r g b`) is cut off, since `tobj` refuses a
+/// file where some vertices have one and others not.
+fn keep_geometry(line: &mut Vec<u8>) {
+    let Ok(text) = std::str::from_utf8(line) else {
+        // `tobj` refuses the line itself.
+        return;
+    };
+    let mut words = text.split_whitespace();
+    let keep = match words.next() {
+        Some("mtllib" | "usemtl" | "l") => 0,
+        Some("v") if text.split_whitespace().count() == 7 => {
+            let z = words.nth(2).unwrap_or_default();
+            z.as_ptr() as usize - text.as_ptr() as usize + z.len()
+        }
+        _ => return,
+    };
+    // An empty line, not nothing: nothing would end the stream.
+    line.truncate(keep);
+    line.push(b'\n');
 }
 
-/// The lines of an OBJ stream with those of [`is_hidden_line`] made empty.
+/// The lines of an OBJ stream as [`keep_geometry`] leaves them.
 struct GeometryLines<B> {
     inner: B,
     /// The current line, served from `pos` on.
@@ -116,11 +134,7 @@ impl<B: BufRead> BufRead for GeometryLines<B> {
             self.line.clear();
             self.pos = 0;
             self.inner.read_until(b'\n', &mut self.line)?;
-            if is_hidden_line(&self.line) {
-                // An empty line, not nothing: nothing would end the stream.
-                self.line.clear();
-                self.line.push(b'\n');
-            }
+            keep_geometry(&mut self.line);
         }
         Ok(&self.line[self.pos..])
     }
@@ -285,11 +299,21 @@ mod tests {
     }
 
     #[test]
+    fn vertex_colours_are_ignored() {
+        let text = "v 0 0 0\nv 1 0 0 0.5 0.5 0.5\r\nv 0 1 0 1 0 0\nf 1 2 3\n";
+        let mesh = load_files(&[("m.obj", text)]).unwrap();
+        assert_eq!(mesh.positions, [Vec3::ZERO, Vec3::X, Vec3::Y]);
+        assert_eq!(mesh.triangles, [[0, 1, 2]]);
+    }
+
+    #[test]
     fn broken_geometry_is_still_refused() {
         for (text, want) in [
             (format!("{SQUARE}usemtl\nf 1 2 5\n"), "out of bounds"),
             (format!("{SQUARE}f 1 2 x\n"), "face"),
             ("v 0 0\n".to_string(), "position"),
+            (format!("{SQUARE}v 0 0 0 1 1\nf 1 2 3\n"), "color"),
+            (format!("{SQUARE}v 0 0 0 1 1 1 1\nf 1 2 3\n"), "color"),
         ] {
             let e = load_files(&[("m.obj", &text)]).unwrap_err().to_string();
             assert!(e.to_lowercase().contains(want), "{text:?}: {e}");
