@@ -64,6 +64,14 @@ impl Element {
             Element::Normal => "normal",
         }
     }
+
+    fn plural(self) -> &'static str {
+        match self {
+            Element::Vertex => "vertices",
+            Element::TexCoord => "texture coordinates",
+            Element::Normal => "normals",
+        }
+    }
 }
 
 /// The largest absolute index a face line gave for one element, and the first line that
@@ -86,6 +94,9 @@ struct Parser {
     /// (vertex, normal) of every corner that names a normal.
     corner_normals: Vec<(u32, u32)>,
     largest: [LargestIndex; 3],
+    /// The first texture coordinate and normal index out of range, reported only when the
+    /// file has some of them: `tobj` ignores the indices of elements a file has none of.
+    deferred: [Option<String>; 3],
 }
 
 impl Parser {
@@ -97,10 +108,24 @@ impl Parser {
         }
     }
 
-    /// The 0-based index of `word` (1-based, or negative: relative to the elements so far).
-    fn index(&mut self, word: &str, element: Element, line: usize) -> std::result::Result<u32, String> {
+    /// The 0-based index of `word` (1-based, or negative: relative to the elements so far);
+    /// `None` for a texture coordinate or normal index out of range (see `deferred`).
+    fn index(&mut self, word: &str, element: Element, line: usize) -> std::result::Result<Option<u32>, String> {
         let name = element.name();
         let i: isize = word.parse().map_err(|_| format!("line {line}: '{word}' is not a {name} index"))?;
+        match (self.resolve(i, element, line), element) {
+            (Ok(index), _) => Ok(Some(index)),
+            (Err(e), Element::Vertex) => Err(e),
+            (Err(e), _) => {
+                self.deferred[element as usize].get_or_insert(e);
+                Ok(None)
+            }
+        }
+    }
+
+    /// The 0-based index of the 1-based or relative index `i`.
+    fn resolve(&mut self, i: isize, element: Element, line: usize) -> std::result::Result<u32, String> {
+        let name = element.name();
         let count = self.count(element);
         let index = if i > 0 {
             let index = i as u64 - 1;
@@ -154,19 +179,20 @@ impl Parser {
     }
 
     fn face(&mut self, text: &str, line: usize) -> std::result::Result<(), String> {
-        let start = self.face_indices.len();
-        let mut normals = Vec::new();
+        let (start, normals_start) = (self.face_indices.len(), self.corner_normals.len());
         for word in text.split_whitespace().skip(1) {
             let mut parts = word.split('/');
             let v = match parts.next() {
-                Some(v) if !v.is_empty() => self.index(v, Element::Vertex, line)?,
+                Some(v) if !v.is_empty() => self.index(v, Element::Vertex, line)?.unwrap_or_default(),
                 _ => return Err(format!("line {line}: the corner '{word}' names no vertex")),
             };
             if let Some(vt) = parts.next().filter(|s| !s.is_empty()) {
                 self.index(vt, Element::TexCoord, line)?;
             }
-            if let Some(vn) = parts.next().filter(|s| !s.is_empty()) {
-                normals.push((v, self.index(vn, Element::Normal, line)?));
+            if let Some(vn) = parts.next().filter(|s| !s.is_empty())
+                && let Some(n) = self.index(vn, Element::Normal, line)?
+            {
+                self.corner_normals.push((v, n));
             }
             if parts.next().is_some() {
                 return Err(format!("line {line}: the corner '{word}' has more than v/vt/vn"));
@@ -176,6 +202,7 @@ impl Parser {
         if self.face_indices.len() - start < 3 {
             // A point or a segment: no surface, as the scene loader ignores it.
             self.face_indices.truncate(start);
+            self.corner_normals.truncate(normals_start);
             return Ok(());
         }
         let end = u32::try_from(self.face_indices.len()).map_err(|_| format!("line {line}: more than 2^32 corners"))?;
@@ -183,18 +210,25 @@ impl Parser {
             self.face_starts.push(0);
         }
         self.face_starts.push(end);
-        self.corner_normals.extend(normals);
         Ok(())
     }
 
-    /// Checks the indices that named elements defined below them.
-    fn check_indices(&self) -> std::result::Result<(), String> {
+    /// Checks the indices against the elements of the whole file (a face may name an
+    /// element defined below it); those of texture coordinates and normals only when the
+    /// file has some.
+    fn check_indices(&mut self) -> std::result::Result<(), String> {
         for element in [Element::Vertex, Element::TexCoord, Element::Normal] {
-            let LargestIndex { index, line } = self.largest[element as usize];
             let count = self.count(element);
+            if !matches!(element, Element::Vertex) && count == 0 {
+                continue;
+            }
+            if let Some(e) = self.deferred[element as usize].take() {
+                return Err(e);
+            }
+            let LargestIndex { index, line } = self.largest[element as usize];
             if index > count as u64 {
-                let name = element.name();
-                return Err(format!("line {line}: {name} index {index} is out of range ({count} {name}s)"));
+                let (name, plural) = (element.name(), element.plural());
+                return Err(format!("line {line}: {name} index {index} is out of range ({count} {plural})"));
             }
         }
         Ok(())
@@ -472,6 +506,7 @@ mod tests {
             CUBE_CORNER,
             "v 1 2 3 2\nv 0.3 0.7 0.1 0.5\nv 1e-7 -0 3\nv 1 1 1 0.2 0.3 0.4\r\nf 1 2 3\r\nf 4 3 2 1\n",
             "  v 0 0 0\n\tv 1 0 0\nv 0 1 0\ng a\nf 1 2 3\ng b\nf 3 2 1\no c\nf -3 -2 -1",
+            "v 0 0 0\nv 1 0 0 0.5 0.5 0.5\nv 0 1 0\nv 1 1 0\nf\nf 1/1/1 2/-9/0 3 4\nl 1 2 3\nf 1 2\nusemtl\n",
         ];
         for text in hand_written {
             let (_dir, path) = file("m.obj", text.as_bytes());
@@ -499,6 +534,10 @@ mod tests {
         // Relative indices count back from the line they are on.
         let m = mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 1 1 0\nvt 0 0\nf -4/-1 -1 -2\n");
         assert_eq!(faces(&m), [vec![0, 1, 2], vec![0, 3, 2]]);
+        // Indices of texture coordinates and normals a file has none of are ignored, as
+        // tobj ignores them.
+        let m = mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/0/0 2/-5/-5 3/9/9\n");
+        assert_eq!((faces(&m), m.normals), (vec![vec![0, 1, 2]], None));
         // A face may name a vertex defined below it, as tobj allows.
         assert_eq!(faces(&mesh("f 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\n")), [vec![0, 1, 2]]);
         // No faces at all is a mesh of no faces (the bake decides what to do with it).
@@ -706,12 +745,17 @@ mod tests {
             (format!("{tri}vn 0 1\n"), "line 4: a normal needs 3 numbers"),
             (format!("{tri}vn 0 1 z\n"), "line 4: 'z' is not a number"),
             (format!("{tri}f 1 2 0\n"), "line 4: vertex index 0 (OBJ counts from 1)"),
-            (format!("{tri}f 1 2 4\n"), "line 4: vertex index 4 is out of range (3 vertexs)"),
+            (format!("{tri}f 1 2 4\n"), "line 4: vertex index 4 is out of range (3 vertices)"),
             (format!("{tri}f 1 2 -4\n"), "line 4: vertex index -4 reaches before the first vertex (only 3 so far)"),
             (format!("{tri}f 1 2 3.5\n"), "line 4: '3.5' is not a vertex index"),
-            (format!("{tri}f 1/1 2 3\n"), "line 4: texture coordinate index 1 is out of range (0 texture coordinates)"),
+            (
+                format!("{tri}vt 0 0\nf 1/2 2 3\n"),
+                "line 5: texture coordinate index 2 is out of range (1 texture coordinates)",
+            ),
+            (format!("{tri}f 1/-1 2 3\nvt 0 0\n"), "line 4: texture coordinate index -1 reaches before the first"),
+            (format!("{tri}f 1/x 2 3\n"), "line 4: 'x' is not a texture coordinate index"),
             (format!("{tri}vn 0 0 1\nf 1//2 2 3\n"), "line 5: normal index 2 is out of range (1 normals)"),
-            (format!("{tri}f 1//0 2 3\n"), "line 4: normal index 0"),
+            (format!("{tri}vn 0 0 1\nf 1//0 2 3\n"), "line 5: normal index 0"),
             (format!("{tri}f 1/1/1/1 2 3\n"), "line 4: the corner '1/1/1/1' has more than v/vt/vn"),
             (format!("{tri}f /1 2 3\n"), "line 4: the corner '/1' names no vertex"),
             (format!("{tri}f 1 2 99999999999\n"), "line 4: vertex index 99999999999"),

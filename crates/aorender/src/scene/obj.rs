@@ -93,7 +93,7 @@ impl<R: Read> Read for VertexScanner<R> {
 /// Cuts from `line` what `tobj` must not see: material lines (`mtllib`, `usemtl`:
 /// materials are not AO's business, and `tobj` refuses a `usemtl` without a name) and
 /// polylines (`l`, which `tobj` would triangulate when they have three points or more)
-/// become empty; a vertex's colour (`v x y z r g b`) is cut off, since `tobj` refuses a
+/// and empty faces become empty; a vertex's colour (`v x y z r g b`) is cut off, since `tobj` refuses a
 /// file where some vertices have one and others not.
 fn keep_geometry(line: &mut Vec<u8>) {
     let Ok(text) = std::str::from_utf8(line) else {
@@ -103,6 +103,8 @@ fn keep_geometry(line: &mut Vec<u8>) {
     let mut words = text.split_whitespace();
     let keep = match words.next() {
         Some("mtllib" | "usemtl" | "l") => 0,
+        // A face of no corners, which `tobj` refuses, has no surface either.
+        Some("f") if words.next().is_none() => 0,
         Some("v") if text.split_whitespace().count() == 7 => {
             let z = words.nth(2).unwrap_or_default();
             z.as_ptr() as usize - text.as_ptr() as usize + z.len()
@@ -294,7 +296,8 @@ mod tests {
 
     #[test]
     fn polylines_and_points_make_no_triangles() {
-        let mesh = load_files(&[("m.obj", &format!("{SQUARE}l 1 2 3 4\nf 1 2\np 1 2 3\nf 1 2 3\n  l 1 2 3"))]).unwrap();
+        let mesh =
+            load_files(&[("m.obj", &format!("{SQUARE}l 1 2 3 4\nf 1 2\np 1 2 3\nf\nf 1 2 3\n  l 1 2 3"))]).unwrap();
         assert_eq!(mesh.triangles.len(), 1);
     }
 
