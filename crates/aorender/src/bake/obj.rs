@@ -386,7 +386,7 @@ impl Asset for ObjAsset {
         if options.at == BakeAt::Faces {
             return Err(Error::output(
                 path,
-                "OBJ has no per-face attribute: bake OBJ at vertices, or write .ply or .gltf/.glb for AO per face",
+                "OBJ has no per-face attribute to hold AO per face: bake it at vertices, or convert the mesh to PLY or glTF",
             ));
         }
         let positions = self.meshes[0].positions.len();
@@ -413,13 +413,14 @@ impl Asset for ObjAsset {
         })?;
 
         let mut notes = Vec::new();
+        let vertices = |n: usize| if n == 1 { "1 vertex".to_string() } else { format!("{n} vertices") };
         if changes.colours_replaced > 0 {
-            notes.push(format!("{} vertices had colours of their own, replaced by the AO", changes.colours_replaced));
+            notes.push(format!("{} had colours of their own, replaced by the AO", vertices(changes.colours_replaced)));
         }
         if changes.w_divided > 0 {
             notes.push(format!(
-                "{} vertices had a w coordinate: written divided by it, since a colour cannot follow a w",
-                changes.w_divided
+                "{} had a w coordinate: written divided by it, since a colour cannot follow a w",
+                vertices(changes.w_divided)
             ));
         }
         let elsewhere = "OBJ has no place for them (.ply and .gltf/.glb have)";
@@ -521,6 +522,12 @@ mod tests {
             assert_eq!(mesh.label, name);
             assert!(mesh.face_count() > 1000, "{name}");
             assert_eq!(fan_triangles(mesh), loader_triangles(&path), "{name}");
+            // Baked, the file still loads as the same triangles.
+            let dir = tempfile::tempdir().unwrap();
+            let out = dir.path().join(name);
+            let notes = asset.write(&out, &[values(mesh.positions.len())], &WriteOptions::default()).unwrap();
+            assert!(notes.is_empty(), "{notes:?}");
+            assert_eq!(loader_triangles(&out), fan_triangles(mesh), "{name} baked");
         }
     }
 
@@ -668,7 +675,7 @@ mod tests {
         assert_eq!(
             notes,
             [
-                "1 vertices had colours of their own, replaced by the AO",
+                "1 vertex had colours of their own, replaced by the AO",
                 "2 vertices had a w coordinate: written divided by it, since a colour cannot follow a w"
             ]
         );
@@ -707,7 +714,7 @@ mod tests {
         let out = dir.path().join("out.obj");
         let faces = WriteOptions { at: BakeAt::Faces, ..Default::default() };
         let e = asset.write(&out, &[values(4)], &faces).unwrap_err().to_string();
-        assert!(e.contains("out.obj: OBJ has no per-face attribute") && e.contains(".ply"), "{e}");
+        assert!(e.contains("out.obj: OBJ has no per-face attribute") && e.contains("PLY or glTF"), "{e}");
         assert!(!out.exists());
 
         let mut v = values(5);
