@@ -1,18 +1,376 @@
-//! Baking into OBJ files (not yet written).
+//! Baking into Wavefront OBJ files: the file is kept as its lines, read as one mesh (every
+//! object and group together, as the scene loader merges them), and written back line for
+//! line with each `v` line given the AO as its vertex colour (`v x y z r g b`, r = g = b =
+//! AO, the extension most OBJ readers take: MeshLab, Blender, `tobj`, Open3D). Every other
+//! line is copied through byte for byte, line endings included.
+//!
+//! OBJ has no per-face attribute nor a place for standard errors or bent normals: a bake
+//! at faces is refused (PLY and glTF take it), and the other two are left out with a note.
 
-use super::asset::{Asset, AssetMesh, BakedValues, WriteOptions};
+use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
 use crate::error::{Error, Result};
+use crate::scene::input::{Input, is_gzip};
+use crate::scene::obj::{non_finite_coordinate, parse_vertex_line};
+use flate2::Compression;
+use flate2::write::GzEncoder;
+use glam::Vec3;
+use std::io::{self, Write};
 use std::path::Path;
 
 /// A OBJ file read for baking.
 pub struct ObjAsset {
+    /// The file as read (decompressed), every line with its own ending.
+    text: Vec<u8>,
+    /// The file's one mesh.
     meshes: Vec<AssetMesh>,
 }
 
 impl ObjAsset {
-    /// Reads `path` for baking.
+    /// Reads `path` (`.obj` or `.obj.gz`) for baking: positions as the scene loader reads
+    /// them, the faces of `f` lines (polygons kept; `l` and `p` lines and faces of fewer than
+    /// three corners ignored, as the scene loader ignores them), and per-vertex normals from
+    /// the `vn` the faces reference (see [`vertex_normals`]).
     pub fn read(path: &Path) -> Result<ObjAsset> {
-        Err(Error::scene(path, "baking into this format is not available yet"))
+        let text = Input::open(path)?.read_all(path)?;
+        let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+        let mesh = parse(&text, label).map_err(|e| Error::scene(path, e))?;
+        Ok(ObjAsset { text, meshes: vec![mesh] })
+    }
+}
+
+/// The lines of `text`, each with its ending (`\n` or `\r\n`; none for a last line without).
+fn lines(text: &[u8]) -> impl Iterator<Item = &[u8]> {
+    text.split_inclusive(|&b| b == b'\n')
+}
+
+/// The first word of `line`, as `tobj` splits it.
+fn keyword(line: &str) -> Option<&str> {
+    line.split_whitespace().next()
+}
+
+/// What the face indices of a file refer to.
+#[derive(Clone, Copy)]
+enum Element {
+    Vertex,
+    TexCoord,
+    Normal,
+}
+
+impl Element {
+    fn name(self) -> &'static str {
+        match self {
+            Element::Vertex => "vertex",
+            Element::TexCoord => "texture coordinate",
+            Element::Normal => "normal",
+        }
+    }
+
+    fn plural(self) -> &'static str {
+        match self {
+            Element::Vertex => "vertices",
+            Element::TexCoord => "texture coordinates",
+            Element::Normal => "normals",
+        }
+    }
+}
+
+/// The largest absolute index a face line gave for one element, and the first line that
+/// gave it: checked against the element's count at the end of the file (`tobj` resolves
+/// indices when a group ends, so a face may name a vertex defined below it).
+#[derive(Clone, Copy, Default)]
+struct LargestIndex {
+    index: u64,
+    line: usize,
+}
+
+/// The parser's state between lines.
+#[derive(Default)]
+struct Parser {
+    positions: Vec<Vec3>,
+    texcoords: usize,
+    normals: Vec<Vec3>,
+    face_starts: Vec<u32>,
+    face_indices: Vec<u32>,
+    /// (vertex, normal) of every corner that names a normal.
+    corner_normals: Vec<(u32, u32)>,
+    largest: [LargestIndex; 3],
+    /// The first texture coordinate and normal index out of range, reported only when the
+    /// file has some of them: `tobj` ignores the indices of elements a file has none of.
+    deferred: [Option<String>; 3],
+}
+
+impl Parser {
+    fn count(&self, element: Element) -> usize {
+        match element {
+            Element::Vertex => self.positions.len(),
+            Element::TexCoord => self.texcoords,
+            Element::Normal => self.normals.len(),
+        }
+    }
+
+    /// The 0-based index of `word` (1-based, or negative: relative to the elements so far);
+    /// `None` for a texture coordinate or normal index out of range (see `deferred`).
+    fn index(&mut self, word: &str, element: Element, line: usize) -> std::result::Result<Option<u32>, String> {
+        let name = element.name();
+        let i: isize = word.parse().map_err(|_| format!("line {line}: '{word}' is not a {name} index"))?;
+        match (self.resolve(i, element, line), element) {
+            (Ok(index), _) => Ok(Some(index)),
+            (Err(e), Element::Vertex) => Err(e),
+            (Err(e), _) => {
+                self.deferred[element as usize].get_or_insert(e);
+                Ok(None)
+            }
+        }
+    }
+
+    /// The 0-based index of the 1-based or relative index `i`.
+    fn resolve(&mut self, i: isize, element: Element, line: usize) -> std::result::Result<u32, String> {
+        let name = element.name();
+        let count = self.count(element);
+        let index = if i > 0 {
+            let index = i as u64 - 1;
+            let largest = &mut self.largest[element as usize];
+            if i as u64 > largest.index {
+                *largest = LargestIndex { index: i as u64, line };
+            }
+            index
+        } else if i < 0 {
+            count.checked_sub(i.unsigned_abs()).ok_or_else(|| {
+                format!("line {line}: {name} index {i} reaches before the first {name} (only {count} so far)")
+            })? as u64
+        } else {
+            return Err(format!("line {line}: {name} index 0 (OBJ counts from 1)"));
+        };
+        u32::try_from(index).map_err(|_| format!("line {line}: {name} index {i} is beyond 2^32"))
+    }
+
+    fn vertex(&mut self, text: &str, line: usize) -> std::result::Result<(), String> {
+        let numbers: Vec<&str> = text.split_whitespace().skip(1).collect();
+        if !matches!(numbers.len(), 3 | 4 | 6) {
+            return Err(format!(
+                "line {line}: a vertex has 3 coordinates, then a w or a colour (r g b) or nothing; found {} numbers",
+                numbers.len()
+            ));
+        }
+        if let Some(bad) = numbers.iter().find(|w| w.parse::<f32>().is_err()) {
+            return Err(format!("line {line}: '{bad}' is not a number"));
+        }
+        if numbers.len() == 4 && numbers[3].parse::<f32>() == Ok(0.0) {
+            return Err(format!("line {line}: w = 0 (a vertex at infinity)"));
+        }
+        let p = parse_vertex_line(text).ok_or_else(|| format!("line {line}: invalid vertex"))?;
+        if let Some(c) = non_finite_coordinate(p) {
+            let number = self.positions.len() + 1;
+            return Err(format!("vertex {number} (line {line}) has a non-finite coordinate ({c})"));
+        }
+        self.positions.push(p);
+        Ok(())
+    }
+
+    fn normal(&mut self, text: &str, line: usize) -> std::result::Result<(), String> {
+        let mut n = [0.0f32; 3];
+        let mut words = text.split_whitespace().skip(1);
+        for c in &mut n {
+            let word = words.next().ok_or_else(|| format!("line {line}: a normal needs 3 numbers"))?;
+            *c = word.parse().map_err(|_| format!("line {line}: '{word}' is not a number"))?;
+        }
+        self.normals.push(Vec3::from_array(n));
+        Ok(())
+    }
+
+    fn face(&mut self, text: &str, line: usize) -> std::result::Result<(), String> {
+        let (start, normals_start) = (self.face_indices.len(), self.corner_normals.len());
+        for word in text.split_whitespace().skip(1) {
+            let mut parts = word.split('/');
+            let v = match parts.next() {
+                Some(v) if !v.is_empty() => self.index(v, Element::Vertex, line)?.unwrap_or_default(),
+                _ => return Err(format!("line {line}: the corner '{word}' names no vertex")),
+            };
+            if let Some(vt) = parts.next().filter(|s| !s.is_empty()) {
+                self.index(vt, Element::TexCoord, line)?;
+            }
+            if let Some(vn) = parts.next().filter(|s| !s.is_empty())
+                && let Some(n) = self.index(vn, Element::Normal, line)?
+            {
+                self.corner_normals.push((v, n));
+            }
+            if parts.next().is_some() {
+                return Err(format!("line {line}: the corner '{word}' has more than v/vt/vn"));
+            }
+            self.face_indices.push(v);
+        }
+        if self.face_indices.len() - start < 3 {
+            // A point or a segment: no surface, as the scene loader ignores it.
+            self.face_indices.truncate(start);
+            self.corner_normals.truncate(normals_start);
+            return Ok(());
+        }
+        let end = u32::try_from(self.face_indices.len()).map_err(|_| format!("line {line}: more than 2^32 corners"))?;
+        if self.face_starts.is_empty() {
+            self.face_starts.push(0);
+        }
+        self.face_starts.push(end);
+        Ok(())
+    }
+
+    /// Checks the indices against the elements of the whole file (a face may name an
+    /// element defined below it); those of texture coordinates and normals only when the
+    /// file has some.
+    fn check_indices(&mut self) -> std::result::Result<(), String> {
+        for element in [Element::Vertex, Element::TexCoord, Element::Normal] {
+            let count = self.count(element);
+            if !matches!(element, Element::Vertex) && count == 0 {
+                continue;
+            }
+            if let Some(e) = self.deferred[element as usize].take() {
+                return Err(e);
+            }
+            let LargestIndex { index, line } = self.largest[element as usize];
+            if index > count as u64 {
+                let (name, plural) = (element.name(), element.plural());
+                return Err(format!("line {line}: {name} index {index} is out of range ({count} {plural})"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The mesh of an OBJ file's text; an error names the line and the problem.
+fn parse(text: &[u8], label: String) -> std::result::Result<AssetMesh, String> {
+    let mut parser = Parser::default();
+    for (i, bytes) in lines(text).enumerate() {
+        let line = i + 1;
+        let text = String::from_utf8_lossy(bytes);
+        match keyword(&text) {
+            Some("v") => parser.vertex(&text, line)?,
+            Some("vt") => parser.texcoords += 1,
+            Some("vn") => parser.normal(&text, line)?,
+            Some("f") => parser.face(&text, line)?,
+            _ => {}
+        }
+    }
+    parser.check_indices()?;
+    if u32::try_from(parser.positions.len()).is_err() {
+        return Err("more than 2^32 vertices".into());
+    }
+    if parser.face_starts.is_empty() {
+        parser.face_starts.push(0);
+    }
+    let normals = (!parser.normals.is_empty())
+        .then(|| vertex_normals(parser.positions.len(), &parser.normals, parser.corner_normals));
+    Ok(AssetMesh {
+        label,
+        positions: parser.positions,
+        normals,
+        face_starts: parser.face_starts,
+        face_indices: parser.face_indices,
+    })
+}
+
+/// One normal per vertex from the file's `vn`, as the faces' corners name them (OBJ
+/// gives normals per corner, the bake wants one per vertex): a vertex whose corners all
+/// name one normal (or several equal ones) gets it as it is; a vertex whose corners name
+/// different normals (a hard edge, a seam) gets the sum of the different ones each
+/// normalised, their mean direction, where an unusable one (zero, non-finite) adds
+/// nothing; a vertex no corner gives a normal gets zero, which the bake replaces with the
+/// area-weighted face normal. `corner_normals` holds (vertex, normal index) pairs.
+fn vertex_normals(vertices: usize, normals: &[Vec3], mut corner_normals: Vec<(u32, u32)>) -> Vec<Vec3> {
+    // Distinct (vertex, normal value) pairs, in a fixed order so that the sums are too.
+    let bits = |n: Vec3| n.to_array().map(f32::to_bits);
+    corner_normals.sort_unstable();
+    corner_normals.dedup();
+    let mut pairs: Vec<(u32, [u32; 3])> = corner_normals.iter().map(|&(v, n)| (v, bits(normals[n as usize]))).collect();
+    pairs.sort_unstable();
+    pairs.dedup();
+
+    let mut out = vec![Vec3::ZERO; vertices];
+    for group in pairs.chunk_by(|a, b| a.0 == b.0) {
+        let value = |(_, n): &(u32, [u32; 3])| Vec3::from_array(n.map(f32::from_bits));
+        out[group[0].0 as usize] = match group {
+            [one] => value(one),
+            several => several.iter().map(|p| value(p).normalize_or_zero()).sum(),
+        };
+    }
+    out
+}
+
+/// The byte ranges of the words of `line`, as `split_whitespace` finds them.
+fn word_spans(line: &str) -> Vec<(usize, usize)> {
+    let mut spans = Vec::new();
+    let mut start = None;
+    for (i, c) in line.char_indices() {
+        match (c.is_whitespace(), start) {
+            (true, Some(s)) => {
+                spans.push((s, i));
+                start = None;
+            }
+            (false, None) => start = Some(i),
+            _ => {}
+        }
+    }
+    if let Some(s) = start {
+        spans.push((s, line.len()));
+    }
+    spans
+}
+
+/// What writing the `v` lines changed besides adding colours.
+#[derive(Clone, Copy, Default)]
+struct VertexChanges {
+    /// `v` lines whose own colour was replaced.
+    colours_replaced: usize,
+    /// `v` lines whose `w` was divided out (a colour cannot follow a `w`).
+    w_divided: usize,
+}
+
+/// Writes the `v` line `line` (with its ending) with the colour `ao`: the coordinates'
+/// text kept verbatim (divided by `w` when the line has a `w` other than 1, written so
+/// that they read back to `position` bit for bit), its own colour replaced.
+fn write_vertex_line(
+    out: &mut dyn Write,
+    line: &[u8],
+    position: Vec3,
+    ao: f32,
+    changes: &mut VertexChanges,
+) -> io::Result<()> {
+    let text = std::str::from_utf8(line).map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e))?;
+    let spans = word_spans(text);
+    let invalid = || io::Error::new(io::ErrorKind::InvalidData, format!("not a vertex line: {text:?}"));
+    let (&(x_start, _), &(_, z_end), &(_, last_end)) =
+        (spans.get(1).ok_or_else(invalid)?, spans.get(3).ok_or_else(invalid)?, spans.last().ok_or_else(invalid)?);
+    match spans.len() {
+        5 if text[spans[4].0..spans[4].1].parse::<f32>() != Ok(1.0) => {
+            changes.w_divided += 1;
+            write!(out, "{}{} {} {}", &text[..x_start], position.x, position.y, position.z)?;
+        }
+        7 => {
+            changes.colours_replaced += 1;
+            out.write_all(&line[..z_end])?;
+        }
+        _ => out.write_all(&line[..z_end])?,
+    }
+    write!(out, " {ao} {ao} {ao}")?;
+    out.write_all(&line[last_end..])
+}
+
+impl ObjAsset {
+    /// Writes the file with `ao` as the colour of every `v` line, every other line as it was.
+    fn write_lines(&self, out: &mut dyn Write, ao: &[f32]) -> io::Result<VertexChanges> {
+        let mut changes = VertexChanges::default();
+        let positions = &self.meshes[0].positions;
+        let mut k = 0;
+        for line in lines(&self.text) {
+            if keyword(&String::from_utf8_lossy(line)) != Some("v") {
+                out.write_all(line)?;
+                continue;
+            }
+            let (Some(&p), Some(&value)) = (positions.get(k), ao.get(k)) else {
+                return Err(io::Error::other("more vertex lines than when the file was read"));
+            };
+            write_vertex_line(out, line, p, value, &mut changes)?;
+            k += 1;
+        }
+        Ok(changes)
     }
 }
 
@@ -21,7 +379,402 @@ impl Asset for ObjAsset {
         &self.meshes
     }
 
-    fn write(&self, path: &Path, _values: &[BakedValues], _options: &WriteOptions) -> Result<Vec<String>> {
-        Err(Error::output(path, "baking into this format is not available yet"))
+    /// Writes the file with AO as the colour of every vertex. Refuses [`BakeAt::Faces`]
+    /// (OBJ has no per-face attribute that readers take); standard errors and bent normals
+    /// have no place in OBJ and are left out with a note.
+    fn write(&self, path: &Path, values: &[BakedValues], options: &WriteOptions) -> Result<Vec<String>> {
+        if options.at == BakeAt::Faces {
+            return Err(Error::output(
+                path,
+                "OBJ has no per-face attribute to hold AO per face: bake it at vertices, or convert the mesh to PLY or glTF",
+            ));
+        }
+        let positions = self.meshes[0].positions.len();
+        let values = match values {
+            [v] if v.ao.len() == positions => v,
+            [v] => {
+                return Err(Error::output(path, format!("{} AO values for {positions} vertices", v.ao.len())));
+            }
+            _ => return Err(Error::output(path, format!("values for {} meshes, the OBJ file has 1", values.len()))),
+        };
+
+        let gzip = is_gzip(path);
+        let mut changes = VertexChanges::default();
+        crate::output::write_atomically_with(path, &mut |w| {
+            changes = if gzip {
+                let mut encoder = GzEncoder::new(w, Compression::default());
+                let changes = self.write_lines(&mut encoder, &values.ao)?;
+                encoder.finish()?;
+                changes
+            } else {
+                self.write_lines(w, &values.ao)?
+            };
+            Ok(())
+        })?;
+
+        let mut notes = Vec::new();
+        let vertices = |n: usize| if n == 1 { "1 vertex".to_string() } else { format!("{n} vertices") };
+        if changes.colours_replaced > 0 {
+            notes.push(format!("{} had colours of their own, replaced by the AO", vertices(changes.colours_replaced)));
+        }
+        if changes.w_divided > 0 {
+            notes.push(format!(
+                "{} had a w coordinate: written divided by it, since a colour cannot follow a w",
+                vertices(changes.w_divided)
+            ));
+        }
+        let elsewhere = "OBJ has no place for them (.ply and .gltf/.glb have)";
+        if options.std_error {
+            notes.push(format!("standard errors not written: {elsewhere}"));
+        }
+        if values.bent_normals.is_some() {
+            notes.push(format!("bent normals not written: {elsewhere}"));
+        }
+        Ok(notes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Read;
+    use std::path::PathBuf;
+
+    /// Writes `bytes` to `name` in a new directory; returns the directory and the path.
+    fn file(name: &str, bytes: &[u8]) -> (tempfile::TempDir, PathBuf) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(name);
+        std::fs::write(&path, bytes).unwrap();
+        (dir, path)
+    }
+
+    fn read_text(text: &str) -> Result<ObjAsset> {
+        let (_dir, path) = file("m.obj", text.as_bytes());
+        ObjAsset::read(&path)
+    }
+
+    fn mesh(text: &str) -> AssetMesh {
+        read_text(text).unwrap().meshes[0].clone()
+    }
+
+    fn faces(mesh: &AssetMesh) -> Vec<Vec<u32>> {
+        (0..mesh.face_count()).map(|f| mesh.face(f).to_vec()).collect()
+    }
+
+    /// AO values that are distinct and need all of an f32's digits.
+    fn values(n: usize) -> BakedValues {
+        BakedValues { ao: (0..n).map(|i| (i as f32 + 1.0) / (n as f32 + 2.0) / 3.0).collect(), ..Default::default() }
+    }
+
+    /// The file at `path`, decompressed when it is gzipped.
+    fn read_back(path: &Path) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        Input::open(path).unwrap().read_to_end(&mut bytes).unwrap();
+        bytes
+    }
+
+    /// The triangles of `mesh`, its polygons split as fans, as bit patterns, sorted.
+    fn fan_triangles(mesh: &AssetMesh) -> Vec<[[u32; 3]; 3]> {
+        let bits = |i: u32| mesh.positions[i as usize].to_array().map(f32::to_bits);
+        let mut out: Vec<_> = (0..mesh.face_count())
+            .flat_map(|f| {
+                let c = mesh.face(f);
+                (2..c.len()).map(move |k| [bits(c[0]), bits(c[k - 1]), bits(c[k])])
+            })
+            .collect();
+        out.sort_unstable();
+        out
+    }
+
+    /// The triangles of the scene loader for `path`, as bit patterns, sorted.
+    fn loader_triangles(path: &Path) -> Vec<[[u32; 3]; 3]> {
+        let m = crate::scene::obj::load_obj(path).unwrap();
+        let bits = |i: u32| m.positions[i as usize].to_array().map(f32::to_bits);
+        let mut out: Vec<_> = m.triangles.iter().map(|t| t.map(bits)).collect();
+        out.sort_unstable();
+        out
+    }
+
+    /// Every kind of line, faces in every form, a quad and a pentagon, two groups.
+    const CUBE_CORNER: &str = "# a corner\nmtllib m.mtl\no first\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n\
+        v 0.1 0.2 1.5e-1\nvt 0 0\nvt 1 0\nvn 0 0 1\nvn 0 0 2\nusemtl grey\ns 1\n\
+        f 1/1/1 2/2/1 3/1/2 4/2/1\ng second part\nf -1//2 1//2 2//1\nf 1 2 3 4 5\nf 2/1 3/2 5/1\n\
+        l 1 2 3\np 4\n";
+
+    #[test]
+    fn positions_and_faces_are_read_as_the_scene_loader_reads_them() {
+        let hand_written = [
+            CUBE_CORNER,
+            "v 1 2 3 2\nv 0.3 0.7 0.1 0.5\nv 1e-7 -0 3\nv 1 1 1 0.2 0.3 0.4\r\nf 1 2 3\r\nf 4 3 2 1\n",
+            "  v 0 0 0\n\tv 1 0 0\nv 0 1 0\ng a\nf 1 2 3\ng b\nf 3 2 1\no c\nf -3 -2 -1",
+            "v 0 0 0\nv 1 0 0 0.5 0.5 0.5\nv 0 1 0\nv 1 1 0\nf\nf 1/1/1 2/-9/0 3 4\nl 1 2 3\nf 1 2\nusemtl\n",
+        ];
+        for text in hand_written {
+            let (_dir, path) = file("m.obj", text.as_bytes());
+            let asset = ObjAsset::read(&path).unwrap();
+            assert_eq!(fan_triangles(&asset.meshes()[0]), loader_triangles(&path), "{text}");
+        }
+        let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+        for name in ["bunny.obj", "teapot.obj"] {
+            let path = scenes.join(name);
+            let asset = ObjAsset::read(&path).unwrap();
+            let mesh = &asset.meshes()[0];
+            assert_eq!(mesh.label, name);
+            assert!(mesh.face_count() > 1000, "{name}");
+            assert_eq!(fan_triangles(mesh), loader_triangles(&path), "{name}");
+            // Baked, the file still loads as the same triangles.
+            let dir = tempfile::tempdir().unwrap();
+            let out = dir.path().join(name);
+            let notes = asset.write(&out, &[values(mesh.positions.len())], &WriteOptions::default()).unwrap();
+            assert!(notes.is_empty(), "{notes:?}");
+            assert_eq!(loader_triangles(&out), fan_triangles(mesh), "{name} baked");
+        }
+    }
+
+    #[test]
+    fn faces_of_every_form_with_relative_indices_and_polygons() {
+        let m = mesh(CUBE_CORNER);
+        assert_eq!(m.label, "m.obj");
+        assert_eq!(m.positions.len(), 5);
+        assert_eq!(m.positions[4].to_array().map(f32::to_bits), [0.1f32, 0.2, 1.5e-1].map(f32::to_bits));
+        assert_eq!(faces(&m), [vec![0, 1, 2, 3], vec![4, 0, 1], vec![0, 1, 2, 3, 4], vec![1, 2, 4]]);
+        // Relative indices count back from the line they are on.
+        let m = mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 1 1 0\nvt 0 0\nf -4/-1 -1 -2\n");
+        assert_eq!(faces(&m), [vec![0, 1, 2], vec![0, 3, 2]]);
+        // Indices of texture coordinates and normals a file has none of are ignored, as
+        // tobj ignores them.
+        let m = mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/0/0 2/-5/-5 3/9/9\n");
+        assert_eq!((faces(&m), m.normals), (vec![vec![0, 1, 2]], None));
+        // A face may name a vertex defined below it, as tobj allows.
+        assert_eq!(faces(&mesh("f 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\n")), [vec![0, 1, 2]]);
+        // No faces at all is a mesh of no faces (the bake decides what to do with it).
+        let m = mesh("v 0 0 0\nf 1 1\n");
+        assert_eq!((m.face_count(), m.face_starts.as_slice()), (0, [0].as_slice()));
+    }
+
+    #[test]
+    fn normals_come_from_the_corners_that_name_them() {
+        let m = mesh(CUBE_CORNER);
+        let n = m.normals.unwrap();
+        // Vertex 1 names normals 1 and 2 (parallel, of lengths 1 and 2): their unit sum.
+        assert_eq!(n[0], Vec3::new(0.0, 0.0, 2.0));
+        // The others name one normal each, kept as it is.
+        assert_eq!(n[1..], [Vec3::Z, Vec3::Z * 2.0, Vec3::Z, Vec3::Z * 2.0]);
+
+        let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nvn 1 0 0\nvn 0 3 0\nvn 1 0 0\nvn 0 0 0\n\
+            f 1//1 2//2 3//4\nf 1//2 2//2 3//1\nf 1//3 2//2 3//4\n";
+        let n = mesh(text).normals.unwrap();
+        // Different normals: the sum of each normalised; an equal one under another
+        // index counts once; a zero one adds nothing.
+        assert_eq!(n[0], Vec3::new(1.0, 1.0, 0.0));
+        assert_eq!(n[1], Vec3::new(0.0, 3.0, 0.0));
+        assert_eq!(n[2], Vec3::new(1.0, 0.0, 0.0));
+        // Never named with a normal: zero.
+        assert_eq!(n[3], Vec3::ZERO);
+        // A file with no `vn` has no normals; one whose faces name none has zero ones.
+        assert_eq!(mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").normals, None);
+        assert_eq!(mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1 2 3\n").normals, Some(vec![Vec3::ZERO; 3]));
+    }
+
+    /// Bakes `text` into `out_name` with distinct values; returns the values, the notes
+    /// and the bytes written (decompressed).
+    fn bake(text: &[u8], in_name: &str, out_name: &str) -> (BakedValues, Vec<String>, Vec<u8>, tempfile::TempDir) {
+        let (dir, path) = file(in_name, text);
+        let asset = ObjAsset::read(&path).unwrap();
+        let values = values(asset.meshes()[0].positions.len());
+        let out = dir.path().join(out_name);
+        let notes = asset.write(&out, std::slice::from_ref(&values), &WriteOptions::default()).unwrap();
+        let bytes = read_back(&out);
+        (values, notes, bytes, dir)
+    }
+
+    #[test]
+    fn a_round_trip_keeps_everything_but_adds_colours() {
+        let (values, notes, bytes, dir) = bake(CUBE_CORNER.as_bytes(), "m.obj", "out.obj");
+        assert!(notes.is_empty(), "{notes:?}");
+        let out = dir.path().join("out.obj");
+
+        // Every line but the `v` ones byte for byte; those keep their coordinates' text.
+        let (old, new): (Vec<_>, Vec<_>) = (lines(CUBE_CORNER.as_bytes()).collect(), lines(&bytes).collect());
+        assert_eq!(old.len(), new.len());
+        let mut k = 0;
+        for (a, b) in old.iter().zip(&new) {
+            if a.starts_with(b"v ") {
+                let a = std::str::from_utf8(a).unwrap().trim_end();
+                let ao = values.ao[k];
+                assert_eq!(std::str::from_utf8(b).unwrap(), format!("{a} {ao} {ao} {ao}\n"));
+                k += 1;
+            } else {
+                assert_eq!(a, b);
+            }
+        }
+        assert_eq!(k, 5);
+
+        // Read again by this reader and by the scene loader: the same mesh.
+        let original = mesh(CUBE_CORNER);
+        let again = ObjAsset::read(&out).unwrap();
+        assert_eq!(
+            again.meshes()[0].positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>(),
+            original.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>()
+        );
+        assert_eq!(again.meshes()[0], AssetMesh { label: "out.obj".into(), ..original.clone() });
+        assert_eq!(loader_triangles(&out), fan_triangles(&original));
+
+        // Read by tobj on its own: every corner's position and colour.
+        let options =
+            tobj::LoadOptions { triangulate: false, single_index: false, ignore_points: true, ignore_lines: true };
+        let mut reader = io::BufReader::new(&bytes[..]);
+        let (models, _) = tobj::load_obj_buf(&mut reader, &options, |_| Ok(Default::default())).unwrap();
+        let mut corners = Vec::new();
+        for model in &models {
+            let m = &model.mesh;
+            for &i in &m.indices {
+                let i = i as usize * 3;
+                let p = Vec3::from_slice(&m.positions[i..i + 3]);
+                corners.push((p.to_array().map(f32::to_bits), m.vertex_color[i..i + 3].to_vec()));
+            }
+        }
+        let expected: Vec<_> = original
+            .face_indices
+            .iter()
+            .map(|&v| {
+                let ao = values.ao[v as usize];
+                (original.positions[v as usize].to_array().map(f32::to_bits), vec![ao, ao, ao])
+            })
+            .collect();
+        // tobj takes the polyline `l 1 2 3` for a triangle, after the faces.
+        assert_eq!(corners.len(), expected.len() + 3);
+        assert_eq!(corners[..expected.len()], expected);
+        assert_eq!(corners[expected.len()..], expected[7..10]);
+    }
+
+    #[test]
+    fn line_endings_are_kept() {
+        let crlf = CUBE_CORNER.replace('\n', "\r\n");
+        let (values, _, bytes, _dir) = bake(crlf.as_bytes(), "m.obj", "out.obj");
+        let ao = values.ao[0];
+        assert!(
+            bytes
+                .starts_with(format!("# a corner\r\nmtllib m.mtl\r\no first\r\nv 0 0 0 {ao} {ao} {ao}\r\n").as_bytes())
+        );
+        assert_eq!(bytes.split(|&b| b == b'\n').count(), crlf.split('\n').count());
+        assert_eq!(bytes.iter().filter(|&&b| b == b'\r').count(), crlf.matches('\r').count());
+        // A last line without an ending, and one with trailing blanks.
+        let (values, _, bytes, _dir) = bake(b"v 0 0 0  \nv 1 0 0\nv 0 1 0", "m.obj", "out.obj");
+        let expected = format!(
+            "v 0 0 0 {0} {0} {0}  \nv 1 0 0 {1} {1} {1}\nv 0 1 0 {2} {2} {2}",
+            values.ao[0], values.ao[1], values.ao[2]
+        );
+        assert_eq!(String::from_utf8(bytes).unwrap(), expected);
+    }
+
+    #[test]
+    fn own_colours_are_replaced_and_w_divided_out() {
+        let text = "v 1 2 3 0.1 0.2 0.3\nv 1 2 3 2\nv 0.3 0.7 0.1 0.3\nv 4 5 6 1.0\nv 0 0 1\nf 1 2 3\nf 3 4 5\n";
+        let (values, notes, bytes, dir) = bake(text.as_bytes(), "m.obj", "out.obj");
+        assert_eq!(
+            notes,
+            [
+                "1 vertex had colours of their own, replaced by the AO",
+                "2 vertices had a w coordinate: written divided by it, since a colour cannot follow a w"
+            ]
+        );
+        let written = String::from_utf8(bytes).unwrap();
+        let line = |k: usize| written.lines().nth(k).unwrap().to_string();
+        let ao = &values.ao;
+        assert_eq!(line(0), format!("v 1 2 3 {0} {0} {0}", ao[0]));
+        assert_eq!(line(1), format!("v 0.5 1 1.5 {0} {0} {0}", ao[1]));
+        assert_eq!(line(3), format!("v 4 5 6 {0} {0} {0}", ao[3]));
+        // Positions read back bit for bit, by this reader and by the scene loader.
+        let out = dir.path().join("out.obj");
+        let before = mesh(text);
+        let after = ObjAsset::read(&out).unwrap();
+        let bits = |m: &AssetMesh| m.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+        assert_eq!(bits(&after.meshes()[0]), bits(&before));
+        assert_eq!(loader_triangles(&out), fan_triangles(&before));
+    }
+
+    #[test]
+    fn gzip_in_and_out() {
+        let mut gz = GzEncoder::new(Vec::new(), Compression::default());
+        gz.write_all(CUBE_CORNER.as_bytes()).unwrap();
+        let compressed = gz.finish().unwrap();
+        let (_, _, from_gz, dir) = bake(&compressed, "m.obj.gz", "out.obj.gz");
+        let raw = std::fs::read(dir.path().join("out.obj.gz")).unwrap();
+        assert!(raw.starts_with(&[0x1f, 0x8b]), "not gzipped");
+        let (_, _, plain, _dir) = bake(CUBE_CORNER.as_bytes(), "m.obj", "out.obj");
+        assert_eq!(from_gz, plain);
+        assert!(!from_gz.starts_with(&[0x1f, 0x8b]));
+    }
+
+    #[test]
+    fn faces_are_refused_and_what_obj_cannot_hold_is_noted() {
+        let (dir, path) = file("m.obj", CUBE_CORNER.as_bytes());
+        let asset = ObjAsset::read(&path).unwrap();
+        let out = dir.path().join("out.obj");
+        let faces = WriteOptions { at: BakeAt::Faces, ..Default::default() };
+        let e = asset.write(&out, &[values(4)], &faces).unwrap_err().to_string();
+        assert!(e.contains("out.obj: OBJ has no per-face attribute") && e.contains("PLY or glTF"), "{e}");
+        assert!(!out.exists());
+
+        let mut v = values(5);
+        v.std_error = vec![0.01; 5];
+        v.bent_normals = Some(vec![Vec3::Z; 5]);
+        let options = WriteOptions { std_error: true, ..Default::default() };
+        let notes = asset.write(&out, &[v], &options).unwrap();
+        assert_eq!(
+            notes,
+            [
+                "standard errors not written: OBJ has no place for them (.ply and .gltf/.glb have)",
+                "bent normals not written: OBJ has no place for them (.ply and .gltf/.glb have)"
+            ]
+        );
+
+        for (values, want) in [(vec![values(4)], "4 AO values for 5 vertices"), (vec![], "values for 0 meshes")] {
+            let e = asset.write(&out, &values, &WriteOptions::default()).unwrap_err().to_string();
+            assert!(e.contains(want), "{e}");
+        }
+    }
+
+    #[test]
+    fn bad_files_are_refused_in_one_line() {
+        let tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+        let cases = [
+            (
+                format!("{tri}v 1 2\n"),
+                "line 4: a vertex has 3 coordinates, then a w or a colour (r g b) or nothing; found 2 numbers",
+            ),
+            (format!("{tri}v 1 2 3 4 5\n"), "found 5 numbers"),
+            (format!("{tri}v 1 x 3\n"), "line 4: 'x' is not a number"),
+            (format!("{tri}v 1 2 3 0\n"), "line 4: w = 0"),
+            (format!("{tri}v 1 nan 3\n"), "vertex 4 (line 4) has a non-finite coordinate (y = NaN)"),
+            (format!("{tri}v 1e39 0 3\n"), "vertex 4 (line 4) has a non-finite coordinate (x = inf)"),
+            (format!("{tri}vn 0 1\n"), "line 4: a normal needs 3 numbers"),
+            (format!("{tri}vn 0 1 z\n"), "line 4: 'z' is not a number"),
+            (format!("{tri}f 1 2 0\n"), "line 4: vertex index 0 (OBJ counts from 1)"),
+            (format!("{tri}f 1 2 4\n"), "line 4: vertex index 4 is out of range (3 vertices)"),
+            (format!("{tri}f 1 2 -4\n"), "line 4: vertex index -4 reaches before the first vertex (only 3 so far)"),
+            (format!("{tri}f 1 2 3.5\n"), "line 4: '3.5' is not a vertex index"),
+            (
+                format!("{tri}vt 0 0\nf 1/2 2 3\n"),
+                "line 5: texture coordinate index 2 is out of range (1 texture coordinates)",
+            ),
+            (format!("{tri}f 1/-1 2 3\nvt 0 0\n"), "line 4: texture coordinate index -1 reaches before the first"),
+            (format!("{tri}f 1/x 2 3\n"), "line 4: 'x' is not a texture coordinate index"),
+            (format!("{tri}vn 0 0 1\nf 1//2 2 3\n"), "line 5: normal index 2 is out of range (1 normals)"),
+            (format!("{tri}vn 0 0 1\nf 1//0 2 3\n"), "line 5: normal index 0"),
+            (format!("{tri}f 1/1/1/1 2 3\n"), "line 4: the corner '1/1/1/1' has more than v/vt/vn"),
+            (format!("{tri}f /1 2 3\n"), "line 4: the corner '/1' names no vertex"),
+            (format!("{tri}f 1 2 99999999999\n"), "line 4: vertex index 99999999999"),
+        ];
+        for (text, want) in cases {
+            let (_dir, path) = file("bad.obj", text.as_bytes());
+            let e = ObjAsset::read(&path).err().unwrap_or_else(|| panic!("{text:?} was read")).to_string();
+            assert!(e.starts_with(&path.display().to_string()), "{e}");
+            assert!(e.contains(want), "{text:?}: {e}");
+            assert_eq!(e.lines().count(), 1, "{e}");
+        }
+        let e = ObjAsset::read(Path::new("no such file.obj")).err().unwrap().to_string();
+        assert!(e.starts_with("no such file.obj: "), "{e}");
     }
 }

@@ -1,11 +1,13 @@
 //! Wavefront OBJ through `tobj`: polygons triangulated as fans, every object and group
-//! merged, points and lines ignored. The file is streamed (`.obj.gz` decompressed on the
-//! way) past a scanner that checks each `v` line as `tobj` reads it, so a non-finite vertex
-//! is reported with its number and line from the same single pass.
+//! merged, points and lines ignored, materials ignored (a missing, empty or malformed
+//! material library never stops a load). The file is streamed (`.obj.gz` decompressed on
+//! the way) past a scanner that checks each `v` line as `tobj` reads it, so a non-finite
+//! vertex is reported with its number and line from the same single pass.
 
 use super::input::Input;
 use super::mesh::{IndexedMesh, VertexNames, vertex_index};
-use super::types::non_finite_coordinate;
+// Re-exported for the OBJ bake, which checks `v` lines as this loader does.
+pub(crate) use super::types::non_finite_coordinate;
 use crate::error::{Error, Result};
 use glam::Vec3;
 use std::io::{self, BufRead, BufReader, Read};
@@ -14,7 +16,7 @@ use std::path::Path;
 /// The position of a `v` line as `tobj` parses it (`f32::from_str`, which accepts "nan"
 /// and "inf"; a homogeneous `w` divided out); `None` for other lines and for `v` lines
 /// `tobj` will refuse itself.
-fn parse_vertex_line(line: &str) -> Option<Vec3> {
+pub(crate) fn parse_vertex_line(line: &str) -> Option<Vec3> {
     let mut words = line.split_whitespace();
     if words.next() != Some("v") {
         return None;
@@ -88,14 +90,81 @@ impl<R: Read> Read for VertexScanner<R> {
     }
 }
 
+/// Cuts from `line` what `tobj` must not see: material lines (`mtllib`, `usemtl`:
+/// materials are not AO's business, and `tobj` refuses a `usemtl` without a name) and
+/// polylines (`l`, which `tobj` would triangulate when they have three points or more)
+/// and empty faces become empty; a vertex's colour (`v x y z r g b`) is cut off, since `tobj` refuses a
+/// file where some vertices have one and others not.
+fn keep_geometry(line: &mut Vec<u8>) {
+    let Ok(text) = std::str::from_utf8(line) else {
+        // `tobj` refuses the line itself.
+        return;
+    };
+    let mut words = text.split_whitespace();
+    let keep = match words.next() {
+        Some("mtllib" | "usemtl" | "l") => 0,
+        // A face of no corners, which `tobj` refuses, has no surface either.
+        Some("f") if words.next().is_none() => 0,
+        Some("v") if text.split_whitespace().count() == 7 => {
+            let z = words.nth(2).unwrap_or_default();
+            z.as_ptr() as usize - text.as_ptr() as usize + z.len()
+        }
+        _ => return,
+    };
+    // An empty line, not nothing: nothing would end the stream.
+    line.truncate(keep);
+    line.push(b'\n');
+}
+
+/// The lines of an OBJ stream as [`keep_geometry`] leaves them.
+struct GeometryLines<B> {
+    inner: B,
+    /// The current line, served from `pos` on.
+    line: Vec<u8>,
+    pos: usize,
+}
+
+impl<B> GeometryLines<B> {
+    fn new(inner: B) -> Self {
+        GeometryLines { inner, line: Vec::new(), pos: 0 }
+    }
+}
+
+impl<B: BufRead> BufRead for GeometryLines<B> {
+    fn fill_buf(&mut self) -> io::Result<&[u8]> {
+        if self.pos == self.line.len() {
+            self.line.clear();
+            self.pos = 0;
+            self.inner.read_until(b'\n', &mut self.line)?;
+            keep_geometry(&mut self.line);
+        }
+        Ok(&self.line[self.pos..])
+    }
+
+    fn consume(&mut self, amount: usize) {
+        self.pos = (self.pos + amount).min(self.line.len());
+    }
+}
+
+impl<B: BufRead> Read for GeometryLines<B> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let available = self.fill_buf()?;
+        let n = available.len().min(buf.len());
+        buf[..n].copy_from_slice(&available[..n]);
+        self.consume(n);
+        Ok(n)
+    }
+}
+
 /// Reads an OBJ file (`.obj` or `.obj.gz`); rejects a vertex with a NaN or infinite
 /// coordinate, naming it by its number (from 1, as faces count) and line.
-pub(super) fn load_obj(path: &Path) -> Result<IndexedMesh> {
+pub(crate) fn load_obj(path: &Path) -> Result<IndexedMesh> {
     let mut scanner = VertexScanner::new(Input::open(path)?);
     let options = tobj::LoadOptions { triangulate: true, single_index: false, ignore_points: true, ignore_lines: true };
-    // Materials are not part of an AO scene: ignore mtllib references.
+    // Materials are not part of an AO scene: material lines never reach `tobj`, and the
+    // material loader (never called then) would load nothing.
     let loaded =
-        tobj::load_obj_buf(&mut BufReader::new(&mut scanner), &options, |_| Err(tobj::LoadError::OpenFileFailed));
+        tobj::load_obj_buf(&mut GeometryLines::new(BufReader::new(&mut scanner)), &options, |_| Ok(Default::default()));
     if let Some(message) = scanner.inner.stream_error() {
         return Err(Error::scene(path, message));
     }
@@ -190,6 +259,67 @@ mod tests {
                 Some("vertex 4 (line 5) has a non-finite coordinate (y = NaN)"),
                 "reads of {chunk}"
             );
+        }
+    }
+
+    /// Writes `files` (name, text) into a new directory and loads the first as OBJ.
+    fn load_files(files: &[(&str, &str)]) -> Result<IndexedMesh> {
+        let dir = tempfile::tempdir().unwrap();
+        for (name, text) in files {
+            std::fs::write(dir.path().join(name), text).unwrap();
+        }
+        load_obj(&dir.path().join(files[0].0))
+    }
+
+    const SQUARE: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n";
+
+    #[test]
+    fn a_missing_material_library_is_ignored() {
+        let mesh = load_files(&[("m.obj", &format!("mtllib none.mtl\n{SQUARE}usemtl red\nf 1 2 3 4\n"))]).unwrap();
+        assert_eq!(mesh.triangles.len(), 2);
+    }
+
+    #[test]
+    fn a_material_with_an_empty_name_is_ignored() {
+        let obj = format!("mtllib m.mtl\n{SQUARE}usemtl\nf 1 2 3\nusemtl  \r\nf 1 3 4\n");
+        let mesh = load_files(&[("m.obj", &obj), ("m.mtl", "newmtl\nKd 1 0 0\n")]).unwrap();
+        assert_eq!(mesh.triangles.len(), 2);
+    }
+
+    #[test]
+    fn a_malformed_material_library_is_ignored() {
+        let obj = format!("mtllib m.mtl\n{SQUARE}usemtl a\nf 1 2 3 4\n");
+        let mtl = "newmtl a\nKd red green\nNs\nmap_Kd\n\u{0}\u{ff}";
+        let mesh = load_files(&[("m.obj", &obj), ("m.mtl", mtl)]).unwrap();
+        assert_eq!(mesh.triangles.len(), 2);
+    }
+
+    #[test]
+    fn polylines_and_points_make_no_triangles() {
+        let mesh =
+            load_files(&[("m.obj", &format!("{SQUARE}l 1 2 3 4\nf 1 2\np 1 2 3\nf\nf 1 2 3\n  l 1 2 3"))]).unwrap();
+        assert_eq!(mesh.triangles.len(), 1);
+    }
+
+    #[test]
+    fn vertex_colours_are_ignored() {
+        let text = "v 0 0 0\nv 1 0 0 0.5 0.5 0.5\r\nv 0 1 0 1 0 0\nf 1 2 3\n";
+        let mesh = load_files(&[("m.obj", text)]).unwrap();
+        assert_eq!(mesh.positions, [Vec3::ZERO, Vec3::X, Vec3::Y]);
+        assert_eq!(mesh.triangles, [[0, 1, 2]]);
+    }
+
+    #[test]
+    fn broken_geometry_is_still_refused() {
+        for (text, want) in [
+            (format!("{SQUARE}usemtl\nf 1 2 5\n"), "out of bounds"),
+            (format!("{SQUARE}f 1 2 x\n"), "face"),
+            ("v 0 0\n".to_string(), "position"),
+            (format!("{SQUARE}v 0 0 0 1 1\nf 1 2 3\n"), "color"),
+            (format!("{SQUARE}v 0 0 0 1 1 1 1\nf 1 2 3\n"), "color"),
+        ] {
+            let e = load_files(&[("m.obj", &text)]).unwrap_err().to_string();
+            assert!(e.to_lowercase().contains(want), "{text:?}: {e}");
         }
     }
 }
