@@ -182,6 +182,15 @@ pub fn run(args: BakeArgs) -> Result<()> {
         AtArg::Vertices => BakeAt::Vertices,
         AtArg::Faces => BakeAt::Faces,
     };
+    if at == BakeAt::Faces
+        && let Some(t) = targets.iter().find(|t| format_of(&t.output).is_some_and(|f| f != "PLY"))
+    {
+        bail!(
+            "{}: {} has no per-face attributes: bake --at faces into a PLY file (convert the mesh first)",
+            t.output.display(),
+            format_of(&t.output).unwrap_or_default()
+        );
+    }
     let meshes = targets.iter().flat_map(|t| t.asset.meshes().iter().map(|m| (m, Placement::of(&t.object))));
     let plan = BakePlan::new(meshes, at);
     let load_seconds = load_start.elapsed().as_secs_f64();
@@ -476,25 +485,28 @@ fn same_file(a: &Path, b: &Path) -> bool {
     }
 }
 
-/// Refuses an output whose format is not the input's (glTF and GLB are one format).
+/// The format a file name says: `PLY`, `OBJ` or `glTF` (glTF and GLB are one format),
+/// with or without `.gz`.
+fn format_of(path: &Path) -> Option<&'static str> {
+    let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    let name = name.strip_suffix(".gz").unwrap_or(&name).to_string();
+    match name.rsplit_once('.').map(|(_, e)| e) {
+        Some("ply") => Some("PLY"),
+        Some("obj") => Some("OBJ"),
+        Some("gltf" | "glb") => Some("glTF"),
+        _ => None,
+    }
+}
+
+/// Refuses an output whose format is not the input's.
 fn check_format(input: &Path, output: &Path) -> Result<()> {
-    let format = |p: &Path| {
-        let name = p.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-        let name = name.strip_suffix(".gz").unwrap_or(&name).to_string();
-        match name.rsplit_once('.').map(|(_, e)| e) {
-            Some("ply") => Some("PLY"),
-            Some("obj") => Some("OBJ"),
-            Some("gltf" | "glb") => Some("glTF"),
-            _ => None,
-        }
-    };
-    let Some(theirs) = format(input) else {
+    let Some(theirs) = format_of(input) else {
         bail!(
             "{}: cannot bake into this file type: expected .ply, .obj, .gltf, .glb or a scene file (.toml)",
             input.display()
         );
     };
-    match format(output) {
+    match format_of(output) {
         Some(ours) if ours == theirs => Ok(()),
         _ => bail!(
             "{}: the output must be a {theirs} file like the input ({}), optionally gzipped (.gz)",
