@@ -527,3 +527,427 @@ fn relative_path(file: &Path, dir: &Path) -> Option<String> {
     }
     Some(parts.join("/"))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::meshes::read_mesh;
+    use ::gltf::Gltf;
+    use ::gltf::accessor::{DataType, Dimensions};
+    use ::gltf::buffer::Source;
+    use ::gltf::mesh::Semantic;
+    use base64::Engine;
+    use glam::Vec3;
+    use serde_json::json;
+    use std::io::Read;
+
+    fn engine() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/2CylinderEngine.glb")
+    }
+
+    fn f32_bytes(values: impl IntoIterator<Item = f32>) -> Vec<u8> {
+        values.into_iter().flat_map(f32::to_le_bytes).collect()
+    }
+
+    const TETRA: [[f32; 3]; 4] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    const STRIP: [[f32; 3]; 4] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]];
+    const COLORS: [f32; 16] = [1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.5, 0.5, 0.5, 1.0];
+
+    /// A scene of a tetrahedron with normals placed by two nodes (with a points primitive
+    /// the bake skips) and a triangle strip with its own COLOR_0, under a root node; a
+    /// material with an extension and extras, an image, an unknown field. Buffer 0 is the
+    /// file `geom.bin` (returned), buffer 1 a `data:` URI.
+    fn fixture() -> (Value, Vec<u8>) {
+        let mut geom = f32_bytes(TETRA.into_iter().flatten());
+        geom.extend(f32_bytes(TETRA.into_iter().flat_map(|p| p.map(|c| c - 0.25))));
+        geom.extend([0u16, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3].into_iter().flat_map(u16::to_le_bytes));
+        geom.extend(f32_bytes(STRIP.into_iter().flatten()));
+        assert_eq!(geom.len(), 168);
+        let colors = base64::engine::general_purpose::STANDARD.encode(f32_bytes(COLORS));
+        let doc = json!({
+            "asset": {"version": "2.0", "generator": "by hand", "extras": {"note": "kept"}},
+            "extensionsUsed": ["KHR_materials_emissive_strength"],
+            "x_unknown": {"a": [1, 2, 3]},
+            "scene": 0,
+            "scenes": [{"nodes": [0], "name": "main"}],
+            "nodes": [
+                {"name": "root", "translation": [1.0, 2.0, 3.0], "children": [1, 2, 3]},
+                {"name": "left", "mesh": 0, "rotation": [0.0, 0.0, 0.70710678, 0.70710678]},
+                {"name": "right", "mesh": 0, "scale": [2.0, 0.5, 1.0], "translation": [5.0, 0.0, 0.0], "extras": {"tag": 7}},
+                {"name": "strip", "mesh": 1, "matrix": [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -4.0, 1.0]}
+            ],
+            "meshes": [
+                {"name": "tetra", "primitives": [
+                    {"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2, "material": 0, "extras": {"p": 1}},
+                    {"attributes": {"POSITION": 0}, "mode": 0}
+                ]},
+                {"name": "strip", "primitives": [{"attributes": {"POSITION": 3, "COLOR_0": 4}, "mode": 5}]}
+            ],
+            "materials": [{
+                "name": "paint",
+                "emissiveFactor": [1.0, 1.0, 1.0],
+                "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 2.0}},
+                "extras": {"m": true}
+            }],
+            "images": [{"uri": "tex%20ture.png"}],
+            "buffers": [
+                {"uri": "geom.bin", "byteLength": 168},
+                {"uri": format!("data:application/octet-stream;base64,{colors}"), "byteLength": 64}
+            ],
+            "bufferViews": [
+                {"buffer": 0, "byteOffset": 0, "byteLength": 48, "target": 34962},
+                {"buffer": 0, "byteOffset": 48, "byteLength": 48, "target": 34962},
+                {"buffer": 0, "byteOffset": 96, "byteLength": 24, "target": 34963},
+                {"buffer": 0, "byteOffset": 120, "byteLength": 48},
+                {"buffer": 1, "byteLength": 64}
+            ],
+            "accessors": [
+                {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]},
+                {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC3"},
+                {"bufferView": 2, "componentType": 5123, "count": 12, "type": "SCALAR"},
+                {"bufferView": 3, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 0.0]},
+                {"bufferView": 4, "componentType": 5126, "count": 4, "type": "VEC4"}
+            ]
+        });
+        (doc, geom)
+    }
+
+    /// Writes the fixture into `dir` as `name`: a `.gltf` beside `geom.bin`, or a `.glb`
+    /// with `geom.bin` as its binary chunk. Returns the path and the JSON written.
+    fn write_fixture(dir: &Path, name: &str) -> (PathBuf, Value) {
+        let (mut doc, geom) = fixture();
+        let path = dir.join(name);
+        if name.ends_with(".glb") {
+            doc["buffers"][0] = json!({"byteLength": 168});
+            std::fs::write(&path, glb_bytes(serde_json::to_vec(&doc).unwrap(), geom).unwrap()).unwrap();
+        } else {
+            std::fs::write(dir.join("geom.bin"), geom).unwrap();
+            std::fs::write(&path, serde_json::to_vec(&doc).unwrap()).unwrap();
+        }
+        (path, doc)
+    }
+
+    /// Distinct values for every vertex of every mesh.
+    fn values(asset: &GltfAsset, bent: bool) -> Vec<BakedValues> {
+        (asset.meshes().iter().enumerate())
+            .map(|(i, m)| {
+                let n = m.positions.len();
+                BakedValues {
+                    ao: (0..n).map(|k| 0.1 * (i + 1) as f32 + 0.01 * k as f32).collect(),
+                    std_error: (0..n).map(|k| 0.001 * (k + 1) as f32).collect(),
+                    bent_normals: bent.then(|| (0..n).map(|k| Vec3::new(i as f32, k as f32, 1.0)).collect()),
+                }
+            })
+            .collect()
+    }
+
+    /// The loader's triangles, their corners' positions as bits.
+    fn loaded_triangles(path: &Path) -> Vec<[[u32; 3]; 3]> {
+        let mesh = read_mesh(path).unwrap_or_else(|e| panic!("{e}"));
+        mesh.triangles.iter().map(|t| t.map(|i| mesh.positions[i as usize].to_array().map(f32::to_bits))).collect()
+    }
+
+    /// The assets' faces, in order, their corners' positions as bits.
+    fn asset_triangles(asset: &GltfAsset) -> Vec<[[u32; 3]; 3]> {
+        let mut out = Vec::new();
+        for mesh in asset.meshes() {
+            for f in 0..mesh.face_count() {
+                let face = mesh.face(f);
+                assert_eq!(face.len(), 3, "{}", mesh.label);
+                out.push([0, 1, 2].map(|c| mesh.positions[face[c] as usize].to_array().map(f32::to_bits)));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn positions_are_the_scene_loaders_bit_for_bit() {
+        let dir = tempfile::tempdir().unwrap();
+        let (gltf, _) = write_fixture(dir.path(), "scene.gltf");
+        let (glb, _) = write_fixture(dir.path(), "scene.glb");
+        for path in [engine(), gltf, glb] {
+            let asset = GltfAsset::read(&path).unwrap_or_else(|e| panic!("{e}"));
+            let want = loaded_triangles(&path);
+            assert!(asset_triangles(&asset) == want, "{}: the positions differ from the loader's", path.display());
+        }
+        let asset = GltfAsset::read(&dir.path().join("scene.gltf")).unwrap();
+        let meshes = asset.meshes();
+        let labels: Vec<&str> = meshes.iter().map(|m| m.label.as_str()).collect();
+        assert_eq!(
+            labels,
+            [
+                "node 1 mesh 0 (\"tetra\") primitive 0",
+                "node 2 mesh 0 (\"tetra\") primitive 0",
+                "node 3 mesh 1 (\"strip\") primitive 0"
+            ]
+        );
+        // The tetrahedron placed twice, differently; the strip triangulated into 2 faces.
+        assert_ne!(meshes[0].positions, meshes[1].positions);
+        assert_eq!((meshes[0].face_count(), meshes[2].face_count()), (4, 2));
+        assert_eq!(meshes[2].face_indices, [0, 1, 2, 2, 1, 3]);
+        // Normals by the normal matrix: node 1 turns a quarter about z, node 2 scales by
+        // (2, 0.5, 1), which divides the normal's components by the same.
+        let file = TETRA.map(|p| Vec3::from(p.map(|c| c - 0.25)));
+        let left = meshes[0].normals.as_ref().unwrap();
+        let right = meshes[1].normals.as_ref().unwrap();
+        for k in 0..4 {
+            let n = file[k];
+            assert!(left[k].abs_diff_eq(Vec3::new(-n.y, n.x, n.z), 1e-6), "{} {}", left[k], n);
+            assert!(right[k].abs_diff_eq(Vec3::new(n.x / 2.0, n.y * 2.0, n.z), 1e-6), "{} {}", right[k], n);
+        }
+        assert_eq!(meshes[2].normals, None);
+    }
+
+    /// The bytes of `path`, gunzipped when it is named `.gz`.
+    fn read_plain(path: &Path) -> Vec<u8> {
+        let bytes = std::fs::read(path).unwrap();
+        if !is_gzip_name(path) {
+            return bytes;
+        }
+        let mut out = Vec::new();
+        flate2::read::GzDecoder::new(&bytes[..]).read_to_end(&mut out).unwrap();
+        out
+    }
+
+    /// `path` read by the `gltf` crate (which validates it), its buffers loaded.
+    fn independent_read(path: &Path) -> (Gltf, Vec<Vec<u8>>) {
+        let gltf = Gltf::from_slice(&read_plain(path)).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let buffers = gltf
+            .buffers()
+            .map(|b| match b.source() {
+                Source::Bin => gltf.blob.clone().expect("the GLB has a binary chunk"),
+                Source::Uri(uri) => match uri.strip_prefix("data:") {
+                    Some(data) => {
+                        let (_, payload) = data.split_once(";base64,").unwrap();
+                        base64::engine::general_purpose::STANDARD.decode(payload).unwrap()
+                    }
+                    None => {
+                        let name = percent_decode_str(uri).decode_utf8().unwrap();
+                        std::fs::read(directory(path).join(&*name)).unwrap()
+                    }
+                },
+            })
+            .collect();
+        (gltf, buffers)
+    }
+
+    /// The floats of a tightly packed float accessor.
+    fn floats(accessor: &::gltf::Accessor, buffers: &[Vec<u8>]) -> Vec<f32> {
+        assert_eq!(accessor.data_type(), DataType::F32);
+        let view = accessor.view().unwrap();
+        assert!(view.stride().is_none_or(|s| s == accessor.size()));
+        assert_eq!(view.offset() % 4, 0);
+        let len = accessor.count() * accessor.size();
+        assert!(accessor.offset() + len <= view.length());
+        let start = view.offset() + accessor.offset();
+        let data = &buffers[view.buffer().index()][start..start + len];
+        data.chunks(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+    }
+
+    /// The output's JSON less what the bake adds, its buffers and URIs put back as in
+    /// `input`, so that what is left must equal `input`.
+    fn without_additions(out: &Value, input: &Value, shift: usize) -> Value {
+        let mut out = out.clone();
+        for key in ["accessors", "bufferViews", "meshes"] {
+            let n = input[key].as_array().unwrap().len();
+            out[key].as_array_mut().unwrap().truncate(n);
+        }
+        for (m, mesh) in out["meshes"].as_array_mut().unwrap().iter_mut().enumerate() {
+            for (p, primitive) in mesh["primitives"].as_array_mut().unwrap().iter_mut().enumerate() {
+                let attributes = primitive["attributes"].as_object_mut().unwrap();
+                for name in [AO, AO_STD_ERROR, BENT_NORMAL] {
+                    attributes.remove(name);
+                }
+                if input["meshes"][m]["primitives"][p]["attributes"].get("COLOR_0").is_none() {
+                    attributes.remove("COLOR_0");
+                }
+            }
+        }
+        for (node, original) in out["nodes"].as_array_mut().unwrap().iter_mut().zip(input["nodes"].as_array().unwrap())
+        {
+            if let Some(mesh) = original.get("mesh") {
+                node["mesh"] = mesh.clone();
+            }
+        }
+        for view in out["bufferViews"].as_array_mut().unwrap() {
+            view["buffer"] = (view["buffer"].as_u64().unwrap() - shift as u64).into();
+        }
+        out["buffers"] = input["buffers"].clone();
+        out["images"] = input["images"].clone();
+        out
+    }
+
+    #[test]
+    fn round_trips_through_gltf_and_glb_outputs() {
+        // (input, output, write std_error and bent normals)
+        let cases = [
+            ("scene.gltf", "out/baked.gltf", true),
+            ("scene.gltf", "out/baked.glb", true),
+            ("scene.gltf", "baked.gltf", false),
+            ("scene.glb", "baked.glb.gz", true),
+            ("scene.glb", "out/baked.gltf.gz", false),
+            ("scene.glb", "baked.glb", false),
+        ];
+        for (input, output, extra) in cases {
+            let what = format!("{input} → {output}");
+            let dir = tempfile::tempdir().unwrap();
+            std::fs::create_dir(dir.path().join("out")).unwrap();
+            let (input_path, input_json) = write_fixture(dir.path(), input);
+            let output_path = dir.path().join(output);
+            let asset = GltfAsset::read(&input_path).unwrap_or_else(|e| panic!("{what}: {e}"));
+            let values = values(&asset, extra);
+            let options = WriteOptions { std_error: extra, ..WriteOptions::default() };
+            let notes = asset.write(&output_path, &values, &options).unwrap_or_else(|e| panic!("{what}: {e}"));
+            assert_eq!(notes.len(), 3, "{what}: {notes:?}");
+            assert!(notes[0].contains("2 POINTS"), "{what}: {notes:?}");
+            assert_eq!(
+                notes[1],
+                "mesh 0 (\"tetra\") is placed by 2 nodes: to carry their own AO, node 2 now uses a copy of it (mesh 2)"
+            );
+            assert!(
+                notes[2].starts_with("node 3 mesh 1 (\"strip\") primitive 0: its own COLOR_0"),
+                "{what}: {notes:?}"
+            );
+
+            // The project's loader finds the same triangles, and the same meshes to bake.
+            assert!(loaded_triangles(&output_path) == loaded_triangles(&input_path), "{what}: triangles differ");
+            let again = GltfAsset::read(&output_path).unwrap_or_else(|e| panic!("{what}: {e}"));
+            assert!(asset_triangles(&again) == asset_triangles(&asset), "{what}: meshes differ");
+
+            // The gltf crate validates the file and finds the values on each node's primitive.
+            let (gltf, buffers) = independent_read(&output_path);
+            let mut node_meshes = Vec::new();
+            for (node, v) in [1, 2, 3].into_iter().zip(&values) {
+                let node = gltf.nodes().nth(node).unwrap();
+                let mesh = node.mesh().unwrap();
+                node_meshes.push(mesh.index());
+                let primitive = mesh.primitives().next().unwrap();
+                let n = v.ao.len();
+                let get = |name: &str| primitive.get(&Semantic::Extras(name.to_string()));
+                let ao = get("AO").unwrap_or_else(|| panic!("{what}: no _AO"));
+                assert_eq!((ao.count(), ao.dimensions()), (n, Dimensions::Scalar));
+                assert_eq!(floats(&ao, &buffers), v.ao, "{what}");
+                let color = primitive.get(&Semantic::Colors(0)).unwrap();
+                assert_eq!((color.count(), color.dimensions()), (n, Dimensions::Vec4));
+                let grey: Vec<f32> = v.ao.iter().flat_map(|&a| [a, a, a, 1.0]).collect();
+                if node.index() == 3 {
+                    // The strip's own colours are kept.
+                    assert_eq!(color.index(), 4);
+                    assert_eq!(floats(&color, &buffers), COLORS);
+                } else {
+                    assert_eq!(floats(&color, &buffers), grey, "{what}");
+                }
+                match get("AO_STD_ERROR") {
+                    Some(a) => assert_eq!(floats(&a, &buffers), v.std_error, "{what}"),
+                    None => assert!(!extra, "{what}: no _AO_STD_ERROR"),
+                }
+                match (get("BENT_NORMAL"), &v.bent_normals) {
+                    (Some(a), Some(b)) => {
+                        assert_eq!(a.dimensions(), Dimensions::Vec3);
+                        let want: Vec<f32> = b.iter().flat_map(|d| d.to_array()).collect();
+                        assert_eq!(floats(&a, &buffers), want, "{what}");
+                    }
+                    (None, None) => {}
+                    _ => panic!("{what}: _BENT_NORMAL where not asked for, or missing"),
+                }
+            }
+            // The mesh placed twice now has one mesh per placement.
+            assert_eq!(node_meshes, [0, 2, 1], "{what}");
+
+            // Everything else of the input is still there.
+            let out_glb = output.contains(".glb");
+            let out_json: Value = serde_json::to_value(gltf.document.clone().into_json()).unwrap();
+            let out_json = match out_glb {
+                true => {
+                    let bytes = read_plain(&output_path);
+                    let glb = ::gltf::binary::Glb::from_slice(&bytes).unwrap();
+                    serde_json::from_slice(&glb.json).unwrap()
+                }
+                false => serde_json::from_slice(&read_plain(&output_path)).unwrap_or(out_json),
+            };
+            let input_glb = input.ends_with(".glb");
+            let shift = usize::from(out_glb && !input_glb);
+            let moved = output.starts_with("out/");
+            let rebased = |uri: &str| if moved { format!("../{uri}") } else { uri.to_string() };
+            assert_eq!(out_json["images"][0]["uri"], rebased("tex%20ture.png"), "{what}");
+            let in_buffers = input_json["buffers"].as_array().unwrap();
+            let out_buffers = out_json["buffers"].as_array().unwrap();
+            assert_eq!(out_buffers.len(), in_buffers.len() + usize::from(!input_glb), "{what}");
+            for (i, b) in in_buffers.iter().enumerate().skip(usize::from(input_glb)) {
+                let o = &out_buffers[i + shift];
+                assert_eq!(o["byteLength"], b["byteLength"], "{what}");
+                match b["uri"].as_str().unwrap() {
+                    uri if uri.starts_with("data:") => assert_eq!(o["uri"], uri, "{what}"),
+                    uri => assert_eq!(o["uri"], rebased(uri), "{what}"),
+                }
+            }
+            let main = if input_glb || out_glb { 0 } else { in_buffers.len() };
+            let main_length = out_buffers[main]["byteLength"].as_u64().unwrap() as usize;
+            assert_eq!(buffers[main].len().next_multiple_of(4), main_length.next_multiple_of(4), "{what}");
+            if out_glb {
+                assert!(out_buffers[main].get("uri").is_none(), "{what}");
+            } else {
+                assert_eq!(out_buffers[main]["uri"], "baked.bin", "{what}");
+            }
+            assert_eq!(without_additions(&out_json, &input_json, shift), input_json, "{what}");
+        }
+    }
+
+    #[test]
+    fn the_engine_round_trips_with_its_binary_chunk() {
+        let asset = GltfAsset::read(&engine()).unwrap_or_else(|e| panic!("{e}"));
+        let values = values(&asset, false);
+        let dir = tempfile::tempdir().unwrap();
+        for name in ["engine.glb", "engine.gltf"] {
+            let path = dir.path().join(name);
+            asset.write(&path, &values, &WriteOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert!(loaded_triangles(&path) == loaded_triangles(&engine()), "{name}: triangles differ");
+            let (gltf, buffers) = independent_read(&path);
+            // Every placement has its own _AO with its own values.
+            let mut seen = 0;
+            for node in gltf.nodes() {
+                let Some(mesh) = node.mesh() else { continue };
+                for primitive in mesh.primitives() {
+                    let ao = primitive.get(&Semantic::Extras("AO".to_string())).unwrap();
+                    let i =
+                        asset.targets.iter().position(|t| (t.node, t.primitive) == (node.index(), primitive.index()));
+                    assert_eq!(floats(&ao, &buffers), values[i.unwrap()].ao, "{name}");
+                    seen += 1;
+                }
+            }
+            assert_eq!(seen, asset.meshes().len(), "{name}");
+        }
+    }
+
+    #[test]
+    fn faces_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let (input, _) = write_fixture(dir.path(), "scene.gltf");
+        let asset = GltfAsset::read(&input).unwrap();
+        let output = dir.path().join("faces.glb");
+        let options = WriteOptions { at: BakeAt::Faces, ..WriteOptions::default() };
+        let message = asset.write(&output, &values(&asset, false), &options).unwrap_err().to_string();
+        assert!(message.contains("faces.glb") && message.contains(".ply"), "{message}");
+        assert!(!output.exists());
+    }
+
+    #[test]
+    fn baking_a_file_over_itself_keeps_its_buffer_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let (path, _) = write_fixture(dir.path(), "geom.gltf");
+        let asset = GltfAsset::read(&path).unwrap();
+        let before = loaded_triangles(&path);
+        let notes = asset.write(&path, &values(&asset, false), &WriteOptions::default()).unwrap();
+        assert!(notes.iter().any(|n| n.contains("geom_ao.bin")), "{notes:?}");
+        assert!(dir.path().join("geom_ao.bin").exists());
+        assert!(loaded_triangles(&path) == before);
+        // Baking the result again replaces its values rather than piling them up.
+        let again = GltfAsset::read(&path).unwrap();
+        let json: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        let accessors = json["accessors"].as_array().unwrap().len();
+        again.write(&path, &values(&again, false), &WriteOptions::default()).unwrap();
+        let json: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        let ao = &json["meshes"][0]["primitives"][0]["attributes"][AO];
+        assert!(ao.as_u64().unwrap() as usize >= accessors, "{ao}");
+    }
+}
