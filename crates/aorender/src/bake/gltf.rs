@@ -572,7 +572,7 @@ mod tests {
             "scenes": [{"nodes": [0], "name": "main"}],
             "nodes": [
                 {"name": "root", "translation": [1.0, 2.0, 3.0], "children": [1, 2, 3]},
-                {"name": "left", "mesh": 0, "rotation": [0.0, 0.0, 0.70710678, 0.70710678]},
+                {"name": "left", "mesh": 0, "rotation": [0.0, 0.0, 1.0, 1.0]},
                 {"name": "right", "mesh": 0, "scale": [2.0, 0.5, 1.0], "translation": [5.0, 0.0, 0.0], "extras": {"tag": 7}},
                 {"name": "strip", "mesh": 1, "matrix": [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -4.0, 1.0]}
             ],

@@ -9,6 +9,9 @@
 //! triangle, triangle-strip and triangle-fan primitive of every node's mesh is placed by
 //! its node's world transform. Other primitive modes (points, lines) are skipped with a
 //! warning. Skins and morph targets are not applied: the mesh is taken in its bind pose.
+//!
+//! [`read_gltf`] also says where each placed primitive went in the mesh (and reads its
+//! normals), for baking values back into the file (`bake::gltf`).
 
 use super::input::{Input, one_line};
 use super::mesh::{IndexedMesh, VertexNames, vertex_index};
