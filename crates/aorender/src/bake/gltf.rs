@@ -1,18 +1,191 @@
-//! Baking into GLTF files (not yet written).
+//! Baking into glTF files (`.gltf`, `.glb`, either gzipped). The meshes are read by the
+//! scene loader (`scene::gltf`), one per triangle primitive under each node, so their
+//! positions are bit for bit the ones the rays are traced against. The file is written
+//! back from its JSON kept as a value, so every node, mesh, material, extension, extras
+//! and unknown field survives; the values go into new accessors on each primitive:
+//! `COLOR_0` (grey, unless the primitive has its own), `_AO`, and `_AO_STD_ERROR` and
+//! `_BENT_NORMAL` when asked for (glTF's custom attributes start with `_`).
+//!
+//! A mesh placed by several nodes is occluded differently at each placement: every node
+//! after the first gets its own copy of the mesh, sharing its accessors and material.
 
-use super::asset::{Asset, AssetMesh, BakedValues, WriteOptions};
+use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
+use crate::scene::input::is_gzip as is_gzip_name;
 use crate::error::{Error, Result};
-use std::path::Path;
+use crate::output::{write_atomically, write_atomically_with};
+use crate::scene::extension;
+use crate::scene::gltf::{GltfBytes, read_gltf};
+use crate::scene::input::one_line;
+use crate::scene::meshes::stem;
+use ::gltf::json::{Value, deserialize, serialize};
+use flate2::Compression;
+use flate2::write::GzEncoder;
+use percent_encoding::{AsciiSet, CONTROLS, percent_decode_str, utf8_percent_encode};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::io::Write;
+use std::path::{Component, Path, PathBuf};
 
-/// A GLTF file read for baking.
+/// glTF's `componentType` for 32-bit floats.
+const FLOAT: u32 = 5126;
+/// glTF's `target` for vertex attributes.
+const ARRAY_BUFFER: u32 = 34962;
+/// Custom attributes this bake writes (besides `COLOR_0`).
+const AO: &str = "_AO";
+const AO_STD_ERROR: &str = "_AO_STD_ERROR";
+const BENT_NORMAL: &str = "_BENT_NORMAL";
+
+/// Characters a relative URI's path cannot hold as they are (RFC 3986, section 3.3).
+const URI_PATH: &AsciiSet = &CONTROLS
+    .add(b' ')
+    .add(b'"')
+    .add(b'#')
+    .add(b'%')
+    .add(b'<')
+    .add(b'>')
+    .add(b'?')
+    .add(b'[')
+    .add(b'\\')
+    .add(b']')
+    .add(b'^')
+    .add(b'`')
+    .add(b'{')
+    .add(b'|')
+    .add(b'}');
+
+/// A glTF file read for baking.
 pub struct GltfAsset {
+    /// The file read, to resolve its relative URIs.
+    path: PathBuf,
     meshes: Vec<AssetMesh>,
+    /// Where each mesh is in the file.
+    targets: Vec<Target>,
+    /// The file's JSON, untouched.
+    json: Value,
+    /// The GLB binary chunk, when buffer 0 is stored in it.
+    bin: Option<Vec<u8>>,
+    /// What the loader skipped, one line each.
+    warnings: Vec<String>,
+}
+
+/// A primitive placed by a node: where an [`AssetMesh`] came from.
+struct Target {
+    node: usize,
+    mesh: usize,
+    primitive: usize,
 }
 
 impl GltfAsset {
-    /// Reads `path` for baking.
+    /// Reads `path` for baking: one mesh per triangle primitive under each node of the
+    /// default scene, in the order the scene loader places them.
     pub fn read(path: &Path) -> Result<GltfAsset> {
-        Err(Error::scene(path, "baking into this format is not available yet"))
+        let (placed, (json, bin)) = read_gltf(path, true, |bytes: GltfBytes| {
+            (deserialize::from_slice::<Value>(bytes.json), bytes.bin.filter(|_| bytes.glb).map(<[u8]>::to_vec))
+        })?;
+        let json = json.map_err(|e| Error::scene(path, format!("invalid glTF JSON: {}", one_line(&e.to_string()))))?;
+        if !json.is_object() {
+            return Err(Error::scene(path, "invalid glTF JSON: not an object"));
+        }
+        // The binary chunk is buffer 0's when that buffer has no URI (glTF 2.0, 4.4.3.3).
+        let bin_is_buffer_0 = json.get("buffers").and_then(|b| b.get(0)).is_some_and(|b| b.get("uri").is_none());
+        let bin = bin.filter(|_| bin_is_buffer_0);
+        let mut meshes = Vec::with_capacity(placed.placements.len());
+        let mut targets = Vec::with_capacity(placed.placements.len());
+        for placement in placed.placements {
+            let base = placement.vertices.start;
+            let triangles = &placed.mesh.triangles[placement.triangles.clone()];
+            let face_starts = (0..=triangles.len())
+                .map(|f| u32::try_from(3 * f))
+                .collect::<std::result::Result<Vec<u32>, _>>()
+                .map_err(|_| Error::scene(path, format!("{}: too many triangles to bake", placement.label)))?;
+            // The loader's indices are `base + i` with `i` below the accessor's count.
+            let face_indices = triangles.iter().flatten().map(|&v| (v as usize - base) as u32).collect();
+            meshes.push(AssetMesh {
+                label: placement.label,
+                positions: placed.mesh.positions[placement.vertices].to_vec(),
+                normals: placement.normals,
+                face_starts,
+                face_indices,
+            });
+            targets.push(Target { node: placement.node, mesh: placement.mesh, primitive: placement.primitive });
+        }
+        if meshes.is_empty() {
+            return Err(Error::scene(path, "the scene has no triangle primitives to bake"));
+        }
+        Ok(GltfAsset { path: path.to_path_buf(), meshes, targets, json, bin, warnings: placed.mesh.warnings })
+    }
+
+    /// Checks there is one set of values per mesh, one value per vertex.
+    fn check_values(&self, path: &Path, values: &[BakedValues], options: &WriteOptions) -> Result<()> {
+        if values.len() != self.meshes.len() {
+            return Err(Error::output(
+                path,
+                format!("{} sets of values for the {} meshes of the file", values.len(), self.meshes.len()),
+            ));
+        }
+        for (mesh, v) in self.meshes.iter().zip(values) {
+            let n = mesh.positions.len();
+            let bent = v.bent_normals.as_ref().map_or(n, Vec::len);
+            let std_error = if options.std_error { v.std_error.len() } else { n };
+            if v.ao.len() != n || std_error != n || bent != n {
+                return Err(Error::output(
+                    path,
+                    format!(
+                        "{}: {} AO values, {} standard errors and {bent} bent normals for {n} vertices",
+                        mesh.label,
+                        v.ao.len(),
+                        v.std_error.len()
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The mesh each target's values go into: the node's own mesh for the first node
+    /// placing it, a copy of it (added to `doc`, the node pointed at it) for the others.
+    fn meshes_to_fill(&self, doc: &mut Value, notes: &mut Vec<String>) -> Vec<usize> {
+        let mut first_node: HashMap<usize, usize> = HashMap::new();
+        let mut copy_of_node: HashMap<usize, usize> = HashMap::new();
+        let mut copies: BTreeMap<usize, Vec<(usize, usize)>> = BTreeMap::new();
+        let mut out = Vec::with_capacity(self.targets.len());
+        for t in &self.targets {
+            let first = *first_node.entry(t.mesh).or_insert(t.node);
+            if first == t.node {
+                out.push(t.mesh);
+                continue;
+            }
+            if let Some(&copy) = copy_of_node.get(&t.node) {
+                out.push(copy);
+                continue;
+            }
+            let original = self.json.get("meshes").and_then(|m| m.get(t.mesh)).cloned().unwrap_or(Value::Null);
+            let meshes = array(doc, "meshes");
+            meshes.push(original);
+            let copy = meshes.len() - 1;
+            if let Some(node) = doc.get_mut("nodes").and_then(|n| n.get_mut(t.node)) {
+                node["mesh"] = copy.into();
+            }
+            copy_of_node.insert(t.node, copy);
+            copies.entry(t.mesh).or_default().push((t.node, copy));
+            out.push(copy);
+        }
+        for (mesh, placed) in copies {
+            let name = self.json["meshes"][mesh].get("name").and_then(Value::as_str);
+            let name = name.map(|n| format!(" ({:?})", one_line(n))).unwrap_or_default();
+            let nodes: Vec<String> = placed.iter().map(|(node, _)| node.to_string()).collect();
+            let meshes: Vec<String> = placed.iter().map(|(_, copy)| copy.to_string()).collect();
+            notes.push(format!(
+                "mesh {mesh}{name} is placed by {} nodes: to carry their own AO, node{} {} now use{} {} of it (mesh{} {})",
+                placed.len() + 1,
+                plural(placed.len()),
+                nodes.join(", "),
+                if placed.len() == 1 { "s" } else { "" },
+                if placed.len() == 1 { "a copy" } else { "copies" },
+                if placed.len() == 1 { "" } else { "es" },
+                meshes.join(", ")
+            ));
+        }
+        out
     }
 }
 
@@ -21,7 +194,761 @@ impl Asset for GltfAsset {
         &self.meshes
     }
 
-    fn write(&self, path: &Path, _values: &[BakedValues], _options: &WriteOptions) -> Result<Vec<String>> {
-        Err(Error::output(path, "baking into this format is not available yet"))
+    fn write(&self, path: &Path, values: &[BakedValues], options: &WriteOptions) -> Result<Vec<String>> {
+        let fail = |message: String| Error::output(path, message);
+        if options.at == BakeAt::Faces {
+            return Err(fail(
+                "glTF has no per-face attributes: bake at vertices, or per face into a .ply file".to_string(),
+            ));
+        }
+        let glb = match extension(path).as_str() {
+            "glb" => true,
+            "gltf" => false,
+            ext => return Err(fail(format!("cannot write glTF to a '.{ext}' file: expected .gltf or .glb"))),
+        };
+        self.check_values(path, values, options)?;
+        let mut notes = self.warnings.clone();
+        let mut doc = self.json.clone();
+        let input_dir = directory(&self.path);
+        let output_dir = directory(path);
+        if !same_directory(&input_dir, &output_dir) {
+            rebase_uris(&mut doc, &input_dir, &output_dir);
+        }
+
+        // The new data goes after the GLB binary chunk's, in buffer 0; without one, into a
+        // new buffer: first for a GLB (where the binary chunk's buffer must be), last for
+        // a .gltf (where no index changes).
+        let mut data = self.bin.clone().unwrap_or_default();
+        pad(&mut data, 0);
+        let buffer = if self.bin.is_some() {
+            0
+        } else if glb {
+            insert_first_buffer(&mut doc);
+            0
+        } else {
+            let buffers = array(&mut doc, "buffers");
+            buffers.push(object([]));
+            buffers.len() - 1
+        };
+
+        let fill = self.meshes_to_fill(&mut doc, &mut notes);
+        let mut kept_colors = BTreeSet::new();
+        for (((t, mesh), v), &fill) in self.targets.iter().zip(&self.meshes).zip(values).zip(&fill) {
+            let n = mesh.positions.len();
+            if n == 0 {
+                continue;
+            }
+            let has_color =
+                self.json["meshes"][t.mesh]["primitives"][t.primitive]["attributes"].get("COLOR_0").is_some();
+            let mut added: Vec<(&str, Option<usize>)> = Vec::new();
+            if has_color {
+                if kept_colors.insert((t.mesh, t.primitive)) {
+                    notes.push(format!("{}: its own COLOR_0 is kept; AO went into its _AO attribute only", mesh.label));
+                }
+            } else {
+                let grey = v.ao.iter().flat_map(|&a| [a, a, a, 1.0]);
+                added.push(("COLOR_0", Some(add_accessor(&mut doc, &mut data, buffer, "VEC4", n, grey))));
+            }
+            added.push((AO, Some(add_accessor(&mut doc, &mut data, buffer, "SCALAR", n, v.ao.iter().copied()))));
+            let std_error = options
+                .std_error
+                .then(|| add_accessor(&mut doc, &mut data, buffer, "SCALAR", n, v.std_error.iter().copied()));
+            added.push((AO_STD_ERROR, std_error));
+            let bent = v
+                .bent_normals
+                .as_ref()
+                .map(|b| add_accessor(&mut doc, &mut data, buffer, "VEC3", n, b.iter().flat_map(|d| d.to_array())));
+            added.push((BENT_NORMAL, bent));
+            let attributes = doc
+                .get_mut("meshes")
+                .and_then(|m| m.get_mut(fill))
+                .and_then(|m| m.get_mut("primitives"))
+                .and_then(|p| p.get_mut(t.primitive))
+                .and_then(|p| p.get_mut("attributes"))
+                .and_then(Value::as_object_mut)
+                .ok_or_else(|| fail(format!("{}: the primitive's attributes are missing from the JSON", mesh.label)))?;
+            for (name, accessor) in added {
+                match accessor {
+                    Some(a) => attributes.insert(name.to_string(), a.into()),
+                    // One left by an earlier bake would contradict the new AO.
+                    None => attributes.remove(name),
+                };
+            }
+        }
+        if data.is_empty() {
+            // A buffer holds at least one byte.
+            data.extend([0; 4]);
+        }
+
+        let buffers = array(&mut doc, "buffers");
+        buffers[buffer]["byteLength"] = data.len().into();
+        if glb {
+            let json = serialize::to_vec(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
+            let bytes = glb_bytes(json, data).ok_or_else(|| fail("the GLB would exceed 4 GiB".to_string()))?;
+            write_maybe_gzipped(path, &bytes)?;
+        } else {
+            let (bin_path, uri) = self.bin_file(path, &input_dir, &output_dir, &mut notes);
+            buffers[buffer]["uri"] = uri.into();
+            let json =
+                serialize::to_vec_pretty(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
+            // Everything is encoded before the first file is written, so that what can fail
+            // between the two writes is the disk alone.
+            let json = if is_gzip_name(path) { gzip(&json).map_err(|e| fail(e.to_string()))? } else { json };
+            write_atomically(&bin_path, &data)?;
+            write_atomically(path, &json)?;
+        }
+        Ok(notes)
+    }
+}
+
+impl GltfAsset {
+    /// The file beside a `.gltf` output that holds its new buffer, and the URI naming it:
+    /// `<stem>.bin`, or `<stem>_ao.bin`, `<stem>_ao2.bin`… when the input uses a file of
+    /// that name (baking a file over itself must not overwrite its own buffers).
+    fn bin_file(&self, path: &Path, input_dir: &Path, output_dir: &Path, notes: &mut Vec<String>) -> (PathBuf, String) {
+        let used: BTreeSet<PathBuf> = self.external_files().map(|f| comparable(&input_dir.join(f))).collect();
+        let stem = stem(path);
+        for k in 0.. {
+            let name = match k {
+                0 => format!("{stem}.bin"),
+                1 => format!("{stem}_ao.bin"),
+                k => format!("{stem}_ao{k}.bin"),
+            };
+            let file = output_dir.join(&name);
+            if !used.contains(&comparable(&file)) {
+                if k > 0 {
+                    notes.push(format!("the new data is in {name}: the input uses {stem}.bin"));
+                }
+                return (file, utf8_percent_encode(&name, URI_PATH).to_string());
+            }
+        }
+        unreachable!("the input names finitely many files")
+    }
+
+    /// The relative file names of the input's external buffers and images.
+    fn external_files(&self) -> impl Iterator<Item = PathBuf> + '_ {
+        ["buffers", "images"]
+            .into_iter()
+            .filter_map(|key| self.json.get(key).and_then(Value::as_array))
+            .flatten()
+            .filter_map(|item| item.get("uri").and_then(Value::as_str))
+            .filter_map(relative_file)
+    }
+}
+
+/// `doc[key]` as an array, made one when missing.
+fn array<'v>(doc: &'v mut Value, key: &str) -> &'v mut Vec<Value> {
+    if !doc[key].is_array() {
+        doc[key] = Value::Array(Vec::new());
+    }
+    match &mut doc[key] {
+        Value::Array(a) => a,
+        _ => unreachable!("made an array above"),
+    }
+}
+
+/// A JSON object of `fields`.
+fn object<const N: usize>(fields: [(&str, Value); N]) -> Value {
+    Value::Object(fields.into_iter().map(|(k, v)| (k.to_string(), v)).collect())
+}
+
+fn plural(n: usize) -> &'static str {
+    if n == 1 { "" } else { "s" }
+}
+
+/// Pads `data` with `byte` to a multiple of 4 bytes.
+fn pad(data: &mut Vec<u8>, byte: u8) {
+    data.resize(data.len().next_multiple_of(4), byte);
+}
+
+/// Appends `values` (`count` elements of `kind`) to `data` in a new buffer view of
+/// `buffer` and adds a float accessor of them; returns the accessor's index.
+fn add_accessor(
+    doc: &mut Value,
+    data: &mut Vec<u8>,
+    buffer: usize,
+    kind: &str,
+    count: usize,
+    values: impl Iterator<Item = f32>,
+) -> usize {
+    pad(data, 0);
+    let offset = data.len();
+    data.extend(values.flat_map(f32::to_le_bytes));
+    let views = array(doc, "bufferViews");
+    views.push(object([
+        ("buffer", buffer.into()),
+        ("byteOffset", offset.into()),
+        ("byteLength", (data.len() - offset).into()),
+        ("target", ARRAY_BUFFER.into()),
+    ]));
+    let view = views.len() - 1;
+    let accessors = array(doc, "accessors");
+    accessors.push(object([
+        ("bufferView", view.into()),
+        ("componentType", FLOAT.into()),
+        ("count", count.into()),
+        ("type", kind.into()),
+    ]));
+    accessors.len() - 1
+}
+
+/// Makes room for the GLB binary chunk's buffer at index 0: every reference to a buffer
+/// moves up by one (buffer views, and the meshopt extensions' fallback views).
+fn insert_first_buffer(doc: &mut Value) {
+    array(doc, "buffers").insert(0, object([]));
+    let shift = |index: Option<&mut Value>| {
+        if let Some(index) = index
+            && let Some(i) = index.as_u64()
+        {
+            *index = (i + 1).into();
+        }
+    };
+    for view in array(doc, "bufferViews") {
+        shift(view.get_mut("buffer"));
+        for ext in ["EXT_meshopt_compression", "KHR_meshopt_compression"] {
+            shift(view.get_mut("extensions").and_then(|e| e.get_mut(ext)).and_then(|e| e.get_mut("buffer")));
+        }
+    }
+}
+
+/// The GLB container of `json` and `bin` (glTF 2.0, section 4.4), or `None` past 4 GiB.
+fn glb_bytes(mut json: Vec<u8>, mut bin: Vec<u8>) -> Option<Vec<u8>> {
+    pad(&mut json, b' ');
+    pad(&mut bin, 0);
+    let total = 12 + 8 + json.len() + 8 + bin.len();
+    let word = |n: usize| u32::try_from(n).ok().map(u32::to_le_bytes);
+    let mut out = Vec::with_capacity(total);
+    out.extend(b"glTF");
+    out.extend(2u32.to_le_bytes());
+    out.extend(word(total)?);
+    out.extend(word(json.len())?);
+    out.extend(b"JSON");
+    out.extend(json);
+    out.extend(word(bin.len())?);
+    out.extend(b"BIN\0");
+    out.extend(bin);
+    Some(out)
+}
+
+fn gzip(bytes: &[u8]) -> std::io::Result<Vec<u8>> {
+    let mut encoder = GzEncoder::new(Vec::new(), Compression::default());
+    encoder.write_all(bytes)?;
+    encoder.finish()
+}
+
+/// Writes `bytes` to `path` atomically, gzipped when its name ends in `.gz`.
+fn write_maybe_gzipped(path: &Path, bytes: &[u8]) -> Result<()> {
+    if !is_gzip_name(path) {
+        return write_atomically(path, bytes);
+    }
+    write_atomically_with(path, &mut |w| {
+        let mut encoder = GzEncoder::new(w, Compression::default());
+        encoder.write_all(bytes)?;
+        encoder.finish().map(|_| ())
+    })
+}
+
+/// The directory a file's relative URIs are resolved from.
+fn directory(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// `path` made absolute, with its symbolic links resolved when it exists, for comparisons.
+fn comparable(path: &Path) -> PathBuf {
+    path.canonicalize().or_else(|_| std::path::absolute(path).map(|p| normalise(&p))).unwrap_or_else(|_| path.into())
+}
+
+fn same_directory(a: &Path, b: &Path) -> bool {
+    comparable(a) == comparable(b)
+}
+
+/// `path` with `.` and `dir/..` removed, without touching the file system.
+fn normalise(path: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in path.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir if matches!(out.components().next_back(), Some(Component::Normal(_))) => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// The relative file name a URI gives, percent-decoded; `None` for `data:` and other
+/// URIs with a scheme, and for absolute paths.
+fn relative_file(uri: &str) -> Option<PathBuf> {
+    if uri.contains(':') {
+        return None;
+    }
+    let name = percent_decode_str(uri).decode_utf8().ok()?;
+    let path = PathBuf::from(&*name);
+    (!name.starts_with('/') && path.is_relative()).then_some(path)
+}
+
+/// Rewrites the relative URIs of buffers and images so that from `to` they name the
+/// files they named from `from`.
+fn rebase_uris(doc: &mut Value, from: &Path, to: &Path) {
+    let (from, to) = (comparable(from), comparable(to));
+    for key in ["buffers", "images"] {
+        let Some(items) = doc.get_mut(key).and_then(Value::as_array_mut) else { continue };
+        for item in items {
+            let Some(uri) = item.get_mut("uri") else { continue };
+            let rebased =
+                uri.as_str().and_then(relative_file).and_then(|f| relative_path(&normalise(&from.join(f)), &to));
+            if let Some(rebased) = rebased {
+                *uri = rebased.into();
+            }
+        }
+    }
+}
+
+/// The URI of the absolute `file` relative to the absolute directory `dir`, with `/`
+/// separators and percent-encoded; `None` when no relative path leads there (another
+/// drive) or a component is not UTF-8.
+fn relative_path(file: &Path, dir: &Path) -> Option<String> {
+    let file: Vec<Component> = file.components().collect();
+    let dir: Vec<Component> = dir.components().collect();
+    let common = file.iter().zip(&dir).take_while(|(a, b)| a == b).count();
+    if common == 0 {
+        return None;
+    }
+    let mut parts: Vec<String> = vec!["..".to_string(); dir.len() - common];
+    for c in &file[common..] {
+        match c {
+            Component::Normal(s) => parts.push(utf8_percent_encode(s.to_str()?, URI_PATH).to_string()),
+            Component::ParentDir => parts.push("..".to_string()),
+            _ => return None,
+        }
+    }
+    Some(parts.join("/"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::meshes::read_mesh;
+    use ::gltf::Gltf;
+    use ::gltf::accessor::{DataType, Dimensions};
+    use ::gltf::buffer::Source;
+    use ::gltf::mesh::Semantic;
+    use base64::Engine;
+    use glam::Vec3;
+    use serde_json::json;
+    use std::io::Read;
+
+    fn engine() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/2CylinderEngine.glb")
+    }
+
+    fn f32_bytes(values: impl IntoIterator<Item = f32>) -> Vec<u8> {
+        values.into_iter().flat_map(f32::to_le_bytes).collect()
+    }
+
+    const TETRA: [[f32; 3]; 4] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    const STRIP: [[f32; 3]; 4] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]];
+    const COLORS: [f32; 16] = [1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 0.5, 0.5, 0.5, 1.0];
+
+    /// A scene of a tetrahedron with normals placed by two nodes (with a points primitive
+    /// the bake skips) and a triangle strip with its own COLOR_0, under a root node; a
+    /// material with an extension and extras, an image, an unknown field. Buffer 0 is the
+    /// file `geom.bin` (returned), buffer 1 a `data:` URI.
+    fn fixture() -> (Value, Vec<u8>) {
+        let mut geom = f32_bytes(TETRA.into_iter().flatten());
+        geom.extend(f32_bytes(TETRA.into_iter().flat_map(|p| p.map(|c| c - 0.25))));
+        geom.extend([0u16, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3].into_iter().flat_map(u16::to_le_bytes));
+        geom.extend(f32_bytes(STRIP.into_iter().flatten()));
+        assert_eq!(geom.len(), 168);
+        let colors = base64::engine::general_purpose::STANDARD.encode(f32_bytes(COLORS));
+        let doc = json!({
+            "asset": {"version": "2.0", "generator": "by hand", "extras": {"note": "kept"}},
+            "extensionsUsed": ["KHR_materials_emissive_strength"],
+            "x_unknown": {"a": [1, 2, 3]},
+            "scene": 0,
+            "scenes": [{"nodes": [0], "name": "main"}],
+            "nodes": [
+                {"name": "root", "translation": [1.0, 2.0, 3.0], "children": [1, 2, 3]},
+                {"name": "left", "mesh": 0, "rotation": [0.0, 0.0, 1.0, 1.0]},
+                {"name": "right", "mesh": 0, "scale": [2.0, 0.5, 1.0], "translation": [5.0, 0.0, 0.0], "extras": {"tag": 7}},
+                {"name": "strip", "mesh": 1, "matrix": [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, -4.0, 1.0]}
+            ],
+            "meshes": [
+                {"name": "tetra", "primitives": [
+                    {"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": 2, "material": 0, "extras": {"p": 1}},
+                    {"attributes": {"POSITION": 0}, "mode": 0}
+                ]},
+                {"name": "strip", "primitives": [{"attributes": {"POSITION": 3, "COLOR_0": 4}, "mode": 5}]}
+            ],
+            "materials": [{
+                "name": "paint",
+                "emissiveFactor": [1.0, 1.0, 1.0],
+                "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 2.0}},
+                "extras": {"m": true}
+            }],
+            "images": [{"uri": "tex%20ture.png"}],
+            "buffers": [
+                {"uri": "geom.bin", "byteLength": 168},
+                {"uri": format!("data:application/octet-stream;base64,{colors}"), "byteLength": 64}
+            ],
+            "bufferViews": [
+                {"buffer": 0, "byteOffset": 0, "byteLength": 48, "target": 34962},
+                {"buffer": 0, "byteOffset": 48, "byteLength": 48, "target": 34962},
+                {"buffer": 0, "byteOffset": 96, "byteLength": 24, "target": 34963},
+                {"buffer": 0, "byteOffset": 120, "byteLength": 48},
+                {"buffer": 1, "byteLength": 64}
+            ],
+            "accessors": [
+                {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]},
+                {"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC3"},
+                {"bufferView": 2, "componentType": 5123, "count": 12, "type": "SCALAR"},
+                {"bufferView": 3, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 0.0]},
+                {"bufferView": 4, "componentType": 5126, "count": 4, "type": "VEC4"}
+            ]
+        });
+        (doc, geom)
+    }
+
+    /// Writes the fixture into `dir` as `name`: a `.gltf` beside `geom.bin`, or a `.glb`
+    /// with `geom.bin` as its binary chunk. Returns the path and the JSON written.
+    fn write_fixture(dir: &Path, name: &str) -> (PathBuf, Value) {
+        let (mut doc, geom) = fixture();
+        let path = dir.join(name);
+        if name.ends_with(".glb") {
+            doc["buffers"][0] = json!({"byteLength": 168});
+            std::fs::write(&path, glb_bytes(serde_json::to_vec(&doc).unwrap(), geom).unwrap()).unwrap();
+        } else {
+            std::fs::write(dir.join("geom.bin"), geom).unwrap();
+            std::fs::write(&path, serde_json::to_vec(&doc).unwrap()).unwrap();
+        }
+        (path, doc)
+    }
+
+    /// Distinct values for every vertex of every mesh.
+    fn values(asset: &GltfAsset, bent: bool) -> Vec<BakedValues> {
+        (asset.meshes().iter().enumerate())
+            .map(|(i, m)| {
+                let n = m.positions.len();
+                BakedValues {
+                    ao: (0..n).map(|k| 0.1 * (i + 1) as f32 + 0.01 * k as f32).collect(),
+                    std_error: (0..n).map(|k| 0.001 * (k + 1) as f32).collect(),
+                    bent_normals: bent.then(|| (0..n).map(|k| Vec3::new(i as f32, k as f32, 1.0)).collect()),
+                }
+            })
+            .collect()
+    }
+
+    /// The loader's triangles, their corners' positions as bits.
+    fn loaded_triangles(path: &Path) -> Vec<[[u32; 3]; 3]> {
+        let mesh = read_mesh(path).unwrap_or_else(|e| panic!("{e}"));
+        mesh.triangles.iter().map(|t| t.map(|i| mesh.positions[i as usize].to_array().map(f32::to_bits))).collect()
+    }
+
+    /// The assets' faces, in order, their corners' positions as bits.
+    fn asset_triangles(asset: &GltfAsset) -> Vec<[[u32; 3]; 3]> {
+        let mut out = Vec::new();
+        for mesh in asset.meshes() {
+            for f in 0..mesh.face_count() {
+                let face = mesh.face(f);
+                assert_eq!(face.len(), 3, "{}", mesh.label);
+                out.push([0, 1, 2].map(|c| mesh.positions[face[c] as usize].to_array().map(f32::to_bits)));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn positions_are_the_scene_loaders_bit_for_bit() {
+        let dir = tempfile::tempdir().unwrap();
+        let (gltf, _) = write_fixture(dir.path(), "scene.gltf");
+        let (glb, _) = write_fixture(dir.path(), "scene.glb");
+        for path in [engine(), gltf, glb] {
+            let asset = GltfAsset::read(&path).unwrap_or_else(|e| panic!("{e}"));
+            let want = loaded_triangles(&path);
+            assert!(asset_triangles(&asset) == want, "{}: the positions differ from the loader's", path.display());
+        }
+        let asset = GltfAsset::read(&dir.path().join("scene.gltf")).unwrap();
+        let meshes = asset.meshes();
+        let labels: Vec<&str> = meshes.iter().map(|m| m.label.as_str()).collect();
+        assert_eq!(
+            labels,
+            [
+                "node 1 mesh 0 (\"tetra\") primitive 0",
+                "node 2 mesh 0 (\"tetra\") primitive 0",
+                "node 3 mesh 1 (\"strip\") primitive 0"
+            ]
+        );
+        // The tetrahedron placed twice, differently; the strip triangulated into 2 faces.
+        assert_ne!(meshes[0].positions, meshes[1].positions);
+        assert_eq!((meshes[0].face_count(), meshes[2].face_count()), (4, 2));
+        assert_eq!(meshes[2].face_indices, [0, 1, 2, 2, 1, 3]);
+        // Normals by the normal matrix: node 1 turns a quarter about z, node 2 scales by
+        // (2, 0.5, 1), which divides the normal's components by the same.
+        let file = TETRA.map(|p| Vec3::from(p.map(|c| c - 0.25)));
+        let left = meshes[0].normals.as_ref().unwrap();
+        let right = meshes[1].normals.as_ref().unwrap();
+        for k in 0..4 {
+            let n = file[k];
+            assert!(left[k].abs_diff_eq(Vec3::new(-n.y, n.x, n.z), 1e-6), "{} {}", left[k], n);
+            assert!(right[k].abs_diff_eq(Vec3::new(n.x / 2.0, n.y * 2.0, n.z), 1e-6), "{} {}", right[k], n);
+        }
+        assert_eq!(meshes[2].normals, None);
+    }
+
+    /// The bytes of `path`, gunzipped when it is named `.gz`.
+    fn read_plain(path: &Path) -> Vec<u8> {
+        let bytes = std::fs::read(path).unwrap();
+        if !is_gzip_name(path) {
+            return bytes;
+        }
+        let mut out = Vec::new();
+        flate2::read::GzDecoder::new(&bytes[..]).read_to_end(&mut out).unwrap();
+        out
+    }
+
+    /// `path` read by the `gltf` crate (which validates it), its buffers loaded.
+    fn independent_read(path: &Path) -> (Gltf, Vec<Vec<u8>>) {
+        let gltf = Gltf::from_slice(&read_plain(path)).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let buffers = gltf
+            .buffers()
+            .map(|b| match b.source() {
+                Source::Bin => gltf.blob.clone().expect("the GLB has a binary chunk"),
+                Source::Uri(uri) => match uri.strip_prefix("data:") {
+                    Some(data) => {
+                        let (_, payload) = data.split_once(";base64,").unwrap();
+                        base64::engine::general_purpose::STANDARD.decode(payload).unwrap()
+                    }
+                    None => {
+                        let name = percent_decode_str(uri).decode_utf8().unwrap();
+                        std::fs::read(directory(path).join(&*name)).unwrap()
+                    }
+                },
+            })
+            .collect();
+        (gltf, buffers)
+    }
+
+    /// The floats of a tightly packed float accessor.
+    fn floats(accessor: &::gltf::Accessor, buffers: &[Vec<u8>]) -> Vec<f32> {
+        assert_eq!(accessor.data_type(), DataType::F32);
+        let view = accessor.view().unwrap();
+        assert!(view.stride().is_none_or(|s| s == accessor.size()));
+        assert_eq!(view.offset() % 4, 0);
+        let len = accessor.count() * accessor.size();
+        assert!(accessor.offset() + len <= view.length());
+        let start = view.offset() + accessor.offset();
+        let data = &buffers[view.buffer().index()][start..start + len];
+        data.chunks(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()
+    }
+
+    /// The output's JSON less what the bake adds, its buffers and URIs put back as in
+    /// `input`, so that what is left must equal `input`.
+    fn without_additions(out: &Value, input: &Value, shift: usize) -> Value {
+        let mut out = out.clone();
+        for key in ["accessors", "bufferViews", "meshes"] {
+            let n = input[key].as_array().unwrap().len();
+            out[key].as_array_mut().unwrap().truncate(n);
+        }
+        for (m, mesh) in out["meshes"].as_array_mut().unwrap().iter_mut().enumerate() {
+            for (p, primitive) in mesh["primitives"].as_array_mut().unwrap().iter_mut().enumerate() {
+                let attributes = primitive["attributes"].as_object_mut().unwrap();
+                for name in [AO, AO_STD_ERROR, BENT_NORMAL] {
+                    attributes.remove(name);
+                }
+                if input["meshes"][m]["primitives"][p]["attributes"].get("COLOR_0").is_none() {
+                    attributes.remove("COLOR_0");
+                }
+            }
+        }
+        for (node, original) in out["nodes"].as_array_mut().unwrap().iter_mut().zip(input["nodes"].as_array().unwrap())
+        {
+            if let Some(mesh) = original.get("mesh") {
+                node["mesh"] = mesh.clone();
+            }
+        }
+        for view in out["bufferViews"].as_array_mut().unwrap() {
+            view["buffer"] = (view["buffer"].as_u64().unwrap() - shift as u64).into();
+        }
+        out["buffers"] = input["buffers"].clone();
+        out["images"] = input["images"].clone();
+        out
+    }
+
+    #[test]
+    fn round_trips_through_gltf_and_glb_outputs() {
+        // (input, output, write std_error and bent normals)
+        let cases = [
+            ("scene.gltf", "out/baked.gltf", true),
+            ("scene.gltf", "out/baked.glb", true),
+            ("scene.gltf", "baked.gltf", false),
+            ("scene.glb", "baked.glb.gz", true),
+            ("scene.glb", "out/baked.gltf.gz", false),
+            ("scene.glb", "baked.glb", false),
+        ];
+        for (input, output, extra) in cases {
+            let what = format!("{input} → {output}");
+            let dir = tempfile::tempdir().unwrap();
+            std::fs::create_dir(dir.path().join("out")).unwrap();
+            let (input_path, input_json) = write_fixture(dir.path(), input);
+            let output_path = dir.path().join(output);
+            let asset = GltfAsset::read(&input_path).unwrap_or_else(|e| panic!("{what}: {e}"));
+            let values = values(&asset, extra);
+            let options = WriteOptions { std_error: extra, ..WriteOptions::default() };
+            let notes = asset.write(&output_path, &values, &options).unwrap_or_else(|e| panic!("{what}: {e}"));
+            assert_eq!(notes.len(), 3, "{what}: {notes:?}");
+            assert!(notes[0].contains("2 POINTS"), "{what}: {notes:?}");
+            assert_eq!(
+                notes[1],
+                "mesh 0 (\"tetra\") is placed by 2 nodes: to carry their own AO, node 2 now uses a copy of it (mesh 2)"
+            );
+            assert!(
+                notes[2].starts_with("node 3 mesh 1 (\"strip\") primitive 0: its own COLOR_0"),
+                "{what}: {notes:?}"
+            );
+
+            // The project's loader finds the same triangles, and the same meshes to bake.
+            assert!(loaded_triangles(&output_path) == loaded_triangles(&input_path), "{what}: triangles differ");
+            let again = GltfAsset::read(&output_path).unwrap_or_else(|e| panic!("{what}: {e}"));
+            assert!(asset_triangles(&again) == asset_triangles(&asset), "{what}: meshes differ");
+
+            // The gltf crate validates the file and finds the values on each node's primitive.
+            let (gltf, buffers) = independent_read(&output_path);
+            let mut node_meshes = Vec::new();
+            for (node, v) in [1, 2, 3].into_iter().zip(&values) {
+                let node = gltf.nodes().nth(node).unwrap();
+                let mesh = node.mesh().unwrap();
+                node_meshes.push(mesh.index());
+                let primitive = mesh.primitives().next().unwrap();
+                let n = v.ao.len();
+                let get = |name: &str| primitive.get(&Semantic::Extras(name.to_string()));
+                let ao = get("AO").unwrap_or_else(|| panic!("{what}: no _AO"));
+                assert_eq!((ao.count(), ao.dimensions()), (n, Dimensions::Scalar));
+                assert_eq!(floats(&ao, &buffers), v.ao, "{what}");
+                let color = primitive.get(&Semantic::Colors(0)).unwrap();
+                assert_eq!((color.count(), color.dimensions()), (n, Dimensions::Vec4));
+                let grey: Vec<f32> = v.ao.iter().flat_map(|&a| [a, a, a, 1.0]).collect();
+                if node.index() == 3 {
+                    // The strip's own colours are kept.
+                    assert_eq!(color.index(), 4);
+                    assert_eq!(floats(&color, &buffers), COLORS);
+                } else {
+                    assert_eq!(floats(&color, &buffers), grey, "{what}");
+                }
+                match get("AO_STD_ERROR") {
+                    Some(a) => assert_eq!(floats(&a, &buffers), v.std_error, "{what}"),
+                    None => assert!(!extra, "{what}: no _AO_STD_ERROR"),
+                }
+                match (get("BENT_NORMAL"), &v.bent_normals) {
+                    (Some(a), Some(b)) => {
+                        assert_eq!(a.dimensions(), Dimensions::Vec3);
+                        let want: Vec<f32> = b.iter().flat_map(|d| d.to_array()).collect();
+                        assert_eq!(floats(&a, &buffers), want, "{what}");
+                    }
+                    (None, None) => {}
+                    _ => panic!("{what}: _BENT_NORMAL where not asked for, or missing"),
+                }
+            }
+            // The mesh placed twice now has one mesh per placement.
+            assert_eq!(node_meshes, [0, 2, 1], "{what}");
+
+            // Everything else of the input is still there.
+            let out_glb = output.contains(".glb");
+            let out_json: Value = serde_json::to_value(gltf.document.clone().into_json()).unwrap();
+            let out_json = match out_glb {
+                true => {
+                    let bytes = read_plain(&output_path);
+                    let glb = ::gltf::binary::Glb::from_slice(&bytes).unwrap();
+                    serde_json::from_slice(&glb.json).unwrap()
+                }
+                false => serde_json::from_slice(&read_plain(&output_path)).unwrap_or(out_json),
+            };
+            let input_glb = input.ends_with(".glb");
+            let shift = usize::from(out_glb && !input_glb);
+            let moved = output.starts_with("out/");
+            let rebased = |uri: &str| if moved { format!("../{uri}") } else { uri.to_string() };
+            assert_eq!(out_json["images"][0]["uri"], rebased("tex%20ture.png"), "{what}");
+            let in_buffers = input_json["buffers"].as_array().unwrap();
+            let out_buffers = out_json["buffers"].as_array().unwrap();
+            assert_eq!(out_buffers.len(), in_buffers.len() + usize::from(!input_glb), "{what}");
+            for (i, b) in in_buffers.iter().enumerate().skip(usize::from(input_glb)) {
+                let o = &out_buffers[i + shift];
+                assert_eq!(o["byteLength"], b["byteLength"], "{what}");
+                match b["uri"].as_str().unwrap() {
+                    uri if uri.starts_with("data:") => assert_eq!(o["uri"], uri, "{what}"),
+                    uri => assert_eq!(o["uri"], rebased(uri), "{what}"),
+                }
+            }
+            let main = if input_glb || out_glb { 0 } else { in_buffers.len() };
+            let main_length = out_buffers[main]["byteLength"].as_u64().unwrap() as usize;
+            assert_eq!(buffers[main].len().next_multiple_of(4), main_length.next_multiple_of(4), "{what}");
+            if out_glb {
+                assert!(out_buffers[main].get("uri").is_none(), "{what}");
+            } else {
+                assert_eq!(out_buffers[main]["uri"], "baked.bin", "{what}");
+            }
+            assert_eq!(without_additions(&out_json, &input_json, shift), input_json, "{what}");
+        }
+    }
+
+    #[test]
+    fn the_engine_round_trips_with_its_binary_chunk() {
+        let asset = GltfAsset::read(&engine()).unwrap_or_else(|e| panic!("{e}"));
+        let values = values(&asset, false);
+        let dir = tempfile::tempdir().unwrap();
+        for name in ["engine.glb", "engine.gltf"] {
+            let path = dir.path().join(name);
+            asset.write(&path, &values, &WriteOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert!(loaded_triangles(&path) == loaded_triangles(&engine()), "{name}: triangles differ");
+            let (gltf, buffers) = independent_read(&path);
+            // Every placement has its own _AO with its own values.
+            let mut seen = 0;
+            for node in gltf.nodes() {
+                let Some(mesh) = node.mesh() else { continue };
+                for primitive in mesh.primitives() {
+                    let ao = primitive.get(&Semantic::Extras("AO".to_string())).unwrap();
+                    let i =
+                        asset.targets.iter().position(|t| (t.node, t.primitive) == (node.index(), primitive.index()));
+                    assert_eq!(floats(&ao, &buffers), values[i.unwrap()].ao, "{name}");
+                    seen += 1;
+                }
+            }
+            assert_eq!(seen, asset.meshes().len(), "{name}");
+        }
+    }
+
+    #[test]
+    fn faces_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let (input, _) = write_fixture(dir.path(), "scene.gltf");
+        let asset = GltfAsset::read(&input).unwrap();
+        let output = dir.path().join("faces.glb");
+        let options = WriteOptions { at: BakeAt::Faces, ..WriteOptions::default() };
+        let message = asset.write(&output, &values(&asset, false), &options).unwrap_err().to_string();
+        assert!(message.contains("faces.glb") && message.contains(".ply"), "{message}");
+        assert!(!output.exists());
+    }
+
+    #[test]
+    fn baking_a_file_over_itself_keeps_its_buffer_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let (path, _) = write_fixture(dir.path(), "geom.gltf");
+        let asset = GltfAsset::read(&path).unwrap();
+        let before = loaded_triangles(&path);
+        let notes = asset.write(&path, &values(&asset, false), &WriteOptions::default()).unwrap();
+        assert!(notes.iter().any(|n| n.contains("geom_ao.bin")), "{notes:?}");
+        assert!(dir.path().join("geom_ao.bin").exists());
+        assert!(loaded_triangles(&path) == before);
+        // Baking the result again replaces its values rather than piling them up.
+        let again = GltfAsset::read(&path).unwrap();
+        let json: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        let accessors = json["accessors"].as_array().unwrap().len();
+        again.write(&path, &values(&again, false), &WriteOptions::default()).unwrap();
+        let json: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        let ao = &json["meshes"][0]["primitives"][0]["attributes"][AO];
+        assert!(ao.as_u64().unwrap() as usize >= accessors, "{ao}");
     }
 }

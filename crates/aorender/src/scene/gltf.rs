@@ -9,6 +9,9 @@
 //! triangle, triangle-strip and triangle-fan primitive of every node's mesh is placed by
 //! its node's world transform. Other primitive modes (points, lines) are skipped with a
 //! warning. Skins and morph targets are not applied: the mesh is taken in its bind pose.
+//!
+//! [`read_gltf`] also says where each placed primitive went in the mesh (and reads its
+//! normals), for baking values back into the file (`bake::gltf`).
 
 use super::input::{Input, one_line};
 use super::mesh::{IndexedMesh, VertexNames, vertex_index};
@@ -21,9 +24,10 @@ use ::gltf::mesh::{Mode, Semantic};
 use ::gltf::scene::Transform;
 use ::gltf::{Accessor, Document, Node, json};
 use base64::Engine;
-use glam::{DMat4, DQuat, DVec3, Vec3};
+use glam::{DMat3, DMat4, DQuat, DVec3, Vec3};
 use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
+use std::ops::Range;
 use std::path::Path;
 
 /// Required extensions this loader implements.
@@ -37,6 +41,53 @@ const APPEARANCE_EXTENSION_PREFIXES: &[&str] =
 
 /// Reads a glTF or GLB file, gzipped or not, into one mesh in the scene's space.
 pub(super) fn load_gltf(path: &Path) -> Result<IndexedMesh> {
+    read_gltf(path, false, |_| ()).map(|(loaded, ())| loaded.mesh)
+}
+
+/// A triangle primitive placed by a node, as [`read_gltf`] put it into its mesh.
+#[derive(Clone, Debug)]
+pub(crate) struct Placement {
+    /// The node's index.
+    pub node: usize,
+    /// The node's mesh.
+    pub mesh: usize,
+    /// The primitive's index in its mesh.
+    pub primitive: usize,
+    /// Names the primitive in messages: `node n mesh m ("name") primitive p`.
+    pub label: String,
+    /// Its vertices in the loaded mesh: those of its POSITION accessor under this node,
+    /// which the node's other primitives on the same accessor share.
+    pub vertices: Range<usize>,
+    /// Its triangles in the loaded mesh, in the order the primitive gives them.
+    pub triangles: Range<usize>,
+    /// Its NORMAL attribute placed by the node's normal matrix (the inverse transpose of
+    /// its world transform), not normalised; `None` unless asked for and present.
+    pub normals: Option<Vec<Vec3>>,
+}
+
+/// A glTF file read as the scene loads it, with where each primitive went.
+#[derive(Debug)]
+pub(crate) struct PlacedGltf {
+    /// Every placed primitive in one mesh, in the file's space.
+    pub mesh: IndexedMesh,
+    /// Each triangle primitive under each node, in the order their triangles were added.
+    pub placements: Vec<Placement>,
+}
+
+/// The containers' bytes of a glTF file just loaded.
+pub(crate) struct GltfBytes<'a> {
+    /// The JSON: the whole file, or the GLB's JSON chunk.
+    pub json: &'a [u8],
+    /// True for a GLB.
+    pub glb: bool,
+    /// The GLB's binary chunk, when it has one.
+    pub bin: Option<&'a [u8]>,
+}
+
+/// Reads a glTF or GLB file, gzipped or not, into one mesh in the scene's space, with the
+/// placement of every primitive (their normals too when `normals` is set), and `keep`'s
+/// result: it sees the file's bytes once the file has loaded.
+pub(crate) fn read_gltf<T>(path: &Path, normals: bool, keep: impl FnOnce(GltfBytes) -> T) -> Result<(PlacedGltf, T)> {
     let bytes = Input::open(path)?.read_all(path)?;
     let glb = split_glb(path, &bytes)?;
     let json_bytes: &[u8] = glb.as_ref().map_or(&bytes, |g| &g.json);
@@ -50,9 +101,12 @@ pub(super) fn load_gltf(path: &Path) -> Result<IndexedMesh> {
     root.extensions_required.clear();
     check_position_accessors_exist(path, &root)?;
     let document = Document::from_json(root).map_err(|e| Error::scene(path, validation_message(&e)))?;
-    let buffers = load_buffers(path, &document, glb.as_ref().and_then(|g| g.bin.as_deref()))?;
+    let bin = glb.as_ref().and_then(|g| g.bin.as_deref());
+    let buffers = load_buffers(path, &document, bin)?;
     let total_bytes = bytes.len() + buffers.iter().map(|b| b.len()).sum::<usize>();
-    Loader { path, buffers: &buffers, total_bytes }.load(&document)
+    let placed = Loader { path, buffers: &buffers, total_bytes, normals }.load(&document)?;
+    let kept = keep(GltfBytes { json: json_bytes, glb: glb.is_some(), bin });
+    Ok((placed, kept))
 }
 
 fn extension_supported(name: &str) -> bool {
@@ -278,6 +332,8 @@ struct Loader<'a, 'b> {
     buffers: &'a [Cow<'b, [u8]>],
     /// Bytes of the file and its buffers: no accessor may claim more elements.
     total_bytes: usize,
+    /// Read each primitive's NORMAL attribute too.
+    normals: bool,
 }
 
 impl Loader<'_, '_> {
@@ -285,7 +341,7 @@ impl Loader<'_, '_> {
         Error::scene(self.path, message)
     }
 
-    fn load(&self, document: &Document) -> Result<IndexedMesh> {
+    fn load(&self, document: &Document) -> Result<PlacedGltf> {
         let instances = self.instances(document)?;
 
         // Sizes first, so the mesh is allocated once at its final size.
@@ -333,6 +389,7 @@ impl Loader<'_, '_> {
         mesh.positions.try_reserve_exact(vertices).map_err(|_| too_many())?;
         mesh.triangles.try_reserve_exact(triangles).map_err(|_| too_many())?;
         let mut names = Vec::new();
+        let mut placements = Vec::new();
         placed.clear();
         for instance in &instances {
             let n = instance.node.index();
@@ -360,6 +417,11 @@ impl Loader<'_, '_> {
                     }
                 };
                 let count = positions.count();
+                let normals = match primitive.get(&Semantic::Normals) {
+                    Some(a) if self.normals => Some(self.read_normals(&a, count, instance.world, &what)?),
+                    _ => None,
+                };
+                let first_triangle = mesh.triangles.len();
                 let indices = match primitive.indices() {
                     Some(a) => Some(self.read_indices(&a, &what)?),
                     None => None,
@@ -394,6 +456,15 @@ impl Loader<'_, '_> {
                         }
                     }
                 }
+                placements.push(Placement {
+                    node: n,
+                    mesh: m,
+                    primitive: p,
+                    label: what,
+                    vertices: base..base + count,
+                    triangles: first_triangle..mesh.triangles.len(),
+                    normals,
+                });
             }
         }
         mesh.names = VertexNames::Ranges(names);
@@ -403,7 +474,7 @@ impl Loader<'_, '_> {
             let message = format!("skipped {total} primitives that are not triangles: {}", modes.join(", "));
             mesh.warnings.push(message);
         }
-        Ok(mesh)
+        Ok(PlacedGltf { mesh, placements })
     }
 
     fn primitive_name(&self, instance: &Instance, p: usize) -> String {
@@ -561,17 +632,7 @@ impl Loader<'_, '_> {
             )));
         }
         let base = out.len();
-        match self.elements(a, label)? {
-            Some(e) => out.extend((0..a.count()).map(|i| Vec3::new(e.float(i, 0), e.float(i, 1), e.float(i, 2)))),
-            None => out.resize(base + a.count(), Vec3::ZERO),
-        }
-        if let Some((index, value)) = self.sparse(a, label)? {
-            for j in 0..index.count {
-                if let Some(p) = out.get_mut(base + index.index(j) as usize) {
-                    *p = Vec3::new(value.float(j, 0), value.float(j, 1), value.float(j, 2));
-                }
-            }
-        }
+        self.read_vec3(a, label, out)?;
         let identity = world == DMat4::IDENTITY;
         for (k, p) in out[base..].iter_mut().enumerate() {
             if let Some(c) = non_finite_coordinate(*p) {
@@ -583,6 +644,52 @@ impl Loader<'_, '_> {
                     return Err(self.error(format!(
                         "{label} vertex {k} has a non-finite coordinate after the node transforms ({c})"
                     )));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The normals of accessor `a` (one per each of the `count` positions), placed by the
+    /// normal matrix of `world`. They are not checked: the bake replaces an unusable one.
+    fn read_normals(&self, a: &Accessor, count: usize, world: DMat4, what: &str) -> Result<Vec<Vec3>> {
+        let quantized = [DataType::I8, DataType::I16].contains(&a.data_type()) && a.normalized();
+        if a.dimensions() != Dimensions::Vec3 || !(a.data_type() == DataType::F32 || quantized) {
+            return Err(self.error(format!(
+                "{what}: normals must be VEC3 of floats (or of normalized 8- or 16-bit integers, KHR_mesh_quantization), not {:?} of {:?}",
+                a.dimensions(),
+                a.data_type()
+            )));
+        }
+        if a.count() != count {
+            return Err(self.error(format!(
+                "{what}: its NORMAL accessor {} has {} elements but its POSITION accessor has {count}",
+                a.index(),
+                a.count()
+            )));
+        }
+        let mut out = Vec::with_capacity(count);
+        self.read_vec3(a, what, &mut out)?;
+        if world != DMat4::IDENTITY {
+            let normal_matrix = DMat3::from_mat4(world).inverse().transpose();
+            for n in &mut out {
+                *n = (normal_matrix * n.as_dvec3()).as_vec3();
+            }
+        }
+        Ok(out)
+    }
+
+    /// Appends the elements of the VEC3 accessor `a`, its sparse substitutions applied.
+    fn read_vec3(&self, a: &Accessor, what: &str, out: &mut Vec<Vec3>) -> Result<()> {
+        let base = out.len();
+        match self.elements(a, what)? {
+            Some(e) => out.extend((0..a.count()).map(|i| Vec3::new(e.float(i, 0), e.float(i, 1), e.float(i, 2)))),
+            None => out.resize(base + a.count(), Vec3::ZERO),
+        }
+        if let Some((index, value)) = self.sparse(a, what)? {
+            for j in 0..index.count {
+                if let Some(p) = out.get_mut(base + index.index(j) as usize) {
+                    *p = Vec3::new(value.float(j, 0), value.float(j, 1), value.float(j, 2));
                 }
             }
         }

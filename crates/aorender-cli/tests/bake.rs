@@ -1,0 +1,435 @@
+//! `aorender bake` end to end, on the CPU reference and the adapter: closed forms through
+//! the written files (a convex closed mesh is exactly 1 at every vertex and face, a floor
+//! under a sphere is 1 − cos β (r/d)² within 4 standard errors, an open floor exactly 1),
+//! instances baked per placement, the GPU agreeing with the CPU, resumed and sharded
+//! bakes bit for bit the same file as one uninterrupted bake, and bad input refused in one
+//! line with nothing written.
+
+mod common;
+use common::*;
+use glam::DVec3;
+use ply_rs_bw::parser::Parser;
+use ply_rs_bw::ply::{DefaultElement, Property};
+use std::path::Path;
+
+/// The devices to bake on: the CPU reference, and the adapter when there is one.
+fn devices() -> Vec<&'static str> {
+    let mut d = vec!["cpu"];
+    if gpu_available() {
+        d.push("gpu");
+    }
+    d
+}
+
+/// An ASCII PLY of `positions` and `faces`, with normals when given.
+fn ply(positions: &[DVec3], faces: &[Vec<u32>], normals: Option<&[DVec3]>) -> String {
+    let mut s = format!("ply\nformat ascii 1.0\ncomment made by a test\nelement vertex {}\n", positions.len());
+    s += "property float x\nproperty float y\nproperty float z\n";
+    if normals.is_some() {
+        s += "property float nx\nproperty float ny\nproperty float nz\n";
+    }
+    s += &format!("element face {}\nproperty list uchar int vertex_indices\nend_header\n", faces.len());
+    for (i, p) in positions.iter().enumerate() {
+        s += &format!("{} {} {}", p.x as f32, p.y as f32, p.z as f32);
+        if let Some(n) = normals {
+            s += &format!(" {} {} {}", n[i].x as f32, n[i].y as f32, n[i].z as f32);
+        }
+        s += "\n";
+    }
+    for f in faces {
+        s += &format!("{}", f.len());
+        for i in f {
+            s += &format!(" {i}");
+        }
+        s += "\n";
+    }
+    s
+}
+
+/// An icosphere of radius `r` about `c`, subdivided `levels` times.
+fn icosphere(c: DVec3, r: f64, levels: u32) -> (Vec<DVec3>, Vec<Vec<u32>>) {
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut v: Vec<DVec3> = [
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ]
+    .iter()
+    .map(|p| DVec3::from_array(*p).normalize())
+    .collect();
+    let mut f: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..levels {
+        let mut mid = std::collections::HashMap::new();
+        let mut next = Vec::new();
+        for [a, b, cc] in f {
+            let mut m = |i: u32, j: u32| {
+                *mid.entry((i.min(j), i.max(j))).or_insert_with(|| {
+                    v.push(((v[i as usize] + v[j as usize]) / 2.0).normalize());
+                    v.len() as u32 - 1
+                })
+            };
+            let (ab, bc, ca) = (m(a, b), m(b, cc), m(cc, a));
+            next.extend([[a, ab, ca], [b, bc, ab], [cc, ca, bc], [ab, bc, ca]]);
+        }
+        f = next;
+    }
+    (v.iter().map(|p| c + r * *p).collect(), f.iter().map(|t| t.to_vec()).collect())
+}
+
+/// A box with corners `lo` and `hi`, as six quads wound outwards.
+fn cuboid(lo: DVec3, hi: DVec3) -> (Vec<DVec3>, Vec<Vec<u32>>) {
+    let v = (0..8)
+        .map(|i| DVec3::new([lo.x, hi.x][i & 1], [lo.y, hi.y][(i >> 1) & 1], [lo.z, hi.z][(i >> 2) & 1]))
+        .collect();
+    let f = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+    (v, f.iter().map(|q| q.to_vec()).collect())
+}
+
+/// An n × n grid of quads on y = `y` spanning [-half, half]² in x and z, facing +y.
+fn floor(n: u32, half: f64, y: f64) -> (Vec<DVec3>, Vec<Vec<u32>>) {
+    let mut v = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let s = |k: u32| -half + 2.0 * half * k as f64 / n as f64;
+            v.push(DVec3::new(s(i), y, s(j)));
+        }
+    }
+    let mut f = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let k = j * (n + 1) + i;
+            f.push(vec![k, k + n + 1, k + n + 2, k + 1]);
+        }
+    }
+    (v, f)
+}
+
+/// The elements of a PLY file read with `ply-rs-bw`'s generic parser (an independent
+/// reader of what the bake wrote).
+fn read_ply(path: &Path) -> ply_rs_bw::ply::Ply<DefaultElement> {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let bytes = if path.extension().is_some_and(|e| e == "gz") {
+        let mut out = Vec::new();
+        std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(&bytes[..]), &mut out).unwrap();
+        out
+    } else {
+        bytes
+    };
+    Parser::<DefaultElement>::new().read_ply(&mut &bytes[..]).unwrap_or_else(|e| panic!("{}: {e:?}", path.display()))
+}
+
+fn float(e: &DefaultElement, name: &str) -> f32 {
+    match e.get(name) {
+        Some(Property::Float(v)) => *v,
+        other => panic!("property {name}: {other:?}"),
+    }
+}
+
+/// `quality` (and `quality_std_error`) of every element `element` of a baked PLY.
+fn values(path: &Path, element: &str) -> (Vec<f32>, Vec<f32>) {
+    let ply = read_ply(path);
+    let rows = &ply.payload[element];
+    let ao = rows.iter().map(|e| float(e, "quality")).collect();
+    let se = rows
+        .iter()
+        .map(|e| if e.contains_key("quality_std_error") { float(e, "quality_std_error") } else { f32::NAN })
+        .collect();
+    (ao, se)
+}
+
+/// Runs `aorender bake` with `args` in `dir`; panics with its output unless it succeeds.
+fn bake(dir: &Path, args: &[&str]) -> String {
+    let mut all = vec!["bake"];
+    all.extend_from_slice(args);
+    let out = aorender(&all, dir);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "bake {args:?}: {stderr}");
+    stderr
+}
+
+#[test]
+fn every_vertex_and_face_of_a_convex_closed_mesh_is_exactly_one() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, f) = icosphere(DVec3::new(0.3, -0.2, 1.5), 2.0, 2);
+    std::fs::write(d.join("ico.ply"), ply(&v, &f, None)).unwrap();
+    let (v, f) = cuboid(DVec3::new(-1.0, -2.0, -0.5), DVec3::new(3.0, 1.0, 0.25));
+    std::fs::write(d.join("box.ply"), ply(&v, &f, None)).unwrap();
+    for device in devices() {
+        for (mesh, at, element) in [
+            ("ico.ply", "vertices", "vertex"),
+            ("ico.ply", "faces", "face"),
+            ("box.ply", "vertices", "vertex"),
+            ("box.ply", "faces", "face"),
+        ] {
+            for hemisphere in ["cosine", "uniform"] {
+                let out = format!("{device}-{at}-{hemisphere}-{mesh}");
+                bake(
+                    d,
+                    &[mesh, "-o", &out, "--device", device, "--at", at, "--samples", "64", "--hemisphere", hemisphere],
+                );
+                let (ao, _) = values(&d.join(&out), element);
+                assert!(!ao.is_empty());
+                for (k, a) in ao.iter().enumerate() {
+                    assert_eq!(*a, 1.0, "{device} {mesh} {at} {hemisphere}: {element} {k} is {a}");
+                }
+            }
+        }
+    }
+}
+
+/// A floor under a sphere: at a vertex whose normal makes the angle β with the direction
+/// to the centre at distance d, cosine-weighted AO is 1 − cos β (r/d)² while the whole
+/// sphere is above the horizon; the open floor around it is exactly 1.
+#[test]
+fn a_floor_under_a_sphere_matches_the_closed_form() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, f) = floor(12, 3.0, 0.0);
+    std::fs::write(d.join("floor.ply"), ply(&v, &f, None)).unwrap();
+    let (centre, r) = (DVec3::new(0.25, 1.5, -0.5), 1.0);
+    let scene = format!(
+        "[camera]\neye = [0, 5, 5]\nlook_at = [0, 0, 0]\nfov = 45\n\n\
+         [[objects]]\ntype = \"mesh\"\nfile = \"floor.ply\"\n\n\
+         [[objects]]\ntype = \"sphere\"\ncenter = [{}, {}, {}]\nradius = {r}\n",
+        centre.x, centre.y, centre.z
+    );
+    std::fs::write(d.join("scene.toml"), scene).unwrap();
+    for device in devices() {
+        let out = format!("{device}-out");
+        bake(d, &["scene.toml", "-o", &out, "--device", device, "--samples", "1024", "--std-error", "--seed", "7"]);
+        let (ao, se) = values(&d.join(&out).join("floor.ply"), "vertex");
+        assert_eq!(ao.len(), v.len());
+        let mut worst: f64 = 0.0;
+        for (k, p) in v.iter().enumerate() {
+            let to = centre - *p;
+            let cos_beta = to.y / to.length();
+            let expected = 1.0 - cos_beta * (r / to.length()).powi(2);
+            let z = (ao[k] as f64 - expected) / (se[k] as f64).max(1e-12);
+            worst = worst.max(z.abs());
+            assert!(z.abs() < 4.0, "{device}: vertex {k} at {p}: {} ± {} against {expected}", ao[k], se[k]);
+        }
+        eprintln!("{device}: largest deviation {worst:.2} standard errors over {} vertices", v.len());
+    }
+    // The floor alone: nothing occludes it.
+    for device in devices() {
+        let out = format!("{device}-open.ply");
+        bake(d, &["floor.ply", "-o", &out, "--device", device, "--samples", "64"]);
+        let (ao, _) = values(&d.join(&out), "vertex");
+        assert!(ao.iter().all(|&a| a == 1.0), "{device}: {ao:?}");
+    }
+}
+
+/// One mesh file placed by two objects of a scene file (an instanced mesh): each placement
+/// is baked into a file of its own, with its own occlusion; placed far apart with a short
+/// maximum distance, every vertex of both (rays leaving instances carried through their
+/// transforms, rotated and scaled) is exactly 1.
+#[test]
+fn each_placement_of_an_instanced_mesh_gets_its_own_values() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, f) = icosphere(DVec3::ZERO, 1.0, 1);
+    std::fs::write(d.join("ball.ply"), ply(&v, &f, None)).unwrap();
+    let placed = |a: [f32; 3], b: [f32; 3], max_distance: f32| {
+        format!(
+            "[camera]\neye = [0, 0, 20]\nlook_at = [0, 0, 0]\nfov = 45\n\n[sampling]\nmax_distance = {max_distance}\n\n\
+             [[objects]]\ntype = \"mesh\"\nfile = \"ball.ply\"\ntransform = {{ translate = {a:?}, rotate = [30, 40, 50], scale = 1.7 }}\n\n\
+             [[objects]]\ntype = \"mesh\"\nfile = \"ball.ply\"\ntransform = {{ translate = {b:?}, rotate = [-10, 5, 80], scale = 0.6 }}\n"
+        )
+    };
+    std::fs::write(d.join("apart.toml"), placed([-1000.0, 3.0, 2.0], [1000.0, -5.0, 7.0], 10.0)).unwrap();
+    std::fs::write(d.join("close.toml"), placed([-1.0, 0.0, 0.0], [1.6, 0.0, 0.0], 100.0)).unwrap();
+    for device in devices() {
+        let out = format!("{device}-apart");
+        bake(d, &["apart.toml", "-o", &out, "--device", device, "--samples", "64"]);
+        for name in ["ball-1.ply", "ball-2.ply"] {
+            let (ao, _) = values(&d.join(&out).join(name), "vertex");
+            assert_eq!(ao.len(), v.len());
+            assert!(ao.iter().all(|&a| a == 1.0), "{device} {name}: {ao:?}");
+        }
+        let out = format!("{device}-close");
+        bake(d, &["close.toml", "-o", &out, "--device", device, "--samples", "256"]);
+        let (a, _) = values(&d.join(&out).join("ball-1.ply"), "vertex");
+        let (b, _) = values(&d.join(&out).join("ball-2.ply"), "vertex");
+        assert!(a != b, "{device}: both placements got the same values");
+        assert!(a.iter().chain(&b).any(|&x| x < 0.9), "{device}: the balls do not occlude each other");
+    }
+}
+
+#[test]
+fn the_gpu_and_the_cpu_bake_the_same_values() {
+    if !gpu_available() {
+        return;
+    }
+    let dir = temp_dir();
+    let d = dir.path();
+    let bunny = repo().join("scenes/dragon_vrip_res4.ply.gz");
+    let bunny = bunny.to_str().unwrap();
+    for sampler in ["independent", "sobol"] {
+        let cpu = format!("cpu-{sampler}.ply");
+        let gpu = format!("gpu-{sampler}.ply");
+        let args = ["--samples", "32", "--sampler", sampler, "--seed", "3", "--max-distance", "0.05"];
+        bake(d, &[&[bunny, "-o", &cpu, "--device", "cpu"][..], &args].concat());
+        bake(d, &[&[bunny, "-o", &gpu, "--device", "gpu"][..], &args].concat());
+        let (c, _) = values(&d.join(&cpu), "vertex");
+        let (g, _) = values(&d.join(&gpu), "vertex");
+        assert_eq!(c.len(), g.len());
+        let worst = c.iter().zip(&g).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        assert!(worst < 1e-6, "{sampler}: largest difference {worst}");
+    }
+}
+
+/// A bake stopped by its time limit after its first pass and resumed, and a bake in two
+/// sample-range shards merged, write the same bytes as one uninterrupted bake.
+#[test]
+fn resumed_and_merged_bakes_are_bit_identical() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, f) = floor(20, 3.0, 0.0);
+    let (b, g) = cuboid(DVec3::new(-1.0, 0.0, -1.0), DVec3::new(1.0, 1.0, 1.0));
+    let n = v.len() as u32;
+    let faces: Vec<Vec<u32>> = f.into_iter().chain(g.into_iter().map(|q| q.iter().map(|i| i + n).collect())).collect();
+    let positions: Vec<DVec3> = v.into_iter().chain(b).collect();
+    std::fs::write(d.join("m.ply"), ply(&positions, &faces, None)).unwrap();
+    for device in devices() {
+        let full = format!("{device}-full.ply");
+        let common = ["--device", device, "--samples", "256", "--std-error"];
+        bake(d, &[&["m.ply", "-o", &full][..], &common].concat());
+        let ck = format!("{device}.ck");
+        let part = format!("{device}-part.ply");
+        let stopped =
+            bake(d, &[&["m.ply", "-o", &part, "--checkpoint", &ck, "--time-limit", "1e-9"][..], &common].concat());
+        assert!(stopped.contains("time limit reached"), "{stopped}");
+        let resumed = format!("{device}-resumed.ply");
+        bake(d, &[&["m.ply", "-o", &resumed, "--resume", &ck][..], &common].concat());
+        assert_eq!(
+            std::fs::read(d.join(&resumed)).unwrap(),
+            std::fs::read(d.join(&full)).unwrap(),
+            "{device}: resumed"
+        );
+        let (a, b) = (format!("{device}-a.ck"), format!("{device}-b.ck"));
+        let shard = format!("{device}-shard.ply");
+        bake(d, &[&["m.ply", "-o", &shard, "--sample-range", "0..128", "--checkpoint", &a][..], &common].concat());
+        bake(d, &[&["m.ply", "-o", &shard, "--sample-range", "128..256", "--checkpoint", &b][..], &common].concat());
+        let merged = format!("{device}-merged.ply");
+        bake(d, &[&["m.ply", "-o", &merged, "--merge", &b, &a][..], &common].concat());
+        assert_eq!(std::fs::read(d.join(&merged)).unwrap(), std::fs::read(d.join(&full)).unwrap(), "{device}: merged");
+    }
+}
+
+/// Vertices no face uses, and vertices whose faces are all degenerate, get the documented
+/// value 1 and are counted; the others are baked.
+#[test]
+fn vertices_without_a_usable_normal_get_one_and_are_counted() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (mut v, mut f) = floor(2, 1.0, 0.0);
+    let n = v.len() as u32;
+    // An unreferenced vertex, and a degenerate triangle (three collinear vertices) of its own.
+    v.push(DVec3::new(0.0, 5.0, 0.0));
+    v.extend([DVec3::new(0.0, 0.5, 0.0), DVec3::new(0.1, 0.5, 0.0), DVec3::new(0.2, 0.5, 0.0)]);
+    f.push(vec![n + 1, n + 2, n + 3]);
+    std::fs::write(d.join("m.ply"), ply(&v, &f, None)).unwrap();
+    let err = bake(d, &["m.ply", "-o", "out.ply", "--device", "cpu", "--samples", "16", "--stats", "stats.json"]);
+    assert!(err.contains("4 vertices without a usable normal"), "{err}");
+    let stats: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("stats.json")).unwrap()).unwrap();
+    assert_eq!(stats["points_without_normal"], 4);
+    assert_eq!(stats["points_traced"], n);
+    let (ao, _) = values(&d.join("out.ply"), "vertex");
+    assert!(ao.iter().all(|a| a.is_finite()));
+    assert_eq!(&ao[n as usize..], &[1.0; 4]);
+}
+
+/// The file's normals are used where it has them: a floor whose normals lean 60° toward a
+/// wall sees it, the same floor with its geometric normals barely does.
+#[test]
+fn the_files_normals_are_used() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, f) = floor(2, 1.0, 0.0);
+    let lean = DVec3::new(60f64.to_radians().sin(), 60f64.to_radians().cos(), 0.0);
+    let normals = vec![lean; v.len()];
+    std::fs::write(d.join("leaning.ply"), ply(&v, &f, Some(&normals))).unwrap();
+    std::fs::write(d.join("plain.ply"), ply(&v, &f, None)).unwrap();
+    let wall = "[camera]\neye = [0, 5, 5]\nlook_at = [0, 0, 0]\nfov = 45\n\n\
+         [[objects]]\ntype = \"plane\"\npoint = [1.5, 0, 0]\nnormal = [-1, 0, 0]\n\n\
+         [[objects]]\ntype = \"mesh\"\nfile = \"MESH\"\n";
+    for mesh in ["leaning.ply", "plain.ply"] {
+        std::fs::write(d.join(format!("{mesh}.toml")), wall.replace("MESH", mesh)).unwrap();
+        bake(d, &[&format!("{mesh}.toml"), "-o", &format!("out-{mesh}"), "--device", "cpu", "--samples", "512"]);
+    }
+    let (leaning, _) = values(&d.join("out-leaning.ply").join("leaning.ply"), "vertex");
+    let (plain, _) = values(&d.join("out-plain.ply").join("plain.ply"), "vertex");
+    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+    assert!(mean(&leaning) < mean(&plain) - 0.1, "leaning {} plain {}", mean(&leaning), mean(&plain));
+}
+
+#[test]
+fn bad_input_is_refused_in_one_line_with_nothing_written() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, f) = floor(2, 1.0, 0.0);
+    std::fs::write(d.join("m.ply"), ply(&v, &f, None)).unwrap();
+    let before = std::fs::read(d.join("m.ply")).unwrap();
+    std::fs::write(d.join("empty.toml"), "[camera]\neye = [0, 0, 5]\nlook_at = [0, 0, 0]\nfov = 45\n").unwrap();
+    std::fs::write(d.join("bad.ply"), "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n")
+        .unwrap();
+    for (args, expect) in [
+        (&["m.ply", "-o", "m.ply"][..], "would replace the input"),
+        (&["m.ply", "-o", "m.obj"][..], "must be a PLY file"),
+        (&["m.ply", "-o", "out.ply", "--samples", "0"][..], "--samples must be at least 1"),
+        (&["m.ply", "-o", "out.ply", "--sample-range", "0..8"][..], "needs --checkpoint"),
+        (&["empty.toml", "-o", "outdir"][..], "no mesh objects"),
+        (&["bad.ply", "-o", "out.ply"][..], "bad.ply"),
+        (&["missing.ply", "-o", "out.ply"][..], "missing.ply"),
+    ] {
+        let mut all = vec!["bake", "--device", "cpu"];
+        all.extend_from_slice(args);
+        let out = aorender(&all, d);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+        let lines: Vec<&str> = stderr.lines().collect();
+        assert_eq!(lines.len(), 1, "{args:?}: {stderr}");
+        assert!(lines[0].starts_with("aorender: ") && lines[0].contains(expect), "{args:?}: {stderr}");
+    }
+    assert_eq!(std::fs::read(d.join("m.ply")).unwrap(), before);
+    let mut left: Vec<_> =
+        std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    left.sort();
+    assert_eq!(left, ["bad.ply", "empty.toml", "m.ply"]);
+    // Writing over the input when asked to.
+    let out = aorender(&["bake", "m.ply", "-o", "m.ply", "--overwrite", "--device", "cpu", "--samples", "4"], d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(values(&d.join("m.ply"), "vertex").0.len(), v.len());
+}
