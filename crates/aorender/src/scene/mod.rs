@@ -17,8 +17,8 @@ mod types;
 pub use crate::geometry::Plane;
 pub use camera::{Camera, Projection, RayGen};
 pub use file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME};
-pub use meshes::mesh_triangles;
 pub(crate) use meshes::extension;
+pub use meshes::mesh_triangles;
 pub use types::{
     Bounds, Instance, InstancedMesh, MAX_IMAGE_SIDE, MAX_NORMAL_LENGTH_SQUARED, MIN_NORMAL_LENGTH_SQUARED, Scene,
     Settings, Sphere, Triangle, Warning,
