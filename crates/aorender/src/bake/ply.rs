@@ -86,6 +86,11 @@ scalar!(f64, |v, out| match v {
     v => put_display(v, out),
 });
 
+/// `v` as an `f64`: exact for every PLY type.
+fn to_f64<T: Into<f64>>(v: T) -> f64 {
+    v.into()
+}
+
 /// The values of one property over all elements (the items of all lists, for a list), in
 /// the property's own type.
 #[derive(Clone, Debug, PartialEq)]
@@ -167,7 +172,7 @@ impl Values {
     /// Value `i` as `f32`, converted as the scene loader converts coordinates (the
     /// nearest value; every integer of PLY's types is exact as an `f64`).
     fn f32(&self, i: usize) -> f32 {
-        with_values!(self, v => Into::<f64>::into(v[i]) as f32)
+        with_values!(self, v => to_f64(v[i]) as f32)
     }
 
     /// Value `i` as an integer; `None` for the floating-point types.
@@ -180,7 +185,7 @@ impl Values {
     }
 
     fn f64(&self, i: usize) -> f64 {
-        with_values!(self, v => v[i].into())
+        with_values!(self, v => to_f64(v[i]))
     }
 
     fn put_le(&self, i: usize, out: &mut Vec<u8>) {
@@ -767,4 +772,555 @@ fn put_binary_row(columns: &[&Column], i: usize, out: &mut Vec<u8>) -> std::io::
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ply_rs_bw::parser::Parser;
+    use ply_rs_bw::ply::{Addable, DefaultElement, Ply, Property, PropertyDef, Version};
+    use ply_rs_bw::writer::Writer;
+    use std::path::PathBuf;
+
+    fn scenes() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
+    }
+
+    fn scalar(t: ScalarType) -> PropertyType {
+        PropertyType::Scalar(t)
+    }
+
+    fn list(count: ScalarType, item: ScalarType) -> PropertyType {
+        PropertyType::List(count, item)
+    }
+
+    /// Adds element `name` with `properties` and `rows` (values in the properties' order).
+    fn add(ply: &mut Ply<DefaultElement>, name: &str, properties: &[(&str, PropertyType)], rows: Vec<Vec<Property>>) {
+        let mut def = ElementDef::new(name.to_string());
+        for (p, t) in properties {
+            def.properties.add(PropertyDef::new(p.to_string(), t.clone()));
+        }
+        def.count = rows.len();
+        ply.header.elements.add(def);
+        let rows = rows
+            .into_iter()
+            .map(|row| {
+                assert_eq!(row.len(), properties.len());
+                let mut e = DefaultElement::new();
+                for ((p, _), v) in properties.iter().zip(row) {
+                    e.insert(p.to_string(), v);
+                }
+                e
+            })
+            .collect();
+        ply.payload.insert(name.to_string(), rows);
+    }
+
+    const XYZ: [[f32; 3]; 5] =
+        [[0.1, -0.0, 0.0], [1.0 / 3.0, 0.0, -2.5e-7], [1.0, 12345.678, 0.0], [0.0, 1.0, 1e-38], [0.5, 0.5, 1.0]];
+    const FACES: [&[i32]; 2] = [&[0, 1, 4], &[0, 1, 2, 3]];
+
+    /// A pyramid's apex and base quadrilateral with normals, extra vertex properties of
+    /// several types, and `edge` and `material` elements between every type of PLY.
+    fn fixture(encoding: Encoding) -> Ply<DefaultElement> {
+        use Property as P;
+        use ScalarType as T;
+        let mut ply = Ply::<DefaultElement>::new();
+        ply.header.encoding = encoding;
+        ply.header.version = Version { major: 1, minor: 0 };
+        ply.header.comments = vec!["made by the bake's tests".into(), "  spaced   comment".into()];
+        ply.header.obj_infos = vec!["num_cols 5".into()];
+        let vertex_rows = (0..5)
+            .map(|i| {
+                let [x, y, z] = XYZ[i];
+                vec![
+                    P::Float(x),
+                    P::Float(y),
+                    P::Float(z),
+                    P::Float(0.0),
+                    P::Float(-(i as f32) * 0.7),
+                    P::Float(1.0),
+                    P::Double(1.0 / (i as f64 + 7.0)),
+                    P::UChar(200 + i as u8),
+                    P::ListFloat(vec![0.25; i]),
+                ]
+            })
+            .collect();
+        add(
+            &mut ply,
+            "vertex",
+            &[
+                ("x", scalar(T::Float)),
+                ("y", scalar(T::Float)),
+                ("z", scalar(T::Float)),
+                ("nx", scalar(T::Float)),
+                ("ny", scalar(T::Float)),
+                ("nz", scalar(T::Float)),
+                ("confidence", scalar(T::Double)),
+                ("flags", scalar(T::UChar)),
+                ("uv", list(T::UChar, T::Float)),
+            ],
+            vertex_rows,
+        );
+        let face_rows = FACES
+            .iter()
+            .enumerate()
+            .map(|(i, f)| vec![P::ListInt(f.to_vec()), P::Short(-300 - i as i16), P::Char(-5)])
+            .collect();
+        add(
+            &mut ply,
+            "face",
+            &[("vertex_indices", list(T::UChar, T::Int)), ("flags", scalar(T::Short)), ("material", scalar(T::Char))],
+            face_rows,
+        );
+        add(
+            &mut ply,
+            "edge",
+            &[("vertex1", scalar(T::Int)), ("vertex2", scalar(T::UInt)), ("crease", scalar(T::UShort))],
+            vec![
+                vec![P::Int(0), P::UInt(4_000_000_000), P::UShort(65_535)],
+                vec![P::Int(-2_000_000_000), P::UInt(2), P::UShort(0)],
+            ],
+        );
+        add(
+            &mut ply,
+            "material",
+            &[
+                ("name", list(T::UInt, T::UChar)),
+                ("weights", list(T::UShort, T::Double)),
+                ("ids", list(T::Char, T::UInt)),
+                ("offsets", list(T::Short, T::Char)),
+                ("shorts", list(T::Int, T::Short)),
+                ("ushorts", list(T::UChar, T::UShort)),
+                ("ints", list(T::UChar, T::Int)),
+                ("power", scalar(T::Double)),
+            ],
+            vec![vec![
+                P::ListUChar(b"steel".to_vec()),
+                P::ListDouble(vec![0.1, -1e300, 5e-324]),
+                P::ListUInt(vec![]),
+                P::ListChar(vec![-128, 127]),
+                P::ListShort(vec![-32768]),
+                P::ListUShort(vec![65535, 1]),
+                P::ListInt(vec![i32::MIN, i32::MAX]),
+                P::Double(std::f64::consts::PI),
+            ]],
+        );
+        ply
+    }
+
+    /// `ply` encoded by ply-rs's own writer.
+    fn encode(ply: &mut Ply<DefaultElement>) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        Writer::new().write_ply(&mut bytes, ply).unwrap();
+        bytes
+    }
+
+    /// `bytes` read by ply-rs's generic reader: independent of the reader under test.
+    fn parse(bytes: &[u8]) -> Ply<DefaultElement> {
+        Parser::<DefaultElement>::new().read_ply(&mut &bytes[..]).unwrap()
+    }
+
+    fn gzip(bytes: &[u8]) -> Vec<u8> {
+        let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        encoder.write_all(bytes).unwrap();
+        encoder.finish().unwrap()
+    }
+
+    fn gunzip(bytes: &[u8]) -> Vec<u8> {
+        let mut out = Vec::new();
+        std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(bytes), &mut out).unwrap();
+        out
+    }
+
+    /// The header of a PLY file's bytes, as text.
+    fn header_text(bytes: &[u8]) -> String {
+        let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        String::from_utf8(bytes[..end].to_vec()).unwrap()
+    }
+
+    /// Asserts that `written` holds every comment, obj_info, element and property of
+    /// `original` in order, with the same types and values bit for bit, except for the
+    /// properties `replaced` of element `target`; returns the names it has besides.
+    fn assert_preserved(
+        original: &Ply<DefaultElement>,
+        written: &Ply<DefaultElement>,
+        target: &str,
+        replaced: &[&str],
+    ) -> Vec<String> {
+        assert_eq!(written.header.comments, original.header.comments);
+        assert_eq!(written.header.obj_infos, original.header.obj_infos);
+        let names = |p: &Ply<DefaultElement>| p.header.elements.keys().cloned().collect::<Vec<_>>();
+        assert_eq!(names(written), names(original));
+        let mut added = Vec::new();
+        for (name, def) in &original.header.elements {
+            let out_def = &written.header.elements[name];
+            assert_eq!(out_def.count, def.count, "{name}");
+            let kept: Vec<&String> =
+                def.properties.keys().filter(|p| name != target || !replaced.contains(&p.as_str())).collect();
+            let out_kept: Vec<&String> =
+                out_def.properties.keys().filter(|p| def.properties.contains_key(*p)).collect();
+            assert_eq!(out_def.properties.keys().take(def.properties.len()).collect::<Vec<_>>(), {
+                def.properties.keys().collect::<Vec<_>>()
+            });
+            for p in kept {
+                assert_eq!(out_def.properties[p], def.properties[p], "{name} {p}");
+                for (i, (a, b)) in original.payload[name].iter().zip(&written.payload[name]).enumerate() {
+                    // Debug text tells -0.0 from 0.0 and names the type: bit for bit.
+                    assert_eq!(format!("{:?}", b[p]), format!("{:?}", a[p]), "{name} {i} {p}");
+                }
+            }
+            assert!(out_kept.len() == def.properties.len());
+            if name == target {
+                added.extend(out_def.properties.keys().skip(def.properties.len()).cloned());
+            } else {
+                assert_eq!(out_def.properties.len(), def.properties.len(), "{name} gained properties");
+            }
+        }
+        added
+    }
+
+    fn baked(n: usize, bent: bool) -> BakedValues {
+        BakedValues {
+            ao: (0..n).map(|i| [0.0, 1.0, 0.123_456_79, -0.5, 2.0][i % 5]).collect(),
+            std_error: (0..n).map(|i| 1e-3 * i as f32 + 1.0 / 3.0).collect(),
+            bent_normals: bent.then(|| (0..n).map(|i| Vec3::new(0.1 * i as f32, -0.6, 0.8)).collect()),
+        }
+    }
+
+    fn float_column(ply: &Ply<DefaultElement>, element: &str, name: &str) -> Vec<f32> {
+        ply.payload[element]
+            .iter()
+            .map(|e| match e[name] {
+                Property::Float(v) => v,
+                ref other => panic!("{element} {name} is {other:?}"),
+            })
+            .collect()
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    const ALL: WriteOptions = WriteOptions { at: BakeAt::Vertices, std_error: true, colors: true };
+
+    #[test]
+    fn every_encoding_round_trips_with_the_bake_added() {
+        let dir = tempfile::tempdir().unwrap();
+        for encoding in [Encoding::Ascii, Encoding::BinaryLittleEndian, Encoding::BinaryBigEndian] {
+            let bytes = encode(&mut fixture(encoding));
+            let original = parse(&bytes);
+            for gz in [false, true] {
+                let input = dir.path().join(if gz { "in.ply.gz" } else { "in.ply" });
+                std::fs::write(&input, if gz { gzip(&bytes) } else { bytes.clone() }).unwrap();
+                let asset = PlyAsset::read(&input).unwrap_or_else(|e| panic!("{encoding:?}: {e}"));
+
+                let [mesh] = asset.meshes() else { panic!("one mesh") };
+                assert_eq!(mesh.label, input.file_name().unwrap().to_str().unwrap());
+                let want: Vec<Vec3> = XYZ.iter().map(|&p| Vec3::from(p)).collect();
+                assert_eq!(mesh.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>(), {
+                    want.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>()
+                });
+                let normals = mesh.normals.as_ref().expect("the fixture has normals");
+                assert_eq!(normals[2], Vec3::new(0.0, -1.4, 1.0));
+                assert_eq!((mesh.face_count(), mesh.face(0), mesh.face(1)), (2, &[0, 1, 4][..], &[0, 1, 2, 3][..]));
+
+                let output = dir.path().join("out.ply");
+                let values = baked(5, true);
+                let notes = asset.write(&output, std::slice::from_ref(&values), &ALL).unwrap();
+                assert!(notes.is_empty(), "{notes:?}");
+                let out = std::fs::read(&output).unwrap();
+                let format = if encoding == Encoding::Ascii { "ascii" } else { "binary_little_endian" };
+
+                // The header: the original's lines, in order, with the new properties
+                // after the vertex element's last.
+                let mut want_header = header_text(&bytes)
+                    .replace("binary_big_endian", "binary_little_endian")
+                    .replace("property list uchar float uv\n", "property list uchar float uv\nNEW");
+                let new = "property float quality\nproperty float quality_std_error\nproperty float bnx\n\
+                           property float bny\nproperty float bnz\nproperty uchar red\nproperty uchar green\n\
+                           property uchar blue\n";
+                want_header = want_header.replace("NEW", new);
+                assert_eq!(header_text(&out), want_header);
+                assert!(header_text(&out).contains(&format!("format {format} 1.0\n")));
+
+                let written = parse(&out);
+                let added = assert_preserved(&original, &written, "vertex", &[]);
+                assert_eq!(added, ["quality", "quality_std_error", "bnx", "bny", "bnz", "red", "green", "blue"]);
+                assert_eq!(bits(&float_column(&written, "vertex", "quality")), bits(&values.ao));
+                assert_eq!(bits(&float_column(&written, "vertex", "quality_std_error")), bits(&values.std_error));
+                let bent = values.bent_normals.as_ref().unwrap();
+                for (axis, name) in ["bnx", "bny", "bnz"].into_iter().enumerate() {
+                    let want: Vec<f32> = bent.iter().map(|b| b[axis]).collect();
+                    assert_eq!(bits(&float_column(&written, "vertex", name)), bits(&want));
+                }
+                for name in ["red", "green", "blue"] {
+                    let grey: Vec<Property> = written.payload["vertex"].iter().map(|e| e[name].clone()).collect();
+                    let want = [0, 255, 31, 0, 255].map(Property::UChar);
+                    assert_eq!(grey, want, "{name}");
+                }
+                // The asset reads its own output back to the same mesh.
+                let again = PlyAsset::read(&output).unwrap();
+                assert_eq!(again.meshes()[0].positions, mesh.positions);
+                assert_eq!(again.meshes()[0].face_indices, mesh.face_indices);
+            }
+        }
+    }
+
+    #[test]
+    fn faces_mode_writes_quality_on_the_face_element() {
+        let dir = tempfile::tempdir().unwrap();
+        let bytes = encode(&mut fixture(Encoding::BinaryLittleEndian));
+        let original = parse(&bytes);
+        let input = dir.path().join("in.ply");
+        std::fs::write(&input, bytes).unwrap();
+        let asset = PlyAsset::read(&input).unwrap();
+        let output = dir.path().join("faces.ply");
+        let values = baked(2, false);
+        let options = WriteOptions { at: BakeAt::Faces, std_error: true, colors: false };
+        asset.write(&output, std::slice::from_ref(&values), &options).unwrap();
+        let written = parse(&std::fs::read(&output).unwrap());
+        assert_eq!(assert_preserved(&original, &written, "face", &[]), ["quality", "quality_std_error"]);
+        assert_eq!(bits(&float_column(&written, "face", "quality")), bits(&values.ao));
+        assert_eq!(bits(&float_column(&written, "face", "quality_std_error")), bits(&values.std_error));
+        // Per-vertex values do not fit the faces.
+        let message = asset.write(&output, &[baked(5, false)], &options).unwrap_err().to_string();
+        assert!(message.contains("faces.ply: 5 AO values for the 2 elements 'face'"), "{message}");
+    }
+
+    #[test]
+    fn an_existing_quality_and_colour_are_replaced_in_place_with_notes() {
+        use Property as P;
+        let dir = tempfile::tempdir().unwrap();
+        let mut original = Ply::<DefaultElement>::new();
+        original.header.encoding = Encoding::Ascii;
+        let rows = XYZ
+            .iter()
+            .map(|&[x, y, z]| {
+                let c = P::Float(0.25);
+                vec![P::Float(x), P::Float(y), P::Float(z), P::Double(7.5), c.clone(), c.clone(), c, P::UChar(9)]
+            })
+            .collect();
+        let t = |t| scalar(t);
+        let props = [
+            ("x", t(ScalarType::Float)),
+            ("y", t(ScalarType::Float)),
+            ("z", t(ScalarType::Float)),
+            ("quality", t(ScalarType::Double)),
+            ("red", t(ScalarType::Float)),
+            ("green", t(ScalarType::Float)),
+            ("blue", t(ScalarType::Float)),
+            ("alpha", t(ScalarType::UChar)),
+        ];
+        add(&mut original, "vertex", &props, rows);
+        let faces = FACES.iter().map(|f| vec![P::ListInt(f.to_vec())]).collect();
+        add(&mut original, "face", &[("vertex_indices", list(ScalarType::UChar, ScalarType::Int))], faces);
+        let input = dir.path().join("coloured.ply");
+        std::fs::write(&input, encode(&mut original)).unwrap();
+        let asset = PlyAsset::read(&input).unwrap();
+        assert_eq!(asset.meshes()[0].normals, None);
+
+        let output = dir.path().join("out.ply");
+        let values = baked(5, false);
+        let options = WriteOptions { at: BakeAt::Vertices, std_error: false, colors: true };
+        let notes = asset.write(&output, std::slice::from_ref(&values), &options).unwrap();
+        assert_eq!(
+            notes,
+            [
+                "the vertex element's own 'quality' property (of type double) was replaced by the bake's",
+                "the vertex element's own colour red (float), green (float), blue (float) was overwritten with the AO \
+                 as grey, its type kept"
+            ]
+        );
+        let out = std::fs::read(&output).unwrap();
+        assert!(header_text(&out).contains(
+            "property float x\nproperty float y\nproperty float z\nproperty float quality\nproperty float red\n\
+             property float green\nproperty float blue\nproperty uchar alpha\nelement face 2\n"
+        ));
+        let written = parse(&out);
+        let added = assert_preserved(&original, &written, "vertex", &["quality", "red", "green", "blue"]);
+        assert!(added.is_empty(), "{added:?}");
+        assert_eq!(bits(&float_column(&written, "vertex", "quality")), bits(&values.ao));
+        let grey: Vec<f32> = values.ao.iter().map(|a| a.clamp(0.0, 1.0)).collect();
+        assert_eq!(float_column(&written, "vertex", "green"), grey);
+    }
+
+    #[test]
+    fn a_gz_output_is_gzipped() {
+        let dir = tempfile::tempdir().unwrap();
+        let bytes = encode(&mut fixture(Encoding::Ascii));
+        let original = parse(&bytes);
+        let input = dir.path().join("in.ply");
+        std::fs::write(&input, bytes).unwrap();
+        let output = dir.path().join("out.ply.gz");
+        let values = baked(5, false);
+        PlyAsset::read(&input)
+            .unwrap()
+            .write(&output, std::slice::from_ref(&values), &WriteOptions::default())
+            .unwrap();
+        let out = std::fs::read(&output).unwrap();
+        assert_eq!(out[..2], [0x1f, 0x8b]);
+        let written = parse(&gunzip(&out));
+        assert_eq!(assert_preserved(&original, &written, "vertex", &[]), ["quality"]);
+        assert_eq!(bits(&float_column(&written, "vertex", "quality")), bits(&values.ao));
+        // Only the output is left in the directory: the write went through a temporary file.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+    }
+
+    #[test]
+    fn a_free_text_header_line_is_read_and_written_back_as_a_comment() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("blender.ply");
+        let text = "ply\nformat ascii 1.0\nCreated by Blender3D 247 - www.blender.org\nelement vertex 3\n\
+                    property float x\ncomment between properties\nproperty float y\nproperty float z\n\
+                    obj_info after the vertex element\nelement face 1\nproperty list uchar uint vertex_index\n\
+                    end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+        std::fs::write(&input, text).unwrap();
+        let asset = PlyAsset::read(&input).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(asset.meshes()[0].face_indices, [0, 1, 2]);
+        let output = dir.path().join("out.ply");
+        let values = BakedValues { ao: vec![0.5, 0.25, 1.0], ..Default::default() };
+        let notes = asset.write(&output, &[values], &WriteOptions::default()).unwrap();
+        assert_eq!(notes, ["header line 3, free text without 'comment', is written as a comment"]);
+        let want = "ply\nformat ascii 1.0\ncomment Created by Blender3D 247 - www.blender.org\nelement vertex 3\n\
+                    property float x\ncomment between properties\nproperty float y\nproperty float z\n\
+                    property float quality\nobj_info after the vertex element\nelement face 1\n\
+                    property list uchar uint vertex_index\nend_header\n0 0 0 0.5\n1 0 0 0.25\n0 1 0 1\n3 0 1 2\n";
+        assert_eq!(std::fs::read_to_string(&output).unwrap(), want);
+    }
+
+    #[test]
+    fn positions_are_the_scene_loaders_bit_for_bit() {
+        let dir = tempfile::tempdir().unwrap();
+        // Values near the limits of each type, ascii spellings of every form the grammar
+        // takes, doubles that round, integers beyond f32's exact range.
+        let ascii = dir.path().join("exotic.ply");
+        std::fs::write(
+            &ascii,
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\nproperty int y\nproperty float z\n\
+             element face 1\nproperty list uchar int vertex_indices\nend_header\n\
+             0.1 16777217 1e-45\n-1.00000001 -2147483648 3.4028235e38\n+2.5E+3 2147483647 0.30000001192092896\n\
+             1e-320 0 -0\n4 0 1 2 3\n",
+        )
+        .unwrap();
+        let mut files = vec![ascii];
+        for name in
+            ["dragon_vrip_res4.ply.gz", "dragon_vrip_res3.ply.gz", "dragon_vrip_res2.ply.gz", "dragon_vrip.ply.gz"]
+        {
+            files.push(scenes().join(name));
+        }
+        for path in files {
+            let start = std::time::Instant::now();
+            let asset = PlyAsset::read(&path).unwrap_or_else(|e| panic!("{e}"));
+            let read = start.elapsed();
+            let loaded = crate::scene::ply::load_ply(&path).unwrap();
+            let mesh = &asset.meshes()[0];
+            let as_bits = |p: &[Vec3]| p.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+            assert!(as_bits(&mesh.positions) == as_bits(&loaded.positions), "{}", path.display());
+            // The loader's triangles are fans of the asset's faces.
+            let fans: Vec<[u32; 3]> = (0..mesh.face_count())
+                .flat_map(|f| {
+                    let c = mesh.face(f);
+                    (1..c.len() - 1).map(move |k| [c[0], c[k], c[k + 1]])
+                })
+                .collect();
+            assert!(fans == loaded.triangles, "{}", path.display());
+            eprintln!(
+                "{}: {} vertices, {} faces read in {read:.2?}",
+                path.display(),
+                mesh.positions.len(),
+                mesh.face_count()
+            );
+        }
+    }
+
+    #[test]
+    fn the_full_dragon_is_written_back_identically() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = scenes().join("dragon_vrip.ply.gz");
+        let asset = PlyAsset::read(&path).unwrap_or_else(|e| panic!("{e}"));
+        let n = asset.meshes()[0].positions.len();
+        let start = std::time::Instant::now();
+        let output = dir.path().join("dragon.ply");
+        asset.write(&output, &[baked(n, false)], &WriteOptions::default()).unwrap();
+        eprintln!("dragon written in {:.2?}", start.elapsed());
+        let again = PlyAsset::read(&output).unwrap();
+        assert_eq!(again.elements[0].columns[..3], asset.elements[0].columns[..]);
+        assert_eq!(again.elements[1..], asset.elements[1..]);
+    }
+
+    /// `text` written to `name` and read: the error's message.
+    fn error_of(dir: &Path, name: &str, bytes: &[u8]) -> String {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        match std::panic::catch_unwind(|| PlyAsset::read(&path)) {
+            Err(_) => panic!("{name}: panicked"),
+            Ok(Ok(_)) => panic!("{name}: read"),
+            Ok(Err(e)) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn bad_files_are_one_line_errors_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let head = |format: &str, vertices: usize, extra: &str| {
+            format!(
+                "ply\nformat {format} 1.0\nelement vertex {vertices}\nproperty float x\nproperty float y\n{extra}\
+                 element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+            )
+        };
+        let with_z = "property float z\n";
+        let le = |values: &[f32], face: &[i32]| {
+            let mut b = Vec::new();
+            values.iter().for_each(|v| b.extend_from_slice(&v.to_le_bytes()));
+            b.push(face.len() as u8);
+            face.iter().for_each(|v| b.extend_from_slice(&v.to_le_bytes()));
+            b
+        };
+        let binary = |vertices: usize, data: Vec<u8>| {
+            [head("binary_little_endian", vertices, with_z).into_bytes(), data].concat()
+        };
+        let ascii = |body: &str| format!("{}{body}", head("ascii", 3, with_z)).into_bytes();
+        let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+            ("empty.ply", Vec::new(), "not a PLY file"),
+            ("no_end.ply", b"ply\nformat ascii 1.0\nelement vertex 1\n".to_vec(), "ends before 'end_header'"),
+            ("no_z.ply", head("ascii", 1, "").into_bytes(), "the vertex element has no z property"),
+            ("truncated.ply", binary(3, le(&[0.0; 7], &[])), "unexpected end of file in vertex 2 of 3"),
+            ("short_face.ply", binary(3, le(&[0.0; 9], &[0, 1])), "face 0 has 2 vertices"),
+            ("range.ply", binary(3, le(&[0.0; 9], &[0, 1, 3])), "face 0: vertex index 3 is out of range"),
+            ("negative.ply", binary(3, le(&[0.0; 9], &[0, -1, 2])), "face 0: vertex index -1 is out of range"),
+            ("long_list.ply", binary(3, [le(&[0.0; 9], &[]), vec![0; 3]].concat()), "data after the last element"),
+            ("short_list.ply", binary(3, le(&[0.0; 9], &[0, 1]).into_iter().enumerate().map(|(i, b)| if i == 36 { 3 } else { b }).collect()), "unexpected end of file in face 0"),
+            ("extra.ply", binary(3, [le(&[0.0; 9], &[0, 1, 2]), vec![0]].concat()), "data after the last element"),
+            ("nan.ply", binary(3, le(&[0.0, f32::NAN, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], &[0, 1, 2])), "vertex 0 has a non-finite coordinate (y = NaN)"),
+            ("word.ply", ascii("0 0 0\n1 x 0\n0 1 0\n3 0 1 2\n"), "vertex 1 of 3: 'x' is not a number"),
+            ("dot.ply", ascii("0 0 0\n1 .5 0\n0 1 0\n3 0 1 2\n"), "vertex 1 of 3: '.5' is not a number"),
+            ("few.ply", ascii("0 0 0\n1 0\n0 1 0\n3 0 1 2\n"), "vertex 1 of 3: fewer values than its properties need"),
+            ("int.ply", ascii("0 0 0\n1 0 0\n0 1 0\n3 0 1.0 2\n"), "face 0 of 1: '1.0' is not a valid i32"),
+            ("cut.ply", ascii("0 0 0\n1 0 0\n"), "unexpected end of file in vertex 2 of 3"),
+            ("more.ply", ascii("0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n7\n"), "data after the last element"),
+            ("list_x.ply", head("ascii", 0, "property list uchar float z\n").into_bytes(), "vertex property z must be a number"),
+            ("float_count.ply", head("ascii", 0, "property float z\nproperty list float int w\n").into_bytes(), "a list's count must have an integer type"),
+            ("no_face.ply", b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n".to_vec(), "no face element"),
+            ("bad.ply.gz", b"\x1f\x8b\x08\x00garbage".to_vec(), "invalid or truncated gzip data"),
+        ];
+        for (name, bytes, expect) in cases {
+            let message = error_of(dir.path(), name, &bytes);
+            assert!(message.contains(name) && message.contains(expect), "{name}: '{message}' lacks '{expect}'");
+            assert!(!message.contains('\n'), "{name}: {message}");
+        }
+        // The scene loader's corpus of malformed files: errors too.
+        let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/malformed");
+        let mut seen = 0;
+        for entry in std::fs::read_dir(&corpus).unwrap() {
+            let path = entry.unwrap().path();
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            if name.starts_with("ply_") {
+                let message = error_of(dir.path(), &name, &std::fs::read(&path).unwrap());
+                assert!(message.contains(&name) && !message.contains('\n'), "{name}: {message}");
+                seen += 1;
+            }
+        }
+        assert!(seen >= 10, "the corpus has {seen} PLY files");
+    }
 }
