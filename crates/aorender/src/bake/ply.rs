@@ -1,7 +1,9 @@
 //! Baking into PLY files: the whole file read (every header line, element and property,
 //! in order, each value in its own type), and written back with the AO added as MeshLab
 //! reads it: `quality` on the vertex (or face) element, optionally `quality_std_error`,
-//! the bent normal `bnx bny bnz` and a grey `red green blue`.
+//! the bent normal `bnx bny bnz` and a grey `red green blue` (on the same element). A
+//! property of the file with one of these names is replaced in place, colours keeping
+//! their type.
 //!
 //! The header goes through the scene loader's reader ([`read_header`]); the data is read
 //! here, ascii tokens accepted and converted exactly as the loader's crate does (so the
@@ -70,20 +72,30 @@ scalar!(i16, put_display);
 scalar!(u16, put_display);
 scalar!(i32, put_display);
 scalar!(u32, put_display);
-// `{}` gives the shortest text that reads back as the same value. Infinities (an ascii
-// value beyond the type's range reads as one) are written as such a value, since PLY
-// readers take no `inf`.
+/// A float as the shortest digits that read back as the same value: `{}`, or `{:e}` for
+/// magnitudes whose `{}` would run to many zeros.
+fn put_float<T: std::fmt::Display + std::fmt::LowerExp + Into<f64> + Copy>(v: T, out: &mut Vec<u8>) {
+    let magnitude = to_f64(v).abs();
+    if magnitude != 0.0 && !(1e-5..1e16).contains(&magnitude) {
+        let _ = write!(out, "{v:e}");
+    } else {
+        put_display(v, out);
+    }
+}
+
+// Infinities (an ascii value beyond the type's range reads as one) are written as such a
+// value, since PLY readers take no `inf`.
 scalar!(f32, |v, out| match v {
     f32::INFINITY => out.extend_from_slice(b"1e39"),
     f32::NEG_INFINITY => out.extend_from_slice(b"-1e39"),
     v if v.is_nan() => out.extend_from_slice(b"nan"),
-    v => put_display(v, out),
+    v => put_float(v, out),
 });
 scalar!(f64, |v, out| match v {
     f64::INFINITY => out.extend_from_slice(b"1e309"),
     f64::NEG_INFINITY => out.extend_from_slice(b"-1e309"),
     v if v.is_nan() => out.extend_from_slice(b"nan"),
-    v => put_display(v, out),
+    v => put_float(v, out),
 });
 
 /// `v` as an `f64`: exact for every PLY type.
@@ -162,11 +174,10 @@ impl Values {
     /// Appends the value of an ascii token (already checked to be a number), parsed as
     /// ply-rs parses it: `str::parse` into the property's type.
     fn push_token(&mut self, token: &str) -> std::result::Result<(), String> {
-        fn parse<T: std::str::FromStr>(v: &mut Vec<T>, token: &str) -> std::result::Result<(), String> {
-            v.push(token.parse().map_err(|_| format!("'{token}' is not a valid {}", std::any::type_name::<T>()))?);
-            Ok(())
-        }
-        with_values!(self, v => parse(v, token))
+        let t = self.scalar_type();
+        let invalid = || format!("'{token}' is not a valid {}", type_name(&t));
+        with_values!(self, v => v.push(token.parse().map_err(|_| invalid())?));
+        Ok(())
     }
 
     /// Value `i` as `f32`, converted as the scene loader converts coordinates (the
@@ -1296,7 +1307,7 @@ mod tests {
             ("word.ply", ascii("0 0 0\n1 x 0\n0 1 0\n3 0 1 2\n"), "vertex 1 of 3: 'x' is not a number"),
             ("dot.ply", ascii("0 0 0\n1 .5 0\n0 1 0\n3 0 1 2\n"), "vertex 1 of 3: '.5' is not a number"),
             ("few.ply", ascii("0 0 0\n1 0\n0 1 0\n3 0 1 2\n"), "vertex 1 of 3: fewer values than its properties need"),
-            ("int.ply", ascii("0 0 0\n1 0 0\n0 1 0\n3 0 1.0 2\n"), "face 0 of 1: '1.0' is not a valid i32"),
+            ("int.ply", ascii("0 0 0\n1 0 0\n0 1 0\n3 0 1.0 2\n"), "face 0 of 1: '1.0' is not a valid int"),
             ("cut.ply", ascii("0 0 0\n1 0 0\n"), "unexpected end of file in vertex 2 of 3"),
             ("more.ply", ascii("0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n7\n"), "data after the last element"),
             ("list_x.ply", head("ascii", 0, "property list uchar float z\n").into_bytes(), "vertex property z must be a number"),

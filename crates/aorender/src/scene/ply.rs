@@ -363,6 +363,7 @@ fn read_header_lines(input: &mut Input) -> std::result::Result<PlyHeader, String
             return Err(eof);
         }
         let line = trim_line(&raw);
+        let line = &line[line.iter().position(|b| !matches!(b, b' ' | b'\t')).unwrap_or(line.len())..];
         let text = String::from_utf8_lossy(line);
         let words: Vec<&str> = text.split([' ', '\t']).filter(|w| !w.is_empty()).collect();
         let invalid = |why: String| format!("invalid PLY header: line {number} '{}': {why}", one_line(&text));
