@@ -5,7 +5,8 @@
 //! A header line that starts with none of the header's keywords (free text some writers
 //! put in without `comment`) is skipped with a warning.
 //!
-//! The crate parses the header and one element at a time; this module owns the storage,
+//! The header is read here ([`read_header`], shared with the bake), the elements one at a
+//! time by the crate; this module owns the storage,
 //! so the counts in the header never size an allocation beyond what the rest of the file
 //! could hold (see [`Input::remaining_bound`]).
 
@@ -26,7 +27,7 @@ use std::path::Path;
 const MAX_HEADER_BYTES: u64 = 1 << 20;
 
 /// Names of the face element's index list, in order of preference.
-pub(crate) const INDEX_LISTS: [&str; 2] = ["vertex_indices", "vertex_index"];
+const INDEX_LISTS: [&str; 2] = ["vertex_indices", "vertex_index"];
 
 /// The coordinates of one `vertex` element.
 #[derive(Default)]
