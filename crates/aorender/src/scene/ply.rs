@@ -6,9 +6,9 @@
 //! put in without `comment`) is skipped with a warning.
 //!
 //! The header is read here ([`read_header`], shared with the bake), the elements one at a
-//! time by the crate; this module owns the storage,
-//! so the counts in the header never size an allocation beyond what the rest of the file
-//! could hold (see [`Input::remaining_bound`]).
+//! time by the crate; this module owns the storage, so the counts in the header never
+//! size an allocation beyond what the rest of the file could hold (see
+//! [`Input::remaining_bound`]).
 
 use super::input::{Input, one_line};
 use super::mesh::{IndexedMesh, VertexNames};
