@@ -1,18 +1,634 @@
-//! Baking into PLY files (not yet written).
+//! Baking into PLY files: the whole file read (every header line, element and property,
+//! in order, each value in its own type), and written back with the AO added as MeshLab
+//! reads it: `quality` on the vertex (or face) element, optionally `quality_std_error`,
+//! the bent normal `bnx bny bnz` and a grey `red green blue` (on the same element). A
+//! property of the file with one of these names is replaced in place, colours keeping
+//! their type.
+//!
+//! The header goes through the scene loader's reader ([`read_header`]); the data is read
+//! here, ascii tokens accepted and converted exactly as the loader's crate does (so the
+//! positions are the loader's, bit for bit). Output is binary little-endian, or ascii
+//! when the input was.
 
-use super::asset::{Asset, AssetMesh, BakedValues, WriteOptions};
+use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
+use crate::scene::input::is_gzip as is_gzip_name;
 use crate::error::{Error, Result};
+use crate::output::write_atomically_with;
+use crate::scene::input::Input;
+use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
+use glam::Vec3;
+use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
+use std::io::Write;
 use std::path::Path;
 
-/// A PLY file read for baking.
+/// Bytes gathered before they are handed to the output stream.
+const CHUNK_BYTES: usize = 1 << 20;
+
+/// A value of one of PLY's scalar types.
+trait Scalar: Copy + std::str::FromStr + Into<f64> {
+    /// Bytes in binary encodings.
+    const SIZE: usize;
+
+    /// The value at `data[*pos..]`, advancing `pos`; `None` when too few bytes are left.
+    fn read(data: &[u8], pos: &mut usize, big_endian: bool) -> Option<Self>;
+
+    /// Appends the value's little-endian bytes.
+    fn put_le(self, out: &mut Vec<u8>);
+
+    /// Appends the value as ascii text that reads back as the same value.
+    fn put_ascii(self, out: &mut Vec<u8>);
+}
+
+macro_rules! scalar {
+    ($t:ty, $ascii:expr) => {
+        impl Scalar for $t {
+            const SIZE: usize = std::mem::size_of::<$t>();
+
+            fn read(data: &[u8], pos: &mut usize, big_endian: bool) -> Option<Self> {
+                let bytes: [u8; std::mem::size_of::<$t>()] = data.get(*pos..*pos + Self::SIZE)?.try_into().ok()?;
+                *pos += Self::SIZE;
+                Some(if big_endian { <$t>::from_be_bytes(bytes) } else { <$t>::from_le_bytes(bytes) })
+            }
+
+            fn put_le(self, out: &mut Vec<u8>) {
+                out.extend_from_slice(&self.to_le_bytes());
+            }
+
+            fn put_ascii(self, out: &mut Vec<u8>) {
+                let ascii: fn($t, &mut Vec<u8>) = $ascii;
+                ascii(self, out)
+            }
+        }
+    };
+}
+
+fn put_display(v: impl std::fmt::Display, out: &mut Vec<u8>) {
+    // Writing to a Vec cannot fail.
+    let _ = write!(out, "{v}");
+}
+
+scalar!(i8, put_display);
+scalar!(u8, put_display);
+scalar!(i16, put_display);
+scalar!(u16, put_display);
+scalar!(i32, put_display);
+scalar!(u32, put_display);
+/// A float as the shortest digits that read back as the same value: `{}`, or `{:e}` for
+/// magnitudes whose `{}` would run to many zeros.
+fn put_float<T: std::fmt::Display + std::fmt::LowerExp + Into<f64> + Copy>(v: T, out: &mut Vec<u8>) {
+    let magnitude = to_f64(v).abs();
+    if magnitude != 0.0 && !(1e-5..1e16).contains(&magnitude) {
+        let _ = write!(out, "{v:e}");
+    } else {
+        put_display(v, out);
+    }
+}
+
+// Infinities (an ascii value beyond the type's range reads as one) are written as such a
+// value, since PLY readers take no `inf`.
+scalar!(f32, |v, out| match v {
+    f32::INFINITY => out.extend_from_slice(b"1e39"),
+    f32::NEG_INFINITY => out.extend_from_slice(b"-1e39"),
+    v if v.is_nan() => out.extend_from_slice(b"nan"),
+    v => put_float(v, out),
+});
+scalar!(f64, |v, out| match v {
+    f64::INFINITY => out.extend_from_slice(b"1e309"),
+    f64::NEG_INFINITY => out.extend_from_slice(b"-1e309"),
+    v if v.is_nan() => out.extend_from_slice(b"nan"),
+    v => put_float(v, out),
+});
+
+/// `v` as an `f64`: exact for every PLY type.
+fn to_f64<T: Into<f64>>(v: T) -> f64 {
+    v.into()
+}
+
+/// The values of one property over all elements (the items of all lists, for a list), in
+/// the property's own type.
+#[derive(Clone, Debug, PartialEq)]
+enum Values {
+    Char(Vec<i8>),
+    UChar(Vec<u8>),
+    Short(Vec<i16>),
+    UShort(Vec<u16>),
+    Int(Vec<i32>),
+    UInt(Vec<u32>),
+    Float(Vec<f32>),
+    Double(Vec<f64>),
+}
+
+/// Runs `$body` with `$v` bound to the vector inside `$values`, whatever its type.
+macro_rules! with_values {
+    ($values:expr, $v:ident => $body:expr) => {
+        match $values {
+            Values::Char($v) => $body,
+            Values::UChar($v) => $body,
+            Values::Short($v) => $body,
+            Values::UShort($v) => $body,
+            Values::Int($v) => $body,
+            Values::UInt($v) => $body,
+            Values::Float($v) => $body,
+            Values::Double($v) => $body,
+        }
+    };
+}
+
+impl Values {
+    /// No values of type `t`, with room for `capacity`.
+    fn new(t: &ScalarType, capacity: usize) -> Values {
+        match t {
+            ScalarType::Char => Values::Char(Vec::with_capacity(capacity)),
+            ScalarType::UChar => Values::UChar(Vec::with_capacity(capacity)),
+            ScalarType::Short => Values::Short(Vec::with_capacity(capacity)),
+            ScalarType::UShort => Values::UShort(Vec::with_capacity(capacity)),
+            ScalarType::Int => Values::Int(Vec::with_capacity(capacity)),
+            ScalarType::UInt => Values::UInt(Vec::with_capacity(capacity)),
+            ScalarType::Float => Values::Float(Vec::with_capacity(capacity)),
+            ScalarType::Double => Values::Double(Vec::with_capacity(capacity)),
+        }
+    }
+
+    fn scalar_type(&self) -> ScalarType {
+        match self {
+            Values::Char(_) => ScalarType::Char,
+            Values::UChar(_) => ScalarType::UChar,
+            Values::Short(_) => ScalarType::Short,
+            Values::UShort(_) => ScalarType::UShort,
+            Values::Int(_) => ScalarType::Int,
+            Values::UInt(_) => ScalarType::UInt,
+            Values::Float(_) => ScalarType::Float,
+            Values::Double(_) => ScalarType::Double,
+        }
+    }
+
+    fn len(&self) -> usize {
+        with_values!(self, v => v.len())
+    }
+
+    /// Appends the binary value at `data[*pos..]`; `None` when too few bytes are left.
+    fn push_binary(&mut self, data: &[u8], pos: &mut usize, big_endian: bool) -> Option<()> {
+        with_values!(self, v => v.push(Scalar::read(data, pos, big_endian)?));
+        Some(())
+    }
+
+    /// Appends the value of an ascii token (already checked to be a number), parsed as
+    /// ply-rs parses it: `str::parse` into the property's type.
+    fn push_token(&mut self, token: &str) -> std::result::Result<(), String> {
+        let t = self.scalar_type();
+        let invalid = || format!("'{token}' is not a valid {}", type_name(&t));
+        with_values!(self, v => v.push(token.parse().map_err(|_| invalid())?));
+        Ok(())
+    }
+
+    /// Value `i` as `f32`, converted as the scene loader converts coordinates (the
+    /// nearest value; every integer of PLY's types is exact as an `f64`).
+    fn f32(&self, i: usize) -> f32 {
+        with_values!(self, v => to_f64(v[i]) as f32)
+    }
+
+    /// Value `i` as an integer; `None` for the floating-point types.
+    fn integer(&self, i: usize) -> Option<i64> {
+        match self {
+            Values::Float(_) | Values::Double(_) => None,
+            // Exact: PLY's integers are at most 32 bits.
+            other => Some(other.f64(i) as i64),
+        }
+    }
+
+    fn f64(&self, i: usize) -> f64 {
+        with_values!(self, v => to_f64(v[i]))
+    }
+
+    fn put_le(&self, i: usize, out: &mut Vec<u8>) {
+        with_values!(self, v => v[i].put_le(out))
+    }
+
+    fn put_ascii(&self, i: usize, out: &mut Vec<u8>) {
+        with_values!(self, v => v[i].put_ascii(out))
+    }
+}
+
+/// One property of an element, with its values for every element.
+#[derive(Clone, Debug, PartialEq)]
+struct Column {
+    name: String,
+    /// For a list property: the count's type, and where the items of each element start
+    /// in `values` (one entry more than there are elements).
+    list: Option<(ScalarType, Vec<usize>)>,
+    values: Values,
+}
+
+impl Column {
+    /// A scalar `float` property.
+    fn float(name: &str, values: Vec<f32>) -> Column {
+        Column { name: name.to_string(), list: None, values: Values::Float(values) }
+    }
+
+    /// The items of element `i`'s list (all of `values` for a scalar property).
+    fn items(&self, i: usize) -> std::ops::Range<usize> {
+        match &self.list {
+            Some((_, starts)) => starts[i]..starts[i + 1],
+            None => i..i + 1,
+        }
+    }
+
+    /// The property's header line, without its line break.
+    fn header_line(&self) -> String {
+        match &self.list {
+            Some((count, _)) => {
+                format!("property list {} {} {}", type_name(count), type_name(&self.values.scalar_type()), self.name)
+            }
+            None => format!("property {} {}", type_name(&self.values.scalar_type()), self.name),
+        }
+    }
+}
+
+/// A type's name as the PLY specification spells it.
+fn type_name(t: &ScalarType) -> &'static str {
+    match t {
+        ScalarType::Char => "char",
+        ScalarType::UChar => "uchar",
+        ScalarType::Short => "short",
+        ScalarType::UShort => "ushort",
+        ScalarType::Int => "int",
+        ScalarType::UInt => "uint",
+        ScalarType::Float => "float",
+        ScalarType::Double => "double",
+    }
+}
+
+fn scalar_bytes(t: &ScalarType) -> usize {
+    match t {
+        ScalarType::Char | ScalarType::UChar => 1,
+        ScalarType::Short | ScalarType::UShort => 2,
+        ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+        ScalarType::Double => 8,
+    }
+}
+
+/// An element with all its values.
+#[derive(Clone, Debug, PartialEq)]
+struct Element {
+    name: String,
+    count: usize,
+    columns: Vec<Column>,
+}
+
+/// A PLY file read for baking: its one mesh, and the whole file to write it back.
 pub struct PlyAsset {
     meshes: Vec<AssetMesh>,
+    header: PlyHeader,
+    elements: Vec<Element>,
 }
 
 impl PlyAsset {
-    /// Reads `path` for baking.
+    /// Reads `path` (`.ply` or `.ply.gz`, any of the three encodings) for baking.
     pub fn read(path: &Path) -> Result<PlyAsset> {
-        Err(Error::scene(path, "baking into this format is not available yet"))
+        let mut input = Input::open(path)?;
+        let header = read_header(path, &mut input)?;
+        check_header(path, &header)?;
+        let data = input.read_all(path)?;
+        let elements = match header.encoding {
+            Encoding::Ascii => read_ascii(path, &header.elements, &data)?,
+            encoding => read_binary(path, &header.elements, &data, encoding == Encoding::BinaryBigEndian)?,
+        };
+        drop(data);
+        let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+        let mesh = mesh(path, &header, &elements, label)?;
+        Ok(PlyAsset { meshes: vec![mesh], header, elements })
+    }
+}
+
+/// What the mesh needs of the header, checked as the scene loader checks it, and every
+/// list's count an integer type.
+fn check_header(path: &Path, header: &PlyHeader) -> Result<()> {
+    let vertex = header.element("vertex").ok_or_else(|| Error::scene(path, "no vertex element"))?;
+    for axis in ["x", "y", "z"] {
+        match vertex.properties.get(axis).map(|p| &p.data_type) {
+            Some(PropertyType::Scalar(_)) => {}
+            Some(t) => return Err(Error::scene(path, format!("vertex property {axis} must be a number, not {t:?}"))),
+            None => return Err(Error::scene(path, format!("the vertex element has no {axis} property"))),
+        }
+    }
+    let face = header.element("face").ok_or_else(|| Error::scene(path, "no face element"))?;
+    index_list_name(path, face)?;
+    for element in &header.elements {
+        for (name, p) in &element.properties {
+            if let PropertyType::List(ScalarType::Float | ScalarType::Double, _) = p.data_type {
+                let message = format!("{} property {name}: a list's count must have an integer type", element.name);
+                return Err(Error::scene(path, message));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Empty columns for `def`'s properties, with room for `capacity` elements.
+fn columns(def: &ElementDef, capacity: usize) -> Vec<Column> {
+    def.properties
+        .values()
+        .map(|p| match &p.data_type {
+            PropertyType::Scalar(t) => Column { name: p.name.clone(), list: None, values: Values::new(t, capacity) },
+            PropertyType::List(count, item) => {
+                let mut starts = Vec::with_capacity(capacity + 1);
+                starts.push(0);
+                Column {
+                    name: p.name.clone(),
+                    list: Some((count.clone(), starts)),
+                    values: Values::new(item, capacity),
+                }
+            }
+        })
+        .collect()
+}
+
+/// How many elements of `def` to reserve room for: its count, but no more than
+/// `remaining` bytes could hold at `min_bytes` each.
+fn capacity(def: &ElementDef, remaining: usize, min_bytes: usize) -> usize {
+    def.count.min(remaining / min_bytes.max(1))
+}
+
+fn end_of_file(path: &Path, def: &ElementDef, i: usize) -> Error {
+    Error::scene(path, format!("unexpected end of file in {} {i} of {}", def.name, def.count))
+}
+
+/// Reads the data of a binary file.
+fn read_binary(path: &Path, defs: &[ElementDef], data: &[u8], big_endian: bool) -> Result<Vec<Element>> {
+    let mut pos = 0;
+    let mut elements = Vec::with_capacity(defs.len());
+    for def in defs {
+        let min_bytes: usize = def
+            .properties
+            .values()
+            .map(|p| match &p.data_type {
+                PropertyType::Scalar(t) | PropertyType::List(t, _) => scalar_bytes(t),
+            })
+            .sum();
+        let mut columns = columns(def, capacity(def, data.len() - pos, min_bytes));
+        // Elements without properties take no bytes.
+        let count = if columns.is_empty() { 0 } else { def.count };
+        for i in 0..count {
+            for column in &mut columns {
+                let Some((count_type, starts)) = &mut column.list else {
+                    column.values.push_binary(data, &mut pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
+                    continue;
+                };
+                let mut n = Values::new(count_type, 1);
+                n.push_binary(data, &mut pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
+                let n = n.integer(0).unwrap_or(0);
+                let item_bytes = scalar_bytes(&column.values.scalar_type());
+                let Some(n) = usize::try_from(n).ok().filter(|n| n.saturating_mul(item_bytes) <= data.len() - pos)
+                else {
+                    return Err(if n < 0 {
+                        let message = format!("{} {i} of {}: list {} has {n} items", def.name, def.count, column.name);
+                        Error::scene(path, message)
+                    } else {
+                        end_of_file(path, def, i)
+                    });
+                };
+                for _ in 0..n {
+                    column.values.push_binary(data, &mut pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
+                }
+                starts.push(column.values.len());
+            }
+        }
+        elements.push(Element { name: def.name.clone(), count: def.count, columns });
+    }
+    if pos != data.len() {
+        return Err(extra_data(path, pos));
+    }
+    Ok(elements)
+}
+
+fn extra_data(path: &Path, at: usize) -> Error {
+    Error::scene(
+        path,
+        format!(
+            "data after the last element at byte {at} of the data: the header's element counts do not match the file"
+        ),
+    )
+}
+
+/// A number as ply-rs's ascii grammar takes it: `[-+]?[0-9]+(\.[0-9]+)?([eE][-+]?[0-9]+)?`.
+fn is_number(token: &[u8]) -> bool {
+    fn digits(t: &[u8], mut i: usize) -> usize {
+        while t.get(i).is_some_and(u8::is_ascii_digit) {
+            i += 1;
+        }
+        i
+    }
+    let mut i = usize::from(matches!(token.first(), Some(b'-' | b'+')));
+    let start = i;
+    i = digits(token, i);
+    if i == start {
+        return false;
+    }
+    if token.get(i) == Some(&b'.') {
+        let end = digits(token, i + 1);
+        if end == i + 1 {
+            return false;
+        }
+        i = end;
+    }
+    if matches!(token.get(i), Some(b'e' | b'E')) {
+        i += 1 + usize::from(matches!(token.get(i + 1), Some(b'-' | b'+')));
+        let end = digits(token, i);
+        if end == i {
+            return false;
+        }
+        i = end;
+    }
+    i == token.len()
+}
+
+/// Reads the data of an ascii file: one line per element, as ply-rs reads it (values
+/// beyond the element's properties are ignored, as it ignores them).
+fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8]) -> Result<Vec<Element>> {
+    let mut rest = data;
+    let mut tokens: Vec<&str> = Vec::new();
+    let mut elements = Vec::with_capacity(defs.len());
+    for def in defs {
+        // Every value takes at least a digit and a separator.
+        let min_bytes = 2 * def.properties.len();
+        let mut columns = columns(def, capacity(def, rest.len(), min_bytes));
+        for i in 0..def.count {
+            if rest.is_empty() {
+                return Err(end_of_file(path, def, i));
+            }
+            let end = rest.iter().position(|&b| b == b'\n').map_or(rest.len(), |e| e + 1);
+            let (line, next) = rest.split_at(end);
+            rest = next;
+            let line = line.strip_suffix(b"\n").unwrap_or(line);
+            let line = line.strip_suffix(b"\r").unwrap_or(line);
+            let at = |message: String| Error::scene(path, format!("{} {i} of {}: {message}", def.name, def.count));
+            tokens.clear();
+            for token in line.split(|&b| b == b' ' || b == b'\t').filter(|t| !t.is_empty()) {
+                if !is_number(token) {
+                    let text = String::from_utf8_lossy(token);
+                    return Err(at(format!("'{}' is not a number", crate::scene::input::one_line(&text))));
+                }
+                // A number is ascii.
+                tokens.push(std::str::from_utf8(token).unwrap_or_default());
+            }
+            let mut next_token = tokens.iter();
+            let mut take = || next_token.next().ok_or_else(|| at("fewer values than its properties need".to_string()));
+            for column in &mut columns {
+                let Some((_, starts)) = &mut column.list else {
+                    column.values.push_token(take()?).map_err(at)?;
+                    continue;
+                };
+                let n = take()?;
+                let n: usize = n.parse().map_err(|_| at(format!("list {}: '{n}' is not a count", column.name)))?;
+                for _ in 0..n {
+                    column.values.push_token(take()?).map_err(at)?;
+                }
+                starts.push(column.values.len());
+            }
+        }
+        elements.push(Element { name: def.name.clone(), count: def.count, columns });
+    }
+    if let Some(at) = rest.iter().position(|b| !b.is_ascii_whitespace()) {
+        return Err(extra_data(path, data.len() - rest.len() + at));
+    }
+    Ok(elements)
+}
+
+/// The column named `name` of `element`.
+fn column<'a>(element: &'a Element, name: &str) -> Option<&'a Column> {
+    element.columns.iter().find(|c| c.name == name)
+}
+
+/// The scalar columns named `names`, when all exist.
+fn scalar_columns<'a, const N: usize>(element: &'a Element, names: [&str; N]) -> Option<[&'a Column; N]> {
+    let mut found = [None; N];
+    for (slot, name) in found.iter_mut().zip(names) {
+        *slot = Some(column(element, name).filter(|c| c.list.is_none())?);
+    }
+    Some(found.map(|c| c.expect("every slot was filled")))
+}
+
+/// The mesh of the file: positions and faces checked as the scene loader checks them.
+fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) -> Result<AssetMesh> {
+    let find = |name: &str| elements.iter().find(|e| e.name == name);
+    let (Some(vertex), Some(face)) = (find("vertex"), find("face")) else {
+        return Err(Error::scene(path, "no vertex or no face element"));
+    };
+    let xyz = scalar_columns(vertex, ["x", "y", "z"]).ok_or_else(|| Error::scene(path, "no x, y or z"))?;
+    let mut positions = Vec::with_capacity(vertex.count);
+    for i in 0..vertex.count {
+        let p = Vec3::from(xyz.map(|c| c.values.f32(i)));
+        if let Some(c) = non_finite_coordinate(p) {
+            return Err(Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})")));
+        }
+        positions.push(p);
+    }
+    let normals = scalar_columns(vertex, ["nx", "ny", "nz"])
+        .map(|n| (0..vertex.count).map(|i| Vec3::from(n.map(|c| c.values.f32(i)))).collect());
+
+    let face_def = header.element("face").ok_or_else(|| Error::scene(path, "no face element"))?;
+    let list = column(face, &index_list_name(path, face_def)?).ok_or_else(|| Error::scene(path, "no face list"))?;
+    let mut face_starts = Vec::with_capacity(face.count + 1);
+    let mut face_indices = Vec::with_capacity(list.values.len());
+    face_starts.push(0);
+    for i in 0..face.count {
+        let items = list.items(i);
+        if items.len() < 3 {
+            let n = items.len();
+            return Err(Error::scene(path, format!("face {i} has {n} vertices; a face needs at least 3")));
+        }
+        for item in items {
+            let v = list.values.integer(item).unwrap_or(-1);
+            let Some(v) = usize::try_from(v).ok().filter(|&v| v < vertex.count).and_then(|v| u32::try_from(v).ok())
+            else {
+                let count = vertex.count;
+                let message = format!("face {i}: vertex index {v} is out of range (the file has {count} vertices)");
+                return Err(Error::scene(path, message));
+            };
+            face_indices.push(v);
+        }
+        let end = u32::try_from(face_indices.len())
+            .map_err(|_| Error::scene(path, "more than 4294967295 face corners: too many for a mesh"))?;
+        face_starts.push(end);
+    }
+    Ok(AssetMesh { label, positions, normals, face_starts, face_indices })
+}
+
+/// AO as a grey colour channel in type `t`: 0 to 1 for the floating-point types, 0 to 255
+/// for the integers (saturated to the type's range).
+fn grey(t: &ScalarType, ao: &[f32]) -> Values {
+    let level = |a: f32| (255.0 * a.clamp(0.0, 1.0)).round();
+    match t {
+        ScalarType::Char => Values::Char(ao.iter().map(|&a| level(a) as i8).collect()),
+        ScalarType::UChar => Values::UChar(ao.iter().map(|&a| level(a) as u8).collect()),
+        ScalarType::Short => Values::Short(ao.iter().map(|&a| level(a) as i16).collect()),
+        ScalarType::UShort => Values::UShort(ao.iter().map(|&a| level(a) as u16).collect()),
+        ScalarType::Int => Values::Int(ao.iter().map(|&a| level(a) as i32).collect()),
+        ScalarType::UInt => Values::UInt(ao.iter().map(|&a| level(a) as u32).collect()),
+        ScalarType::Float => Values::Float(ao.iter().map(|&a| a.clamp(0.0, 1.0)).collect()),
+        ScalarType::Double => Values::Double(ao.iter().map(|&a| f64::from(a.clamp(0.0, 1.0))).collect()),
+    }
+}
+
+impl PlyAsset {
+    /// The properties the bake adds to `element`, each replacing the element's own
+    /// property of that name; with notes on those replaced.
+    fn added_columns(
+        &self,
+        element: &Element,
+        values: &BakedValues,
+        options: &WriteOptions,
+    ) -> std::result::Result<(Vec<Column>, Vec<String>), String> {
+        let n = element.count;
+        let check = |what: &str, len: usize| {
+            if len == n { Ok(()) } else { Err(format!("{len} {what} values for the {n} elements '{}'", element.name)) }
+        };
+        check("AO", values.ao.len())?;
+        let mut added = vec![Column::float("quality", values.ao.clone())];
+        if options.std_error {
+            check("standard error", values.std_error.len())?;
+            added.push(Column::float("quality_std_error", values.std_error.clone()));
+        }
+        if let Some(bent) = &values.bent_normals {
+            check("bent normal", bent.len())?;
+            for (axis, name) in ["bnx", "bny", "bnz"].into_iter().enumerate() {
+                added.push(Column::float(name, bent.iter().map(|b| b[axis]).collect()));
+            }
+        }
+        let mut notes = Vec::new();
+        let mut kept_colours = Vec::new();
+        if options.colors {
+            for name in ["red", "green", "blue"] {
+                let own = column(element, name).filter(|c| c.list.is_none());
+                let t = own.map_or(ScalarType::UChar, |c| c.values.scalar_type());
+                if own.is_some() {
+                    kept_colours.push(format!("{name} ({})", type_name(&t)));
+                }
+                added.push(Column { name: name.to_string(), list: None, values: grey(&t, &values.ao) });
+            }
+        }
+        for a in &added {
+            let Some(own) = column(element, &a.name) else { continue };
+            if ["red", "green", "blue"].contains(&a.name.as_str()) && own.list.is_none() {
+                continue;
+            }
+            let was = match &own.list {
+                Some(_) => "a list".to_string(),
+                None => format!("of type {}", type_name(&own.values.scalar_type())),
+            };
+            notes.push(format!(
+                "the {} element's own '{}' property ({was}) was replaced by the bake's",
+                element.name, a.name
+            ));
+        }
+        if !kept_colours.is_empty() {
+            notes.push(format!(
+                "the {} element's own colour {} was overwritten with the AO as grey, its type kept",
+                element.name,
+                kept_colours.join(", ")
+            ));
+        }
+        Ok((added, notes))
     }
 }
 
@@ -21,7 +637,702 @@ impl Asset for PlyAsset {
         &self.meshes
     }
 
-    fn write(&self, path: &Path, _values: &[BakedValues], _options: &WriteOptions) -> Result<Vec<String>> {
-        Err(Error::output(path, "baking into this format is not available yet"))
+    fn write(&self, path: &Path, values: &[BakedValues], options: &WriteOptions) -> Result<Vec<String>> {
+        let [values] = values else {
+            return Err(Error::output(path, format!("a PLY file has 1 mesh, but {} were baked", values.len())));
+        };
+        let target_name = match options.at {
+            BakeAt::Vertices => "vertex",
+            BakeAt::Faces => "face",
+        };
+        let Some(target) = self.elements.iter().position(|e| e.name == target_name) else {
+            return Err(Error::output(path, format!("the file has no {target_name} element")));
+        };
+        let element = &self.elements[target];
+        let (added, mut notes) = self.added_columns(element, values, options).map_err(|m| Error::output(path, m))?;
+
+        // The columns written, element by element: the bake's replace the file's own of
+        // the same name in place; the others follow the element's last property.
+        let mut plan: Vec<Vec<&Column>> = self.elements.iter().map(|e| e.columns.iter().collect()).collect();
+        for a in &added {
+            match plan[target].iter().position(|c| c.name == a.name) {
+                Some(i) => plan[target][i] = a,
+                None => plan[target].push(a),
+            }
+        }
+        let own_count = element.columns.len();
+
+        let ascii = self.header.encoding == Encoding::Ascii;
+        let mut head = Vec::new();
+        head.extend_from_slice(b"ply\n");
+        let property_line = |head: &mut Vec<u8>, c: &Column| {
+            head.extend_from_slice(c.header_line().as_bytes());
+            head.push(b'\n');
+        };
+        let target_last_line = self
+            .header
+            .lines
+            .iter()
+            .rposition(|l| matches!(l, HeaderLine::Element(e) | HeaderLine::Property(e, _) if *e == target));
+        for (k, line) in self.header.lines.iter().enumerate() {
+            match line {
+                HeaderLine::Format => {
+                    let encoding = if ascii { "ascii" } else { "binary_little_endian" };
+                    let version = self.header.version;
+                    let _ = writeln!(head, "format {encoding} {}.{}", version.major, version.minor);
+                }
+                HeaderLine::Text(text) => {
+                    head.extend_from_slice(text);
+                    head.push(b'\n');
+                }
+                HeaderLine::Unknown(number, text) => {
+                    head.extend_from_slice(b"comment ");
+                    head.extend_from_slice(text);
+                    head.push(b'\n');
+                    notes.push(format!("header line {number}, free text without 'comment', is written as a comment"));
+                }
+                HeaderLine::Element(e) => {
+                    let _ = writeln!(head, "element {} {}", self.elements[*e].name, self.elements[*e].count);
+                }
+                HeaderLine::Property(e, p) => property_line(&mut head, plan[*e][*p]),
+            }
+            if Some(k) == target_last_line {
+                for c in &plan[target][own_count..] {
+                    property_line(&mut head, c);
+                }
+            }
+        }
+        head.extend_from_slice(b"end_header\n");
+
+        let gzip = is_gzip_name(path);
+        let elements = &self.elements;
+        let body = |out: &mut dyn Write| -> std::io::Result<()> {
+            out.write_all(&head)?;
+            let mut chunk = Vec::with_capacity(CHUNK_BYTES + 4096);
+            for (element, columns) in elements.iter().zip(&plan) {
+                let rows = if !ascii && columns.is_empty() { 0 } else { element.count };
+                for i in 0..rows {
+                    if ascii {
+                        put_ascii_row(columns, i, &mut chunk);
+                    } else {
+                        put_binary_row(columns, i, &mut chunk)?;
+                    }
+                    if chunk.len() >= CHUNK_BYTES {
+                        out.write_all(&chunk)?;
+                        chunk.clear();
+                    }
+                }
+            }
+            out.write_all(&chunk)
+        };
+        write_atomically_with(path, &mut |w| {
+            if gzip {
+                let mut encoder = flate2::write::GzEncoder::new(w, flate2::Compression::default());
+                body(&mut encoder)?;
+                encoder.finish().map(|_| ())
+            } else {
+                body(w)
+            }
+        })?;
+        Ok(notes)
+    }
+}
+
+/// Appends element `i` of `columns` as one ascii line.
+fn put_ascii_row(columns: &[&Column], i: usize, out: &mut Vec<u8>) {
+    for (k, c) in columns.iter().enumerate() {
+        if k > 0 {
+            out.push(b' ');
+        }
+        let items = c.items(i);
+        if c.list.is_some() {
+            put_display(items.len(), out);
+            if !items.is_empty() {
+                out.push(b' ');
+            }
+        }
+        for (j, item) in items.enumerate() {
+            if j > 0 {
+                out.push(b' ');
+            }
+            c.values.put_ascii(item, out);
+        }
+    }
+    out.push(b'\n');
+}
+
+/// Appends element `i` of `columns` in binary little-endian.
+fn put_binary_row(columns: &[&Column], i: usize, out: &mut Vec<u8>) -> std::io::Result<()> {
+    for c in columns {
+        let items = c.items(i);
+        if let Some((count_type, _)) = &c.list {
+            let n = items.len();
+            let too_long =
+                || std::io::Error::other(format!("list {} of {n} items is too long for its count type", c.name));
+            match count_type {
+                ScalarType::Char => i8::try_from(n).map_err(|_| too_long())?.put_le(out),
+                ScalarType::UChar => u8::try_from(n).map_err(|_| too_long())?.put_le(out),
+                ScalarType::Short => i16::try_from(n).map_err(|_| too_long())?.put_le(out),
+                ScalarType::UShort => u16::try_from(n).map_err(|_| too_long())?.put_le(out),
+                ScalarType::Int => i32::try_from(n).map_err(|_| too_long())?.put_le(out),
+                ScalarType::UInt => u32::try_from(n).map_err(|_| too_long())?.put_le(out),
+                ScalarType::Float | ScalarType::Double => return Err(too_long()),
+            }
+        }
+        for item in items {
+            c.values.put_le(item, out);
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ply_rs_bw::parser::Parser;
+    use ply_rs_bw::ply::{Addable, DefaultElement, Ply, Property, PropertyDef, Version};
+    use ply_rs_bw::writer::Writer;
+    use std::path::PathBuf;
+
+    fn scenes() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes")
+    }
+
+    fn scalar(t: ScalarType) -> PropertyType {
+        PropertyType::Scalar(t)
+    }
+
+    fn list(count: ScalarType, item: ScalarType) -> PropertyType {
+        PropertyType::List(count, item)
+    }
+
+    /// Adds element `name` with `properties` and `rows` (values in the properties' order).
+    fn add(ply: &mut Ply<DefaultElement>, name: &str, properties: &[(&str, PropertyType)], rows: Vec<Vec<Property>>) {
+        let mut def = ElementDef::new(name.to_string());
+        for (p, t) in properties {
+            def.properties.add(PropertyDef::new(p.to_string(), t.clone()));
+        }
+        def.count = rows.len();
+        ply.header.elements.add(def);
+        let rows = rows
+            .into_iter()
+            .map(|row| {
+                assert_eq!(row.len(), properties.len());
+                let mut e = DefaultElement::new();
+                for ((p, _), v) in properties.iter().zip(row) {
+                    e.insert(p.to_string(), v);
+                }
+                e
+            })
+            .collect();
+        ply.payload.insert(name.to_string(), rows);
+    }
+
+    const XYZ: [[f32; 3]; 5] =
+        [[0.1, -0.0, 0.0], [1.0 / 3.0, 0.0, -2.5e-7], [1.0, 12345.678, 0.0], [0.0, 1.0, 1e-38], [0.5, 0.5, 1.0]];
+    const FACES: [&[i32]; 2] = [&[0, 1, 4], &[0, 1, 2, 3]];
+
+    /// A pyramid's apex and base quadrilateral with normals, extra vertex properties of
+    /// several types, and `edge` and `material` elements between every type of PLY.
+    fn fixture(encoding: Encoding) -> Ply<DefaultElement> {
+        use Property as P;
+        use ScalarType as T;
+        let mut ply = Ply::<DefaultElement>::new();
+        ply.header.encoding = encoding;
+        ply.header.version = Version { major: 1, minor: 0 };
+        ply.header.comments = vec!["made by the bake's tests".into(), "  spaced   comment".into()];
+        ply.header.obj_infos = vec!["num_cols 5".into()];
+        let vertex_rows = (0..5)
+            .map(|i| {
+                let [x, y, z] = XYZ[i];
+                vec![
+                    P::Float(x),
+                    P::Float(y),
+                    P::Float(z),
+                    P::Float(0.0),
+                    P::Float(-(i as f32) * 0.7),
+                    P::Float(1.0),
+                    P::Double(1.0 / (i as f64 + 7.0)),
+                    P::UChar(200 + i as u8),
+                    P::ListFloat(vec![0.25; i]),
+                ]
+            })
+            .collect();
+        add(
+            &mut ply,
+            "vertex",
+            &[
+                ("x", scalar(T::Float)),
+                ("y", scalar(T::Float)),
+                ("z", scalar(T::Float)),
+                ("nx", scalar(T::Float)),
+                ("ny", scalar(T::Float)),
+                ("nz", scalar(T::Float)),
+                ("confidence", scalar(T::Double)),
+                ("flags", scalar(T::UChar)),
+                ("uv", list(T::UChar, T::Float)),
+            ],
+            vertex_rows,
+        );
+        let face_rows = FACES
+            .iter()
+            .enumerate()
+            .map(|(i, f)| vec![P::ListInt(f.to_vec()), P::Short(-300 - i as i16), P::Char(-5)])
+            .collect();
+        add(
+            &mut ply,
+            "face",
+            &[("vertex_indices", list(T::UChar, T::Int)), ("flags", scalar(T::Short)), ("material", scalar(T::Char))],
+            face_rows,
+        );
+        add(
+            &mut ply,
+            "edge",
+            &[("vertex1", scalar(T::Int)), ("vertex2", scalar(T::UInt)), ("crease", scalar(T::UShort))],
+            vec![
+                vec![P::Int(0), P::UInt(4_000_000_000), P::UShort(65_535)],
+                vec![P::Int(-2_000_000_000), P::UInt(2), P::UShort(0)],
+            ],
+        );
+        add(
+            &mut ply,
+            "material",
+            &[
+                ("name", list(T::UInt, T::UChar)),
+                ("weights", list(T::UShort, T::Double)),
+                ("ids", list(T::Char, T::UInt)),
+                ("offsets", list(T::Short, T::Char)),
+                ("shorts", list(T::Int, T::Short)),
+                ("ushorts", list(T::UChar, T::UShort)),
+                ("ints", list(T::UChar, T::Int)),
+                ("power", scalar(T::Double)),
+            ],
+            vec![vec![
+                P::ListUChar(b"steel".to_vec()),
+                P::ListDouble(vec![0.1, -1e300, 5e-324]),
+                P::ListUInt(vec![]),
+                P::ListChar(vec![-128, 127]),
+                P::ListShort(vec![-32768]),
+                P::ListUShort(vec![65535, 1]),
+                P::ListInt(vec![i32::MIN, i32::MAX]),
+                P::Double(std::f64::consts::PI),
+            ]],
+        );
+        ply
+    }
+
+    /// `ply` encoded by ply-rs's own writer.
+    fn encode(ply: &mut Ply<DefaultElement>) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        Writer::new().write_ply(&mut bytes, ply).unwrap();
+        bytes
+    }
+
+    /// `bytes` read by ply-rs's generic reader: independent of the reader under test.
+    fn parse(bytes: &[u8]) -> Ply<DefaultElement> {
+        Parser::<DefaultElement>::new().read_ply(&mut &bytes[..]).unwrap()
+    }
+
+    fn gzip(bytes: &[u8]) -> Vec<u8> {
+        let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        encoder.write_all(bytes).unwrap();
+        encoder.finish().unwrap()
+    }
+
+    fn gunzip(bytes: &[u8]) -> Vec<u8> {
+        let mut out = Vec::new();
+        std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(bytes), &mut out).unwrap();
+        out
+    }
+
+    /// The header of a PLY file's bytes, as text.
+    fn header_text(bytes: &[u8]) -> String {
+        let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        String::from_utf8(bytes[..end].to_vec()).unwrap()
+    }
+
+    /// Asserts that `written` holds every comment, obj_info, element and property of
+    /// `original` in order, with the same types and values bit for bit, except for the
+    /// properties `replaced` of element `target`; returns the names it has besides.
+    fn assert_preserved(
+        original: &Ply<DefaultElement>,
+        written: &Ply<DefaultElement>,
+        target: &str,
+        replaced: &[&str],
+    ) -> Vec<String> {
+        assert_eq!(written.header.comments, original.header.comments);
+        assert_eq!(written.header.obj_infos, original.header.obj_infos);
+        let names = |p: &Ply<DefaultElement>| p.header.elements.keys().cloned().collect::<Vec<_>>();
+        assert_eq!(names(written), names(original));
+        let mut added = Vec::new();
+        for (name, def) in &original.header.elements {
+            let out_def = &written.header.elements[name];
+            assert_eq!(out_def.count, def.count, "{name}");
+            let kept: Vec<&String> =
+                def.properties.keys().filter(|p| name != target || !replaced.contains(&p.as_str())).collect();
+            let out_kept: Vec<&String> =
+                out_def.properties.keys().filter(|p| def.properties.contains_key(*p)).collect();
+            assert_eq!(out_def.properties.keys().take(def.properties.len()).collect::<Vec<_>>(), {
+                def.properties.keys().collect::<Vec<_>>()
+            });
+            for p in kept {
+                assert_eq!(out_def.properties[p], def.properties[p], "{name} {p}");
+                for (i, (a, b)) in original.payload[name].iter().zip(&written.payload[name]).enumerate() {
+                    // Debug text tells -0.0 from 0.0 and names the type: bit for bit.
+                    assert_eq!(format!("{:?}", b[p]), format!("{:?}", a[p]), "{name} {i} {p}");
+                }
+            }
+            assert!(out_kept.len() == def.properties.len());
+            if name == target {
+                added.extend(out_def.properties.keys().skip(def.properties.len()).cloned());
+            } else {
+                assert_eq!(out_def.properties.len(), def.properties.len(), "{name} gained properties");
+            }
+        }
+        added
+    }
+
+    fn baked(n: usize, bent: bool) -> BakedValues {
+        BakedValues {
+            ao: (0..n).map(|i| [0.0, 1.0, 0.123_456_79, -0.5, 2.0][i % 5]).collect(),
+            std_error: (0..n).map(|i| 1e-3 * i as f32 + 1.0 / 3.0).collect(),
+            bent_normals: bent.then(|| (0..n).map(|i| Vec3::new(0.1 * i as f32, -0.6, 0.8)).collect()),
+        }
+    }
+
+    fn float_column(ply: &Ply<DefaultElement>, element: &str, name: &str) -> Vec<f32> {
+        ply.payload[element]
+            .iter()
+            .map(|e| match e[name] {
+                Property::Float(v) => v,
+                ref other => panic!("{element} {name} is {other:?}"),
+            })
+            .collect()
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    const ALL: WriteOptions = WriteOptions { at: BakeAt::Vertices, std_error: true, colors: true };
+
+    #[test]
+    fn every_encoding_round_trips_with_the_bake_added() {
+        let dir = tempfile::tempdir().unwrap();
+        for encoding in [Encoding::Ascii, Encoding::BinaryLittleEndian, Encoding::BinaryBigEndian] {
+            let bytes = encode(&mut fixture(encoding));
+            let original = parse(&bytes);
+            for gz in [false, true] {
+                let input = dir.path().join(if gz { "in.ply.gz" } else { "in.ply" });
+                std::fs::write(&input, if gz { gzip(&bytes) } else { bytes.clone() }).unwrap();
+                let asset = PlyAsset::read(&input).unwrap_or_else(|e| panic!("{encoding:?}: {e}"));
+
+                let [mesh] = asset.meshes() else { panic!("one mesh") };
+                assert_eq!(mesh.label, input.file_name().unwrap().to_str().unwrap());
+                let want: Vec<Vec3> = XYZ.iter().map(|&p| Vec3::from(p)).collect();
+                assert_eq!(mesh.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>(), {
+                    want.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>()
+                });
+                let normals = mesh.normals.as_ref().expect("the fixture has normals");
+                assert_eq!(normals[2], Vec3::new(0.0, -1.4, 1.0));
+                assert_eq!((mesh.face_count(), mesh.face(0), mesh.face(1)), (2, &[0, 1, 4][..], &[0, 1, 2, 3][..]));
+
+                let output = dir.path().join("out.ply");
+                let values = baked(5, true);
+                let notes = asset.write(&output, std::slice::from_ref(&values), &ALL).unwrap();
+                assert!(notes.is_empty(), "{notes:?}");
+                let out = std::fs::read(&output).unwrap();
+                let format = if encoding == Encoding::Ascii { "ascii" } else { "binary_little_endian" };
+
+                // The header: the original's lines, in order, with the new properties
+                // after the vertex element's last.
+                let mut want_header = header_text(&bytes)
+                    .replace("binary_big_endian", "binary_little_endian")
+                    .replace("property list uchar float uv\n", "property list uchar float uv\nNEW");
+                let new = "property float quality\nproperty float quality_std_error\nproperty float bnx\n\
+                           property float bny\nproperty float bnz\nproperty uchar red\nproperty uchar green\n\
+                           property uchar blue\n";
+                want_header = want_header.replace("NEW", new);
+                assert_eq!(header_text(&out), want_header);
+                assert!(header_text(&out).contains(&format!("format {format} 1.0\n")));
+
+                let written = parse(&out);
+                let added = assert_preserved(&original, &written, "vertex", &[]);
+                assert_eq!(added, ["quality", "quality_std_error", "bnx", "bny", "bnz", "red", "green", "blue"]);
+                assert_eq!(bits(&float_column(&written, "vertex", "quality")), bits(&values.ao));
+                assert_eq!(bits(&float_column(&written, "vertex", "quality_std_error")), bits(&values.std_error));
+                let bent = values.bent_normals.as_ref().unwrap();
+                for (axis, name) in ["bnx", "bny", "bnz"].into_iter().enumerate() {
+                    let want: Vec<f32> = bent.iter().map(|b| b[axis]).collect();
+                    assert_eq!(bits(&float_column(&written, "vertex", name)), bits(&want));
+                }
+                for name in ["red", "green", "blue"] {
+                    let grey: Vec<Property> = written.payload["vertex"].iter().map(|e| e[name].clone()).collect();
+                    let want = [0, 255, 31, 0, 255].map(Property::UChar);
+                    assert_eq!(grey, want, "{name}");
+                }
+                // The asset reads its own output back to the same mesh.
+                let again = PlyAsset::read(&output).unwrap();
+                assert_eq!(again.meshes()[0].positions, mesh.positions);
+                assert_eq!(again.meshes()[0].face_indices, mesh.face_indices);
+            }
+        }
+    }
+
+    #[test]
+    fn faces_mode_writes_quality_on_the_face_element() {
+        let dir = tempfile::tempdir().unwrap();
+        let bytes = encode(&mut fixture(Encoding::BinaryLittleEndian));
+        let original = parse(&bytes);
+        let input = dir.path().join("in.ply");
+        std::fs::write(&input, bytes).unwrap();
+        let asset = PlyAsset::read(&input).unwrap();
+        let output = dir.path().join("faces.ply");
+        let values = baked(2, false);
+        let options = WriteOptions { at: BakeAt::Faces, std_error: true, colors: false };
+        asset.write(&output, std::slice::from_ref(&values), &options).unwrap();
+        let written = parse(&std::fs::read(&output).unwrap());
+        assert_eq!(assert_preserved(&original, &written, "face", &[]), ["quality", "quality_std_error"]);
+        assert_eq!(bits(&float_column(&written, "face", "quality")), bits(&values.ao));
+        assert_eq!(bits(&float_column(&written, "face", "quality_std_error")), bits(&values.std_error));
+        // Per-vertex values do not fit the faces.
+        let message = asset.write(&output, &[baked(5, false)], &options).unwrap_err().to_string();
+        assert!(message.contains("faces.ply: 5 AO values for the 2 elements 'face'"), "{message}");
+    }
+
+    #[test]
+    fn an_existing_quality_and_colour_are_replaced_in_place_with_notes() {
+        use Property as P;
+        let dir = tempfile::tempdir().unwrap();
+        let mut original = Ply::<DefaultElement>::new();
+        original.header.encoding = Encoding::Ascii;
+        let rows = XYZ
+            .iter()
+            .map(|&[x, y, z]| {
+                let c = P::Float(0.25);
+                vec![P::Float(x), P::Float(y), P::Float(z), P::Double(7.5), c.clone(), c.clone(), c, P::UChar(9)]
+            })
+            .collect();
+        let t = |t| scalar(t);
+        let props = [
+            ("x", t(ScalarType::Float)),
+            ("y", t(ScalarType::Float)),
+            ("z", t(ScalarType::Float)),
+            ("quality", t(ScalarType::Double)),
+            ("red", t(ScalarType::Float)),
+            ("green", t(ScalarType::Float)),
+            ("blue", t(ScalarType::Float)),
+            ("alpha", t(ScalarType::UChar)),
+        ];
+        add(&mut original, "vertex", &props, rows);
+        let faces = FACES.iter().map(|f| vec![P::ListInt(f.to_vec())]).collect();
+        add(&mut original, "face", &[("vertex_indices", list(ScalarType::UChar, ScalarType::Int))], faces);
+        let input = dir.path().join("coloured.ply");
+        std::fs::write(&input, encode(&mut original)).unwrap();
+        let asset = PlyAsset::read(&input).unwrap();
+        assert_eq!(asset.meshes()[0].normals, None);
+
+        let output = dir.path().join("out.ply");
+        let values = baked(5, false);
+        let options = WriteOptions { at: BakeAt::Vertices, std_error: false, colors: true };
+        let notes = asset.write(&output, std::slice::from_ref(&values), &options).unwrap();
+        assert_eq!(
+            notes,
+            [
+                "the vertex element's own 'quality' property (of type double) was replaced by the bake's",
+                "the vertex element's own colour red (float), green (float), blue (float) was overwritten with the AO \
+                 as grey, its type kept"
+            ]
+        );
+        let out = std::fs::read(&output).unwrap();
+        assert!(header_text(&out).contains(
+            "property float x\nproperty float y\nproperty float z\nproperty float quality\nproperty float red\n\
+             property float green\nproperty float blue\nproperty uchar alpha\nelement face 2\n"
+        ));
+        let written = parse(&out);
+        let added = assert_preserved(&original, &written, "vertex", &["quality", "red", "green", "blue"]);
+        assert!(added.is_empty(), "{added:?}");
+        assert_eq!(bits(&float_column(&written, "vertex", "quality")), bits(&values.ao));
+        let grey: Vec<f32> = values.ao.iter().map(|a| a.clamp(0.0, 1.0)).collect();
+        assert_eq!(float_column(&written, "vertex", "green"), grey);
+    }
+
+    #[test]
+    fn a_gz_output_is_gzipped() {
+        let dir = tempfile::tempdir().unwrap();
+        let bytes = encode(&mut fixture(Encoding::Ascii));
+        let original = parse(&bytes);
+        let input = dir.path().join("in.ply");
+        std::fs::write(&input, bytes).unwrap();
+        let output = dir.path().join("out.ply.gz");
+        let values = baked(5, false);
+        PlyAsset::read(&input)
+            .unwrap()
+            .write(&output, std::slice::from_ref(&values), &WriteOptions::default())
+            .unwrap();
+        let out = std::fs::read(&output).unwrap();
+        assert_eq!(out[..2], [0x1f, 0x8b]);
+        let written = parse(&gunzip(&out));
+        assert_eq!(assert_preserved(&original, &written, "vertex", &[]), ["quality"]);
+        assert_eq!(bits(&float_column(&written, "vertex", "quality")), bits(&values.ao));
+        // Only the output is left in the directory: the write went through a temporary file.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+    }
+
+    #[test]
+    fn a_free_text_header_line_is_read_and_written_back_as_a_comment() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("blender.ply");
+        let text = "ply\nformat ascii 1.0\nCreated by Blender3D 247 - www.blender.org\nelement vertex 3\n\
+                    property float x\ncomment between properties\nproperty float y\nproperty float z\n\
+                    obj_info after the vertex element\nelement face 1\nproperty list uchar uint vertex_index\n\
+                    end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+        std::fs::write(&input, text).unwrap();
+        let asset = PlyAsset::read(&input).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(asset.meshes()[0].face_indices, [0, 1, 2]);
+        let output = dir.path().join("out.ply");
+        let values = BakedValues { ao: vec![0.5, 0.25, 1.0], ..Default::default() };
+        let notes = asset.write(&output, &[values], &WriteOptions::default()).unwrap();
+        assert_eq!(notes, ["header line 3, free text without 'comment', is written as a comment"]);
+        let want = "ply\nformat ascii 1.0\ncomment Created by Blender3D 247 - www.blender.org\nelement vertex 3\n\
+                    property float x\ncomment between properties\nproperty float y\nproperty float z\n\
+                    property float quality\nobj_info after the vertex element\nelement face 1\n\
+                    property list uchar uint vertex_index\nend_header\n0 0 0 0.5\n1 0 0 0.25\n0 1 0 1\n3 0 1 2\n";
+        assert_eq!(std::fs::read_to_string(&output).unwrap(), want);
+    }
+
+    #[test]
+    fn positions_are_the_scene_loaders_bit_for_bit() {
+        let dir = tempfile::tempdir().unwrap();
+        // Values near the limits of each type, ascii spellings of every form the grammar
+        // takes, doubles that round, integers beyond f32's exact range.
+        let ascii = dir.path().join("exotic.ply");
+        std::fs::write(
+            &ascii,
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\nproperty int y\nproperty float z\n\
+             element face 1\nproperty list uchar int vertex_indices\nend_header\n\
+             0.1 16777217 1e-45\n-1.00000001 -2147483648 3.4028235e38\n+2.5E+3 2147483647 0.30000001192092896\n\
+             1e-320 0 -0\n4 0 1 2 3\n",
+        )
+        .unwrap();
+        let mut files = vec![ascii];
+        for name in
+            ["dragon_vrip_res4.ply.gz", "dragon_vrip_res3.ply.gz", "dragon_vrip_res2.ply.gz", "dragon_vrip.ply.gz"]
+        {
+            files.push(scenes().join(name));
+        }
+        for path in files {
+            let start = std::time::Instant::now();
+            let asset = PlyAsset::read(&path).unwrap_or_else(|e| panic!("{e}"));
+            let read = start.elapsed();
+            let loaded = crate::scene::ply::load_ply(&path).unwrap();
+            let mesh = &asset.meshes()[0];
+            let as_bits = |p: &[Vec3]| p.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+            assert!(as_bits(&mesh.positions) == as_bits(&loaded.positions), "{}", path.display());
+            // The loader's triangles are fans of the asset's faces.
+            let fans: Vec<[u32; 3]> = (0..mesh.face_count())
+                .flat_map(|f| {
+                    let c = mesh.face(f);
+                    (1..c.len() - 1).map(move |k| [c[0], c[k], c[k + 1]])
+                })
+                .collect();
+            assert!(fans == loaded.triangles, "{}", path.display());
+            eprintln!(
+                "{}: {} vertices, {} faces read in {read:.2?}",
+                path.display(),
+                mesh.positions.len(),
+                mesh.face_count()
+            );
+        }
+    }
+
+    #[test]
+    fn the_full_dragon_is_written_back_identically() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = scenes().join("dragon_vrip.ply.gz");
+        let asset = PlyAsset::read(&path).unwrap_or_else(|e| panic!("{e}"));
+        let n = asset.meshes()[0].positions.len();
+        let start = std::time::Instant::now();
+        let output = dir.path().join("dragon.ply");
+        asset.write(&output, &[baked(n, false)], &WriteOptions::default()).unwrap();
+        eprintln!("dragon written in {:.2?}", start.elapsed());
+        let again = PlyAsset::read(&output).unwrap();
+        assert_eq!(again.elements[0].columns[..3], asset.elements[0].columns[..]);
+        assert_eq!(again.elements[1..], asset.elements[1..]);
+    }
+
+    /// `text` written to `name` and read: the error's message.
+    fn error_of(dir: &Path, name: &str, bytes: &[u8]) -> String {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        match std::panic::catch_unwind(|| PlyAsset::read(&path)) {
+            Err(_) => panic!("{name}: panicked"),
+            Ok(Ok(_)) => panic!("{name}: read"),
+            Ok(Err(e)) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn bad_files_are_one_line_errors_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let head = |format: &str, vertices: usize, extra: &str| {
+            format!(
+                "ply\nformat {format} 1.0\nelement vertex {vertices}\nproperty float x\nproperty float y\n{extra}\
+                 element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+            )
+        };
+        let with_z = "property float z\n";
+        let le = |values: &[f32], face: &[i32]| {
+            let mut b = Vec::new();
+            values.iter().for_each(|v| b.extend_from_slice(&v.to_le_bytes()));
+            b.push(face.len() as u8);
+            face.iter().for_each(|v| b.extend_from_slice(&v.to_le_bytes()));
+            b
+        };
+        let binary = |vertices: usize, data: Vec<u8>| {
+            [head("binary_little_endian", vertices, with_z).into_bytes(), data].concat()
+        };
+        let ascii = |body: &str| format!("{}{body}", head("ascii", 3, with_z)).into_bytes();
+        let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+            ("empty.ply", Vec::new(), "not a PLY file"),
+            ("no_end.ply", b"ply\nformat ascii 1.0\nelement vertex 1\n".to_vec(), "ends before 'end_header'"),
+            ("no_z.ply", head("ascii", 1, "").into_bytes(), "the vertex element has no z property"),
+            ("truncated.ply", binary(3, le(&[0.0; 7], &[])), "unexpected end of file in vertex 2 of 3"),
+            ("short_face.ply", binary(3, le(&[0.0; 9], &[0, 1])), "face 0 has 2 vertices"),
+            ("range.ply", binary(3, le(&[0.0; 9], &[0, 1, 3])), "face 0: vertex index 3 is out of range"),
+            ("negative.ply", binary(3, le(&[0.0; 9], &[0, -1, 2])), "face 0: vertex index -1 is out of range"),
+            ("long_list.ply", binary(3, [le(&[0.0; 9], &[]), vec![0; 3]].concat()), "data after the last element"),
+            ("short_list.ply", binary(3, le(&[0.0; 9], &[0, 1]).into_iter().enumerate().map(|(i, b)| if i == 36 { 3 } else { b }).collect()), "unexpected end of file in face 0"),
+            ("extra.ply", binary(3, [le(&[0.0; 9], &[0, 1, 2]), vec![0]].concat()), "data after the last element"),
+            ("nan.ply", binary(3, le(&[0.0, f32::NAN, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], &[0, 1, 2])), "vertex 0 has a non-finite coordinate (y = NaN)"),
+            ("word.ply", ascii("0 0 0\n1 x 0\n0 1 0\n3 0 1 2\n"), "vertex 1 of 3: 'x' is not a number"),
+            ("dot.ply", ascii("0 0 0\n1 .5 0\n0 1 0\n3 0 1 2\n"), "vertex 1 of 3: '.5' is not a number"),
+            ("few.ply", ascii("0 0 0\n1 0\n0 1 0\n3 0 1 2\n"), "vertex 1 of 3: fewer values than its properties need"),
+            ("int.ply", ascii("0 0 0\n1 0 0\n0 1 0\n3 0 1.0 2\n"), "face 0 of 1: '1.0' is not a valid int"),
+            ("cut.ply", ascii("0 0 0\n1 0 0\n"), "unexpected end of file in vertex 2 of 3"),
+            ("more.ply", ascii("0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n7\n"), "data after the last element"),
+            ("list_x.ply", head("ascii", 0, "property list uchar float z\n").into_bytes(), "vertex property z must be a number"),
+            ("float_count.ply", head("ascii", 0, "property float z\nproperty list float int w\n").into_bytes(), "a list's count must have an integer type"),
+            ("no_face.ply", b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n".to_vec(), "no face element"),
+            ("bad.ply.gz", b"\x1f\x8b\x08\x00garbage".to_vec(), "invalid or truncated gzip data"),
+        ];
+        for (name, bytes, expect) in cases {
+            let message = error_of(dir.path(), name, &bytes);
+            assert!(message.contains(name) && message.contains(expect), "{name}: '{message}' lacks '{expect}'");
+            assert!(!message.contains('\n'), "{name}: {message}");
+        }
+        // The scene loader's corpus of malformed files: errors too.
+        let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/malformed");
+        let mut seen = 0;
+        for entry in std::fs::read_dir(&corpus).unwrap() {
+            let path = entry.unwrap().path();
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            if name.starts_with("ply_") {
+                let message = error_of(dir.path(), &name, &std::fs::read(&path).unwrap());
+                assert!(message.contains(&name) && !message.contains('\n'), "{name}: {message}");
+                seen += 1;
+            }
+        }
+        assert!(seen >= 10, "the corpus has {seen} PLY files");
     }
 }

@@ -2,18 +2,24 @@
 //! plain or gzipped. The `vertex` element's `x`, `y`, `z` (any scalar type) and the `face`
 //! element's `vertex_indices` (or `vertex_index`) list (any integer types) are kept;
 //! polygons become triangle fans; every other element and property is read and ignored.
+//! A header line that starts with none of the header's keywords (free text some writers
+//! put in without `comment`) is skipped with a warning.
 //!
-//! The crate parses the header and one element at a time; this module owns the storage,
-//! so the counts in the header never size an allocation beyond what the rest of the file
-//! could hold (see [`Input::remaining_bound`]).
+//! The header is read here ([`read_header`], shared with the bake), the elements one at a
+//! time by the crate; this module owns the storage, so the counts in the header never
+//! size an allocation beyond what the rest of the file could hold (see
+//! [`Input::remaining_bound`]).
 
 use super::input::{Input, one_line};
 use super::mesh::{IndexedMesh, VertexNames};
-use super::types::non_finite_coordinate;
+pub(crate) use super::types::non_finite_coordinate;
 use crate::error::{Error, Result};
 use glam::Vec3;
-use ply_rs_bw::parser::{ParseError, Parser, Reader};
-use ply_rs_bw::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyAccessResult, PropertyType, ScalarType};
+use ply_rs_bw::parser::{ParseError, Parser};
+use ply_rs_bw::ply::{
+    ElementDef, Encoding, Property, PropertyAccess, PropertyAccessResult, PropertyDef, PropertyType, ScalarType,
+    Version,
+};
 use std::io::{BufRead, ErrorKind};
 use std::path::Path;
 
@@ -189,16 +195,229 @@ fn read_elements<E: PropertyAccess>(
     Ok(())
 }
 
-/// A header error of the crate in one line: its message with the offending line, without
-/// the grammar's internal state.
-fn header_message(e: &ParseError) -> String {
-    let text = e.to_string();
-    let parts: Vec<&str> = text.split('\n').map(str::trim).filter(|p| !p.starts_with("Error:")).collect();
-    one_line(&parts.join(" "))
+/// One line of a PLY header, in the file's order (for writing the header back).
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) enum HeaderLine {
+    /// The `format` line.
+    Format,
+    /// A `comment` or `obj_info` line, as it stands (without its line break).
+    Text(Vec<u8>),
+    /// The `element` line of element `e` of [`PlyHeader::elements`].
+    Element(usize),
+    /// A `property` line: property `p` of element `e`.
+    Property(usize, usize),
+    /// A line that is none of the header's keywords (a free-text line some writers, such
+    /// as Blender 2.47, put in without `comment`), skipped; its number from 1 and its text.
+    Unknown(usize, Vec<u8>),
+}
+
+/// A PLY header as [`read_header`] reads it: the elements in order, and every line.
+#[derive(Clone, Debug)]
+pub(crate) struct PlyHeader {
+    /// The data's encoding.
+    pub encoding: Encoding,
+    /// The `format` line's version.
+    pub version: Version,
+    /// The elements in the file's order, each with its properties in order; names are
+    /// unique among the elements, and among the properties of each.
+    pub elements: Vec<ElementDef>,
+    /// Every line between `ply` and `end_header`.
+    pub lines: Vec<HeaderLine>,
+    /// The lines skipped, one message each.
+    pub warnings: Vec<String>,
+}
+
+impl PlyHeader {
+    /// The element named `name`.
+    pub(crate) fn element(&self, name: &str) -> Option<&ElementDef> {
+        self.elements.iter().find(|e| e.name == name)
+    }
+}
+
+/// `text` without its line break and trailing blanks.
+fn trim_line(text: &[u8]) -> &[u8] {
+    let end = text.iter().rposition(|b| !matches!(b, b'\n' | b'\r' | b' ' | b'\t')).map_or(0, |i| i + 1);
+    &text[..end]
+}
+
+/// A header name (of an element or a property): `[A-Za-z_][A-Za-z0-9_-]*`, as ply-rs's
+/// grammar has it.
+fn is_name(word: &str) -> bool {
+    let mut chars = word.chars();
+    chars.next().is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+}
+
+/// A scalar type by any of its PLY names.
+pub(crate) fn scalar_type(word: &str) -> Option<ScalarType> {
+    Some(match word {
+        "char" | "int8" => ScalarType::Char,
+        "uchar" | "uint8" => ScalarType::UChar,
+        "short" | "int16" => ScalarType::Short,
+        "ushort" | "uint16" => ScalarType::UShort,
+        "int" | "int32" => ScalarType::Int,
+        "uint" | "uint32" => ScalarType::UInt,
+        "float" | "float32" => ScalarType::Float,
+        "double" | "float64" => ScalarType::Double,
+        _ => return None,
+    })
+}
+
+/// One header line's meaning, or what is wrong with it.
+fn parse_header_line(words: &[&str]) -> std::result::Result<ParsedLine, String> {
+    let arity = |n: usize, form: &str| {
+        if words.len() == n { Ok(()) } else { Err(format!("expected '{form}'")) }
+    };
+    match words[0] {
+        "ply" => Err("'ply' may only be the first line".to_string()),
+        "end_header" => arity(1, "end_header").map(|()| ParsedLine::End),
+        "comment" | "obj_info" => Ok(ParsedLine::Text),
+        "format" => {
+            arity(3, "format ENCODING VERSION")?;
+            let encoding = match words[1] {
+                "ascii" => Encoding::Ascii,
+                "binary_little_endian" => Encoding::BinaryLittleEndian,
+                "binary_big_endian" => Encoding::BinaryBigEndian,
+                other => return Err(format!("unknown encoding '{other}'")),
+            };
+            let version = words[2]
+                .split_once('.')
+                .filter(|(a, b)| [a, b].iter().all(|s| !s.is_empty() && s.bytes().all(|c| c.is_ascii_digit())))
+                .and_then(|(a, b)| Some(Version { major: a.parse().ok()?, minor: b.parse().ok()? }))
+                .ok_or_else(|| format!("invalid version '{}'", words[2]))?;
+            Ok(ParsedLine::Format(encoding, version))
+        }
+        "element" => {
+            arity(3, "element NAME COUNT")?;
+            if !is_name(words[1]) {
+                return Err(format!("invalid element name '{}'", words[1]));
+            }
+            let count = Some(words[2])
+                .filter(|w| w.bytes().all(|c| c.is_ascii_digit()))
+                .and_then(|w| w.parse::<usize>().ok())
+                .ok_or_else(|| format!("invalid element count '{}'", words[2]))?;
+            let mut def = ElementDef::new(words[1].to_string());
+            def.count = count;
+            Ok(ParsedLine::Element(def))
+        }
+        "property" => {
+            let ty = |w: &str| scalar_type(w).ok_or_else(|| format!("unknown type '{w}'"));
+            let data_type = if words.get(1) == Some(&"list") {
+                arity(5, "property list COUNT_TYPE ITEM_TYPE NAME")?;
+                PropertyType::List(ty(words[2])?, ty(words[3])?)
+            } else {
+                arity(3, "property TYPE NAME")?;
+                PropertyType::Scalar(ty(words[1])?)
+            };
+            let name = words[words.len() - 1];
+            if !is_name(name) {
+                return Err(format!("invalid property name '{name}'"));
+            }
+            Ok(ParsedLine::Property(PropertyDef::new(name.to_string(), data_type)))
+        }
+        _ => Ok(ParsedLine::Unknown),
+    }
+}
+
+/// What a header line says.
+enum ParsedLine {
+    Format(Encoding, Version),
+    Text,
+    Element(ElementDef),
+    Property(PropertyDef),
+    End,
+    Unknown,
+}
+
+/// Reads a PLY header up to and including `end_header`, leaving `input` at the first
+/// byte of the data. A line that starts with none of the header's keywords is skipped
+/// with a warning; a malformed keyword line is an error.
+pub(crate) fn read_header(path: &Path, input: &mut Input) -> Result<PlyHeader> {
+    input.set_limit(Some(MAX_HEADER_BYTES));
+    let header = read_header_lines(input);
+    input.set_limit(None);
+    header.map_err(|message| {
+        let message = if let Some(stream) = input.stream_error() {
+            stream.to_string()
+        } else if input.at_limit() {
+            format!("the PLY header is longer than {MAX_HEADER_BYTES} bytes")
+        } else {
+            message
+        };
+        Error::scene(path, message)
+    })
+}
+
+fn read_header_lines(input: &mut Input) -> std::result::Result<PlyHeader, String> {
+    let mut raw = Vec::new();
+    let eof = "invalid PLY header: the file ends before 'end_header'".to_string();
+    if input.read_until(b'\n', &mut raw).map_err(|e| e.to_string())? == 0 || trim_line(&raw) != b"ply" {
+        return Err("not a PLY file: the first line is not 'ply'".to_string());
+    }
+    let mut format = None;
+    let mut elements: Vec<ElementDef> = Vec::new();
+    let mut lines = Vec::new();
+    let mut warnings = Vec::new();
+    for number in 2.. {
+        raw.clear();
+        if input.read_until(b'\n', &mut raw).map_err(|e| e.to_string())? == 0 {
+            return Err(eof);
+        }
+        let line = trim_line(&raw);
+        let line = &line[line.iter().position(|b| !matches!(b, b' ' | b'\t')).unwrap_or(line.len())..];
+        let text = String::from_utf8_lossy(line);
+        let words: Vec<&str> = text.split([' ', '\t']).filter(|w| !w.is_empty()).collect();
+        let invalid = |why: String| format!("invalid PLY header: line {number} '{}': {why}", one_line(&text));
+        if words.is_empty() {
+            warnings.push(format!("skipped the empty line {number} of the PLY header"));
+            continue;
+        }
+        match parse_header_line(&words).map_err(invalid)? {
+            ParsedLine::End => break,
+            ParsedLine::Text => lines.push(HeaderLine::Text(line.to_vec())),
+            ParsedLine::Unknown => {
+                warnings.push(format!(
+                    "skipped line {number} of the PLY header, which is no PLY keyword line: '{}'",
+                    one_line(&text)
+                ));
+                lines.push(HeaderLine::Unknown(number, line.to_vec()));
+            }
+            ParsedLine::Format(encoding, version) => {
+                if format.is_some_and(|f| f != (encoding, version)) {
+                    return Err(invalid("a second, different format line".to_string()));
+                }
+                format = Some((encoding, version));
+                lines.push(HeaderLine::Format);
+            }
+            ParsedLine::Element(def) => {
+                if elements.iter().any(|e| e.name == def.name) {
+                    return Err(invalid(format!("a second element named '{}'", def.name)));
+                }
+                lines.push(HeaderLine::Element(elements.len()));
+                elements.push(def);
+            }
+            ParsedLine::Property(def) => {
+                let e = elements.len().wrapping_sub(1);
+                let Some(element) = elements.last_mut() else {
+                    return Err(invalid("a property before any element".to_string()));
+                };
+                if element.properties.contains_key(&def.name) {
+                    return Err(invalid(format!(
+                        "a second property named '{}' in element '{}'",
+                        def.name, element.name
+                    )));
+                }
+                lines.push(HeaderLine::Property(e, element.properties.len()));
+                element.properties.insert(def.name.clone(), def);
+            }
+        }
+    }
+    let (encoding, version) = format.ok_or_else(|| "invalid PLY header: no format line".to_string())?;
+    Ok(PlyHeader { encoding, version, elements, lines, warnings })
 }
 
 /// The name of the face element's index list, checked to be a list of integers.
-fn index_list_name(path: &Path, face: &ElementDef) -> Result<String> {
+pub(crate) fn index_list_name(path: &Path, face: &ElementDef) -> Result<String> {
     let Some((name, def)) = INDEX_LISTS.iter().find_map(|n| face.properties.get_key_value(*n)) else {
         return Err(Error::scene(path, "the face element has no vertex_indices list"));
     };
@@ -210,28 +429,12 @@ fn index_list_name(path: &Path, face: &ElementDef) -> Result<String> {
 
 /// Reads a PLY file (`.ply` or `.ply.gz`). Vertices and faces are numbered from 0, as the
 /// faces' indices count them.
-pub(super) fn load_ply(path: &Path) -> Result<IndexedMesh> {
+pub(crate) fn load_ply(path: &Path) -> Result<IndexedMesh> {
     let mut input = Input::open(path)?;
-    input.set_limit(Some(MAX_HEADER_BYTES));
-    let mut reader = Reader::new(input);
-    let header = Parser::<Skipped>::new().read_header(&mut reader);
-    let mut input = reader.into_inner();
-    let header = header.map_err(|e| {
-        let message = if let Some(stream) = input.stream_error() {
-            stream.to_string()
-        } else if input.at_limit() {
-            format!("the PLY header is longer than {MAX_HEADER_BYTES} bytes")
-        } else if e.line() == Some(1) {
-            "not a PLY file: the first line is not 'ply'".to_string()
-        } else {
-            format!("invalid PLY header: {}", header_message(&e))
-        };
-        Error::scene(path, message)
-    })?;
-    input.set_limit(None);
+    let header = read_header(path, &mut input)?;
     let encoding = header.encoding;
 
-    let vertex_def = header.elements.get("vertex").ok_or_else(|| Error::scene(path, "no vertex element"))?;
+    let vertex_def = header.element("vertex").ok_or_else(|| Error::scene(path, "no vertex element"))?;
     for axis in ["x", "y", "z"] {
         match vertex_def.properties.get(axis).map(|p| &p.data_type) {
             Some(PropertyType::Scalar(_)) => {}
@@ -240,12 +443,13 @@ pub(super) fn load_ply(path: &Path) -> Result<IndexedMesh> {
         }
     }
     let vertex_count = vertex_def.count;
-    let face_def = header.elements.get("face").ok_or_else(|| Error::scene(path, "no face element"))?;
+    let face_def = header.element("face").ok_or_else(|| Error::scene(path, "no face element"))?;
     let index_list = index_list_name(path, face_def)?;
 
-    let mut mesh = IndexedMesh { names: VertexNames::FromZero, ..Default::default() };
-    for (name, def) in &header.elements {
-        match name.as_str() {
+    let mut mesh =
+        IndexedMesh { names: VertexNames::FromZero, warnings: header.warnings.clone(), ..Default::default() };
+    for def in &header.elements {
+        match def.name.as_str() {
             "vertex" => {
                 let n = capacity(def, &input, encoding, None);
                 mesh.positions.try_reserve_exact(n).map_err(|_| out_of_memory(path, n, "vertices"))?;
@@ -346,12 +550,62 @@ mod tests {
         assert_eq!((repeated, coincident), (0, 108));
     }
 
+    /// A small ascii PLY (one triangle) with `extra` as its third header line.
+    fn ply_with_header_line(extra: &str) -> String {
+        format!(
+            "ply\nformat ascii 1.0\n{extra}\nelement vertex 3\nproperty float x\nproperty float y\n\
+             property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n\
+             0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+        )
+    }
+
+    #[test]
+    fn a_free_text_header_line_is_skipped_with_a_warning() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("blender.ply");
+        std::fs::write(&path, ply_with_header_line("Created by Blender3D 247 - www.blender.org")).unwrap();
+        let mesh = load_ply(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(mesh.triangles, [[0, 1, 2]]);
+        assert_eq!(
+            mesh.warnings,
+            [
+                "skipped line 3 of the PLY header, which is no PLY keyword line: 'Created by Blender3D 247 - www.blender.org'"
+            ]
+        );
+    }
+
+    #[test]
+    fn malformed_keyword_lines_in_the_header_are_still_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        for (line, expect) in [
+            ("element edge", "line 3 'element edge': expected 'element NAME COUNT'"),
+            ("element edge -1", "invalid element count '-1'"),
+            ("property float w", "line 3 'property float w': a property before any element"),
+            ("element vertex 3", "a second element named 'vertex'"),
+            ("format binary_little_endian 1.0", "a second, different format line"),
+            ("format ascii one", "invalid version 'one'"),
+            ("end_header now", "expected 'end_header'"),
+        ] {
+            let path = dir.path().join("bad.ply");
+            std::fs::write(&path, ply_with_header_line(line)).unwrap();
+            let message = load_ply(&path).map(|_| ()).unwrap_err().to_string();
+            assert!(message.contains("bad.ply: invalid PLY header") && message.contains(expect), "{line}: {message}");
+        }
+        let path = dir.path().join("bad.ply");
+        let text = ply_with_header_line("comment fine").replace("property float y", "property float32 x");
+        std::fs::write(&path, text).unwrap();
+        let message = load_ply(&path).map(|_| ()).unwrap_err().to_string();
+        assert!(message.contains("a second property named 'x' in element 'vertex'"), "{message}");
+    }
+
     #[test]
     fn element_sizes_bound_the_reserved_counts() {
         let text = "ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty double x\nproperty float y\n\
                     property float z\nproperty list uchar float uv\nelement face 2\nproperty uchar flags\n\
                     property list uint ushort vertex_indices\nend_header\n";
-        let header = Parser::<Skipped>::new().read_header(&mut Reader::new(text.as_bytes())).unwrap();
+        let header = ply_rs_bw::parser::Parser::<Skipped>::new()
+            .read_header(&mut ply_rs_bw::parser::Reader::new(text.as_bytes()))
+            .unwrap();
         let (vertex, face) = (&header.elements["vertex"], &header.elements["face"]);
         assert_eq!(min_element_bytes(vertex, Encoding::BinaryLittleEndian, None), 8 + 4 + 4 + 1);
         assert_eq!(min_element_bytes(face, Encoding::BinaryLittleEndian, Some("vertex_indices")), 1 + 4 + 3 * 2);
