@@ -12,7 +12,7 @@ use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
 use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, Film};
-use crate::probe::{Probe, ProbeValue};
+use crate::probe::{Probe, ProbeValue, checked};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::{Camera, Projection, Scene, Settings};
@@ -328,7 +328,8 @@ impl Accumulation {
     /// An empty accumulation of sample indices `samples` (of `spp` a probe) at `probes` in
     /// `scene`, one film slot per probe, with the sampling of `settings`, on a device of
     /// `kind` with the BVH of `bvh`: what `Session::probe_render` starts from, so that a
-    /// checkpoint can be checked against it before any work is done.
+    /// checkpoint can be checked against it before any work is done. [`Error::Probe`]
+    /// names a bad probe.
     pub fn probes(
         scene: &Scene,
         probes: &[Probe],
@@ -337,11 +338,12 @@ impl Accumulation {
         settings: &Settings,
         kind: DeviceKind,
         bvh: &BvhOptions,
-    ) -> Accumulation {
+    ) -> Result<Accumulation> {
         let layout = if kind == DeviceKind::Cpu { BvhLayout::Cwbvh } else { bvh.layout };
-        let hash = probes_hash(&geometry_hash(scene), probes);
+        // The probes as the request traces them (and hashes them).
+        let hash = probes_hash(&geometry_hash(scene), &checked(probes)?);
         let settings = SampleSettings::probes(hash, 1, probes.len() as u32, spp, settings);
-        Accumulation::new(settings, kind, layout, bvh.quality, samples.start, samples.end, MAX_PROBE_SAMPLE)
+        Ok(Accumulation::new(settings, kind, layout, bvh.quality, samples.start, samples.end, MAX_PROBE_SAMPLE))
     }
 
     /// The estimate at each probe of an accumulation of probes with one slot each (a

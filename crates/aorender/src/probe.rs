@@ -54,6 +54,18 @@ impl Probe {
     }
 }
 
+/// The probes checked, with unit normals however they were given (what a request traces):
+/// [`Error::Probe`] names the first bad one.
+pub fn checked(probes: &[Probe]) -> Result<Vec<Probe>> {
+    probes
+        .iter()
+        .enumerate()
+        .map(|(index, p)| {
+            Probe::with_error(p.position, p.normal, p.error).map_err(|e| Error::Probe { index, message: e.message() })
+        })
+        .collect()
+}
+
 /// The estimate at one probe.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct ProbeValue {

@@ -8,7 +8,7 @@ use crate::accumulation::{
 };
 use crate::device::{BvhOptions, Device, Prepared, Setup};
 use crate::error::{Error, Result};
-use crate::probe::{Probe, ProbeValue, lanes_for};
+use crate::probe::{Probe, ProbeValue, checked, lanes_for};
 use crate::render::{Control, Render, RenderInfo};
 use crate::scene::{Camera, Scene, Settings};
 use std::ops::Range;
@@ -188,7 +188,7 @@ impl Session {
         if probes.is_empty() {
             return Err(Error::settings("no points to estimate AO at"));
         }
-        let probes = checked_probes(probes)?;
+        let probes = checked(probes)?;
         let start = Instant::now();
         let passes = self.prepared.probes(&probes, 1, spp, settings)?;
         let target_seconds = start.elapsed().as_secs_f64();
@@ -231,7 +231,7 @@ impl Session {
         if samples == 0 {
             return Err(Error::settings("samples per probe must be at least 1"));
         }
-        let probes = &checked_probes(probes)?[..];
+        let probes = &checked(probes)?[..];
         let adapter = self.setup.adapter.name.clone();
         if probes.is_empty() {
             return Ok(ProbeOutput { values: Vec::new(), rays: 0, seconds: 0.0, adapter });
@@ -267,16 +267,4 @@ impl Session {
             .collect();
         Ok(ProbeOutput { values, rays: acc.ao_rays, seconds: acc.render_seconds, adapter })
     }
-}
-
-/// The probes checked, with unit normals however they were given: [`Error::Probe`] names
-/// the first bad one.
-fn checked_probes(probes: &[Probe]) -> Result<Vec<Probe>> {
-    probes
-        .iter()
-        .enumerate()
-        .map(|(index, p)| {
-            Probe::with_error(p.position, p.normal, p.error).map_err(|e| Error::Probe { index, message: e.message() })
-        })
-        .collect()
 }

@@ -198,7 +198,13 @@ pub fn run(args: BakeArgs) -> Result<()> {
         bail!("{}: no {} has a usable normal: nothing to bake", input.display(), singular(at));
     }
     for t in &targets {
-        check_writable(&t.output)?;
+        // The directory of a scene's outputs is made when they are written: until then the
+        // nearest existing one must be writable.
+        let mut probe = t.output.clone();
+        while let Some(parent) = probe.parent().filter(|p| !p.as_os_str().is_empty() && !p.exists()) {
+            probe = parent.to_path_buf();
+        }
+        check_writable(&probe)?;
     }
     let settings = scene.settings.clone();
     let bvh = args.scene.bvh();
@@ -240,7 +246,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         let resume = match &args.resume {
             Some(path) => {
                 let saved = Accumulation::read(path)?;
-                saved.check_resume(&expected())?;
+                saved.check_resume(&expected()?)?;
                 Some(saved)
             }
             None => None,
@@ -255,7 +261,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         for path in &args.merge {
             shards.push((path.clone(), Accumulation::read(path)?));
         }
-        let this = expected();
+        let this = expected()?;
         let diff = shards[0].1.settings.differences(&this.settings);
         if !diff.is_empty() {
             bail!(

@@ -10,11 +10,11 @@
 //! after the first gets its own copy of the mesh, sharing its accessors and material.
 
 use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
-use crate::scene::input::is_gzip as is_gzip_name;
 use crate::error::{Error, Result};
 use crate::output::{write_atomically, write_atomically_with};
 use crate::scene::extension;
 use crate::scene::gltf::{GltfBytes, read_gltf};
+use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::one_line;
 use crate::scene::meshes::stem;
 use ::gltf::json::{Value, deserialize, serialize};

@@ -11,10 +11,10 @@
 //! when the input was.
 
 use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
-use crate::scene::input::is_gzip as is_gzip_name;
 use crate::error::{Error, Result};
 use crate::output::write_atomically_with;
 use crate::scene::input::Input;
+use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
 use glam::Vec3;
 use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
