@@ -335,11 +335,12 @@ pub fn run(args: BakeArgs) -> Result<()> {
     if stats.interrupted {
         let signal = signals::stop_signal();
         let mut message = format!(
-            "interrupted by {} after {} of {} samples per point; {} hold them",
+            "interrupted by {} after {} of {} samples per point; {} {} them",
             signals::signal_name(signal),
             stats.samples_per_point,
             stats.samples_requested,
-            written.join(" and ")
+            written.join(" and "),
+            if written.len() == 1 { "holds" } else { "hold" }
         );
         if let Some(path) = &checkpoint_path {
             message += &format!("; continue with --resume {}", path.display());

@@ -58,6 +58,8 @@ use std::path::Path;
 pub const MAGIC: [u8; 8] = *b"AOCKPT\r\n";
 /// The format version this build writes and reads.
 pub const VERSION: u32 = 1;
+/// The most film slots a checkpoint holds: those of the largest image, 16384 × 16384.
+const MAX_SLOTS: u64 = 16384 * 16384;
 /// Longest adapter name stored.
 const MAX_ADAPTER_NAME: usize = 4096;
 /// Flag: the blocks follow the absolute grid of [`BLOCK_SAMPLES`] (cleared when a render
@@ -279,8 +281,10 @@ impl Accumulation {
         }
         let adapter = String::from_utf8(r.take(name_len)?.to_vec()).map_err(|_| "adapter name is not UTF-8")?;
 
-        if !(1..=16384).contains(&width) || !(1..=16384).contains(&height) {
-            return Err(format!("invalid image size {width}x{height}").into());
+        // An image is at most 16384 on a side; a probe film (bake: one slot per point) may be
+        // long and narrow, within the same number of slots.
+        if width == 0 || height == 0 || width as u64 * height as u64 > MAX_SLOTS {
+            return Err(format!("invalid film size {width}x{height} (at most {MAX_SLOTS} slots)").into());
         }
         if spp == 0 || strata != sampler.strata_per_axis(spp) {
             return Err(format!("invalid samples per pixel {spp} or strata {strata}").into());
