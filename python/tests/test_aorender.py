@@ -321,3 +321,20 @@ def test_cosine_weighted_ao_is_not_libigls_unweighted_visibility():
         # 1e-3 for the 256-sided polygon standing in for the cylinder.
         assert abs(ao[0] - 0.5) <= 4 * err[0] + 1e-3, (hemisphere, ao, err)
         assert abs(ao[0] - (1 - math.cos(math.pi / 4))) > 20 * err[0]
+
+
+def test_bake_mean_equals_the_command(cli, repo, tmp_path):
+    stats_path = tmp_path / "stats.json"
+    cmd = [str(cli), "bake", str(repo / "scenes" / "bunny.obj"), "-o", str(tmp_path / "b.obj"), "--samples", "16",
+           "--sampler", "sobol", "--hemisphere", "cosine", "--seed", "9", "--device", "cpu", "--stats", str(stats_path)]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    import json
+
+    want = json.loads(stats_path.read_text())
+    ao, _ = aorender.Scene.load(repo / "scenes" / "bunny.obj").bake(16, sampler="sobol", seed=9, device="cpu")
+    assert len(ao) == want["points"]
+    # The command's mean is over the traced points, in f64; the arrays hold f32 values and
+    # 1 for each point without a normal.
+    traced_sum = ao.sum() - want["points_without_normal"] * want["unusable_value"]
+    assert abs(traced_sum / want["points_traced"] - want["mean_ao"]) < 1e-6
