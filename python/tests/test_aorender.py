@@ -1,6 +1,7 @@
 """The Python module against closed forms, against the `aorender` command for the same
 seed, and on bad input. Monte Carlo checks allow 4 standard errors; seeds are fixed."""
 
+import json
 import math
 import os
 import signal
@@ -183,8 +184,6 @@ def test_render_equals_the_command(cli, repo, tmp_path):
            "-o", str(out), "--stats", str(stats_path)]
     done = subprocess.run(cmd, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    import json
-
     want = json.loads(stats_path.read_text())
     scene = aorender.Scene.load(repo / "scenes" / "aobench.toml")
     image, stats = scene.render(48, 32, 16, sampler="sobol", seed=5, device="cpu")
@@ -207,7 +206,7 @@ def test_render_camera_dict_overrides_keys():
 # Inputs: any dtype and order accepted, bad ones refused before any work.
 
 
-def test_any_dtype_and_memory_order_give_the_same_values(repo):
+def test_any_dtype_and_memory_order_give_the_same_values():
     V, F = cube()
     P = np.array([[0.0, 1.0, 0.0], [0.25, 1.0, 0.5]]) * [1, 1.5, 1]
     N = np.array([[0, 1, 0], [0, 1, 0]])
@@ -329,8 +328,6 @@ def test_bake_mean_equals_the_command(cli, repo, tmp_path):
            "--sampler", "sobol", "--hemisphere", "cosine", "--seed", "9", "--device", "cpu", "--stats", str(stats_path)]
     done = subprocess.run(cmd, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    import json
-
     want = json.loads(stats_path.read_text())
     ao, _ = aorender.Scene.load(repo / "scenes" / "bunny.obj").bake(16, sampler="sobol", seed=9, device="cpu")
     assert len(ao) == want["points"]
