@@ -68,11 +68,11 @@ fn ambient_occlusion<'py>(
     // Every argument checked before the BVH is built.
     let v = arrays::vec3s(py, V, "V")?;
     let f = arrays::faces(py, F, "F", v.len())?;
-    scene::probes(py, P, N, samples)?;
+    let probes = scene::probes(py, P, N, samples)?;
     let settings = engine::settings(hemisphere, sampler, seed, max_distance)?;
     let scene = PyScene::of_arrays("arrays", v, f)
         .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("V, F: {}", e.value(py))))?;
-    scene.probe(py, P, N, samples, &settings, device)
+    scene.probe(py, &probes, samples, &settings, device)
 }
 
 /// Ambient occlusion on the GPU (wgpu) or a CPU reference: AO at points of a triangle

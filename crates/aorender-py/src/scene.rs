@@ -85,20 +85,17 @@ impl PyScene {
         .map_err(to_py)
     }
 
-    /// AO at the points `p` about the normals `n`.
-    #[allow(clippy::too_many_arguments)]
+    /// AO at `probes` (checked by [`probes`]), `samples` rays each.
     pub fn probe<'py>(
         &self,
         py: Python<'py>,
-        p: &Bound<'py, PyAny>,
-        n: &Bound<'py, PyAny>,
+        probes: &[Probe],
         samples: u32,
         settings: &Settings,
         device_name: &str,
     ) -> PyResult<Values<'py>> {
-        let probes = probes(py, p, n, samples)?;
         let session = self.session(py, device_name)?;
-        let result = interruptible(py, |control| session.probe_with(&probes, samples, settings, control))?;
+        let result = interruptible(py, |control| session.probe_with(probes, samples, settings, control))?;
         let (ao, se) = result.values.iter().map(|v| (v.mean, v.std_error)).unzip();
         Ok((out(py, ao), out(py, se)))
     }
@@ -286,8 +283,9 @@ impl PyScene {
         seed: u32,
         device: &str,
     ) -> PyResult<Values<'py>> {
+        let probes = probes(py, P, N, samples)?;
         let settings = settings(hemisphere, sampler, seed, max_distance)?;
-        self.probe(py, P, N, samples, &settings, device)
+        self.probe(py, &probes, samples, &settings, device)
     }
 
     /// s.render(width, height, spp, *, camera=None, hemisphere="cosine", sampler="sobol",
