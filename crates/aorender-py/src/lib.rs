@@ -1,0 +1,87 @@
+//! The `aorender` Python module: ambient occlusion at points of a triangle mesh given as
+//! numpy arrays, AO images and per-vertex bakes, on the GPU (wgpu) or the CPU reference.
+//! The engine is the `aorender` crate; this crate converts and checks the arrays, keeps
+//! one session (the BVH built and uploaded) per scene and device, releases the GIL while
+//! tracing, and turns the engine's errors into Python exceptions.
+
+mod arrays;
+mod engine;
+mod scene;
+
+use pyo3::prelude::*;
+use scene::PyScene;
+
+/// ambient_occlusion(V, F, P, N, samples=256, *, hemisphere="cosine", sampler="sobol",
+/// max_distance=None, seed=0, device="auto") -> (ao, std_error)
+///
+/// Ambient occlusion of the triangle mesh (V, F) at the points P about the normals N.
+///
+/// V (n, 3) vertex positions, any real dtype; F (m, 3) vertex indices, any integer dtype;
+/// P and N (k, 3) points and normals (normals of any non-zero length). Any memory order;
+/// values are converted to 32-bit floats, the engine's precision. Returns two float64
+/// arrays of k entries: the AO estimate and its standard error.
+///
+/// AO here is the cosine-weighted visibility, 1 where the hemisphere is fully open (the
+/// convention of pbrt's AO integrator):
+///
+///     AO(p, n) = 1/π ∫ V(p, ω) cos θ dω     over the hemisphere about n,
+///
+/// V = 1 for a ray that escapes (or travels farther than max_distance). With
+/// hemisphere="cosine" each sample is 0 or 1 (directions drawn ∝ cos θ); with "uniform"
+/// directions are uniform and each sample is 2 V cos θ — the same AO, a noisier
+/// estimator. Either way the value estimates the integral above.
+///
+/// libigl's igl.embree.ambient_occlusion(V, F, P, N, num_samples) returns something else:
+/// the fraction of `num_samples` directions, drawn uniformly over the hemisphere about N
+/// (and not weighted by cos θ), whose ray hits the mesh. So 1 − libigl's value is the
+/// unweighted uniform visibility 1/(2π) ∫ V dω, which differs from AO above wherever the
+/// occlusion is not the same at every angle (near-grazing blockers count more in
+/// libigl's). Neither this module's "uniform" nor "cosine" estimates libigl's quantity;
+/// compare 1 − igl with this AO only as two related measures (equal for a point that is
+/// fully open or fully closed).
+///
+/// samples: rays per point. sampler: "sobol" (scrambled Sobol' points, lower error),
+/// "independent", "stratified" or "grid". seed: the random numbers' seed; the same seed,
+/// samples and device give the same values as `aorender probe --seed`. device: "auto" (the
+/// best GPU adapter, else the CPU reference), "gpu", "cpu", or part of an adapter's name.
+///
+/// The BVH is built on every call: to ask one mesh several times, make a Scene with
+/// Scene.from_arrays(V, F) and call its ambient_occlusion. Ctrl-C stops the tracing after
+/// the current pass and raises KeyboardInterrupt. Bad input raises ValueError before any
+/// work; a device failure raises RuntimeError.
+#[pyfunction]
+#[pyo3(signature = (V, F, P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, device = "auto"))]
+#[allow(non_snake_case, clippy::too_many_arguments)]
+fn ambient_occlusion<'py>(
+    py: Python<'py>,
+    V: &Bound<'py, PyAny>,
+    F: &Bound<'py, PyAny>,
+    P: &Bound<'py, PyAny>,
+    N: &Bound<'py, PyAny>,
+    samples: u32,
+    hemisphere: &str,
+    sampler: &str,
+    max_distance: Option<f64>,
+    seed: u32,
+    device: &str,
+) -> PyResult<scene::Values<'py>> {
+    // Every argument checked before the BVH is built.
+    let v = arrays::vec3s(py, V, "V")?;
+    let f = arrays::faces(py, F, "F", v.len())?;
+    let probes = scene::probes(py, P, N, samples)?;
+    let settings = engine::settings(hemisphere, sampler, seed, max_distance)?;
+    let scene = PyScene::of_arrays("arrays", v, f)
+        .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("V, F: {}", e.value(py))))?;
+    scene.probe(py, &probes, samples, &settings, device)
+}
+
+/// Ambient occlusion on the GPU (wgpu) or a CPU reference: AO at points of a triangle
+/// mesh from numpy arrays, AO images, and per-vertex bakes. See `ambient_occlusion` and
+/// `Scene`.
+#[pymodule]
+fn _aorender(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(ambient_occlusion, m)?)?;
+    m.add_class::<PyScene>()?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

@@ -1,0 +1,471 @@
+//! `aorender.Scene`: a scene made from arrays or loaded from a file, with one session
+//! (the BVH built and uploaded) per device it has been asked on, kept for its lifetime.
+
+use crate::arrays::{faces, out, vec3s};
+use crate::engine::{device, interruptible, settings, to_py};
+use aorender::bake::{Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, read_asset};
+use aorender::scene::{MeshObject, mesh_triangles};
+use aorender::{BvhOptions, Camera, ImageRequest, Probe, Projection, Scene, Session, Settings};
+use glam::{Mat4, Vec3};
+use numpy::{PyArray1, PyArrayMethods};
+use pyo3::exceptions::{PyUserWarning, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+/// AO values and their standard errors, one per point.
+pub type Values<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
+
+/// A scene prepared for AO queries, images and bakes.
+///
+/// Make one with `Scene.from_arrays(V, F)` or `Scene.load(path)`. The BVH is built the
+/// first time the scene is used on a device and kept for every later call on that device.
+#[pyclass(name = "Scene", module = "aorender", frozen)]
+pub struct PyScene {
+    scene: Scene,
+    /// The mesh a scene made from arrays holds, as a bake reads it.
+    arrays: Option<AssetMesh>,
+    /// The file a loaded scene came from.
+    source: Option<PathBuf>,
+    /// One session per device, by kind and adapter name.
+    sessions: Mutex<Vec<(String, Arc<Session>)>>,
+}
+
+impl PyScene {
+    /// A scene of the triangles `f` of the vertices `v` (indices checked by the caller).
+    pub fn of_arrays(name: &str, v: Vec<Vec3>, f: Vec<[u32; 3]>) -> PyResult<PyScene> {
+        let triangles =
+            mesh_triangles(Path::new(name), f.iter().map(|t| t.map(|i| v[i as usize])), 1.0).map_err(to_py)?;
+        let mut scene = Scene {
+            name: name.into(),
+            camera: Camera {
+                eye: Vec3::Z,
+                look_at: Vec3::ZERO,
+                up: Vec3::Y,
+                projection: Projection::Perspective { vfov_deg: 45.0 },
+            },
+            settings: Settings::default(),
+            triangles,
+            meshes: Vec::new(),
+            instances: Vec::new(),
+            spheres: Vec::new(),
+            planes: Vec::new(),
+            warnings: Vec::new(),
+            mesh_objects: Vec::new(),
+        };
+        scene.camera = scene.auto_camera();
+        let mesh = AssetMesh {
+            label: name.into(),
+            positions: v,
+            normals: None,
+            face_starts: (0..=f.len() as u32).map(|k| 3 * k).collect(),
+            face_indices: f.into_iter().flatten().collect(),
+        };
+        Ok(PyScene { scene, arrays: Some(mesh), source: None, sessions: Mutex::new(Vec::new()) })
+    }
+
+    /// The session on the device `name` names, made the first time (BVH built and
+    /// uploaded with the GIL released).
+    pub fn session(&self, py: Python<'_>, name: &str) -> PyResult<Arc<Session>> {
+        let device = device(py, name)?;
+        let info = device.info();
+        let key = format!("{}:{}", device.kind().name(), info.name);
+        py.allow_threads(|| {
+            // Held while building: a second thread asking for the same device waits for
+            // this build rather than making its own.
+            let mut sessions = self.sessions.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some((_, s)) = sessions.iter().find(|(k, _)| *k == key) {
+                return Ok(s.clone());
+            }
+            let session = Arc::new(Session::new(&device, self.scene.clone(), &BvhOptions::default())?);
+            sessions.push((key, session.clone()));
+            Ok(session)
+        })
+        .map_err(to_py)
+    }
+
+    /// AO at `probes` (checked by [`probes`]), `samples` rays each.
+    pub fn probe<'py>(
+        &self,
+        py: Python<'py>,
+        probes: &[Probe],
+        samples: u32,
+        settings: &Settings,
+        device_name: &str,
+    ) -> PyResult<Values<'py>> {
+        let session = self.session(py, device_name)?;
+        let result = interruptible(py, |control| session.probe_with(probes, samples, settings, control))?;
+        let (ao, se) = result.values.iter().map(|v| (v.mean, v.std_error)).unzip();
+        Ok((out(py, ao), out(py, se)))
+    }
+}
+
+/// The points `p` and normals `n` as probes, checked.
+pub fn probes(py: Python<'_>, p: &Bound<'_, PyAny>, n: &Bound<'_, PyAny>, samples: u32) -> PyResult<Vec<Probe>> {
+    let positions = vec3s(py, p, "P")?;
+    let normals = vec3s(py, n, "N")?;
+    if positions.len() != normals.len() {
+        return Err(PyValueError::new_err(format!(
+            "P and N must have as many rows: P has {}, N has {}",
+            positions.len(),
+            normals.len()
+        )));
+    }
+    if samples == 0 {
+        return Err(PyValueError::new_err("samples must be at least 1"));
+    }
+    positions
+        .into_iter()
+        .zip(normals)
+        .enumerate()
+        .map(|(i, (p, n))| {
+            if n == Vec3::ZERO || !n.length().is_finite() {
+                return Err(PyValueError::new_err(format!("N[{i}] is not a usable normal: {n}")));
+            }
+            Probe::new(p, n).map_err(|e| PyValueError::new_err(format!("point {i}: {}", e.message())))
+        })
+        .collect()
+}
+
+/// The camera `dict` asks for, starting from `camera`: keys `eye`, `look_at`, `up`
+/// (3-sequences), and `fov` (vertical, degrees) or `ortho_height`.
+fn camera_from(dict: &Bound<'_, PyDict>, mut camera: Camera) -> PyResult<Camera> {
+    let vec = |v: &Bound<'_, PyAny>, key: &str| -> PyResult<Vec3> {
+        let a: [f64; 3] =
+            v.extract().map_err(|_| PyValueError::new_err(format!("camera['{key}'] must be three numbers")))?;
+        Ok(Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32))
+    };
+    for (key, value) in dict.iter() {
+        let key: String = key.extract()?;
+        match key.as_str() {
+            "eye" => camera.eye = vec(&value, &key)?,
+            "look_at" => camera.look_at = vec(&value, &key)?,
+            "up" => camera.up = vec(&value, &key)?,
+            "fov" => camera.projection = Projection::Perspective { vfov_deg: value.extract::<f64>()? as f32 },
+            "ortho_height" => camera.projection = Projection::Orthographic { height: value.extract::<f64>()? as f32 },
+            _ => {
+                return Err(PyValueError::new_err(format!(
+                    "unknown camera key '{key}': expected eye, look_at, up, fov or ortho_height"
+                )));
+            }
+        }
+    }
+    if dict.contains("fov")? && dict.contains("ortho_height")? {
+        return Err(PyValueError::new_err("camera takes fov (perspective) or ortho_height (orthographic), not both"));
+    }
+    match camera.projection {
+        Projection::Perspective { vfov_deg: f } if !(f > 0.0 && f < 180.0) => {
+            Err(PyValueError::new_err(format!("camera fov must be between 0 and 180 degrees, got {f}")))
+        }
+        Projection::Orthographic { height: h } if !(h > 0.0 && h.is_finite()) => {
+            Err(PyValueError::new_err(format!("camera ortho_height must be positive, got {h}")))
+        }
+        _ => {
+            camera.validate().map_err(to_py)?;
+            Ok(camera)
+        }
+    }
+}
+
+/// The camera as a dict of the keys `camera_from` reads.
+fn camera_dict<'py>(py: Python<'py>, c: &Camera) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    d.set_item("eye", c.eye.to_array())?;
+    d.set_item("look_at", c.look_at.to_array())?;
+    d.set_item("up", c.up.to_array())?;
+    match c.projection {
+        Projection::Perspective { vfov_deg } => d.set_item("fov", vfov_deg)?,
+        Projection::Orthographic { height } => d.set_item("ortho_height", height)?,
+    }
+    Ok(d)
+}
+
+/// The format a file name says, with or without `.gz`: `PLY`, `OBJ` or `glTF`.
+fn format_of(path: &Path) -> Option<&'static str> {
+    let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
+    let name = name.strip_suffix(".gz").unwrap_or(&name);
+    match name.rsplit_once('.')?.1 {
+        "ply" => Some("PLY"),
+        "obj" => Some("OBJ"),
+        "gltf" | "glb" => Some("glTF"),
+        _ => None,
+    }
+}
+
+/// Where `aorender bake` writes each mesh object: `output` itself for a mesh file; for a
+/// scene file, the directory `output` under each mesh file's name (with the object's
+/// number when the file is placed by several objects).
+fn output_path(objects: &[MeshObject], object: &MeshObject, is_scene: bool, output: &Path) -> PathBuf {
+    if !is_scene {
+        return output.to_path_buf();
+    }
+    let name = object.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let uses = objects.iter().filter(|o| o.path == object.path).count();
+    if uses == 1 {
+        return output.join(name);
+    }
+    match name.split_once('.') {
+        Some((stem, ext)) => output.join(format!("{stem}-{}.{ext}", object.number)),
+        None => output.join(format!("{name}-{}", object.number)),
+    }
+}
+
+#[pymethods]
+impl PyScene {
+    /// Scene.from_arrays(V, F, name="arrays")
+    ///
+    /// A scene of one triangle mesh: V (n, 3) vertex positions of any real dtype, F (m, 3)
+    /// vertex indices of any integer dtype, in any memory order. Triangles of zero area are
+    /// dropped (no ray can hit them); a mesh left with none is a ValueError. Albedo 1.
+    #[staticmethod]
+    #[pyo3(signature = (V, F, name = "arrays"))]
+    #[allow(non_snake_case)]
+    fn from_arrays(py: Python<'_>, V: &Bound<'_, PyAny>, F: &Bound<'_, PyAny>, name: &str) -> PyResult<PyScene> {
+        let v = vec3s(py, V, "V")?;
+        let f = faces(py, F, "F", v.len())?;
+        PyScene::of_arrays(name, v, f).map_err(|e| {
+            // The mesh's own errors name the scene; say which argument holds it.
+            PyValueError::new_err(format!("V, F: {}", e.value(py)))
+        })
+    }
+
+    /// Scene.load(path)
+    ///
+    /// A scene file (.toml: meshes, spheres, planes, a camera) or a mesh file (.obj, .ply,
+    /// .gltf, .glb, optionally gzipped), read as `aorender render` reads it. Unreadable or
+    /// invalid files raise OSError naming the file.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<PyScene> {
+        let scene = py.allow_threads(|| Scene::load(&path)).map_err(to_py)?;
+        Ok(PyScene { scene, arrays: None, source: Some(path), sessions: Mutex::new(Vec::new()) })
+    }
+
+    /// The scene's name (the file's stem, or the name given to from_arrays).
+    #[getter]
+    fn name(&self) -> String {
+        self.scene.name.clone()
+    }
+
+    /// Triangles in the world (instanced placements counted).
+    #[getter]
+    fn triangles(&self) -> usize {
+        self.scene.world_triangle_count()
+    }
+
+    /// The scene's camera, as a dict of the keys `render` takes.
+    #[getter]
+    fn camera<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        camera_dict(py, &self.scene.camera)
+    }
+
+    fn __repr__(&self) -> String {
+        format!("Scene({:?}, triangles={})", self.scene.name, self.scene.world_triangle_count())
+    }
+
+    /// s.ambient_occlusion(P, N, samples=256, *, hemisphere="cosine", sampler="sobol",
+    /// max_distance=None, seed=0, device="auto") -> (ao, std_error)
+    ///
+    /// AO at the points P (k, 3) about the normals N (k, 3) (any length but zero), with
+    /// `samples` rays each: float64 arrays of k values, 1 fully open, and their standard
+    /// errors. See `aorender.ambient_occlusion` for the estimator and its arguments.
+    #[pyo3(signature = (P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, device = "auto"))]
+    #[allow(non_snake_case, clippy::too_many_arguments)]
+    fn ambient_occlusion<'py>(
+        &self,
+        py: Python<'py>,
+        P: &Bound<'py, PyAny>,
+        N: &Bound<'py, PyAny>,
+        samples: u32,
+        hemisphere: &str,
+        sampler: &str,
+        max_distance: Option<f64>,
+        seed: u32,
+        device: &str,
+    ) -> PyResult<Values<'py>> {
+        let probes = probes(py, P, N, samples)?;
+        let settings = settings(hemisphere, sampler, seed, max_distance)?;
+        self.probe(py, &probes, samples, &settings, device)
+    }
+
+    /// s.render(width, height, spp, *, camera=None, hemisphere="cosine", sampler="sobol",
+    /// seed=0, max_distance=None, background=0.0, device="auto") -> (image, stats)
+    ///
+    /// An AO image as `aorender render` makes it: a float32 array (height, width), row 0
+    /// at the top, each pixel the mean of `spp` samples (albedo × AO at the surface its
+    /// camera ray hits; `background` where it hits nothing), and the render's figures as
+    /// `aorender render --stats` writes them (a dict). `camera` is a dict of any of eye,
+    /// look_at, up (3 numbers each) and fov (vertical, degrees) or ortho_height; keys left
+    /// out keep the scene's camera (a mesh's, the automatic framing).
+    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "sobol", seed = 0, max_distance = None, background = 0.0, device = "auto"))]
+    #[allow(clippy::too_many_arguments)]
+    fn render<'py>(
+        &self,
+        py: Python<'py>,
+        width: u32,
+        height: u32,
+        spp: u32,
+        camera: Option<&Bound<'py, PyDict>>,
+        hemisphere: &str,
+        sampler: &str,
+        seed: u32,
+        max_distance: Option<f64>,
+        background: f64,
+        device: &str,
+    ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+        let sampling = settings(hemisphere, sampler, seed, max_distance)?;
+        let settings = Settings { width, height, spp, background: background as f32, ..sampling };
+        settings.validate().map_err(to_py)?;
+        let camera = match camera {
+            Some(d) => camera_from(d, self.scene.camera)?,
+            None => self.scene.camera,
+        };
+        let session = self.session(py, device)?;
+        let request = ImageRequest { camera, settings, samples: None };
+        let rendered = interruptible(py, |control| {
+            let mut render = session.render(&request)?;
+            render.run(control)?;
+            render.finish()
+        })?;
+        let pixels: Vec<f32> = rendered.film.mean().into_iter().map(|m| m as f32).collect();
+        let image = PyArray1::from_vec(py, pixels).reshape([height as usize, width as usize])?;
+        let json = serde_json::to_string(&rendered.stats)
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+        let stats = py.import("json")?.call_method1("loads", (json,))?;
+        Ok((image.into_any(), stats))
+    }
+
+    /// s.bake(samples=256, *, at="vertices", hemisphere="cosine", sampler="sobol", seed=0,
+    /// max_distance=None, device="auto", output=None, std_error=False, colors=False,
+    /// overwrite=False) -> (ao, std_error)
+    ///
+    /// AO baked at every vertex (about its area-weighted normal, or the file's normal
+    /// where it has one) or at every face's centroid (`at="faces"`) of the scene's own
+    /// meshes, as `aorender bake` computes it: float64 arrays, one entry per vertex (face)
+    /// of each mesh, the meshes in order (a from_arrays scene: the rows of V). A vertex no
+    /// face of non-zero area uses gets 1 with standard error 0.
+    ///
+    /// For a loaded scene, `output` writes the files as `aorender bake -o output` does: a
+    /// mesh file of the input's format for a mesh file, a directory for a scene file.
+    #[pyo3(signature = (samples = 256, *, at = "vertices", hemisphere = "cosine", sampler = "sobol", seed = 0, max_distance = None, device = "auto", output = None, std_error = false, colors = false, overwrite = false))]
+    #[allow(clippy::too_many_arguments)]
+    fn bake<'py>(
+        &self,
+        py: Python<'py>,
+        samples: u32,
+        at: &str,
+        hemisphere: &str,
+        sampler: &str,
+        seed: u32,
+        max_distance: Option<f64>,
+        device: &str,
+        output: Option<PathBuf>,
+        std_error: bool,
+        colors: bool,
+        overwrite: bool,
+    ) -> PyResult<Values<'py>> {
+        let settings = settings(hemisphere, sampler, seed, max_distance)?;
+        let at = match at {
+            "vertices" => BakeAt::Vertices,
+            "faces" => BakeAt::Faces,
+            _ => return Err(PyValueError::new_err(format!("at must be 'vertices' or 'faces', got '{at}'"))),
+        };
+        if samples == 0 {
+            return Err(PyValueError::new_err("samples must be at least 1"));
+        }
+        // The meshes: the arrays, or each mesh object's file (each read once).
+        let mut targets: Vec<(MeshObject, Arc<dyn Asset>)> = Vec::new();
+        if self.arrays.is_none() {
+            if self.scene.mesh_objects.is_empty() {
+                return Err(PyValueError::new_err(format!(
+                    "{}: the scene has no mesh objects to bake",
+                    self.scene.name
+                )));
+            }
+            for object in &self.scene.mesh_objects {
+                let asset = match targets.iter().find(|(o, _)| o.path == object.path) {
+                    Some((_, a)) => a.clone(),
+                    None => Arc::from(py.allow_threads(|| read_asset(&object.path)).map_err(to_py)?),
+                };
+                targets.push((object.clone(), asset));
+            }
+        } else if output.is_some() {
+            return Err(PyValueError::new_err(
+                "a scene made from arrays has no file to write back to: use the returned arrays",
+            ));
+        }
+        let plan = match &self.arrays {
+            Some(mesh) => BakePlan::new([(mesh, Placement { to_world: Mat4::IDENTITY, instanced: false })], at),
+            None => {
+                BakePlan::new(targets.iter().flat_map(|(o, a)| a.meshes().iter().map(|m| (m, Placement::of(o)))), at)
+            }
+        };
+        if plan.probes.is_empty() {
+            return Err(PyValueError::new_err(format!("{}: nothing has a usable normal to bake", self.scene.name)));
+        }
+        // Outputs checked before tracing.
+        let outputs: Vec<PathBuf> = match (&output, &self.source) {
+            (Some(output), Some(source)) => {
+                let is_scene = source.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+                let objects = &self.scene.mesh_objects;
+                let mut outputs = Vec::new();
+                for (object, _) in &targets {
+                    let path = output_path(objects, object, is_scene, output);
+                    if format_of(&path) != format_of(&object.path) {
+                        return Err(PyValueError::new_err(format!(
+                            "{}: the output must be a {} file like the input ({})",
+                            path.display(),
+                            format_of(&object.path).unwrap_or("mesh"),
+                            object.path.display()
+                        )));
+                    }
+                    let same = std::fs::canonicalize(&path).ok().zip(std::fs::canonicalize(&object.path).ok());
+                    if !overwrite && same.is_some_and(|(a, b)| a == b) {
+                        return Err(PyValueError::new_err(format!(
+                            "{}: the output would replace the input; choose another path, or pass overwrite=True",
+                            path.display()
+                        )));
+                    }
+                    outputs.push(path);
+                }
+                outputs
+            }
+            _ => Vec::new(),
+        };
+        let session = self.session(py, device)?;
+        let values = interruptible(py, |control| {
+            let mut render = session.probe_render(&plan.probes, samples, None, &settings)?;
+            render.run(control)?;
+            render.finish()?.accumulation.probe_values()
+        })?;
+        let baked = plan.values(&values);
+        if !outputs.is_empty() {
+            let options = WriteOptions { at, std_error, colors };
+            let mut rest = baked.as_slice();
+            for ((_, asset), path) in targets.iter().zip(&outputs) {
+                let (mine, others) = rest.split_at(asset.meshes().len());
+                rest = others;
+                if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+                    std::fs::create_dir_all(dir).map_err(|e| {
+                        pyo3::exceptions::PyOSError::new_err(format!(
+                            "{}: cannot create the directory: {e}",
+                            dir.display()
+                        ))
+                    })?;
+                }
+                let notes = py.allow_threads(|| asset.write(path, mine, &options)).map_err(to_py)?;
+                for note in notes {
+                    PyErr::warn(
+                        py,
+                        &py.get_type::<PyUserWarning>(),
+                        &std::ffi::CString::new(format!("{}: {note}", path.display()))?,
+                        1,
+                    )?;
+                }
+            }
+        }
+        let ao = baked.iter().flat_map(|b| b.ao.iter().map(|&v| v as f64)).collect();
+        let se = baked.iter().flat_map(|b| b.std_error.iter().map(|&v| v as f64)).collect();
+        Ok((out(py, ao), out(py, se)))
+    }
+}

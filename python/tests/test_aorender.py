@@ -1,0 +1,337 @@
+"""The Python module against closed forms, against the `aorender` command for the same
+seed, and on bad input. Monte Carlo checks allow 4 standard errors; seeds are fixed."""
+
+import json
+import math
+import os
+import signal
+import subprocess
+import threading
+
+import numpy as np
+import pytest
+
+import aorender
+
+
+def plane(half=50.0):
+    """A square in y = 0 facing up, ±half wide."""
+    V = np.array([[-half, 0, -half], [half, 0, -half], [half, 0, half], [-half, 0, half]], float)
+    F = np.array([[0, 2, 1], [0, 3, 2]])
+    return V, F
+
+
+def cube():
+    """The closed cube [-1, 1]³, faces wound outward."""
+    V = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    F = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+    return V, F
+
+
+SPHERE_SCENE = """
+[camera]
+type = "perspective"
+eye = [0.0, 3.0, 6.0]
+look_at = [0.0, 0.5, 0.0]
+up = [0.0, 1.0, 0.0]
+fov = 50.0
+
+[[object]]
+type = "sphere"
+center = [0.0, 2.0, 0.0]
+radius = 1.0
+
+[[object]]
+type = "plane"
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 1.0, 0.0]
+"""
+
+
+@pytest.fixture(scope="module")
+def sphere_scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scene") / "sphere.toml"
+    path.write_text(SPHERE_SCENE)
+    return path
+
+
+# Closed forms.
+
+
+@pytest.mark.parametrize("device", ["cpu", "auto"])
+def test_open_plane_is_exactly_one(device):
+    V, F = plane()
+    P = np.array([[0, 0, 0], [3.5, 0, -7.25], [-20, 0, 11]])
+    N = np.tile([0.0, 2.0, 0.0], (3, 1))
+    ao, err = aorender.ambient_occlusion(V, F, P, N, 256, device=device)
+    assert ao.dtype == np.float64 and ao.shape == (3,)
+    np.testing.assert_array_equal(ao, 1.0)
+    np.testing.assert_array_equal(err, 0.0)
+
+
+@pytest.mark.parametrize("device", ["cpu", "auto"])
+def test_centre_of_a_closed_cube_is_exactly_zero(device):
+    V, F = cube()
+    N = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1], [1, 1, 1]], float)
+    P = np.zeros_like(N)
+    for hemisphere in ("cosine", "uniform"):
+        ao, err = aorender.ambient_occlusion(V, F, P, N, 128, hemisphere=hemisphere, device=device)
+        np.testing.assert_array_equal(ao, 0.0)
+        np.testing.assert_array_equal(err, 0.0)
+
+
+@pytest.mark.parametrize("hemisphere", ["cosine", "uniform"])
+@pytest.mark.parametrize("device", ["cpu", "auto"])
+def test_floor_under_a_sphere_matches_the_closed_form(sphere_scene, hemisphere, device):
+    scene = aorender.Scene.load(sphere_scene)
+    P = np.array([[0, 0, 0], [0.5, 0, 0.25], [1.0, 0, -1.0], [-2.0, 0, 0.5]])
+    N = np.tile([0.0, 1.0, 0.0], (len(P), 1))
+    ao, err = scene.ambient_occlusion(P, N, 8192, hemisphere=hemisphere, sampler="independent", seed=7, device=device)
+    centre, r = np.array([0.0, 2.0, 0.0]), 1.0
+    to_centre = centre - P
+    d = np.linalg.norm(to_centre, axis=1)
+    cos_beta = to_centre[:, 1] / d
+    expected = 1 - cos_beta * (r / d) ** 2
+    assert np.all(err > 0)
+    assert np.all(np.abs(ao - expected) <= 4 * err), (ao, expected, err)
+
+
+def test_convex_mesh_bakes_to_exactly_one():
+    scene = aorender.Scene.from_arrays(*cube())
+    ao, err = scene.bake(64, device="cpu")
+    assert ao.shape == (8,)
+    np.testing.assert_array_equal(ao, 1.0)
+    np.testing.assert_array_equal(err, 0.0)
+    faces, _ = scene.bake(64, at="faces", device="cpu")
+    np.testing.assert_array_equal(faces, np.ones(12))
+
+
+def test_bake_gives_unused_vertices_one():
+    V, F = plane()
+    V = np.vstack([V, [[0, 5, 0]]])  # a vertex no face uses
+    ao, err = aorender.Scene.from_arrays(V, F).bake(16, device="cpu")
+    np.testing.assert_array_equal(ao, 1.0)
+    np.testing.assert_array_equal(err, 0.0)
+
+
+# The same numbers as the command.
+
+
+def read_csv(text):
+    rows = [line.split(",") for line in text.strip().splitlines()[1:]]
+    return np.array([float(r[6]) for r in rows]), np.array([float(r[7]) for r in rows])
+
+
+def probe_points():
+    """Points on the bunny and on the aobench floor, exact in f32 and in decimal."""
+    P = np.array([[0.0, 0.0, 0.0], [-0.25, 0.0625, 0.0], [0.03125, 0.125, 0.0], [0.0, 0.0625, 0.046875]])
+    N = np.array([[0, 1, 0], [1, 0, 0], [0, 0.5, 0.5], [0, 0, 1]], float)
+    return P, N
+
+
+@pytest.mark.parametrize(
+    "scene, sampler, hemisphere, seed",
+    [("bunny.obj", "sobol", "cosine", 0), ("aobench.toml", "independent", "uniform", 12345)],
+)
+def test_probe_values_equal_the_command(cli, repo, tmp_path, scene, sampler, hemisphere, seed):
+    P, N = probe_points()
+    if scene == "aobench.toml":
+        P = np.array([[0.0, -0.5, -2.0], [-1.0, -0.5, -3.0], [0.5, -0.5, -2.5]])
+        N = np.tile([0.0, 1.0, 0.0], (3, 1))
+    points = tmp_path / "points.txt"
+    points.write_text("".join(" ".join(repr(float(x)) for x in (*p, *n)) + "\n" for p, n in zip(P, N)))
+    cmd = [str(cli), "probe", str(repo / "scenes" / scene), "--points", str(points), "--samples", "1000",
+           "--sampler", sampler, "--hemisphere", hemisphere, "--seed", str(seed), "--device", "cpu"]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    want_ao, want_err = read_csv(done.stdout)
+    ao, err = aorender.Scene.load(repo / "scenes" / scene).ambient_occlusion(
+        P, N, 1000, sampler=sampler, hemisphere=hemisphere, seed=seed, device="cpu")
+    np.testing.assert_array_equal(ao, want_ao)
+    np.testing.assert_array_equal(err, want_err)
+    assert np.all((ao >= 0) & (ao <= 1)) and len(set(ao)) > 1
+
+
+def test_probe_values_equal_the_command_on_the_gpu(cli, repo, tmp_path, has_gpu):
+    P = np.array([[0.0, -0.5, -2.0], [-1.0, -0.5, -3.0]])
+    N = np.tile([0.0, 1.0, 0.0], (2, 1))
+    points = tmp_path / "points.txt"
+    points.write_text("0 -0.5 -2 0 1 0\n-1 -0.5 -3 0 1 0\n")
+    cmd = [str(cli), "probe", str(repo / "scenes" / "aobench.toml"), "--points", str(points),
+           "--samples", "512", "--sampler", "sobol", "--hemisphere", "cosine", "--seed", "3", "--device", "gpu"]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    want_ao, want_err = read_csv(done.stdout)
+    ao, err = aorender.Scene.load(repo / "scenes" / "aobench.toml").ambient_occlusion(
+        P, N, 512, sampler="sobol", seed=3, device="gpu")
+    np.testing.assert_array_equal(ao, want_ao)
+    np.testing.assert_array_equal(err, want_err)
+
+
+def read_pfm(path):
+    data = path.read_bytes()
+    header, rest = data.split(b"\n", 3)[:3], data.split(b"\n", 3)[3]
+    assert header[0] == b"Pf" and float(header[2]) < 0
+    w, h = map(int, header[1].split())
+    return np.frombuffer(rest, dtype="<f4").reshape(h, w)[::-1]
+
+
+def test_render_equals_the_command(cli, repo, tmp_path):
+    out, stats_path = tmp_path / "ao.pfm", tmp_path / "stats.json"
+    cmd = [str(cli), "render", str(repo / "scenes" / "aobench.toml"), "--width", "48", "--height", "32",
+           "--spp", "16", "--sampler", "sobol", "--hemisphere", "cosine", "--seed", "5", "--device", "cpu",
+           "-o", str(out), "--stats", str(stats_path)]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    want = json.loads(stats_path.read_text())
+    scene = aorender.Scene.load(repo / "scenes" / "aobench.toml")
+    image, stats = scene.render(48, 32, 16, sampler="sobol", seed=5, device="cpu")
+    assert image.shape == (32, 48) and image.dtype == np.float32
+    np.testing.assert_array_equal(image, read_pfm(out))
+    assert stats["image_mean"] == want["image_mean"]
+    assert stats["samples_per_pixel"] == 16 and stats["width"] == 48 and stats["height"] == 32
+    assert abs(float(image.mean(dtype=np.float64)) - stats["image_mean"]) < 1e-6
+
+
+def test_render_camera_dict_overrides_keys():
+    scene = aorender.Scene.from_arrays(*cube())
+    image, _ = scene.render(16, 16, 4, camera={"eye": [0, 0, 10], "look_at": [0, 0, 0]}, device="cpu")
+    assert image[8, 8] > 0  # the cube's face, in the middle
+    assert image[0, 0] == 0  # background at the corner
+    with pytest.raises(ValueError, match="unknown camera key 'position'"):
+        scene.render(16, 16, 1, camera={"position": [0, 0, 1]}, device="cpu")
+
+
+# Inputs: any dtype and order accepted, bad ones refused before any work.
+
+
+def test_any_dtype_and_memory_order_give_the_same_values():
+    V, F = cube()
+    P = np.array([[0.0, 1.0, 0.0], [0.25, 1.0, 0.5]]) * [1, 1.5, 1]
+    N = np.array([[0, 1, 0], [0, 1, 0]])
+    ref = aorender.ambient_occlusion(V, F, P, N, 64, device="cpu")
+    for args in [
+        (V.astype(np.float32), F.astype(np.int32), P, N),
+        (np.asfortranarray(V), np.asfortranarray(F.astype(np.uint16)), P.tolist(), N.astype(np.int8)),
+        (V[::-1][::-1], F.T.copy().T, np.asfortranarray(P), N.astype(float)),
+    ]:
+        got = aorender.ambient_occlusion(*args, 64, device="cpu")
+        np.testing.assert_array_equal(got[0], ref[0])
+
+
+def test_session_is_reused_and_seeds_matter():
+    scene = aorender.Scene.from_arrays(*plane())
+    P = np.array([[0.0, 0.5, 0.0]])
+    N = np.array([[1.0, -1.0, 0.0]])  # tilted towards the plane below
+    a = scene.ambient_occlusion(P, N, 256, seed=1, sampler="independent", device="cpu")
+    b = scene.ambient_occlusion(P, N, 256, seed=1, sampler="independent", device="cpu")
+    c = scene.ambient_occlusion(P, N, 256, seed=2, sampler="independent", device="cpu")
+    assert a[0][0] == b[0][0] and a[0][0] != c[0][0]
+    assert 0 < a[0][0] < 1
+
+
+BAD = [
+    (dict(V=np.zeros((4, 2))), ValueError, r"V must be an \(n, 3\) array, got shape \(4, 2\)"),
+    (dict(V=np.zeros(12)), ValueError, r"V must be an \(n, 3\) array, got shape \(12\)"),
+    (dict(V=np.zeros((0, 3))), ValueError, "V is empty"),
+    (dict(F=np.array([[0, 1, 4]])), ValueError, r"F\[0\] = \[0, 1, 4\]: index 4 is out of range for 4 vertices"),
+    (dict(F=np.array([[0, -1, 2]])), ValueError, "index -1 is out of range"),
+    (dict(F=np.array([[0.0, 1.0, 2.0]])), ValueError, "F must be an integer array"),
+    (dict(V=np.array([[0, 0, 0], [1, 0, 0], [0, np.nan, 1], [0, 0, 1]])), ValueError, r"V\[2\] has a non-finite"),
+    (dict(V=np.array([[0, 0, 0], [1e39, 0, 0], [0, 0, 1], [0, 0, 1]])), ValueError, "does not fit in 32-bit floats"),
+    (dict(P=np.array([[0, 0, np.inf]])), ValueError, r"P\[0\] has a non-finite"),
+    (dict(N=np.array([[0, 0, 0]])), ValueError, r"N\[0\] is not a usable normal"),
+    (dict(N=np.array([[0, 1, 0], [0, 1, 0]])), ValueError, "P and N must have as many rows: P has 1, N has 2"),
+    (dict(V=np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])), ValueError, "no triangles of non-zero area"),
+    (dict(samples=0), ValueError, "samples must be at least 1"),
+    (dict(hemisphere="cos"), ValueError, "unknown hemisphere 'cos': expected one of 'uniform', 'cosine'"),
+    (dict(sampler="halton"), ValueError, "unknown sampler 'halton'"),
+    (dict(max_distance=-1.0), ValueError, "max_distance must be zero or positive"),
+    (dict(device=""), ValueError, "device must be"),
+    (dict(device="no-such-adapter-xyz"), RuntimeError, "no-such-adapter-xyz"),
+    (dict(V=np.array([["a", "b", "c"]] * 4)), ValueError, "V must hold real numbers"),
+]
+
+
+@pytest.mark.parametrize("change, error, message", BAD, ids=[m for _, _, m in BAD])
+def test_bad_input_raises_a_clear_error(change, error, message):
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    args = dict(V=V, F=np.array([[0, 1, 2], [0, 2, 3]]), P=np.array([[0.2, 0.2, 0.5]]), N=np.array([[0, 0, 1.0]]))
+    kwargs = dict(samples=8, device="cpu")
+    for k, v in change.items():
+        (args if k in args else kwargs)[k] = v
+    with pytest.raises(error, match=message):
+        aorender.ambient_occlusion(args["V"], args["F"], args["P"], args["N"], **kwargs)
+
+
+def test_unreadable_files_raise_os_error(tmp_path):
+    with pytest.raises(OSError, match="missing.obj"):
+        aorender.Scene.load(tmp_path / "missing.obj")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[object]]\ntype = 'cone'\n")
+    with pytest.raises(OSError, match="bad.toml"):
+        aorender.Scene.load(bad)
+
+
+def test_bake_writes_the_file_like_the_command(repo, tmp_path):
+    scene = aorender.Scene.load(repo / "scenes" / "bunny.obj")
+    out = tmp_path / "bunny-ao.obj"
+    ao, err = scene.bake(4, device="cpu", output=out)
+    assert out.is_file() and len(ao) == len(err) > 30000
+    assert 0 < ao.mean() < 1
+    with pytest.raises(ValueError, match="must be a OBJ file"):
+        scene.bake(4, device="cpu", output=tmp_path / "bunny.ply")
+    with pytest.raises(ValueError, match="no file to write back to"):
+        aorender.Scene.from_arrays(*cube()).bake(4, device="cpu", output=out)
+
+
+def test_ctrl_c_stops_a_render_with_keyboard_interrupt(repo):
+    scene = aorender.Scene.load(repo / "scenes" / "bunny.obj")
+    scene.render(8, 8, 1, device="cpu")  # the BVH built before the clock starts
+    timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            scene.render(512, 512, 1 << 16, device="cpu")  # minutes if not stopped
+    finally:
+        timer.cancel()
+    # The scene is still usable.
+    image, stats = scene.render(8, 8, 1, device="cpu")
+    assert stats["samples_per_pixel"] == 1
+
+
+def test_cosine_weighted_ao_is_not_libigls_unweighted_visibility():
+    """At the centre of the floor of an open cylinder of radius 1 and height 1 the wall
+    blocks every direction below 45° elevation. The cosine-weighted AO this module
+    returns (with either hemisphere) is sin²45° = 0.5; the unweighted visibility that
+    1 − igl.embree.ambient_occlusion estimates is the solid-angle fraction above 45°,
+    1 − cos 45° ≈ 0.293: the two conventions differ by far more than the noise."""
+    k = 256
+    t = np.linspace(0, 2 * math.pi, k, endpoint=False)
+    ring0 = np.stack([np.cos(t), np.zeros(k), np.sin(t)], 1)
+    ring1 = ring0 + [0, 1, 0]
+    V = np.vstack([ring0, ring1])
+    F = np.array([t for i in range(k) for t in ((i, (i + 1) % k, k + i), ((i + 1) % k, k + (i + 1) % k, k + i))])
+    P, N = np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]])
+    for hemisphere in ("cosine", "uniform"):
+        ao, err = aorender.ambient_occlusion(V, F, P, N, 1 << 14, hemisphere=hemisphere, sampler="independent",
+                                             device="cpu")
+        # 1e-3 for the 256-sided polygon standing in for the cylinder.
+        assert abs(ao[0] - 0.5) <= 4 * err[0] + 1e-3, (hemisphere, ao, err)
+        assert abs(ao[0] - (1 - math.cos(math.pi / 4))) > 20 * err[0]
+
+
+def test_bake_mean_equals_the_command(cli, repo, tmp_path):
+    stats_path = tmp_path / "stats.json"
+    cmd = [str(cli), "bake", str(repo / "scenes" / "bunny.obj"), "-o", str(tmp_path / "b.obj"), "--samples", "16",
+           "--sampler", "sobol", "--hemisphere", "cosine", "--seed", "9", "--device", "cpu", "--stats", str(stats_path)]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    want = json.loads(stats_path.read_text())
+    ao, _ = aorender.Scene.load(repo / "scenes" / "bunny.obj").bake(16, sampler="sobol", seed=9, device="cpu")
+    assert len(ao) == want["points"]
+    # The command's mean is over the traced points, in f64; the arrays hold f32 values and
+    # 1 for each point without a normal.
+    traced_sum = ao.sum() - want["points_without_normal"] * want["unusable_value"]
+    assert abs(traced_sum / want["points_traced"] - want["mean_ao"]) < 1e-6
