@@ -216,3 +216,92 @@ pub fn parse_sample_range(text: &str) -> Result<Range<u32>, String> {
     }
     Ok(a..b)
 }
+
+/// The sampling options of `render`, `probe` and `bake`.
+#[derive(clap::Args)]
+pub struct SamplingArgs {
+    /// AO direction distribution (default: the scene's, else cosine).
+    #[arg(long, value_parser = hemisphere_parser())]
+    pub hemisphere: Option<Hemisphere>,
+    /// How the sample numbers (pixel jitter, hemisphere) are placed (default: the scene's,
+    /// else independent).
+    #[arg(long, value_parser = sampler_parser())]
+    pub sampler: Option<Sampler>,
+}
+
+impl SamplingArgs {
+    /// The scene's settings with the options applied, the sampling checked.
+    pub fn apply(&self, scene: &mut Scene) -> Result<()> {
+        let s = &mut scene.settings;
+        if let Some(h) = self.hemisphere {
+            s.hemisphere = h;
+        }
+        if let Some(p) = self.sampler {
+            s.sampler = p;
+        }
+        s.validate_sampling().map_err(invalid_option)
+    }
+}
+
+/// How a long run is bounded, saved, continued and split: the options of `render` and
+/// `bake`.
+#[derive(clap::Args)]
+pub struct RunArgs {
+    /// Stop after the pass that passes this many seconds, with the samples done so far.
+    #[arg(long, allow_negative_numbers = true)]
+    pub time_limit: Option<f64>,
+    /// Write the statistics as JSON.
+    #[arg(long)]
+    pub stats: Option<PathBuf>,
+    /// Save the raw accumulation to this file every --checkpoint-interval seconds and at
+    /// exit (atomically); an existing file is refused unless it is the one --resume names.
+    #[arg(long)]
+    pub checkpoint: Option<PathBuf>,
+    /// Continue the accumulation saved in this checkpoint (and keep saving to it unless
+    /// --checkpoint names another file).
+    #[arg(long)]
+    pub resume: Option<PathBuf>,
+    /// Seconds between checkpoints (stretched so that saving takes at most a tenth of the time).
+    #[arg(long, default_value_t = 5.0, allow_negative_numbers = true)]
+    pub checkpoint_interval: f64,
+    /// Take only the sample indices START..END of all the samples: a shard, combined by
+    /// `aorender merge` (images) or `bake --merge` (needs --checkpoint).
+    #[arg(long, value_name = "START..END", value_parser = parse_sample_range)]
+    pub sample_range: Option<Range<u32>>,
+}
+
+impl RunArgs {
+    /// Checks the options before any work, `samples` being the samples per pixel (or
+    /// point) asked for; returns the file to save checkpoints to, if any.
+    pub fn check(&self, samples: u32, per: &str) -> Result<Option<PathBuf>> {
+        if let Some(t) = self.time_limit
+            && (t.is_nan() || t <= 0.0)
+        {
+            bail!("invalid option: --time-limit must be positive, got {t}");
+        }
+        let interval = self.checkpoint_interval;
+        if !(interval.is_finite() && interval > 0.0) {
+            bail!("invalid option: --checkpoint-interval must be positive, got {interval}");
+        }
+        if let Some(r) = &self.sample_range
+            && r.end > samples
+        {
+            bail!("invalid option: --sample-range {}..{} ends past the {samples} samples per {per}", r.start, r.end);
+        }
+        let checkpoint = self.checkpoint.clone().or_else(|| self.resume.clone());
+        if self.sample_range.is_some() && checkpoint.is_none() {
+            bail!("invalid option: --sample-range needs --checkpoint FILE, the shard's accumulation to combine");
+        }
+        if let Some(path) = &self.checkpoint
+            && self.resume.as_ref() != Some(path)
+            && path.exists()
+        {
+            bail!(
+                "{}: a checkpoint already exists: continue it with --resume {}, or remove it",
+                path.display(),
+                path.display()
+            );
+        }
+        Ok(checkpoint)
+    }
+}

@@ -46,64 +46,11 @@ fn ply(positions: &[DVec3], faces: &[Vec<u32>], normals: Option<&[DVec3]>) -> St
     s
 }
 
-/// An icosphere of radius `r` about `c`, subdivided `levels` times.
+/// An icosphere of radius `r` about `c`, subdivided `levels` times (the accuracy suite's).
 fn icosphere(c: DVec3, r: f64, levels: u32) -> (Vec<DVec3>, Vec<Vec<u32>>) {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut v: Vec<DVec3> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|p| DVec3::from_array(*p).normalize())
-    .collect();
-    let mut f: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut mid = std::collections::HashMap::new();
-        let mut next = Vec::new();
-        for [a, b, cc] in f {
-            let mut m = |i: u32, j: u32| {
-                *mid.entry((i.min(j), i.max(j))).or_insert_with(|| {
-                    v.push(((v[i as usize] + v[j as usize]) / 2.0).normalize());
-                    v.len() as u32 - 1
-                })
-            };
-            let (ab, bc, ca) = (m(a, b), m(b, cc), m(cc, a));
-            next.extend([[a, ab, ca], [b, bc, ab], [cc, ca, bc], [ab, bc, ca]]);
-        }
-        f = next;
-    }
-    (v.iter().map(|p| c + r * *p).collect(), f.iter().map(|t| t.to_vec()).collect())
+    let m = aorender::closed_form::unit_icosphere(levels);
+    let faces = m.triangles.iter().map(|t| t.iter().map(|&i| i as u32).collect()).collect();
+    (m.vertices.iter().map(|p| c + r * *p).collect(), faces)
 }
 
 /// A box with corners `lo` and `hi`, as six quads wound outwards.

@@ -3,7 +3,7 @@
 
 use crate::arrays::{faces, out, vec3s};
 use crate::engine::{device, interruptible, settings, to_py};
-use aorender::bake::{Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, read_asset};
+use aorender::bake::{Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, format_of, output_path, read_asset};
 use aorender::scene::{MeshObject, mesh_triangles};
 use aorender::{BvhOptions, Camera, ImageRequest, Probe, Projection, Scene, Session, Settings};
 use glam::{Mat4, Vec3};
@@ -37,24 +37,7 @@ impl PyScene {
     pub fn of_arrays(name: &str, v: Vec<Vec3>, f: Vec<[u32; 3]>) -> PyResult<PyScene> {
         let triangles =
             mesh_triangles(Path::new(name), f.iter().map(|t| t.map(|i| v[i as usize])), 1.0).map_err(to_py)?;
-        let mut scene = Scene {
-            name: name.into(),
-            camera: Camera {
-                eye: Vec3::Z,
-                look_at: Vec3::ZERO,
-                up: Vec3::Y,
-                projection: Projection::Perspective { vfov_deg: 45.0 },
-            },
-            settings: Settings::default(),
-            triangles,
-            meshes: Vec::new(),
-            instances: Vec::new(),
-            spheres: Vec::new(),
-            planes: Vec::new(),
-            warnings: Vec::new(),
-            mesh_objects: Vec::new(),
-        };
-        scene.camera = scene.auto_camera();
+        let scene = Scene::from_triangles(name, triangles);
         let mesh = AssetMesh {
             label: name.into(),
             positions: v,
@@ -179,36 +162,6 @@ fn camera_dict<'py>(py: Python<'py>, c: &Camera) -> PyResult<Bound<'py, PyDict>>
         Projection::Orthographic { height } => d.set_item("ortho_height", height)?,
     }
     Ok(d)
-}
-
-/// The format a file name says, with or without `.gz`: `PLY`, `OBJ` or `glTF`.
-fn format_of(path: &Path) -> Option<&'static str> {
-    let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
-    let name = name.strip_suffix(".gz").unwrap_or(&name);
-    match name.rsplit_once('.')?.1 {
-        "ply" => Some("PLY"),
-        "obj" => Some("OBJ"),
-        "gltf" | "glb" => Some("glTF"),
-        _ => None,
-    }
-}
-
-/// Where `aorender bake` writes each mesh object: `output` itself for a mesh file; for a
-/// scene file, the directory `output` under each mesh file's name (with the object's
-/// number when the file is placed by several objects).
-fn output_path(objects: &[MeshObject], object: &MeshObject, is_scene: bool, output: &Path) -> PathBuf {
-    if !is_scene {
-        return output.to_path_buf();
-    }
-    let name = object.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let uses = objects.iter().filter(|o| o.path == object.path).count();
-    if uses == 1 {
-        return output.join(name);
-    }
-    match name.split_once('.') {
-        Some((stem, ext)) => output.join(format!("{stem}-{}.{ext}", object.number)),
-        None => output.join(format!("{name}-{}", object.number)),
-    }
 }
 
 #[pymethods]

@@ -96,23 +96,13 @@ pub struct Case {
 }
 
 fn empty_scene(name: &str, v: &Variant) -> Scene {
-    Scene {
-        name: name.into(),
-        camera: Camera {
-            eye: v.point(DVec3::new(0.0, 2.0, 0.0)),
-            look_at: v.point(DVec3::ZERO),
-            up: v.normal(DVec3::Z),
-            projection: Projection::Orthographic { height: v.length(1.0) },
-        },
-        settings: Settings::default(),
-        triangles: Vec::new(),
-        meshes: Vec::new(),
-        instances: Vec::new(),
-        spheres: Vec::new(),
-        planes: Vec::new(),
-        warnings: Vec::new(),
-        mesh_objects: Vec::new(),
-    }
+    let camera = Camera {
+        eye: v.point(DVec3::new(0.0, 2.0, 0.0)),
+        look_at: v.point(DVec3::ZERO),
+        up: v.normal(DVec3::Z),
+        projection: Projection::Orthographic { height: v.length(1.0) },
+    };
+    Scene { camera, ..Scene::from_triangles(name, Vec::new()) }
 }
 
 /// The plane through case point `p` with case normal `n`.

@@ -2,17 +2,16 @@
 //! their files, with the progress, time limit, checkpoints, resuming, sample-range shards
 //! and signal handling of `render`.
 
-use crate::args::{
-    SceneArgs, check_writable, hemisphere_parser, invalid_option, parse_sample_range, sampler_parser, write_json,
-};
+use crate::args::{RunArgs, SamplingArgs, SceneArgs, check_writable, write_json};
 use crate::{memory, signals};
 use anyhow::{Context, Result, anyhow, bail};
-use aorender::bake::{Asset, BakeAt, BakePlan, Placement, UNUSABLE_VALUE, WriteOptions, read_asset};
+use aorender::bake::{
+    Asset, BakeAt, BakePlan, Placement, UNUSABLE_VALUE, WriteOptions, format_of, output_path, read_asset,
+};
 use aorender::scene::MeshObject;
-use aorender::{Accumulation, Control, Device, Hemisphere, Progress, Sampler, Session, merge};
+use aorender::{Accumulation, Control, Device, Progress, Session, merge};
 use clap::ValueEnum;
 use std::io::{IsTerminal, Write};
-use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -31,12 +30,8 @@ pub struct BakeArgs {
     /// Samples (AO rays) per vertex or face.
     #[arg(long, default_value_t = 256)]
     samples: u32,
-    /// AO direction distribution (default: the scene's, else cosine).
-    #[arg(long, value_parser = hemisphere_parser())]
-    hemisphere: Option<Hemisphere>,
-    /// Placement of the hemisphere numbers (default: the scene's, else independent).
-    #[arg(long, value_parser = sampler_parser())]
-    sampler: Option<Sampler>,
+    #[command(flatten)]
+    sampling: SamplingArgs,
     /// Also write each value's standard error (PLY `quality_std_error`, glTF `_AO_STD_ERROR`).
     #[arg(long)]
     std_error: bool,
@@ -46,25 +41,8 @@ pub struct BakeArgs {
     /// Allow the output to replace the input file.
     #[arg(long)]
     overwrite: bool,
-    /// Stop after the pass that passes this many seconds, with the samples done so far.
-    #[arg(long, allow_negative_numbers = true)]
-    time_limit: Option<f64>,
-    /// Write the bake's statistics as JSON.
-    #[arg(long)]
-    stats: Option<PathBuf>,
-    /// Save the raw accumulation to this file every --checkpoint-interval seconds and at
-    /// exit (atomically); an existing file is refused unless it is the one --resume names.
-    #[arg(long)]
-    checkpoint: Option<PathBuf>,
-    /// Continue the accumulation saved in this checkpoint.
-    #[arg(long)]
-    resume: Option<PathBuf>,
-    /// Seconds between checkpoints.
-    #[arg(long, default_value_t = 5.0, allow_negative_numbers = true)]
-    checkpoint_interval: f64,
-    /// Take only the sample indices START..END of the --samples (a shard; needs --checkpoint).
-    #[arg(long, value_name = "START..END", value_parser = parse_sample_range)]
-    sample_range: Option<Range<u32>>,
+    #[command(flatten)]
+    run: RunArgs,
     /// Write the bake from these shards' checkpoints (`--sample-range … --checkpoint FILE`)
     /// instead of tracing: their sums are added exactly.
     #[arg(long, num_args = 1.., value_name = "CHECKPOINT")]
@@ -130,50 +108,18 @@ pub fn run(args: BakeArgs) -> Result<()> {
     if args.samples == 0 {
         bail!("invalid option: --samples must be at least 1");
     }
-    if let Some(t) = args.time_limit
-        && (t.is_nan() || t <= 0.0)
+    let checkpoint_path = args.run.check(args.samples, "point")?;
+    if !args.merge.is_empty()
+        && (args.run.resume.is_some() || args.run.checkpoint.is_some() || args.run.sample_range.is_some())
     {
-        bail!("invalid option: --time-limit must be positive, got {t}");
-    }
-    let interval = args.checkpoint_interval;
-    if !(interval.is_finite() && interval > 0.0) {
-        bail!("invalid option: --checkpoint-interval must be positive, got {interval}");
-    }
-    if let Some(r) = &args.sample_range
-        && r.end > args.samples
-    {
-        bail!("invalid option: --sample-range {}..{} ends past the {} samples per point", r.start, r.end, args.samples);
-    }
-    let checkpoint_path = args.checkpoint.clone().or_else(|| args.resume.clone());
-    if args.sample_range.is_some() && checkpoint_path.is_none() {
-        bail!("invalid option: --sample-range needs --checkpoint FILE, the shard's accumulation that --merge combines");
-    }
-    if !args.merge.is_empty() && (args.resume.is_some() || args.checkpoint.is_some() || args.sample_range.is_some()) {
         bail!(
             "invalid option: --merge writes the bake from finished shards: it takes no --resume, --checkpoint or --sample-range"
-        );
-    }
-    if let Some(path) = &args.checkpoint
-        && args.resume.as_ref() != Some(path)
-        && path.exists()
-    {
-        bail!(
-            "{}: a checkpoint already exists: continue it with --resume {}, or remove it",
-            path.display(),
-            path.display()
         );
     }
 
     let load_start = std::time::Instant::now();
     let mut scene = args.scene.load()?;
-    let s = &mut scene.settings;
-    if let Some(h) = args.hemisphere {
-        s.hemisphere = h;
-    }
-    if let Some(p) = args.sampler {
-        s.sampler = p;
-    }
-    s.validate_sampling().map_err(invalid_option)?;
+    args.sampling.apply(&mut scene)?;
     if scene.mesh_objects.is_empty() {
         bail!("{}: the scene has no mesh objects to bake", input.display());
     }
@@ -209,7 +155,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let settings = scene.settings.clone();
     let bvh = args.scene.bvh();
     let kind = args.scene.device.kind();
-    let range = args.sample_range.clone().unwrap_or(0..args.samples);
+    let range = args.run.sample_range.clone().unwrap_or(0..args.samples);
     let expected = || Accumulation::probes(&scene, &plan.probes, args.samples, range.clone(), &settings, kind, &bvh);
 
     // The values: from the shards' sums, or traced.
@@ -243,7 +189,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         heap_peak_bytes: None,
     };
     let values = if args.merge.is_empty() {
-        let resume = match &args.resume {
+        let resume = match &args.run.resume {
             Some(path) => {
                 let saved = Accumulation::read(path)?;
                 saved.check_resume(&expected()?)?;
@@ -309,7 +255,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
     }
     stats.heap_peak_bytes = memory::heap_peak_bytes();
     let json = serde_json::to_string_pretty(&stats)?;
-    if let Some(path) = &args.stats {
+    if let Some(path) = &args.run.stats {
         write_json(path, &json)?;
     }
     let written: Vec<String> = targets.iter().map(|t| t.output.display().to_string()).collect();
@@ -394,17 +340,17 @@ fn trace(
     };
     let mut control = Control {
         stop: Some(stop),
-        time_limit: args.time_limit,
+        time_limit: args.run.time_limit,
         progress: Some(&mut on_progress),
         save: if checkpoint.is_some() { Some(&mut save_to) } else { None },
-        save_interval: args.checkpoint_interval,
+        save_interval: args.run.checkpoint_interval,
         ..Control::default()
     };
     let resumed = resume.as_ref().map_or(0, |a| a.samples());
     let out = (|| {
         let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
         let session = Session::new(&device, scene, &args.scene.bvh())?;
-        let mut render = session.probe_render(&plan.probes, args.samples, args.sample_range.clone(), &settings)?;
+        let mut render = session.probe_render(&plan.probes, args.samples, args.run.sample_range.clone(), &settings)?;
         if let Some(acc) = resume {
             render.resume(acc)?;
         }
@@ -461,21 +407,7 @@ fn targets(objects: &[MeshObject], is_scene: bool, output: &Path, overwrite: boo
                 a
             }
         };
-        let out = if is_scene {
-            let name = object.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            let uses = objects.iter().filter(|o| o.path == object.path).count();
-            let name = if uses > 1 {
-                match name.split_once('.') {
-                    Some((stem, ext)) => format!("{stem}-{}.{ext}", object.number),
-                    None => format!("{name}-{}", object.number),
-                }
-            } else {
-                name
-            };
-            output.join(name)
-        } else {
-            output.to_path_buf()
-        };
+        let out = output_path(objects, object, is_scene, output);
         if !overwrite && same_file(&object.path, &out) {
             bail!("{}: the output would replace the input; choose another path, or pass --overwrite", out.display());
         }
@@ -489,19 +421,6 @@ fn same_file(a: &Path, b: &Path) -> bool {
     match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
         (Ok(a), Ok(b)) => a == b,
         _ => false,
-    }
-}
-
-/// The format a file name says: `PLY`, `OBJ` or `glTF` (glTF and GLB are one format),
-/// with or without `.gz`.
-fn format_of(path: &Path) -> Option<&'static str> {
-    let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-    let name = name.strip_suffix(".gz").unwrap_or(&name).to_string();
-    match name.rsplit_once('.').map(|(_, e)| e) {
-        Some("ply") => Some("PLY"),
-        Some("obj") => Some("OBJ"),
-        Some("gltf" | "glb") => Some("glTF"),
-        _ => None,
     }
 }
 

@@ -1,9 +1,9 @@
 //! `aorender probe`: AO at points and normals read from a text file, written as CSV.
 
-use crate::args::{SceneArgs, check_output_extension, hemisphere_parser, invalid_option, sampler_parser};
+use crate::args::{SamplingArgs, SceneArgs, check_output_extension};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::output::write_atomically;
-use aorender::{Hemisphere, Probe, ProbeValue, Sampler, Session};
+use aorender::{Probe, ProbeValue, Session};
 use glam::Vec3;
 use std::path::{Path, PathBuf};
 
@@ -20,24 +20,13 @@ pub struct ProbeArgs {
     /// Samples per probe.
     #[arg(long, default_value_t = 4096)]
     samples: u32,
-    /// AO direction distribution (default: the scene's, else cosine).
-    #[arg(long, value_parser = hemisphere_parser())]
-    hemisphere: Option<Hemisphere>,
-    /// Placement of the hemisphere numbers (default: the scene's, else independent).
-    #[arg(long, value_parser = sampler_parser())]
-    sampler: Option<Sampler>,
+    #[command(flatten)]
+    sampling: SamplingArgs,
 }
 
 pub fn run(args: ProbeArgs) -> Result<()> {
     let mut scene = args.scene.load()?;
-    let s = &mut scene.settings;
-    if let Some(h) = args.hemisphere {
-        s.hemisphere = h;
-    }
-    if let Some(p) = args.sampler {
-        s.sampler = p;
-    }
-    s.validate().map_err(invalid_option)?;
+    args.sampling.apply(&mut scene)?;
     if args.samples == 0 {
         bail!("invalid option: --samples must be at least 1");
     }

@@ -2,15 +2,13 @@
 //! sample-range shards and signal handling.
 
 use crate::args::{
-    SceneArgs, SizeArgs, check_output_extension, check_writable, hemisphere_parser, invalid_option, parse_sample_range,
-    sampler_parser, write_json,
+    RunArgs, SamplingArgs, SceneArgs, SizeArgs, check_output_extension, check_writable, invalid_option, write_json,
 };
 use crate::{memory, signals};
-use anyhow::{Result, bail};
+use anyhow::Result;
 use aorender::output::{IMAGE_EXTENSIONS, write_image};
-use aorender::{Accumulation, Control, Device, Hemisphere, ImageRequest, Progress, Sampler, Session};
+use aorender::{Accumulation, Control, Device, ImageRequest, Progress, Session};
 use std::io::{IsTerminal, Write};
-use std::ops::Range;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -27,36 +25,12 @@ pub struct RenderArgs {
     /// Samples per pixel (default: the scene's).
     #[arg(long)]
     spp: Option<u32>,
-    /// AO direction distribution (default: the scene's, else cosine).
-    #[arg(long, value_parser = hemisphere_parser())]
-    hemisphere: Option<Hemisphere>,
-    /// Placement of the pixel and hemisphere numbers (default: the scene's, else independent).
-    #[arg(long, value_parser = sampler_parser())]
-    sampler: Option<Sampler>,
-    /// Stop after the pass that passes this many seconds, with the samples done so far.
-    #[arg(long, allow_negative_numbers = true)]
-    time_limit: Option<f64>,
-    /// Write render statistics as JSON.
-    #[arg(long)]
-    stats: Option<PathBuf>,
-    /// Save the raw accumulation to this file every --checkpoint-interval seconds and at
-    /// exit (atomically); an existing file is refused unless it is the one --resume names.
-    #[arg(long)]
-    checkpoint: Option<PathBuf>,
-    /// Continue the accumulation saved in this checkpoint (and keep saving to it unless
-    /// --checkpoint names another file).
-    #[arg(long)]
-    resume: Option<PathBuf>,
-    /// Seconds between checkpoints (stretched so that saving takes at most a tenth of the time).
-    #[arg(long, default_value_t = 5.0, allow_negative_numbers = true)]
-    checkpoint_interval: f64,
-    /// Render only the sample indices START..END of the --spp samples (a shard for
-    /// `aorender merge`; needs --checkpoint).
-    #[arg(long, value_name = "START..END", value_parser = parse_sample_range)]
-    sample_range: Option<Range<u32>>,
+    #[command(flatten)]
+    sampling: SamplingArgs,
+    #[command(flatten)]
+    run: RunArgs,
 }
 
-/// `START..END` with START < END.
 pub fn run(args: RenderArgs) -> Result<()> {
     // Before loading: a signal while a large scene loads or its BVH builds ends the process.
     let stop = Arc::new(AtomicBool::new(false));
@@ -69,51 +43,17 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if let Some(n) = args.spp {
         s.spp = n;
     }
-    if let Some(h) = args.hemisphere {
-        s.hemisphere = h;
-    }
-    if let Some(p) = args.sampler {
-        s.sampler = p;
-    }
-    s.validate().map_err(invalid_option)?;
-    if let Some(t) = args.time_limit
-        && (t.is_nan() || t <= 0.0)
-    {
-        bail!("invalid option: --time-limit must be positive, got {t}");
-    }
-    let interval = args.checkpoint_interval;
-    if !(interval.is_finite() && interval > 0.0) {
-        bail!("invalid option: --checkpoint-interval must be positive, got {interval}");
-    }
-    if let Some(r) = &args.sample_range
-        && r.end > s.spp
-    {
-        bail!("invalid option: --sample-range {}..{} ends past the {} samples per pixel", r.start, r.end, s.spp);
-    }
+    args.sampling.apply(&mut scene)?;
+    scene.settings.validate().map_err(invalid_option)?;
+    let checkpoint_path = args.run.check(scene.settings.spp, "pixel")?;
     check_output_extension(&args.output, &IMAGE_EXTENSIONS)?;
-    let checkpoint_path = args.checkpoint.clone().or_else(|| args.resume.clone());
-    if args.sample_range.is_some() && checkpoint_path.is_none() {
-        bail!(
-            "invalid option: --sample-range needs --checkpoint FILE, the shard's accumulation that `aorender merge` combines"
-        );
-    }
-    if let Some(path) = &args.checkpoint
-        && args.resume.as_ref() != Some(path)
-        && path.exists()
-    {
-        bail!(
-            "{}: a checkpoint already exists: continue it with --resume {}, or remove it",
-            path.display(),
-            path.display()
-        );
-    }
     let bvh = args.scene.bvh();
-    let resume = match &args.resume {
+    let resume = match &args.run.resume {
         Some(path) => {
             let saved = Accumulation::read(path)?;
             // Before any work: the checkpoint must hold samples of this very render.
             let s = &scene.settings;
-            let range = args.sample_range.clone().unwrap_or(0..s.spp);
+            let range = args.run.sample_range.clone().unwrap_or(0..s.spp);
             saved.check_resume(&Accumulation::image(
                 &scene,
                 &scene.camera,
@@ -155,16 +95,16 @@ pub fn run(args: RenderArgs) -> Result<()> {
     };
     let mut control = Control {
         stop: Some(&stop),
-        time_limit: args.time_limit,
+        time_limit: args.run.time_limit,
         progress: Some(&mut on_progress),
         save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None },
-        save_interval: interval,
+        save_interval: args.run.checkpoint_interval,
         ..Control::default()
     };
     let rendered = (|| {
         let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
         let session = Session::new(&device, scene, &bvh)?;
-        let request = ImageRequest { samples: args.sample_range.clone(), ..session.default_request() };
+        let request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
         let mut render = session.render(&request)?;
         if let Some(acc) = resume {
             render.resume(acc)?;
@@ -201,7 +141,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     write_image(&out.film, &args.output)?;
     let json = serde_json::to_string_pretty(&out.stats)?;
-    if let Some(path) = &args.stats {
+    if let Some(path) = &args.run.stats {
         write_json(path, &json)?;
     }
     eprintln!(
@@ -230,7 +170,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     println!("{json}");
     if st.interrupted {
         let mut written = vec![args.output.display().to_string()];
-        written.extend(args.stats.as_ref().map(|p| p.display().to_string()));
+        written.extend(args.run.stats.as_ref().map(|p| p.display().to_string()));
         let mut message = format!(
             "interrupted by {} after {} of {} samples per pixel; {} hold them",
             signals::signal_name(signal),

@@ -16,7 +16,8 @@ pub use asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
 pub use plan::{BakePlan, Placement, UNUSABLE_VALUE};
 
 use crate::error::{Error, Result};
-use std::path::Path;
+use crate::scene::MeshObject;
+use std::path::{Path, PathBuf};
 
 /// Reads a mesh file (`.ply`, `.obj`, `.gltf`, `.glb`, each optionally gzipped) for baking.
 pub fn read_asset(path: &Path) -> Result<Box<dyn Asset>> {
@@ -25,5 +26,35 @@ pub fn read_asset(path: &Path) -> Result<Box<dyn Asset>> {
         "obj" => Ok(Box::new(obj::ObjAsset::read(path)?)),
         "gltf" | "glb" => Ok(Box::new(gltf::GltfAsset::read(path)?)),
         ext => Err(Error::scene(path, format!("cannot bake into '.{ext}' files: expected .ply, .obj, .gltf or .glb"))),
+    }
+}
+
+/// The format a file name says, with or without `.gz`: `PLY`, `OBJ` or `glTF` (`.gltf`
+/// and `.glb` alike); `None` for another.
+pub fn format_of(path: &Path) -> Option<&'static str> {
+    let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
+    let name = name.strip_suffix(".gz").unwrap_or(&name);
+    match name.rsplit_once('.')?.1 {
+        "ply" => Some("PLY"),
+        "obj" => Some("OBJ"),
+        "gltf" | "glb" => Some("glTF"),
+        _ => None,
+    }
+}
+
+/// Where a bake writes mesh object `object` of `objects`: `output` itself for a mesh
+/// file; for a scene file, the directory `output` under the mesh file's name, with the
+/// object's number added (`NAME-N.EXT`) when other objects place the same file.
+pub fn output_path(objects: &[MeshObject], object: &MeshObject, is_scene: bool, output: &Path) -> PathBuf {
+    if !is_scene {
+        return output.to_path_buf();
+    }
+    let name = object.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    if objects.iter().filter(|o| o.path == object.path).count() == 1 {
+        return output.join(name);
+    }
+    match name.split_once('.') {
+        Some((stem, ext)) => output.join(format!("{stem}-{}.{ext}", object.number)),
+        None => output.join(format!("{name}-{}", object.number)),
     }
 }

@@ -5,7 +5,7 @@ use super::camera::{Camera, Projection};
 use super::file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, parse_scene};
 use super::input;
 use super::meshes::{MESH_EXTENSIONS, MESH_FORMATS, extension, place_mesh, read_mesh, stem};
-use super::types::{MeshObject, Scene, Settings, Warning};
+use super::types::{MeshObject, Scene, Settings, Triangle, Warning};
 use crate::error::{Error, Result};
 use glam::Vec3;
 use std::path::Path;
@@ -46,8 +46,23 @@ impl Scene {
         let positions = std::mem::take(&mut mesh.positions);
         let triangles = place_mesh(path, positions, &mesh, 1.0, &glam::Mat4::IDENTITY)?;
         let warnings = mesh.warnings.into_iter().map(|message| Warning { path: path.to_path_buf(), message });
+        Ok(Scene {
+            warnings: warnings.collect(),
+            mesh_objects: vec![MeshObject {
+                number: 1,
+                path: path.to_path_buf(),
+                to_world: glam::Mat4::IDENTITY,
+                instance: None,
+            }],
+            ..Scene::from_triangles(&stem(path), triangles)
+        })
+    }
+
+    /// A scene of `triangles` alone (from [`super::mesh_triangles`], say), framed as a
+    /// bare mesh is ([`Scene::auto_camera`]), with the default settings.
+    pub fn from_triangles(name: &str, triangles: Vec<Triangle>) -> Scene {
         let mut scene = Scene {
-            name: stem(path),
+            name: name.into(),
             camera: Camera {
                 eye: Vec3::ZERO,
                 look_at: Vec3::NEG_Z,
@@ -60,15 +75,10 @@ impl Scene {
             instances: Vec::new(),
             spheres: Vec::new(),
             planes: Vec::new(),
-            warnings: warnings.collect(),
-            mesh_objects: vec![MeshObject {
-                number: 1,
-                path: path.to_path_buf(),
-                to_world: glam::Mat4::IDENTITY,
-                instance: None,
-            }],
+            warnings: Vec::new(),
+            mesh_objects: Vec::new(),
         };
         scene.camera = scene.auto_camera();
-        Ok(scene)
+        scene
     }
 }
