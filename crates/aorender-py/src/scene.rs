@@ -44,6 +44,7 @@ impl PyScene {
             normals: None,
             face_starts: (0..=f.len() as u32).map(|k| 3 * k).collect(),
             face_indices: f.into_iter().flatten().collect(),
+            to_file: glam::Mat3::IDENTITY,
         };
         Ok(PyScene { scene, arrays: Some(mesh), source: None, sessions: Mutex::new(Vec::new()) })
     }
@@ -387,11 +388,11 @@ impl PyScene {
         };
         let session = self.session(py, device)?;
         let values = interruptible(py, |control| {
-            let mut render = session.probe_render(&plan.probes, samples, None, &settings)?;
+            let mut render = session.probe_render(&plan.probes, samples, None, &settings, false)?;
             render.run(control)?;
             render.finish()?.accumulation.probe_values()
         })?;
-        let baked = plan.values(&values);
+        let baked = plan.values(&values, None);
         if !outputs.is_empty() {
             let options = WriteOptions { at, std_error, colors };
             let mut rest = baked.as_slice();

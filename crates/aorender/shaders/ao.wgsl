@@ -209,3 +209,47 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
     workgroupBarrier();
     flush_counters(lid);
 }
+
+// AO and the bent normal at given points (aorender bake --bent-normals). The film holds
+// four slots per point (frame.width = 4): the AO estimate, then the sums of the x, y and
+// z of the unoccluded directions (world space), all from one ray a sample. Sample i of
+// point k takes the numbers probe_sample takes with one lane, so the AO is the same.
+@compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
+fn probe_bent_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+    load_constants();
+    lane = lid;
+    let point = gid.x;
+    if (point < frame.height) {
+        let q = probe_points[point];
+        let base = point * 4u;
+        var ao = film[base];
+        var bx = film[base + 1u];
+        var by = film[base + 2u];
+        var bz = film[base + 3u];
+        for (var k = 0u; k < dispatch.sample_count; k++) {
+            let index = dispatch.first_sample + k;
+            if (index >= frame.probe_samples) {
+                break;
+            }
+            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata);
+            let ray = ao_ray(q.position, q.normal, q.error, u.zw);
+            let shadow = trace(ray.o, ray.d, frame.max_distance, true);
+            let open = select(vec3f(0.0), ray.d, shadow.kind == HIT_NONE);
+            if (truncated) {
+                atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
+            } else {
+                ao = accumulate(ao, ao_estimate(shadow, ray.w_local));
+                bx = accumulate(bx, open.x);
+                by = accumulate(by, open.y);
+                bz = accumulate(bz, open.z);
+            }
+        }
+        film[base] = ao;
+        film[base + 1u] = bx;
+        film[base + 2u] = by;
+        film[base + 3u] = bz;
+        atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);
+    }
+    workgroupBarrier();
+    flush_counters(lid);
+}

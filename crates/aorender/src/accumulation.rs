@@ -12,10 +12,11 @@ use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
 use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, Film};
-use crate::probe::{Probe, ProbeValue, checked};
+use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_film_values};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::{Camera, Projection, Scene, Settings};
+use glam::Vec3;
 use std::path::PathBuf;
 
 /// Everything a sample's value depends on besides its index and the device: two
@@ -330,31 +331,46 @@ impl Accumulation {
     /// `kind` with the BVH of `bvh`: what `Session::probe_render` starts from, so that a
     /// checkpoint can be checked against it before any work is done. [`Error::Probe`]
     /// names a bad probe.
+    // The request of `Session::probe_render` and the device: grouping them would only
+    // rename them.
+    #[allow(clippy::too_many_arguments)]
     pub fn probes(
         scene: &Scene,
         probes: &[Probe],
         spp: u32,
         samples: std::ops::Range<u32>,
         settings: &Settings,
+        bent_normals: bool,
         kind: DeviceKind,
         bvh: &BvhOptions,
     ) -> Result<Accumulation> {
         let layout = if kind == DeviceKind::Cpu { BvhLayout::Cwbvh } else { bvh.layout };
         // The probes as the request traces them (and hashes them).
         let hash = probes_hash(&geometry_hash(scene), &checked(probes)?);
-        let settings = SampleSettings::probes(hash, 1, probes.len() as u32, spp, settings);
+        let slots = if bent_normals { 4 } else { 1 };
+        let settings = SampleSettings::probes(hash, slots, probes.len() as u32, spp, settings);
         Ok(Accumulation::new(settings, kind, layout, bvh.quality, samples.start, samples.end, MAX_PROBE_SAMPLE))
     }
 
-    /// The estimate at each probe of an accumulation of probes with one slot each (a
-    /// `Session::probe_render`'s): mean and standard error of the samples held.
+    /// The estimate at each probe of an accumulation of `Session::probe_render`: mean and
+    /// standard error of the samples held.
     pub fn probe_values(&self) -> Result<Vec<ProbeValue>> {
-        if self.settings.width != 1 {
-            return Err(self.error(format!("holds {} slots a point, not one", self.settings.width)));
+        self.check_probe_slots()?;
+        Ok(probe_film_values(&self.film()?))
+    }
+
+    /// The bent normal of each probe of an accumulation of `Session::probe_render` with
+    /// bent normals: the mean direction of the rays that escaped (zero where none did).
+    pub fn bent_normals(&self) -> Result<Vec<Vec3>> {
+        self.check_probe_slots()?;
+        probe_film_bent_normals(&self.film()?).ok_or_else(|| self.error("holds no bent normals"))
+    }
+
+    fn check_probe_slots(&self) -> Result<()> {
+        match self.settings.width {
+            1 | 4 => Ok(()),
+            w => Err(self.error(format!("holds {w} slots a point, not 1 or 4"))),
         }
-        let film = self.film()?;
-        let n = self.samples() as u64;
-        Ok(film.sum.iter().zip(&film.sum_sq).map(|(&s, &s2)| ProbeValue::from_sums(s, s2, n)).collect())
     }
 
     /// Samples per pixel held.

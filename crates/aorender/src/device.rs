@@ -247,13 +247,15 @@ impl Prepared {
     }
 
     /// The film of `probes`, `samples` samples each with the sampling of `settings`,
-    /// spread over `lanes` slots a probe.
+    /// spread over `lanes` slots a probe; or, with `bent_normals`, four slots a probe
+    /// (`lanes` must be 4): the AO and the escaped directions' x, y, z.
     pub(crate) fn probes(
         &self,
         probes: &[Probe],
         lanes: u32,
         samples: u32,
         settings: &Settings,
+        bent_normals: bool,
     ) -> Result<Box<dyn Passes>> {
         match self {
             Prepared::Gpu { dev, scene } => {
@@ -274,7 +276,15 @@ impl Prepared {
                         _pad1: 0.0,
                     })
                     .collect();
-                Ok(Box::new(GpuTarget::probes(dev, scene, frame, settings.sampler, settings.hemisphere, &points)?))
+                Ok(Box::new(GpuTarget::probes(
+                    dev,
+                    scene,
+                    frame,
+                    settings.sampler,
+                    settings.hemisphere,
+                    &points,
+                    bent_normals,
+                )?))
             }
             Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
                 work: CpuProbes {
@@ -282,6 +292,7 @@ impl Prepared {
                     settings: settings.clone(),
                     probes: probes.to_vec(),
                     samples,
+                    bent_normals,
                 },
                 film: Film::new(lanes, probes.len() as u32),
             })),
@@ -362,17 +373,24 @@ impl CpuWork for CpuImage {
     }
 }
 
-/// Probe points on the CPU reference; the film's slots are lanes × probes.
+/// Probe points on the CPU reference; the film's slots are lanes × probes, or four a
+/// probe with bent normals.
 struct CpuProbes {
     tracer: Arc<CpuTracer>,
     settings: Settings,
     probes: Vec<Probe>,
     samples: u32,
+    bent_normals: bool,
 }
 
 impl CpuWork for CpuProbes {
     fn pass(&self, film: &mut Film, first: u32, count: u32) -> u64 {
-        self.tracer.probe_pass(&self.settings, &self.probes, self.samples, film, first, count)
+        let (t, s, p) = (&self.tracer, &self.settings, &self.probes);
+        if self.bent_normals {
+            t.probe_bent_pass(s, p, self.samples, film, first, count)
+        } else {
+            t.probe_pass(s, p, self.samples, film, first, count)
+        }
     }
 }
 

@@ -11,6 +11,7 @@
 //! slot sums are added exactly.
 
 use crate::error::{Error, Result};
+use crate::film::Film;
 use glam::Vec3;
 
 /// A point and the normal of its hemisphere.
@@ -87,6 +88,25 @@ impl ProbeValue {
         let var = if n > 1 { ((sum_sq - nf * mean * mean) / (nf - 1.0)).max(0.0) } else { 0.0 };
         ProbeValue { mean, std_error: (var / nf).sqrt(), samples: n }
     }
+}
+
+/// The estimates of a film of `Session::probe_render`, one slot a point or four (with
+/// bent normals, the AO first): each point's AO.
+pub fn probe_film_values(film: &Film) -> Vec<ProbeValue> {
+    let stride = film.width as usize;
+    (0..film.height as usize)
+        .map(|k| ProbeValue::from_sums(film.sum[k * stride], film.sum_sq[k * stride], film.samples))
+        .collect()
+}
+
+/// The bent normals of a film of `Session::probe_render` with bent normals (four slots a
+/// point): the mean direction of the rays that escaped, zero where none did; `None` for
+/// a film without them.
+pub fn probe_film_bent_normals(film: &Film) -> Option<Vec<Vec3>> {
+    (film.width == 4).then(|| {
+        let n = film.samples.max(1) as f64;
+        film.sum.chunks_exact(4).map(|s| Vec3::new((s[1] / n) as f32, (s[2] / n) as f32, (s[3] / n) as f32)).collect()
+    })
 }
 
 /// Film slots the probe kernel aims to keep busy per dispatch: points × lanes.

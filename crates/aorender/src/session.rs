@@ -166,13 +166,16 @@ impl Session {
     /// film slot per probe, sample indices `samples` (all `0..spp` for `None`) of `spp` a
     /// probe, with the hemisphere, sampler, seed and maximum distance of `settings`. Its
     /// accumulation is [`Accumulation::probes`]'s, and [`Accumulation::probe_values`]
-    /// reads the estimates off it. What `aorender bake` runs.
+    /// reads the estimates off it. With `bent_normals` the film has four slots a probe:
+    /// the AO, then the sums of the x, y and z of the directions that escaped, from the
+    /// same rays ([`Accumulation::bent_normals`] reads them). What `aorender bake` runs.
     pub fn probe_render(
         &self,
         probes: &[Probe],
         spp: u32,
         samples: Option<Range<u32>>,
         settings: &Settings,
+        bent_normals: bool,
     ) -> Result<Render> {
         settings.validate_sampling()?;
         if spp == 0 {
@@ -190,11 +193,12 @@ impl Session {
         }
         let probes = checked(probes)?;
         let start = Instant::now();
-        let passes = self.prepared.probes(&probes, 1, spp, settings)?;
+        let slots = if bent_normals { 4 } else { 1 };
+        let passes = self.prepared.probes(&probes, slots, spp, settings, bent_normals)?;
         let target_seconds = start.elapsed().as_secs_f64();
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let sample_settings =
-            SampleSettings::probes(probes_hash(geometry, &probes), 1, probes.len() as u32, spp, settings);
+            SampleSettings::probes(probes_hash(geometry, &probes), slots, probes.len() as u32, spp, settings);
         let mut acc = Accumulation::new(
             sample_settings,
             self.device.kind(),
@@ -238,7 +242,7 @@ impl Session {
         }
         let lanes = lanes_for(probes.len(), samples);
         let rounds = samples.div_ceil(lanes);
-        let passes = self.prepared.probes(probes, lanes, samples, settings)?;
+        let passes = self.prepared.probes(probes, lanes, samples, settings, false)?;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let sample_settings =
             SampleSettings::probes(probes_hash(geometry, probes), lanes, probes.len() as u32, samples, settings);

@@ -152,7 +152,7 @@ fn rounds_per_invocation_leave_the_sums_unchanged() {
         let mut sums = Vec::new();
         for per in [1, 5, u32::MAX] {
             let mut renderer =
-                GpuTarget::probes(&dev, &gs, frame, settings.sampler, settings.hemisphere, &points).unwrap();
+                GpuTarget::probes(&dev, &gs, frame, settings.sampler, settings.hemisphere, &points, false).unwrap();
             let per = renderer.set_samples_per_invocation(per);
             let mut done = 0;
             while done < rounds {

@@ -9,7 +9,7 @@ use aorender::bake::{
     Asset, BakeAt, BakePlan, Placement, UNUSABLE_VALUE, WriteOptions, format_of, output_path, read_asset,
 };
 use aorender::scene::MeshObject;
-use aorender::{Accumulation, Control, Device, Progress, Session, merge};
+use aorender::{Accumulation, Control, Device, Progress, Session, merge, probe_film_bent_normals, probe_film_values};
 use clap::ValueEnum;
 use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -38,6 +38,10 @@ pub struct BakeArgs {
     /// Also write AO as a grey vertex colour in PLY output (OBJ and glTF always get one).
     #[arg(long)]
     colors: bool,
+    /// Also write bent normals (the mean direction of the rays that escaped, normalised;
+    /// PLY `bnx bny bnz`, glTF `_BENT_NORMAL`), from the same rays.
+    #[arg(long)]
+    bent_normals: bool,
     /// Allow the output to replace the input file.
     #[arg(long)]
     overwrite: bool,
@@ -156,7 +160,18 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let bvh = args.scene.bvh();
     let kind = args.scene.device.kind();
     let range = args.run.sample_range.clone().unwrap_or(0..args.samples);
-    let expected = || Accumulation::probes(&scene, &plan.probes, args.samples, range.clone(), &settings, kind, &bvh);
+    let expected = || {
+        Accumulation::probes(
+            &scene,
+            &plan.probes,
+            args.samples,
+            range.clone(),
+            &settings,
+            args.bent_normals,
+            kind,
+            &bvh,
+        )
+    };
 
     // The values: from the shards' sums, or traced.
     let mut stats = BakeStats {
@@ -188,7 +203,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         mean_ao: 0.0,
         heap_peak_bytes: None,
     };
-    let values = if args.merge.is_empty() {
+    let film = if args.merge.is_empty() {
         let resume = match &args.run.resume {
             Some(path) => {
                 let saved = Accumulation::read(path)?;
@@ -201,7 +216,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
             check_writable(path)?;
         }
         let acc = trace(&args, scene, &plan, resume, checkpoint_path.as_deref(), &stop, &mut stats)?;
-        acc.probe_values()?
+        acc.film()?
     } else {
         let mut shards = Vec::with_capacity(args.merge.len());
         for path in &args.merge {
@@ -228,18 +243,13 @@ pub fn run(args: BakeArgs) -> Result<()> {
         }
         stats.samples_per_point = merged.end - merged.first;
         stats.adapter = merged.shards.iter().map(|s| s.adapter.clone()).collect::<Vec<_>>().join(", ");
-        let n = stats.samples_per_point as u64;
-        merged
-            .film
-            .sum
-            .iter()
-            .zip(&merged.film.sum_sq)
-            .map(|(&a, &b)| aorender::ProbeValue::from_sums(a, b, n))
-            .collect()
+        merged.film
     };
+    let values = probe_film_values(&film);
+    let bent = probe_film_bent_normals(&film);
     let traced = values.len().max(1) as f64;
     stats.mean_ao = values.iter().map(|v| v.mean).sum::<f64>() / traced;
-    let baked = plan.values(&values);
+    let baked = plan.values(&values, bent.as_deref());
 
     // Written back, file by file (each atomically).
     let options = WriteOptions { at, std_error: args.std_error, colors: args.colors };
@@ -350,7 +360,13 @@ fn trace(
     let out = (|| {
         let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
         let session = Session::new(&device, scene, &args.scene.bvh())?;
-        let mut render = session.probe_render(&plan.probes, args.samples, args.run.sample_range.clone(), &settings)?;
+        let mut render = session.probe_render(
+            &plan.probes,
+            args.samples,
+            args.run.sample_range.clone(),
+            &settings,
+            args.bent_normals,
+        )?;
         if let Some(acc) = resume {
             render.resume(acc)?;
         }

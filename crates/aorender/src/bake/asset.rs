@@ -2,7 +2,7 @@
 //! values it computed for them, and the writing options.
 
 use crate::error::Result;
-use glam::Vec3;
+use glam::{Mat3, Vec3};
 use std::path::Path;
 
 /// Where AO is baked.
@@ -45,6 +45,10 @@ pub struct AssetMesh {
     pub face_starts: Vec<u32>,
     /// Corners of all faces, in order.
     pub face_indices: Vec<u32>,
+    /// Carries a direction from the space of `positions` into the file's own (for glTF,
+    /// the inverse of the node's world transform; the identity for the others): bent
+    /// normals are written in the file's space.
+    pub to_file: Mat3,
 }
 
 impl AssetMesh {

@@ -105,6 +105,7 @@ impl GltfAsset {
                 normals: placement.normals,
                 face_starts,
                 face_indices,
+                to_file: glam::DMat3::from_mat4(placement.world).inverse().as_mat3(),
             });
             targets.push(Target { node: placement.node, mesh: placement.mesh, primitive: placement.primitive });
         }

@@ -264,6 +264,7 @@ fn parse(text: &[u8], label: String) -> std::result::Result<AssetMesh, String> {
         normals,
         face_starts: parser.face_starts,
         face_indices: parser.face_indices,
+        to_file: glam::Mat3::IDENTITY,
     })
 }
 

@@ -48,6 +48,8 @@ pub struct BakePlan {
     pub unusable: usize,
     /// Entries whose normal is the file's.
     pub file_normals: usize,
+    /// For each mesh: world directions into its file's space.
+    to_file: Vec<Mat3>,
 }
 
 impl BakePlan {
@@ -60,6 +62,7 @@ impl BakePlan {
                 BakeAt::Faces => plan.add_faces(mesh, &placement),
             };
             plan.entries.push(entries);
+            plan.to_file.push(mesh.to_file * Mat3::from_mat4(placement.to_world).inverse());
         }
         plan
     }
@@ -74,16 +77,28 @@ impl BakePlan {
         self.entries.iter().map(Vec::len).sum()
     }
 
-    /// The values of every mesh from the probes' estimates (`values[k]` of `probes[k]`).
-    pub fn values(&self, values: &[ProbeValue]) -> Vec<BakedValues> {
+    /// The values of every mesh from the probes' estimates (`values[k]` of `probes[k]`)
+    /// and, when given, the probes' mean escaped directions (world space), which become
+    /// unit bent normals in each file's space: the probe's normal where no ray escaped,
+    /// zero for an entry without a usable normal.
+    pub fn values(&self, values: &[ProbeValue], bent: Option<&[Vec3]>) -> Vec<BakedValues> {
         self.entries
             .iter()
-            .map(|entries| {
+            .zip(&self.to_file)
+            .map(|(entries, to_file)| {
                 let value = |&k: &u32| (k != NO_PROBE).then(|| values[k as usize]);
+                let bent_normal = |bent: &[Vec3], k: u32| {
+                    if k == NO_PROBE {
+                        return Vec3::ZERO;
+                    }
+                    let b = bent[k as usize];
+                    let b = if usable(b) { b } else { self.probes[k as usize].normal };
+                    (*to_file * b).normalize()
+                };
                 BakedValues {
                     ao: entries.iter().map(|k| value(k).map_or(UNUSABLE_VALUE, |v| v.mean as f32)).collect(),
                     std_error: entries.iter().map(|k| value(k).map_or(0.0, |v| v.std_error as f32)).collect(),
-                    bent_normals: None,
+                    bent_normals: bent.map(|b| entries.iter().map(|&k| bent_normal(b, k)).collect()),
                 }
             })
             .collect()

@@ -551,7 +551,7 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
             .map_err(|_| Error::scene(path, "more than 4294967295 face corners: too many for a mesh"))?;
         face_starts.push(end);
     }
-    Ok(AssetMesh { label, positions, normals, face_starts, face_indices })
+    Ok(AssetMesh { label, positions, normals, face_starts, face_indices, to_file: glam::Mat3::IDENTITY })
 }
 
 /// AO as a grey colour channel in type `t`: 0 to 1 for the floating-point types, 0 to 255

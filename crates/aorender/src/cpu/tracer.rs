@@ -256,10 +256,60 @@ impl CpuTracer {
     /// AO value at a surface point `p` with normal `n`, within `error` of its surface along
     /// `n`, for hemisphere numbers `u`; the twin of the shader's `ao_value`.
     pub fn ao_at(&self, p: Vec3, n: Vec3, error: f32, u: glam::Vec2, settings: &Settings) -> f32 {
+        self.ao_ray_at(p, n, error, u, settings).0
+    }
+
+    /// [`CpuTracer::ao_at`]'s value and, when the ray escaped, its world direction.
+    pub fn ao_ray_at(&self, p: Vec3, n: Vec3, error: f32, u: glam::Vec2, settings: &Settings) -> (f32, Option<Vec3>) {
         let w_local = settings.hemisphere.sample(u);
         let w = local_to_world(w_local, n);
         let t_max = settings.max_distance.unwrap_or(f32::MAX);
-        if self.occluded(offset_ray_origin(p, n, error), w, t_max) { 0.0 } else { settings.hemisphere.weight(w_local) }
+        if self.occluded(offset_ray_origin(p, n, error), w, t_max) {
+            (0.0, None)
+        } else {
+            (settings.hemisphere.weight(w_local), Some(w))
+        }
+    }
+
+    /// Adds samples `first .. first + count` (of `samples`) of every probe to `film`,
+    /// four slots a probe: the AO estimate, then the x, y and z of the directions that
+    /// escaped, from one ray a sample; sample i of probe k takes the numbers
+    /// [`CpuTracer::probe_pass`] takes with one lane. The twin of `probe_bent_sample` in
+    /// `shaders/ao.wgsl`. Returns the AO rays traced.
+    pub fn probe_bent_pass(
+        &self,
+        settings: &Settings,
+        probes: &[Probe],
+        samples: u32,
+        film: &mut Film,
+        first: u32,
+        count: u32,
+    ) -> u64 {
+        let sampler = PointSampler::new(settings.sampler, settings.seed, samples);
+        let rays: u64 = film
+            .sum
+            .par_chunks_mut(4)
+            .zip(film.sum_sq.par_chunks_mut(4))
+            .enumerate()
+            .map(|(k, (sum, sum_sq))| {
+                let p = &probes[k];
+                let mut rays = 0;
+                for index in first..(first + count).min(samples) {
+                    let u = sampler.uniforms(k as u32, 0, index);
+                    let (v, open) =
+                        self.ao_ray_at(p.position, p.normal, p.error, glam::Vec2::new(u[2], u[3]), settings);
+                    let d = open.unwrap_or(Vec3::ZERO);
+                    for (c, x) in [v, d.x, d.y, d.z].into_iter().enumerate() {
+                        sum[c] += x as f64;
+                        sum_sq[c] += x as f64 * x as f64;
+                    }
+                    rays += 1;
+                }
+                rays
+            })
+            .sum();
+        film.samples += count as u64;
+        rays
     }
 
     /// One sample of pixel `(px, py)`: its value and whether an AO ray was traced. The

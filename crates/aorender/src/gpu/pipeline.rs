@@ -18,6 +18,9 @@ pub enum Kernel {
     Image,
     /// Probe points: `width` lanes for each of `height` points, one sample per lane per dispatch.
     Probe,
+    /// Probe points with their bent normals: four slots for each of `height` points (AO,
+    /// then the unoccluded directions' x, y, z), one sample per point per dispatch.
+    BentProbe,
 }
 
 impl Kernel {
@@ -26,6 +29,7 @@ impl Kernel {
         match self {
             Kernel::Image => "render_sample",
             Kernel::Probe => "probe_sample",
+            Kernel::BentProbe => "probe_bent_sample",
         }
     }
 }

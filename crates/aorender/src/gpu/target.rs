@@ -90,9 +90,11 @@ impl GpuTarget {
         sampler: Sampler,
         hemisphere: Hemisphere,
         points: &[GpuProbePoint],
+        bent_normals: bool,
     ) -> Result<GpuTarget> {
         let lanes = frame.width;
-        let slots = lanes as u64 * points.len() as u64;
+        // With bent normals, one invocation fills a point's four slots.
+        let slots = if bent_normals { points.len() as u64 } else { lanes as u64 * points.len() as u64 };
         let limits = dev.ctx.device.limits();
         let max_slots = limits.max_compute_workgroups_per_dimension as u64 * PROBE_WORKGROUP_SIZE as u64;
         if slots > max_slots {
@@ -101,7 +103,8 @@ impl GpuTarget {
                 points.len()
             )));
         }
-        GpuTarget::build(dev, scene, Kernel::Probe, frame, sampler, hemisphere, points)
+        let kernel = if bent_normals { Kernel::BentProbe } else { Kernel::Probe };
+        GpuTarget::build(dev, scene, kernel, frame, sampler, hemisphere, points)
     }
 
     fn build(
@@ -231,7 +234,7 @@ impl GpuTarget {
             .sum();
         let rays_per_sample = match kernel {
             Kernel::Image => 2,
-            Kernel::Probe => 1,
+            Kernel::Probe | Kernel::BentProbe => 1,
         };
         let safe_samples_per_invocation = safe_samples_per_invocation(rays_per_sample, scene.ray_steps);
         #[cfg(feature = "testing")]
@@ -348,6 +351,7 @@ impl GpuTarget {
             let (groups_x, groups_y) = match self.kernel {
                 Kernel::Image => (self.width.div_ceil(WORKGROUP_SIZE[0]), self.height.div_ceil(WORKGROUP_SIZE[1])),
                 Kernel::Probe => ((self.width * self.height).div_ceil(PROBE_WORKGROUP_SIZE), 1),
+                Kernel::BentProbe => (self.height.div_ceil(PROBE_WORKGROUP_SIZE), 1),
             };
             for k in 0..dispatches {
                 pass.set_bind_group(0, &self.bind_group, &[(DISPATCH_STRIDE * k as u64) as u32]);

@@ -63,6 +63,8 @@ pub(crate) struct Placement {
     /// Its NORMAL attribute placed by the node's normal matrix (the inverse transpose of
     /// its world transform), not normalised; `None` unless asked for and present.
     pub normals: Option<Vec<Vec3>>,
+    /// The node's world transform, which placed the vertices.
+    pub world: DMat4,
 }
 
 /// A glTF file read as the scene loads it, with where each primitive went.
@@ -464,6 +466,7 @@ impl Loader<'_, '_> {
                     vertices: base..base + count,
                     triangles: first_triangle..mesh.triangles.len(),
                     normals,
+                    world: instance.world,
                 });
             }
         }
