@@ -1,10 +1,11 @@
-//! SIGINT and SIGTERM during `aorender render`: the first asks the render to stop after
+//! SIGINT and SIGTERM during `aorender render` and `bake`: the first asks the render to stop after
 //! its current pass (and the outputs for the samples done are written); a second removes
 //! the temporary files of writes in progress (their targets are untouched) and exits at
 //! once with status 128 + signal. Before the render's first pass has finished there is
 //! nothing to write: a signal exits at once.
 
 use anyhow::{Context, Result};
+use std::io::IsTerminal;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 
@@ -78,4 +79,38 @@ pub fn install(stop: Arc<AtomicBool>) -> Result<()> {
 #[cfg(not(unix))]
 pub fn install(_stop: Arc<AtomicBool>) -> Result<()> {
     Ok(())
+}
+
+/// The progress bar of a render or bake on stderr, drawn only when stderr is a terminal;
+/// its updates also mark the first pass done for the signal handlers.
+pub struct PassProgress(Option<indicatif::ProgressBar>);
+
+impl PassProgress {
+    /// A bar of `total` samples, counted in `unit` (`spp`, `samples`).
+    pub fn new(total: u32, unit: &str) -> PassProgress {
+        PassProgress(std::io::stderr().is_terminal().then(|| {
+            let bar = indicatif::ProgressBar::new(total as u64);
+            let template = format!("{{bar:40}} {{pos}}/{{len}} {unit}  {{msg}}  eta {{eta}}");
+            bar.set_style(indicatif::ProgressStyle::with_template(&template).expect("valid template"));
+            bar
+        }))
+    }
+
+    /// After a pass: the first one is done, and the bar shows the samples and the rays per
+    /// second so far.
+    pub fn update(&self, p: &aorender::Progress) {
+        first_pass_done();
+        if let Some(bar) = &self.0 {
+            bar.set_length(p.samples_total as u64);
+            bar.set_position(p.samples_done as u64);
+            bar.set_message(format!("{:.1} M rays/s", p.rays as f64 / p.elapsed.max(1e-9) / 1e6));
+        }
+    }
+
+    /// Removes the bar.
+    pub fn finish(self) {
+        if let Some(bar) = self.0 {
+            bar.finish_and_clear();
+        }
+    }
 }

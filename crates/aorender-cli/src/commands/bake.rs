@@ -11,7 +11,7 @@ use aorender::bake::{
 use aorender::scene::MeshObject;
 use aorender::{Accumulation, Control, Device, Progress, Session, merge, probe_film_bent_normals, probe_film_values};
 use clap::ValueEnum;
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -326,22 +326,8 @@ fn trace(
     stats: &mut BakeStats,
 ) -> Result<Accumulation> {
     let settings = scene.settings.clone();
-    let bar = std::io::stderr().is_terminal().then(|| {
-        let bar = indicatif::ProgressBar::new(args.samples as u64);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} samples  {msg}  eta {eta}")
-                .expect("valid template"),
-        );
-        bar
-    });
-    let mut on_progress = |p: &Progress| {
-        signals::first_pass_done();
-        if let Some(bar) = &bar {
-            bar.set_length(p.samples_total as u64);
-            bar.set_position(p.samples_done as u64);
-            bar.set_message(format!("{:.1} M rays/s", p.rays as f64 / p.elapsed.max(1e-9) / 1e6));
-        }
-    };
+    let bar = signals::PassProgress::new(args.samples, "samples");
+    let mut on_progress = |p: &Progress| bar.update(p);
     let mut save_to = |acc: &Accumulation| -> aorender::Result<()> {
         match checkpoint {
             Some(path) => acc.write(path),
@@ -384,9 +370,7 @@ fn trace(
             _ => e.into(),
         }
     })?;
-    if let Some(bar) = bar {
-        bar.finish_and_clear();
-    }
+    bar.finish();
     let acc = out.accumulation;
     if acc.samples() == 0 {
         let signal = signals::stop_signal();

@@ -8,7 +8,7 @@ use crate::{memory, signals};
 use anyhow::Result;
 use aorender::output::{IMAGE_EXTENSIONS, write_image};
 use aorender::{Accumulation, Control, Device, ImageRequest, Progress, Session};
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -71,22 +71,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
 
-    let bar = std::io::stderr().is_terminal().then(|| {
-        let bar = indicatif::ProgressBar::new(scene.settings.spp as u64);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} spp  {msg}  eta {eta}")
-                .expect("valid template"),
-        );
-        bar
-    });
-    let mut on_progress = |p: &Progress| {
-        signals::first_pass_done();
-        if let Some(bar) = &bar {
-            bar.set_length(p.samples_total as u64);
-            bar.set_position(p.samples_done as u64);
-            bar.set_message(format!("{:.1} M rays/s", p.rays as f64 / p.elapsed.max(1e-9) / 1e6));
-        }
-    };
+    let bar = signals::PassProgress::new(scene.settings.spp, "spp");
+    let mut on_progress = |p: &Progress| bar.update(p);
     let mut save_to = |acc: &Accumulation| -> aorender::Result<()> {
         match &checkpoint_path {
             Some(path) => acc.write(path),
@@ -127,9 +113,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     })?;
     out.stats.load_seconds = load_seconds;
     out.stats.heap_peak_bytes = memory::heap_peak_bytes();
-    if let Some(bar) = bar {
-        bar.finish_and_clear();
-    }
+    bar.finish();
     let st = &out.stats;
     let signal = signals::stop_signal();
     if st.samples_per_pixel == 0 {
