@@ -3,7 +3,9 @@
 
 use crate::arrays::{faces, out, vec3s};
 use crate::engine::{device, interruptible, settings, to_py};
-use aorender::bake::{Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, format_of, output_path, read_asset};
+use aorender::bake::{
+    Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, check_output, output_path, read_asset,
+};
 use aorender::scene::{MeshObject, mesh_triangles};
 use aorender::{BvhOptions, Camera, ImageRequest, Probe, Projection, Scene, Session, Settings};
 use glam::{Mat4, Vec3};
@@ -365,21 +367,7 @@ impl PyScene {
                 let mut outputs = Vec::new();
                 for (object, _) in &targets {
                     let path = output_path(objects, object, is_scene, output);
-                    if format_of(&path) != format_of(&object.path) {
-                        return Err(PyValueError::new_err(format!(
-                            "{}: the output must be a {} file like the input ({})",
-                            path.display(),
-                            format_of(&object.path).unwrap_or("mesh"),
-                            object.path.display()
-                        )));
-                    }
-                    let same = std::fs::canonicalize(&path).ok().zip(std::fs::canonicalize(&object.path).ok());
-                    if !overwrite && same.is_some_and(|(a, b)| a == b) {
-                        return Err(PyValueError::new_err(format!(
-                            "{}: the output would replace the input; choose another path, or pass overwrite=True",
-                            path.display()
-                        )));
-                    }
+                    check_output(&object.path, &path, overwrite).map_err(|e| PyValueError::new_err(e.to_string()))?;
                     outputs.push(path);
                 }
                 outputs

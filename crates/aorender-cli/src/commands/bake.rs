@@ -6,7 +6,7 @@ use crate::args::{RunArgs, SamplingArgs, SceneArgs, check_writable, write_json};
 use crate::{memory, signals};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::bake::{
-    Asset, BakeAt, BakePlan, Placement, UNUSABLE_VALUE, WriteOptions, format_of, output_path, read_asset,
+    Asset, BakeAt, BakePlan, Placement, UNUSABLE_VALUE, WriteOptions, check_output, format_of, output_path, read_asset,
 };
 use aorender::scene::MeshObject;
 use aorender::{Accumulation, Control, Device, Progress, Session, merge, probe_film_bent_normals, probe_film_values};
@@ -107,7 +107,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
     signals::install(stop.clone())?;
     let is_scene = input.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
     if !is_scene {
-        check_format(&input, &args.output)?;
+        check_output(&input, &args.output, args.overwrite)?;
     }
     if args.samples == 0 {
         bail!("invalid option: --samples must be at least 1");
@@ -408,38 +408,10 @@ fn targets(objects: &[MeshObject], is_scene: bool, output: &Path, overwrite: boo
             }
         };
         let out = output_path(objects, object, is_scene, output);
-        if !overwrite && same_file(&object.path, &out) {
-            bail!("{}: the output would replace the input; choose another path, or pass --overwrite", out.display());
-        }
+        check_output(&object.path, &out, overwrite)?;
         targets.push(Target { object: object.clone(), asset, output: out });
     }
     Ok(targets)
-}
-
-/// Whether `a` and `b` name the same existing file.
-fn same_file(a: &Path, b: &Path) -> bool {
-    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => false,
-    }
-}
-
-/// Refuses an output whose format is not the input's.
-fn check_format(input: &Path, output: &Path) -> Result<()> {
-    let Some(theirs) = format_of(input) else {
-        bail!(
-            "{}: cannot bake into this file type: expected .ply, .obj, .gltf, .glb or a scene file (.toml)",
-            input.display()
-        );
-    };
-    match format_of(output) {
-        Some(ours) if ours == theirs => Ok(()),
-        _ => bail!(
-            "{}: the output must be a {theirs} file like the input ({}), optionally gzipped (.gz)",
-            output.display(),
-            input.display()
-        ),
-    }
 }
 
 fn singular(at: BakeAt) -> &'static str {

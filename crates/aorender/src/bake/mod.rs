@@ -58,3 +58,30 @@ pub fn output_path(objects: &[MeshObject], object: &MeshObject, is_scene: bool, 
         None => output.join(format!("{name}-{}", object.number)),
     }
 }
+
+/// Checks, before any work, that `output` can take the bake of the mesh file `input`: a
+/// file of its format (glTF and GLB are one), and not the input itself unless
+/// `overwrite`.
+pub fn check_output(input: &Path, output: &Path, overwrite: bool) -> Result<()> {
+    let Some(theirs) = format_of(input) else {
+        return Err(Error::scene(
+            input,
+            "cannot bake into this file type: expected .ply, .obj, .gltf, .glb or a scene file (.toml)",
+        ));
+    };
+    if format_of(output) != Some(theirs) {
+        let message = format!(
+            "the output must be a {theirs} file like the input ({}), optionally gzipped (.gz)",
+            input.display()
+        );
+        return Err(Error::output(output, message));
+    }
+    let same = std::fs::canonicalize(input).ok().zip(std::fs::canonicalize(output).ok());
+    if !overwrite && same.is_some_and(|(a, b)| a == b) {
+        return Err(Error::output(
+            output,
+            "the output would replace the input; choose another path, or allow writing over it (--overwrite)",
+        ));
+    }
+    Ok(())
+}

@@ -115,8 +115,10 @@ impl BakePlan {
             Probe { position: point.p, normal: n, error: point.error }
         } else {
             // A vertex, as the loader placed it: exactly on the world's triangles. (Face
-            // centroids are placed in the world by `add_faces` and come with `e` zero.)
-            Probe { position: placement.to_world.transform_point3(p), normal: n, error: n.abs().dot(e) }
+            // centroids of triangles placed into the world never come here: `add_faces`
+            // finds them, and their bound, in the world.)
+            debug_assert_eq!(e, Vec3::ZERO);
+            Probe { position: placement.to_world.transform_point3(p), normal: n, error: 0.0 }
         };
         self.probes.push(probe);
         self.probes.len() as u32 - 1
