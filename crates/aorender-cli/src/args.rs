@@ -227,6 +227,13 @@ pub struct SamplingArgs {
     /// else independent).
     #[arg(long, value_parser = sampler_parser())]
     pub sampler: Option<Sampler>,
+    /// Samples per independently randomised replicate of the stratified and Sobol
+    /// samplers, from whose spread the error is estimated: a power of two up to 256 (of
+    /// four for stratified), or 0 for one replicate of all samples (the best point set, no
+    /// error estimate; the default, or with an error target 16). With --resume, the
+    /// checkpoint's.
+    #[arg(long, value_name = "N")]
+    pub replicate: Option<u32>,
 }
 
 impl SamplingArgs {
@@ -238,6 +245,9 @@ impl SamplingArgs {
         }
         if let Some(p) = self.sampler {
             s.sampler = p;
+        }
+        if self.replicate.is_some() {
+            s.replicate = self.replicate;
         }
         s.validate_sampling().map_err(invalid_option)
     }

@@ -170,7 +170,7 @@ fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_i
         var acc = film[i];
         for (var k = 0u; k < dispatch.sample_count; k++) {
             let index = dispatch.first_sample + k;
-            let u = sample_point_uniforms(SAMPLER, pixel.x, pixel.y, index, frame.seed, frame.strata);
+            let u = sample_point_uniforms(SAMPLER, pixel.x, pixel.y, index, frame.seed, frame.strata, frame.replicate);
             acc = accumulate(acc, shade_sample(pixel, u));
         }
         film[i] = acc;
@@ -199,7 +199,7 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
             if (index >= frame.probe_samples) {
                 break;
             }
-            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata);
+            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
             // Pushed off its surface by its error bound (zero for a point exactly on it).
             acc = accumulate(acc, ao_value(q.position, q.normal, q.error, u.zw));
         }
@@ -231,7 +231,7 @@ fn probe_bent_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_i
             if (index >= frame.probe_samples) {
                 break;
             }
-            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata);
+            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
             let ray = ao_ray(q.position, q.normal, q.error, u.zw);
             let shadow = trace(ray.o, ray.d, frame.max_distance, true);
             let open = select(vec3f(0.0), ray.d, shadow.kind == HIT_NONE);

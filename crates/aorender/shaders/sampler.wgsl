@@ -77,14 +77,22 @@ fn sobol_2d(index: u32, shuffle_seed: u32, seed_x: u32, seed_y: u32) -> vec2f {
     return vec2f(u32_to_unit_float(x), u32_to_unit_float(y));
 }
 
-// The numbers of sample `index` of pixel (px, py): (jitter x, y, hemisphere u1, u2).
-fn sample_point_uniforms(sampler_id: u32, px: u32, py: u32, index: u32, seed: u32, strata: u32) -> vec4f {
+// The numbers of sample `index` of pixel (px, py): (jitter x, y, hemisphere u1, u2), in
+// replicates of `replicate` samples (0: one sequence).
+fn sample_point_uniforms(sampler_id: u32, px: u32, py: u32, index: u32, seed: u32, strata: u32, replicate: u32) -> vec4f {
     let independent = sample_uniforms(px, py, index, seed);
     if (sampler_id == SAMPLER_SOBOL) {
-        let shuffle = pcg4d(vec4u(px, py, seed, SOBOL_SHUFFLE_SALT));
-        let scramble = pcg4d(vec4u(px, py, seed, SOBOL_SCRAMBLE_SALT));
-        let a = sobol_2d(index, shuffle.x, scramble.x, scramble.y);
-        let b = sobol_2d(index, shuffle.y, scramble.z, scramble.w);
+        // Replicate k is the first points of a sequence of its own.
+        var k = 0u;
+        var i = index;
+        if (replicate != 0u) {
+            k = index / replicate;
+            i = index % replicate;
+        }
+        let shuffle = pcg4d(vec4u(px, py, seed, SOBOL_SHUFFLE_SALT + k));
+        let scramble = pcg4d(vec4u(px, py, seed, SOBOL_SCRAMBLE_SALT + k));
+        let a = sobol_2d(i, shuffle.x, scramble.x, scramble.y);
+        let b = sobol_2d(i, shuffle.y, scramble.z, scramble.w);
         return vec4f(a, b);
     }
     if (sampler_id == SAMPLER_STRATIFIED || sampler_id == SAMPLER_GRID) {

@@ -11,7 +11,7 @@
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
-use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, Film};
+use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, standard_error};
 use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_film_values};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
@@ -34,6 +34,10 @@ pub struct SampleSettings {
     pub spp: u32,
     /// Cells per axis of the cell samplers ([`Sampler::strata_per_axis`]), 1 for the others.
     pub strata: u32,
+    /// Samples per replicate ([`Sampler::replicate_samples`]).
+    pub replicate: u32,
+    /// What the film's slots hold.
+    pub layout: FilmLayout,
     /// Hemisphere distribution.
     pub hemisphere: Hemisphere,
     /// Point sampler.
@@ -61,7 +65,9 @@ impl SampleSettings {
             width: s.width,
             height: s.height,
             spp: s.spp,
-            strata: s.sampler.strata_per_axis(s.spp),
+            strata: s.strata(s.spp),
+            replicate: s.replicate_samples(),
+            layout: FilmLayout::Image,
             hemisphere: s.hemisphere,
             sampler: s.sampler,
             max_distance: s.max_distance,
@@ -70,16 +76,25 @@ impl SampleSettings {
         }
     }
 
-    /// The settings of `points` probe points of `samples` samples each, spread over
-    /// `lanes` slots a point (the film's width), with the sampling of `settings`;
+    /// The settings of `points` probe points of `samples` samples each, in a film of
+    /// `layout` (`lanes` slots a point: its width), with the sampling of `settings`;
     /// `points_hash` identifies the scene and the points (`probes_hash`).
-    pub fn probes(points_hash: [u8; 32], lanes: u32, points: u32, samples: u32, settings: &Settings) -> SampleSettings {
+    pub fn probes(
+        points_hash: [u8; 32],
+        layout: FilmLayout,
+        lanes: u32,
+        points: u32,
+        samples: u32,
+        settings: &Settings,
+    ) -> SampleSettings {
         SampleSettings {
             scene_hash: points_hash,
             width: lanes,
             height: points,
             spp: samples,
-            strata: settings.sampler.strata_per_axis(samples),
+            strata: settings.strata(samples),
+            replicate: settings.replicate_samples(),
+            layout,
             hemisphere: settings.hemisphere,
             sampler: settings.sampler,
             max_distance: settings.max_distance,
@@ -108,6 +123,8 @@ impl SampleSettings {
                 self.spp, self.strata, self.strata, other.spp, other.strata, other.strata
             ));
         }
+        check(&mut d, "samples per replicate", self.replicate.to_string(), other.replicate.to_string());
+        check(&mut d, "film", format!("{:?}", self.layout), format!("{:?}", other.layout));
         let distance = |m: Option<f32>| m.map_or("unlimited".to_string(), |m| format!("{m} ({:#010x})", m.to_bits()));
         check(&mut d, "max distance", distance(self.max_distance), distance(other.max_distance));
         check(
@@ -120,6 +137,117 @@ impl SampleSettings {
             d.push("scene: its geometry or camera differ".into());
         }
         d
+    }
+}
+
+/// Samples between two checks of an [`ErrorTarget`] when every sample is a replicate of
+/// its own (the independent sampler); otherwise the checks come after every replicate.
+pub const TARGET_CHECK_SAMPLES: u32 = 16;
+/// Replicates an estimate needs before a target can stop a render: seven degrees of
+/// freedom at least.
+pub const MIN_TARGET_REPLICATES: u64 = 8;
+
+/// An accuracy to stop at.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ErrorTarget {
+    /// An image's root-mean-square error against its converged value, at most this,
+    /// with 95 % confidence ([`Film::rmse_bound`]).
+    Rmse(f64),
+    /// The same, relative to the image's mean.
+    RelativeRmse(f64),
+    /// Every probe point's standard error at most this.
+    PointStdError(f64),
+}
+
+impl ErrorTarget {
+    /// The target's value.
+    pub fn value(self) -> f64 {
+        match self {
+            ErrorTarget::Rmse(e) | ErrorTarget::RelativeRmse(e) | ErrorTarget::PointStdError(e) => e,
+        }
+    }
+}
+
+/// What the slots of a film hold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FilmLayout {
+    /// One pixel a slot.
+    Image,
+    /// A row of lanes a probe point: lane l takes the point's samples l, l + lanes, ….
+    Probes,
+    /// Four slots a probe point: the AO, then the x, y and z of the escaped directions.
+    BentProbes,
+}
+
+/// How the device's sums of a pass range become replicate sums: every `take` rounds
+/// (pass indices: samples of an image, rounds of a probe film) the device's sums are
+/// taken; each of `groups` groups (pixels or points), `stride` slots apart, yields
+/// `per_take` replicate sums of `summed` consecutive slots each.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReplicatePlan {
+    /// Rounds per replicate (or per take, when one round holds several).
+    pub take: u32,
+    /// Groups: pixels or points.
+    pub groups: usize,
+    /// Slots from one group to the next.
+    pub stride: usize,
+    /// Slots summed into one replicate sum.
+    pub summed: usize,
+    /// Replicates of a group in one take.
+    pub per_take: usize,
+}
+
+impl SampleSettings {
+    /// How the replicates' sums are taken, when the samples are in replicates of two or
+    /// more (`None` for independent samples, one replicate, or a probe film whose lanes
+    /// do not tile the replicates).
+    pub fn replicate_plan(&self) -> Option<ReplicatePlan> {
+        let b = self.replicate;
+        if b < 2 {
+            return None;
+        }
+        let (w, h) = (self.width as usize, self.height as usize);
+        match self.layout {
+            FilmLayout::Image => Some(ReplicatePlan { take: b, groups: w * h, stride: 1, summed: 1, per_take: 1 }),
+            FilmLayout::BentProbes => Some(ReplicatePlan { take: b, groups: h, stride: w, summed: 1, per_take: 1 }),
+            FilmLayout::Probes => {
+                let lanes = self.width;
+                if b.is_multiple_of(lanes) {
+                    Some(ReplicatePlan { take: b / lanes, groups: h, stride: w, summed: w, per_take: 1 })
+                } else if lanes.is_multiple_of(b) {
+                    let per_take = (lanes / b) as usize;
+                    Some(ReplicatePlan { take: 1, groups: h, stride: w, summed: b as usize, per_take })
+                } else {
+                    None
+                }
+            }
+        }
+    }
+
+    /// How the error of this film is estimated once it holds `replicates` complete
+    /// replicates.
+    pub fn error_estimator(&self, replicates: u64) -> ErrorEstimator {
+        match self.replicate {
+            1 => ErrorEstimator::Samples,
+            0 => ErrorEstimator::None,
+            _ if self.replicate_plan().is_none() || replicates < 2 => ErrorEstimator::None,
+            size => ErrorEstimator::Replicates { size, count: replicates },
+        }
+    }
+
+    /// Samples of a point in rounds `rounds` of a probe film (lane l of round r takes
+    /// sample r × lanes + l, below the samples per point); of a pixel for an image.
+    pub fn samples_in(&self, rounds: std::ops::Range<u32>) -> u64 {
+        match self.layout {
+            FilmLayout::Image | FilmLayout::BentProbes => {
+                (rounds.end.min(self.spp) as u64).saturating_sub(rounds.start as u64)
+            }
+            FilmLayout::Probes => {
+                let lanes = self.width as u64;
+                let at = |r: u32| (r as u64 * lanes).min(self.spp as u64);
+                at(rounds.end).saturating_sub(at(rounds.start))
+            }
+        }
     }
 }
 
@@ -347,8 +475,8 @@ impl Accumulation {
         let layout = if kind == DeviceKind::Cpu { BvhLayout::Cwbvh } else { bvh.layout };
         // The probes as the request traces them (and hashes them).
         let hash = probes_hash(&geometry_hash(scene), &checked(probes)?);
-        let slots = if bent_normals { 4 } else { 1 };
-        let settings = SampleSettings::probes(hash, slots, probes.len() as u32, spp, settings);
+        let (slots, film) = if bent_normals { (4, FilmLayout::BentProbes) } else { (1, FilmLayout::Probes) };
+        let settings = SampleSettings::probes(hash, film, slots, probes.len() as u32, spp, settings);
         Ok(Accumulation::new(settings, kind, layout, bvh.quality, samples.start, samples.end, MAX_PROBE_SAMPLE))
     }
 
@@ -357,6 +485,27 @@ impl Accumulation {
     pub fn probe_values(&self) -> Result<Vec<ProbeValue>> {
         self.check_probe_slots()?;
         Ok(probe_film_values(&self.film()?))
+    }
+
+    /// The estimate at each probe of a probe film of any number of lanes: the slots of a
+    /// point added exactly, with the standard error of [`SampleSettings::error_estimator`].
+    pub fn lane_probe_values(&self) -> Result<Vec<ProbeValue>> {
+        let sums = self.sums()?;
+        let s = &self.settings;
+        let n = s.samples_in(self.first..self.next);
+        let estimator = match s.error_estimator(sums.replicates) {
+            ErrorEstimator::None => ErrorEstimator::Samples,
+            e => e,
+        };
+        let film = sums.to_film(n, self.film_replicate());
+        let lanes = s.width as usize;
+        Ok((0..s.height as usize)
+            .map(|k| {
+                let (sum, sum_sq) = sums.sum_range(k * lanes..(k + 1) * lanes);
+                let r = film.replicate_sq.get(k).copied().unwrap_or(0.0);
+                ProbeValue { mean: sum / n as f64, std_error: standard_error(estimator, n, sum, sum_sq, r), samples: n }
+            })
+            .collect())
     }
 
     /// The bent normal of each probe of an accumulation of `Session::probe_render` with
@@ -381,10 +530,121 @@ impl Accumulation {
     /// The sums as a film: the exact sums, plus the block in progress rounded to the same
     /// quanta (as [`merge`] adds it).
     pub fn film(&self) -> Result<Film> {
+        let replicate = self.film_replicate();
         match &self.partial {
-            None => Ok(self.exact.to_film(self.samples() as u64)),
-            Some(_) => Ok(self.sums()?.to_film(self.samples() as u64)),
+            None => Ok(self.exact.to_film(self.samples() as u64, replicate)),
+            Some(_) => Ok(self.sums()?.to_film(self.samples() as u64, replicate)),
         }
+    }
+
+    /// The replicate size a film of this accumulation reports: 0 where the replicates'
+    /// sums are not taken ([`SampleSettings::replicate_plan`]).
+    fn film_replicate(&self) -> u32 {
+        match self.settings.replicate {
+            0 | 1 => self.settings.replicate,
+            b if self.settings.replicate_plan().is_some() => b,
+            _ => 0,
+        }
+    }
+
+    /// Why `target` cannot stop this accumulation, as [`Error::Settings`]: no valid error
+    /// estimate (one replicate, the grid sampler), or a target of the other kind of
+    /// film (a point's standard error for an image, an image's RMSE for probes).
+    pub fn check_target(&self, target: ErrorTarget) -> Result<()> {
+        let s = &self.settings;
+        if !(target.value().is_finite() && target.value() > 0.0) {
+            return Err(Error::settings(format!("an error target must be positive, got {}", target.value())));
+        }
+        if s.error_estimator(u64::MAX) == ErrorEstimator::None {
+            return Err(Error::settings(format!(
+                "an error target needs an error estimate, which the {} sampler has only in replicates \
+                 (samples per replicate {}: give a power of two{})",
+                s.sampler.name(),
+                s.replicate,
+                if s.sampler == Sampler::Stratified { " of four" } else { "" }
+            )));
+        }
+        let image = s.layout == FilmLayout::Image;
+        if image == matches!(target, ErrorTarget::PointStdError(_)) {
+            let what = if image { "an image" } else { "probe points" };
+            return Err(Error::settings(format!("{target:?} is not a target for {what}")));
+        }
+        Ok(())
+    }
+
+    /// Rounds between two checks of an error target: a replicate's take, or
+    /// `TARGET_CHECK_SAMPLES` samples of independent ones.
+    pub fn target_check_rounds(&self) -> u32 {
+        match self.settings.replicate_plan() {
+            Some(plan) => plan.take,
+            None if self.settings.layout == FilmLayout::Probes => {
+                (TARGET_CHECK_SAMPLES / self.settings.width.max(1)).max(1)
+            }
+            None => TARGET_CHECK_SAMPLES,
+        }
+    }
+
+    /// Whether the samples held meet `target`: at least `MIN_TARGET_REPLICATES`
+    /// replicates, and the image's RMSE bound ([`Film::rmse_bound`]) or every point's
+    /// standard error within it.
+    pub fn target_met(&self, target: ErrorTarget) -> Result<bool> {
+        let sums = self.sums()?;
+        let s = &self.settings;
+        let replicates = match s.replicate {
+            1 => s.samples_in(self.first..self.next),
+            _ => sums.replicates,
+        };
+        if replicates < MIN_TARGET_REPLICATES {
+            return Ok(false);
+        }
+        Ok(match target {
+            ErrorTarget::Rmse(e) => self.film()?.rmse_bound().is_some_and(|b| b <= e),
+            ErrorTarget::RelativeRmse(r) => {
+                let film = self.film()?;
+                film.rmse_bound().is_some_and(|b| b <= r * film.image_mean().abs())
+            }
+            ErrorTarget::PointStdError(e) => {
+                let values = match s.layout {
+                    FilmLayout::Probes => self.lane_probe_values()?,
+                    _ => probe_film_values(&self.film()?),
+                };
+                values.iter().all(|v| v.std_error <= e)
+            }
+        })
+    }
+
+    /// Rounds between two takes of the device's sums: a replicate's, or a block's.
+    pub fn take_rounds(&self) -> u32 {
+        self.settings.replicate_plan().map_or(BLOCK_SAMPLES, |p| p.take.min(BLOCK_SAMPLES))
+    }
+
+    /// Adds the device's sums of rounds `rounds` (taken from it): to the exact sums, and,
+    /// when they are whole replicates, their squares to the replicates' sums.
+    pub fn add_taken(&mut self, block: &BlockSums, rounds: std::ops::Range<u32>) -> Result<()> {
+        self.exact.add_block(block).map_err(|e| self.error(e))?;
+        let Some(plan) = self.settings.replicate_plan() else {
+            return Ok(());
+        };
+        // A point's samples in a full take: a round is a sample of an image, lanes samples
+        // of a point of a probe film.
+        let full = match self.settings.layout {
+            FilmLayout::Probes => plan.take as u64 * self.settings.width as u64,
+            FilmLayout::Image | FilmLayout::BentProbes => plan.take as u64,
+        };
+        let whole = rounds.start.is_multiple_of(plan.take)
+            && rounds.end - rounds.start == plan.take
+            && self.settings.samples_in(rounds.clone()) == full;
+        if !whole {
+            return Ok(());
+        }
+        let mut sums = Vec::with_capacity(plan.groups * plan.per_take);
+        for g in 0..plan.groups {
+            for j in 0..plan.per_take {
+                let first = g * plan.stride + j * plan.summed;
+                sums.push((first..first + plan.summed).map(|i| block.pixel(i).0).sum::<f64>());
+            }
+        }
+        self.exact.add_replicates(&sums, plan.per_take as u64).map_err(|e| self.error(e))
     }
 
     /// The exact sums with the block in progress, if any, rounded to the same quanta and
@@ -535,8 +795,7 @@ pub fn merge(shards: &[(PathBuf, Accumulation)]) -> Result<Merged> {
         }
     }
     let mut exact = first.exact.clone();
-    exact.sum.fill(0);
-    exact.sum_sq.fill(0);
+    exact.clear();
     for (path, a) in &order {
         exact.add(&a.exact).map_err(|m| Error::checkpoint(path, m))?;
         if let Some(block) = &a.partial {
@@ -548,7 +807,7 @@ pub fn merge(shards: &[(PathBuf, Accumulation)]) -> Result<Merged> {
     let on_grid = order.iter().all(|(_, a)| a.on_grid);
     let one_adapter = order.iter().all(|(_, a)| a.adapter == first.adapter && a.device == first.device);
     Ok(Merged {
-        film: exact.to_film((hi - lo) as u64),
+        film: exact.to_film((hi - lo) as u64, first.film_replicate()),
         first: lo,
         end: hi,
         same_as_single_run: aligned && on_grid && one_adapter,

@@ -16,13 +16,146 @@ pub struct Film {
     pub sum: Vec<f64>,
     /// Σ value².
     pub sum_sq: Vec<f64>,
+    /// Samples per replicate (see [`crate::Sampler`]): 1 when every sample is independent, 0
+    /// when the samples are one replicate (no valid error estimate).
+    pub replicate: u32,
+    /// Complete replicates in `replicate_sq`, the same for every group.
+    pub replicates: u64,
+    /// Σ over complete replicates of (the replicate's Σ value)², per group: per pixel for
+    /// an image, per point for a probe film; empty unless `replicate` ≥ 2.
+    pub replicate_sq: Vec<f64>,
+}
+
+/// How a film's error is estimated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ErrorEstimator {
+    /// From the spread of independent samples.
+    Samples,
+    /// From the spread of the means of `count` independently randomised replicates of
+    /// `size` samples each.
+    Replicates {
+        /// Samples per replicate.
+        size: u32,
+        /// Complete replicates.
+        count: u64,
+    },
+    /// None valid: the samples are one replicate of a low-discrepancy or cell sampler
+    /// (the spread of single samples overestimates its error), or too few replicates.
+    None,
+}
+
+impl ErrorEstimator {
+    /// In words, for statistics.
+    pub fn describe(&self) -> String {
+        match self {
+            ErrorEstimator::Samples => "spread of independent samples".into(),
+            ErrorEstimator::Replicates { size, count } => {
+                format!("spread of the means of {count} independently randomised replicates of {size} samples")
+            }
+            ErrorEstimator::None => "none: fewer than two independent replicates".into(),
+        }
+    }
+
+    /// Degrees of freedom of the variance estimate (0 when there is none).
+    pub fn degrees_of_freedom(&self, samples: u64) -> u64 {
+        match *self {
+            ErrorEstimator::Samples => samples.saturating_sub(1),
+            ErrorEstimator::Replicates { count, .. } => count.saturating_sub(1),
+            ErrorEstimator::None => 0,
+        }
+    }
+}
+
+/// The 97.5 % quantile of Student's t distribution with `dof` degrees of freedom: the
+/// half-width of a two-sided 95 % confidence interval in standard errors, when the error
+/// estimate has `dof` degrees of freedom ([`ErrorEstimator::degrees_of_freedom`]).
+/// Exact table values up to 6, then the Cornish–Fisher expansion about the normal
+/// quantile (Abramowitz & Stegun 26.7.5), within 1e-4 of the exact value from 7 on.
+pub fn t_quantile_975(dof: u64) -> f64 {
+    match dof {
+        0 => f64::INFINITY,
+        1 => 12.706_204_736,
+        2 => 4.302_652_730,
+        3 => 3.182_446_305,
+        4 => 2.776_445_105,
+        5 => 2.570_581_836,
+        6 => 2.446_911_851,
+        _ => {
+            let (z, v) = (1.959_963_985f64, dof as f64);
+            let (z3, z5, z7, z9) = (z.powi(3), z.powi(5), z.powi(7), z.powi(9));
+            z + (z3 + z) / (4.0 * v)
+                + (5.0 * z5 + 16.0 * z3 + 3.0 * z) / (96.0 * v * v)
+                + (3.0 * z7 + 19.0 * z5 + 17.0 * z3 - 15.0 * z) / (384.0 * v.powi(3))
+                + (79.0 * z9 + 776.0 * z7 + 1482.0 * z5 - 1920.0 * z3 - 945.0 * z) / (92160.0 * v.powi(4))
+        }
+    }
+}
+
+/// A two-sided 95 % confidence interval for the mean of `n` samples of magnitude at most
+/// `max_value`, estimated as `mean` with standard error `std_error` and `dof` degrees of
+/// freedom: `mean` ± t(dof) `std_error` ([`t_quantile_975`]). When every sample was the
+/// same (a zero standard error: every AO ray of a nearly open pixel escaped), the spread
+/// says nothing, and the interval is the Jeffreys bound for a binomial proportion with no
+/// event (Brown, Cai & DasGupta, "Interval estimation for a binomial proportion", 2001):
+/// the samples that would differ have a probability of at most q = χ²₁(0.95) / (2n + 1)
+/// (the Beta(½, n + ½) quantile for large n), one-sided because equal samples sit at an
+/// end of what the pixel's samples can be, and move the mean towards 0 or `max_value` by
+/// at most that share of the distance (samples lie in [min(0, mean), `max_value`]). For
+/// stratified samples the chance that every cell misses an event is at most that of
+/// independent ones (the product of the cells' chances), and scrambled nets are
+/// negatively dependent in the same sense (Wiart, Lemieux & Dong, "On the dependence
+/// structure and quality of scrambled (t, m, s)-nets", 2021).
+pub fn interval_95(mean: f64, std_error: f64, dof: u64, n: u64, max_value: f64) -> (f64, f64) {
+    if std_error > 1e-9 * max_value.abs().max(f64::MIN_POSITIVE) || n == 0 {
+        let h = t_quantile_975(dof) * std_error;
+        return (mean - h, mean + h);
+    }
+    let q = (3.841_458_8 / (2.0 * n as f64 + 1.0)).min(1.0);
+    // Samples lie in [min(0, mean), max_value]: AO values are not negative, and a
+    // background below them is the least a sample can be.
+    (mean - q * mean.max(0.0), mean + q * (max_value - mean).max(0.0))
+}
+
+/// The standard error of the mean of `n` samples whose sum is `sum`, from `estimator`:
+/// with [`ErrorEstimator::Samples`], from Σv² (`sum_sq`); with replicates, from the Σ
+/// of their sums' squares (`replicate_sq`) and the spread of their means around the
+/// mean of all `n` samples. Samples beyond the complete replicates (a replicate cut
+/// short) count as a share of a replicate: the variance per sample is taken from the
+/// complete ones. Infinite when there is no estimate.
+pub fn standard_error(estimator: ErrorEstimator, n: u64, sum: f64, sum_sq: f64, replicate_sq: f64) -> f64 {
+    let nf = n as f64;
+    match estimator {
+        ErrorEstimator::Samples if n >= 2 => {
+            let mean = sum / nf;
+            let var = ((sum_sq - nf * mean * mean) / (nf - 1.0)).max(0.0);
+            (var / nf).sqrt()
+        }
+        ErrorEstimator::Replicates { size, count } if count >= 2 && n > 0 => {
+            let (b, k) = (size as f64, count as f64);
+            let mean = sum / nf;
+            // Variance of a replicate's mean: (Σ M² − k M̄²) / (k − 1), M = S / b.
+            let var = ((replicate_sq / (b * b) - k * mean * mean) / (k - 1.0)).max(0.0);
+            // Of the mean of n samples, n / b replicates' worth.
+            (var * b / nf).sqrt()
+        }
+        _ => f64::INFINITY,
+    }
 }
 
 impl Film {
     /// An empty accumulation.
     pub fn new(width: u32, height: u32) -> Film {
         let n = width as usize * height as usize;
-        Film { width, height, samples: 0, sum: vec![0.0; n], sum_sq: vec![0.0; n] }
+        Film {
+            width,
+            height,
+            samples: 0,
+            sum: vec![0.0; n],
+            sum_sq: vec![0.0; n],
+            replicate: 1,
+            replicates: 0,
+            replicate_sq: Vec::new(),
+        }
     }
 
     /// Per-pixel estimates (sample means).
@@ -31,28 +164,106 @@ impl Film {
         self.sum.iter().map(|s| s / n).collect()
     }
 
-    /// Per-pixel standard error of the mean, from the sample variance. It assumes
-    /// independent samples: for stratified and Sobol samples it is an overestimate.
-    pub fn std_error(&self) -> Vec<f64> {
-        let n = self.samples as f64;
-        if self.samples < 2 {
-            return vec![f64::INFINITY; self.sum.len()];
+    /// How [`Film::std_error`] estimates the error.
+    pub fn error_estimator(&self) -> ErrorEstimator {
+        match self.replicate {
+            0 => ErrorEstimator::None,
+            1 => ErrorEstimator::Samples,
+            size if self.replicates >= 2 => ErrorEstimator::Replicates { size, count: self.replicates },
+            _ => ErrorEstimator::None,
         }
-        self.sum
-            .iter()
-            .zip(&self.sum_sq)
-            .map(|(s, q)| {
-                let mean = s / n;
-                let var = ((q / n - mean * mean) * n / (n - 1.0)).max(0.0);
-                (var / n).sqrt()
+    }
+
+    /// Per-pixel standard error of the mean (`standard_error`), valid for every sampler
+    /// whose samples are in two or more replicates. Without a valid estimate
+    /// ([`ErrorEstimator::None`]) it is the spread of single samples, which overestimates
+    /// the error of stratified and Sobol points (the grid's is not an error at all).
+    pub fn std_error(&self) -> Vec<f64> {
+        let estimator = match self.error_estimator() {
+            ErrorEstimator::None => ErrorEstimator::Samples,
+            e => e,
+        };
+        (0..self.sum.len())
+            .map(|i| {
+                let r = self.replicate_sq.get(i).copied().unwrap_or(0.0);
+                standard_error(estimator, self.samples, self.sum[i], self.sum_sq[i], r)
             })
             .collect()
+    }
+
+    /// Estimated root-mean-square error of the image against its converged value: the
+    /// root of the mean of the per-pixel variances of the mean, when the error estimate is
+    /// valid ([`Film::error_estimator`]).
+    pub fn rmse_estimate(&self) -> Option<f64> {
+        if self.error_estimator() == ErrorEstimator::None || self.sum.is_empty() {
+            return None;
+        }
+        let se = self.std_error();
+        let ms = se.iter().map(|e| e * e).sum::<f64>() / se.len() as f64;
+        ms.is_finite().then(|| ms.sqrt())
+    }
+
+    /// A one-sided 95 % upper bound on the image's realised root-mean-square error,
+    /// from [`Film::rmse_estimate`]. With per-pixel variances v (estimated with d degrees
+    /// of freedom), the realised mean square error fluctuates around Σv / P with a
+    /// relative standard deviation √(2 / P_eff), P_eff = (Σv)² / Σv², and the estimate
+    /// around it with √(2 / (d P_eff)) (normal errors); the RMSE's relative deviation is
+    /// half the mean square's, and the bound adds 1.645 of both. What a render that stops
+    /// at an error target (`Control::target`) compares with the target.
+    pub fn rmse_bound(&self) -> Option<f64> {
+        let rmse = self.rmse_estimate()?;
+        let v: Vec<f64> = self.std_error().iter().map(|e| e * e).collect();
+        let (sum, sum_sq) = (v.iter().sum::<f64>(), v.iter().map(|x| x * x).sum::<f64>());
+        if sum_sq == 0.0 {
+            return Some(rmse);
+        }
+        let p_eff = sum * sum / sum_sq;
+        let d = self.error_estimator().degrees_of_freedom(self.samples).max(1) as f64;
+        Some(rmse * (1.0 + 1.645 * ((1.0 + 1.0 / d) / (2.0 * p_eff)).sqrt()))
+    }
+
+    /// Per-pixel two-sided 95 % confidence intervals of the means ([`interval_95`]), for
+    /// samples of magnitude at most `max_value`; `None` without a valid error estimate.
+    pub fn intervals_95(&self, max_value: f64) -> Option<Vec<(f64, f64)>> {
+        let estimator = self.error_estimator();
+        if estimator == ErrorEstimator::None {
+            return None;
+        }
+        let dof = estimator.degrees_of_freedom(self.samples);
+        let (mean, se) = (self.mean(), self.std_error());
+        Some(mean.iter().zip(&se).map(|(&m, &e)| interval_95(m, e, dof, self.samples, max_value)).collect())
     }
 
     /// Mean over all pixels of the per-pixel estimates.
     pub fn image_mean(&self) -> f64 {
         let m = self.mean();
         m.iter().sum::<f64>() / m.len() as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn t_quantiles_match_the_tables() {
+        // Student's t, 97.5 % (two-sided 95 %), from the standard tables.
+        for (dof, t) in [(5, 2.570_582), (7, 2.364_624), (15, 2.131_450), (30, 2.042_272), (63, 1.998_341)] {
+            assert!((t_quantile_975(dof) - t).abs() < 1e-4, "dof {dof}: {} against {t}", t_quantile_975(dof));
+        }
+        assert!((t_quantile_975(1 << 30) - 1.959_964).abs() < 1e-6);
+    }
+
+    #[test]
+    fn replicate_error_is_the_spread_of_replicate_means() {
+        // Replicates of 4 samples with means 0.25, 0.5, 0.75, 0.5: mean 0.5, their
+        // variance (1/16 + 0 + 1/16 + 0) / 3 = 1/24, standard error √(1/24 / 4).
+        let sums = [1.0, 2.0, 3.0, 2.0];
+        let rsq: f64 = sums.iter().map(|s| s * s).sum();
+        let e = ErrorEstimator::Replicates { size: 4, count: 4 };
+        let se = standard_error(e, 16, 8.0, 0.0, rsq);
+        assert!((se - (1.0f64 / 96.0).sqrt()).abs() < 1e-15, "{se}");
+        assert_eq!(standard_error(ErrorEstimator::Replicates { size: 4, count: 1 }, 4, 1.0, 0.0, 1.0), f64::INFINITY);
     }
 }
 
@@ -143,14 +354,69 @@ pub struct ExactSums {
     pub sum: Vec<i128>,
     /// Σv² in quanta.
     pub sum_sq: Vec<i128>,
+    /// Σ (replicate's Σv)² over complete replicates, per group ([`Film::replicate_sq`]),
+    /// in quanta of 2^(`sq_exponent` + [`REPLICATE_SQ_SHIFT`]); empty when the samples
+    /// are not replicated.
+    pub replicate_sq: Vec<i128>,
+    /// Complete replicates in `replicate_sq`.
+    pub replicates: u64,
 }
+
+/// log2 of the ratio of the quantum of [`ExactSums::replicate_sq`] to that of Σv²: the
+/// squares of 2^32 / b replicates of b samples add to at most 2^32 b times a sample's
+/// largest square, and b is at most 256 = 2^8.
+pub const REPLICATE_SQ_SHIFT: i32 = 8;
 
 impl ExactSums {
     /// Zero sums for samples of magnitude at most `max_value`.
     pub fn new(width: u32, height: u32, max_value: f64) -> ExactSums {
         let (sum_exponent, sq_exponent) = ExactSums::exponents(max_value);
         let n = width as usize * height as usize;
-        ExactSums { width, height, sum_exponent, sq_exponent, sum: vec![0; n], sum_sq: vec![0; n] }
+        ExactSums {
+            width,
+            height,
+            sum_exponent,
+            sq_exponent,
+            sum: vec![0; n],
+            sum_sq: vec![0; n],
+            replicate_sq: Vec::new(),
+            replicates: 0,
+        }
+    }
+
+    /// Empties the sums, keeping their size and scale.
+    pub fn clear(&mut self) {
+        self.sum.fill(0);
+        self.sum_sq.fill(0);
+        self.replicate_sq.fill(0);
+        self.replicates = 0;
+    }
+
+    /// Adds `count` complete replicates whose sums are `sums` (`count` per group, group
+    /// after group), each squared in f64 and rounded once to the quantum. An error names
+    /// the first group whose square is out of range.
+    pub fn add_replicates(&mut self, sums: &[f64], count: u64) -> Result<(), SumsError> {
+        let groups = sums.len() / count.max(1) as usize;
+        if self.replicate_sq.is_empty() {
+            self.replicate_sq = vec![0; groups];
+        }
+        if groups != self.replicate_sq.len() || sums.len() as u64 != groups as u64 * count {
+            return Err(SumsError(format!(
+                "{} replicate sums added to {} groups of {count}",
+                sums.len(),
+                self.replicate_sq.len()
+            )));
+        }
+        let e = self.sq_exponent + REPLICATE_SQ_SHIFT;
+        for (g, chunk) in sums.chunks_exact(count.max(1) as usize).enumerate() {
+            for &s in chunk {
+                let bad = || SumsError(format!("group {g}: a replicate's sum {s} is out of range"));
+                let q = quantize(s * s, e).ok_or_else(bad)?;
+                self.replicate_sq[g] = self.replicate_sq[g].checked_add(q).ok_or_else(bad)?;
+            }
+        }
+        self.replicates += count;
+        Ok(())
     }
 
     /// The quanta's exponents for samples of magnitude at most `max_value` (taken as at
@@ -192,9 +458,17 @@ impl ExactSums {
         {
             return Err(SumsError("sums of another size or scale".into()));
         }
-        for (a, b) in self.sum.iter_mut().zip(&other.sum).chain(self.sum_sq.iter_mut().zip(&other.sum_sq)) {
+        if self.replicate_sq.is_empty() {
+            self.replicate_sq = vec![0; other.replicate_sq.len()];
+        }
+        if !other.replicate_sq.is_empty() && other.replicate_sq.len() != self.replicate_sq.len() {
+            return Err(SumsError("replicate sums of another size".into()));
+        }
+        let pairs = self.sum.iter_mut().zip(&other.sum).chain(self.sum_sq.iter_mut().zip(&other.sum_sq));
+        for (a, b) in pairs.chain(self.replicate_sq.iter_mut().zip(&other.replicate_sq)) {
             *a = a.checked_add(*b).ok_or_else(|| SumsError("a sum overflowed".into()))?;
         }
+        self.replicates += other.replicates;
         Ok(())
     }
 
@@ -206,15 +480,20 @@ impl ExactSums {
         (sum as f64 * qs, sum_sq as f64 * qq)
     }
 
-    /// The sums as a [`Film`] of `samples` samples per pixel (each rounded once to f64).
-    pub fn to_film(&self, samples: u64) -> Film {
+    /// The sums as a [`Film`] of `samples` samples per pixel in replicates of
+    /// `replicate` samples (each sum rounded once to f64).
+    pub fn to_film(&self, samples: u64, replicate: u32) -> Film {
         let (qs, qq) = (pow2(self.sum_exponent), pow2(self.sq_exponent));
+        let qr = pow2(self.sq_exponent + REPLICATE_SQ_SHIFT);
         Film {
             width: self.width,
             height: self.height,
             samples,
             sum: self.sum.iter().map(|&s| s as f64 * qs).collect(),
             sum_sq: self.sum_sq.iter().map(|&q| q as f64 * qq).collect(),
+            replicate,
+            replicates: self.replicates,
+            replicate_sq: self.replicate_sq.iter().map(|&q| q as f64 * qr).collect(),
         }
     }
 }

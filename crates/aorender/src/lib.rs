@@ -109,11 +109,11 @@ pub mod error;
 pub mod output;
 pub mod scene;
 
-pub use accumulation::{Accumulation, Merged, MergedShard, SampleSettings, merge, scene_hash};
+pub use accumulation::{Accumulation, ErrorTarget, FilmLayout, Merged, MergedShard, SampleSettings, merge, scene_hash};
 pub use bvh::{BuildQuality, BvhLayout};
 pub use device::{BvhOptions, Device, DeviceKind, Setup};
 pub use error::{Error, Result};
-pub use film::{BLOCK_SAMPLES, Film};
+pub use film::{BLOCK_SAMPLES, ErrorEstimator, Film, interval_95, t_quantile_975};
 pub use gpu::{AdapterInfo, GeometryStorage, catching_panics, list_adapters};
 pub use probe::{Probe, ProbeValue, probe_film_bent_normals, probe_film_values};
 pub use render::{

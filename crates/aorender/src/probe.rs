@@ -11,7 +11,7 @@
 //! slot sums are added exactly.
 
 use crate::error::{Error, Result};
-use crate::film::Film;
+use crate::film::{ErrorEstimator, Film, standard_error};
 use glam::Vec3;
 
 /// A point and the normal of its hemisphere.
@@ -94,8 +94,19 @@ impl ProbeValue {
 /// bent normals, the AO first): each point's AO.
 pub fn probe_film_values(film: &Film) -> Vec<ProbeValue> {
     let stride = film.width as usize;
+    // As Film::std_error: without a valid estimate, the spread of single samples.
+    let estimator = match film.error_estimator() {
+        ErrorEstimator::None => ErrorEstimator::Samples,
+        e => e,
+    };
     (0..film.height as usize)
-        .map(|k| ProbeValue::from_sums(film.sum[k * stride], film.sum_sq[k * stride], film.samples))
+        .map(|k| {
+            let (sum, sum_sq) = (film.sum[k * stride], film.sum_sq[k * stride]);
+            let r = film.replicate_sq.get(k).copied().unwrap_or(0.0);
+            let mut value = ProbeValue::from_sums(sum, sum_sq, film.samples);
+            value.std_error = standard_error(estimator, film.samples, sum, sum_sq, r);
+            value
+        })
         .collect()
 }
 
@@ -112,9 +123,11 @@ pub fn probe_film_bent_normals(film: &Film) -> Option<Vec<Vec3>> {
 /// Film slots the probe kernel aims to keep busy per dispatch: points × lanes.
 pub const TARGET_SLOTS: u32 = 1 << 16;
 
-/// Lanes per probe: enough slots to fill the device, at most one per sample.
+/// Lanes per probe: enough slots to fill the device, at most one per sample, a power of
+/// two (so that lanes and replicates of a power-of-two size tile each other).
 pub fn lanes_for(points: usize, samples: u32) -> u32 {
-    (TARGET_SLOTS / points.max(1) as u32).clamp(1, samples.max(1))
+    let lanes = (TARGET_SLOTS / points.max(1) as u32).clamp(1, samples.max(1));
+    1 << lanes.ilog2()
 }
 
 #[cfg(test)]
@@ -124,7 +137,7 @@ mod tests {
     #[test]
     fn lanes_fill_the_device_without_exceeding_samples() {
         assert_eq!(lanes_for(1, 1 << 20), TARGET_SLOTS);
-        assert_eq!(lanes_for(1, 100), 100);
+        assert_eq!(lanes_for(1, 100), 64);
         assert_eq!(lanes_for(1 << 20, 1000), 1);
         assert_eq!(lanes_for(64, 1 << 20), TARGET_SLOTS / 64);
     }

@@ -4,10 +4,10 @@
 //! exact sums of the [`Accumulation`], which is handed to a save callback every few
 //! seconds. Every render, comparison cell, benchmark run and probe request runs here.
 
-use crate::accumulation::Accumulation;
+use crate::accumulation::{Accumulation, ErrorTarget};
 use crate::device::{Passes, Setup};
 use crate::error::Result;
-use crate::film::{BLOCK_SAMPLES, Film};
+use crate::film::Film;
 use crate::gpu::MAX_PASS_SAMPLES;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -61,6 +61,9 @@ pub struct Control<'a> {
     pub save_interval: f64,
     /// How passes are sized.
     pub sizing: PassSizing,
+    /// Stop once the error estimate meets this target (checked after every replicate,
+    /// or every `TARGET_CHECK_SAMPLES` independent samples).
+    pub target: Option<ErrorTarget>,
 }
 
 impl Default for Control<'_> {
@@ -72,6 +75,7 @@ impl Default for Control<'_> {
             save: None,
             save_interval: 5.0,
             sizing: PassSizing::Timed,
+            target: None,
         }
     }
 }
@@ -85,6 +89,20 @@ pub enum RunEnd {
     TimeLimit,
     /// A stop was asked for first.
     Stopped,
+    /// The error target was met first.
+    TargetMet,
+}
+
+impl RunEnd {
+    /// In words, for statistics.
+    pub fn name(self) -> &'static str {
+        match self {
+            RunEnd::Done => "samples",
+            RunEnd::TimeLimit => "time limit",
+            RunEnd::Stopped => "interrupted",
+            RunEnd::TargetMet => "target",
+        }
+    }
 }
 
 /// Figures of a finished render (serialised by `aorender render --stats`).
@@ -172,6 +190,29 @@ pub struct RenderStats {
     pub passes: u32,
     /// Mean of the image.
     pub image_mean: f64,
+    /// What ended the render: `samples` (all asked for), `target`, `time limit` or
+    /// `interrupted`.
+    pub ended_by: String,
+    /// The error target the render stopped at, if it had one: `rmse`,
+    /// `relative_rmse` or `point_std_error`, and its value.
+    pub target: Option<(String, f64)>,
+    /// Samples per independently randomised replicate (1: independent samples; 0: one
+    /// replicate of all samples, with no valid error estimate).
+    pub replicate_samples: u32,
+    /// Complete replicates held.
+    pub replicates: u64,
+    /// How the error is estimated, in words.
+    pub error_estimator: String,
+    /// Degrees of freedom of the variance estimates (0: no estimate).
+    pub error_degrees_of_freedom: u64,
+    /// Estimated root-mean-square error of the image against its converged value: the
+    /// root of the mean per-pixel variance of the mean; `null` without a valid estimate.
+    pub rmse_estimate: Option<f64>,
+    /// `rmse_estimate` over `image_mean`.
+    pub relative_rmse_estimate: Option<f64>,
+    /// The bound the error target is checked against: `rmse_estimate` raised to a
+    /// one-sided 95 % bound on the realised RMSE ([`Film::rmse_bound`]).
+    pub rmse_bound: Option<f64>,
 }
 
 /// A finished render.
@@ -226,6 +267,8 @@ pub struct Render {
     count: u32,
     times: PassTimes,
     interrupted: bool,
+    /// How the last run of passes ended, and the target it had.
+    ended: Option<(RunEnd, Option<ErrorTarget>)>,
 }
 
 impl Render {
@@ -238,6 +281,7 @@ impl Render {
             count: 1,
             times: PassTimes { gpu_seconds: Some(0.0), ..Default::default() },
             interrupted: false,
+            ended: None,
         }
     }
 
@@ -250,7 +294,7 @@ impl Render {
         saved.check_resume(&self.acc)?;
         if saved.end != self.acc.end {
             // A last block cut short by the old end was summed as a block of its own.
-            if saved.next == saved.end && !saved.end.is_multiple_of(BLOCK_SAMPLES) {
+            if saved.next == saved.end && !saved.end.is_multiple_of(saved.take_rounds()) {
                 saved.on_grid = false;
             }
             saved.end = self.acc.end;
@@ -272,8 +316,7 @@ impl Render {
             self.passes.take()?;
         }
         let acc = &mut self.acc;
-        acc.exact.sum.fill(0);
-        acc.exact.sum_sq.fill(0);
+        acc.exact.clear();
         (acc.next, acc.partial_samples, acc.on_grid) = (acc.first, 0, true);
         (acc.ao_rays, acc.passes, acc.render_seconds) = (0, 0, 0.0);
         acc.partial = None;
@@ -281,6 +324,7 @@ impl Render {
         self.count = 1;
         self.times = PassTimes { gpu_seconds: Some(0.0), ..Default::default() };
         self.interrupted = false;
+        self.ended = None;
         Ok(())
     }
 
@@ -313,6 +357,15 @@ impl Render {
     /// Runs passes until `samples` samples per pixel are done (at most the range's
     /// length), the time limit is reached or a stop is asked for.
     pub fn run_to(&mut self, samples: u32, control: &mut Control) -> Result<RunEnd> {
+        let end = self.run_passes(samples, control)?;
+        self.ended = Some((end, control.target));
+        Ok(end)
+    }
+
+    fn run_passes(&mut self, samples: u32, control: &mut Control) -> Result<RunEnd> {
+        if let Some(target) = control.target {
+            self.acc.check_target(target)?;
+        }
         let acc = &mut self.acc;
         let until = (acc.first + samples.min(acc.end - acc.first)).max(acc.next);
         let pixels = acc.settings.width as u64 * acc.settings.height as u64;
@@ -335,9 +388,17 @@ impl Render {
                 end = RunEnd::TimeLimit;
                 break;
             }
-            // A pass stays within one block.
-            let block_end = ((acc.next / BLOCK_SAMPLES) as u64 + 1) * BLOCK_SAMPLES as u64;
+            // A pass stays within one block, and within one replicate when their sums are
+            // taken.
+            let unit = acc.take_rounds();
+            let block_end = ((acc.next / unit) as u64 + 1) * unit as u64;
             let block_end = block_end.min(acc.end as u64) as u32;
+            // And within one stretch between two checks of the target.
+            let check = control.target.map(|_| acc.target_check_rounds());
+            let block_end = match check {
+                Some(c) => block_end.min((((acc.next / c) as u64 + 1) * c as u64).min(u32::MAX as u64) as u32),
+                None => block_end,
+            };
             let count = match control.sizing {
                 PassSizing::Timed => self.count,
                 PassSizing::Fixed(n) => n.clamp(1, MAX_PASS_SAMPLES),
@@ -357,7 +418,7 @@ impl Render {
             passes += 1;
             if acc.next == block_end {
                 let block = self.passes.take()?;
-                acc.exact.add_block(&block).map_err(|e| acc.error(e))?;
+                acc.add_taken(&block, acc.next - acc.partial_samples..acc.next)?;
                 acc.partial_samples = 0;
             }
             let mut target = PASS_TARGET_SECONDS;
@@ -386,6 +447,17 @@ impl Render {
                 acc.partial = None;
                 save_seconds = t.elapsed().as_secs_f64();
                 last_save = Instant::now();
+            }
+            if let (Some(target), Some(c)) = (control.target, check)
+                && acc.next.is_multiple_of(c)
+            {
+                acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+                let met = acc.target_met(target);
+                acc.partial = None;
+                if met? {
+                    end = RunEnd::TargetMet;
+                    break;
+                }
             }
         }
         acc.render_seconds = seconds_before + start.elapsed().as_secs_f64();
@@ -469,6 +541,26 @@ impl Render {
             load_seconds: 0.0,
             passes: acc.passes,
             image_mean: film.image_mean(),
+            ended_by: match self.ended {
+                Some((end, _)) => end.name().into(),
+                None if done == acc.end - acc.first => RunEnd::Done.name().into(),
+                None => "not run to its end".into(),
+            },
+            target: self.ended.and_then(|(_, t)| t).map(|t| {
+                let name = match t {
+                    ErrorTarget::Rmse(_) => "rmse",
+                    ErrorTarget::RelativeRmse(_) => "relative_rmse",
+                    ErrorTarget::PointStdError(_) => "point_std_error",
+                };
+                (name.to_string(), t.value())
+            }),
+            replicate_samples: film.replicate,
+            replicates: film.replicates,
+            error_estimator: film.error_estimator().describe(),
+            error_degrees_of_freedom: film.error_estimator().degrees_of_freedom(film.samples),
+            rmse_estimate: film.rmse_estimate(),
+            relative_rmse_estimate: film.rmse_estimate().map(|e| e / film.image_mean().abs()),
+            rmse_bound: film.rmse_bound(),
         };
         Ok(RenderOutput { film, stats, accumulation })
     }

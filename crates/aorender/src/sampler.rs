@@ -17,6 +17,18 @@
 //!   index (Burley, "Practical Hash-based Owen Scrambling", JCGT 2020). Each dimension
 //!   has its own index shuffle and scramble, seeded per pixel, so pixels and dimensions
 //!   are decorrelated. Unbiased for any count; best at powers of two.
+//!
+//! Replicates. The samples of a pixel are cut into replicates of consecutive indices,
+//! each an independent randomisation of the point set (randomised quasi-Monte Carlo:
+//! Owen, "Monte Carlo theory, methods and examples", ch. 17; L'Ecuyer, "Randomized
+//! quasi-Monte Carlo: an introduction for practitioners", 2018). The spread of the
+//! replicates' means is an unbiased estimate of the variance of their mean whatever the
+//! point set does inside a replicate, which the spread of single samples is not for
+//! stratified or Sobol points. `independent` samples are replicates of one sample each;
+//! a `stratified` replicate is one block of n² cells; a `sobol` replicate of size
+//! 2^m is the first 2^m points of a sequence scrambled and shuffled anew for it.
+//! Replicate size 0 is one sequence for all the samples (the best point set, with no
+//! valid error estimate); `grid` has no randomness to replicate.
 
 use crate::sampling::{pcg4d, sample_uniforms, u32_to_unit_float};
 use glam::UVec4;
@@ -27,6 +39,9 @@ pub const PERMUTE_WALK_LIMIT: u32 = 32;
 /// Loop iterations one sample's numbers may take on the GPU (two dimensions of
 /// [`permute`]); counted against lavapipe's per-invocation loop cap with the traversal.
 pub const SAMPLER_LOOP_BOUND: u32 = 2 * PERMUTE_WALK_LIMIT;
+/// The largest replicate: the exact accumulation's block ([`crate::film::BLOCK_SAMPLES`]),
+/// so that replicates nest in blocks.
+pub const MAX_REPLICATE_SAMPLES: u32 = 256;
 /// The largest `f32` below one.
 pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
 
@@ -84,10 +99,66 @@ impl Sampler {
         self != Sampler::Grid
     }
 
-    /// Cells per axis for `spp` samples per pixel: ⌊√spp⌋ for the cell samplers, else 1.
-    /// At most 46,340, so that the cell count stays below 2³¹.
-    pub fn strata_per_axis(self, spp: u32) -> u32 {
+    /// Samples per replicate of a render (module doc): `requested` (checked by
+    /// [`Sampler::check_replicate`]), or by default one replicate of every sample (0) for
+    /// `stratified` and `sobol`, whose best point set is one sequence; always 1 for
+    /// `independent` and 0 for `grid`.
+    pub fn replicate_samples(self, requested: Option<u32>) -> u32 {
         match self {
+            Sampler::Independent => 1,
+            Sampler::Grid => 0,
+            Sampler::Stratified | Sampler::Sobol => requested.unwrap_or(0),
+        }
+    }
+
+    /// The largest replicate size this sampler allows that cuts `spp` samples into at
+    /// least `replicates` replicates (a power of two for `sobol`, of four for
+    /// `stratified`, at most `MAX_REPLICATE_SAMPLES`, at least 1); 1 for `independent`,
+    /// 0 for `grid`.
+    pub fn replicate_for(self, spp: u32, replicates: u32) -> u32 {
+        let step = match self {
+            Sampler::Independent => return 1,
+            Sampler::Grid => return 0,
+            Sampler::Stratified => 4,
+            Sampler::Sobol => 2,
+        };
+        let mut r = 1;
+        while r * step <= MAX_REPLICATE_SAMPLES && (r * step) as u64 * replicates as u64 <= spp as u64 {
+            r *= step;
+        }
+        r
+    }
+
+    /// Why `replicate` samples per replicate cannot be asked of this sampler, in words;
+    /// `Ok` when they can (any size for `independent` and `grid`, which ignore it).
+    pub fn check_replicate(self, replicate: u32) -> Result<(), String> {
+        let ok = match self {
+            Sampler::Independent | Sampler::Grid => true,
+            Sampler::Sobol => replicate == 0 || (replicate.is_power_of_two() && replicate <= MAX_REPLICATE_SAMPLES),
+            Sampler::Stratified => {
+                replicate == 0
+                    || (replicate.is_power_of_two()
+                        && replicate.trailing_zeros().is_multiple_of(2)
+                        && replicate <= MAX_REPLICATE_SAMPLES)
+            }
+        };
+        if ok {
+            return Ok(());
+        }
+        let allowed = match self {
+            Sampler::Stratified => "0 (one replicate) or 1, 4, 16, 64 or 256 (n x n cells, n a power of two)",
+            _ => "0 (one replicate) or a power of two up to 256",
+        };
+        Err(format!("{replicate} samples per replicate for the {} sampler: use {allowed}", self.name()))
+    }
+
+    /// Cells per axis of a render of `spp` samples per pixel and `replicate` samples per
+    /// replicate: for `stratified` √replicate, or ⌊√spp⌋ when one replicate holds every
+    /// sample (replicate 0); for `grid` ⌊√spp⌋; else 1. At most 46,340, so that the cell
+    /// count stays below 2³¹.
+    pub fn strata_per_axis(self, spp: u32, replicate: u32) -> u32 {
+        match self {
+            Sampler::Stratified if replicate > 0 => replicate.isqrt(),
             Sampler::Stratified | Sampler::Grid => spp.max(1).isqrt().min(46_340),
             Sampler::Independent | Sampler::Sobol => 1,
         }
@@ -103,29 +174,44 @@ pub struct PointSampler {
     pub seed: u32,
     /// Cells per axis ([`Sampler::strata_per_axis`]).
     pub strata: u32,
+    /// Samples per replicate ([`Sampler::replicate_samples`]); 0 for one sequence.
+    pub replicate: u32,
 }
 
 impl PointSampler {
-    /// The sampler of a render of `spp` samples per pixel.
-    pub fn new(sampler: Sampler, seed: u32, spp: u32) -> PointSampler {
-        PointSampler { sampler, seed, strata: sampler.strata_per_axis(spp) }
+    /// The sampler of a render of `spp` samples per pixel in replicates of `replicate`
+    /// samples ([`Sampler::replicate_samples`]).
+    pub fn new(sampler: Sampler, seed: u32, spp: u32, replicate: u32) -> PointSampler {
+        PointSampler { sampler, seed, strata: sampler.strata_per_axis(spp, replicate), replicate }
     }
 
     /// The numbers of sample `index` of pixel `(px, py)`: (jitter x, jitter y,
     /// hemisphere ξ₁, ξ₂), each in [0, 1).
     pub fn uniforms(&self, px: u32, py: u32, index: u32) -> [f32; 4] {
-        sample_point_uniforms(self.sampler.shader_id(), px, py, index, self.seed, self.strata)
+        let s = self.sampler.shader_id();
+        sample_point_uniforms(s, px, py, index, self.seed, self.strata, self.replicate)
     }
 }
 
 /// [`PointSampler::uniforms`] by sampler id: the twin of the WGSL function.
-pub fn sample_point_uniforms(sampler: u32, px: u32, py: u32, index: u32, seed: u32, strata: u32) -> [f32; 4] {
+pub fn sample_point_uniforms(
+    sampler: u32,
+    px: u32,
+    py: u32,
+    index: u32,
+    seed: u32,
+    strata: u32,
+    replicate: u32,
+) -> [f32; 4] {
     let independent = sample_uniforms(px, py, index, seed);
     if sampler == Sampler::Sobol.shader_id() {
-        let shuffle = pcg4d(UVec4::new(px, py, seed, SOBOL_SHUFFLE_SALT));
-        let scramble = pcg4d(UVec4::new(px, py, seed, SOBOL_SCRAMBLE_SALT));
-        let a = sobol_2d(index, shuffle.x, scramble.x, scramble.y);
-        let b = sobol_2d(index, shuffle.y, scramble.z, scramble.w);
+        // Replicate k is the first points of a sequence of its own; replicate 0's is the
+        // sequence of a render in one replicate.
+        let (k, i) = index.checked_div(replicate).map_or((0, index), |k| (k, index % replicate));
+        let shuffle = pcg4d(UVec4::new(px, py, seed, SOBOL_SHUFFLE_SALT.wrapping_add(k)));
+        let scramble = pcg4d(UVec4::new(px, py, seed, SOBOL_SCRAMBLE_SALT.wrapping_add(k)));
+        let a = sobol_2d(i, shuffle.x, scramble.x, scramble.y);
+        let b = sobol_2d(i, shuffle.y, scramble.z, scramble.w);
         return [a[0], a[1], b[0], b[1]];
     }
     if sampler == Sampler::Stratified.shader_id() || sampler == Sampler::Grid.shader_id() {
@@ -300,7 +386,7 @@ mod tests {
     fn cell_samplers_visit_every_cell_once_per_block() {
         for spp in [1u32, 4, 9, 10, 16, 17, 256] {
             for sampler in [Sampler::Stratified, Sampler::Grid] {
-                let s = PointSampler::new(sampler, 42, spp);
+                let s = PointSampler::new(sampler, 42, spp, 0);
                 let n = s.strata;
                 assert!(n * n <= spp && (n + 1) * (n + 1) > spp, "spp {spp}: n {n}");
                 for (px, py) in [(0, 0), (3, 9)] {
@@ -329,7 +415,7 @@ mod tests {
     fn numbers_stay_below_one() {
         for sampler in Sampler::ALL {
             for spp in [1u32, 2, 16, 1 << 20] {
-                let s = PointSampler::new(sampler, 5, spp);
+                let s = PointSampler::new(sampler, 5, spp, sampler.replicate_for(spp, 16));
                 for i in (0..2000u32).chain([u32::MAX - 1, u32::MAX]) {
                     for v in s.uniforms(i % 7, i / 7, i) {
                         assert!((0.0..1.0).contains(&v), "{sampler:?}: {v}");
@@ -342,7 +428,7 @@ mod tests {
 
     #[test]
     fn independent_is_the_plain_hash() {
-        let s = PointSampler::new(Sampler::Independent, 9, 64);
+        let s = PointSampler::new(Sampler::Independent, 9, 64, 1);
         assert_eq!(s.uniforms(3, 4, 5), sample_uniforms(3, 4, 5, 9));
     }
 }

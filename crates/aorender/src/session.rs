@@ -4,7 +4,8 @@
 //! Pipelines are compiled once per adapter for each specialisation a request needs.
 
 use crate::accumulation::{
-    Accumulation, MAX_PROBE_SAMPLE, SampleSettings, geometry_hash, max_sample_value, probes_hash, scene_hash,
+    Accumulation, FilmLayout, MAX_PROBE_SAMPLE, SampleSettings, geometry_hash, max_sample_value, probes_hash,
+    scene_hash,
 };
 use crate::device::{BvhOptions, Device, Prepared, Setup};
 use crate::error::{Error, Result};
@@ -197,8 +198,9 @@ impl Session {
         let passes = self.prepared.probes(&probes, slots, spp, settings, bent_normals)?;
         let target_seconds = start.elapsed().as_secs_f64();
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
-        let sample_settings =
-            SampleSettings::probes(probes_hash(geometry, &probes), slots, probes.len() as u32, spp, settings);
+        let layout = if bent_normals { FilmLayout::BentProbes } else { FilmLayout::Probes };
+        let hash = probes_hash(geometry, &probes);
+        let sample_settings = SampleSettings::probes(hash, layout, slots, probes.len() as u32, spp, settings);
         let mut acc = Accumulation::new(
             sample_settings,
             self.device.kind(),
@@ -244,8 +246,9 @@ impl Session {
         let rounds = samples.div_ceil(lanes);
         let passes = self.prepared.probes(probes, lanes, samples, settings, false)?;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
+        let hash = probes_hash(geometry, probes);
         let sample_settings =
-            SampleSettings::probes(probes_hash(geometry, probes), lanes, probes.len() as u32, samples, settings);
+            SampleSettings::probes(hash, FilmLayout::Probes, lanes, probes.len() as u32, samples, settings);
         let acc = Accumulation::new(
             sample_settings,
             self.device.kind(),
@@ -258,17 +261,7 @@ impl Session {
         let mut render = Render::new(passes, acc, self.info(0.0));
         render.run(control)?;
         let acc = render.accumulation()?;
-        let sums = acc.sums()?;
-        let rounds_done = acc.samples() as u64;
-        // Round r gives lane l of a point the sample r × lanes + l, below `samples`.
-        let lane_samples = |l: u64| rounds_done.min((samples as u64).saturating_sub(l).div_ceil(lanes as u64));
-        let point_samples: u64 = (0..lanes as u64).map(lane_samples).sum();
-        let values = (0..probes.len())
-            .map(|k| {
-                let (sum, sum_sq) = sums.sum_range(k * lanes as usize..(k + 1) * lanes as usize);
-                ProbeValue::from_sums(sum, sum_sq, point_samples)
-            })
-            .collect();
+        let values = acc.lane_probe_values()?;
         Ok(ProbeOutput { values, rays: acc.ao_rays, seconds: acc.render_seconds, adapter })
     }
 }

@@ -603,21 +603,30 @@ fn wgsl_point_samplers_match_rust() {
         [h.x % 4096, h.y % 4096, if k % 2 == 0 { h.z } else { h.z % 4096 }, 0]
     }));
 
-    let mut configs: Vec<(Sampler, u32)> = vec![(Sampler::Independent, 64), (Sampler::Sobol, 64)];
+    // (sampler, spp, samples per replicate): one replicate, the defaults, and others.
+    let mut configs: Vec<(Sampler, u32, u32)> = vec![
+        (Sampler::Independent, 64, 1),
+        (Sampler::Sobol, 64, 0),
+        (Sampler::Sobol, 64, 4),
+        (Sampler::Sobol, 1 << 20, 1),
+    ];
+    configs.push((Sampler::Sobol, 1 << 20, 256));
     for spp in [1u32, 16, 17, 1024, 1 << 20] {
-        configs.push((Sampler::Stratified, spp));
-        configs.push((Sampler::Grid, spp));
+        configs.push((Sampler::Stratified, spp, 0));
+        configs.push((Sampler::Stratified, spp, Sampler::Stratified.replicate_for(spp, 16)));
+        configs.push((Sampler::Grid, spp, 0));
     }
     // Every input whose numbers are not bit-identical, with whether it is beyond tolerance.
     let mut differing: Vec<(bool, String)> = Vec::new();
     let (mut all_identical, mut all_total) = (0usize, 0usize);
-    for (sampler, spp) in configs {
+    for (sampler, spp, replicate) in configs {
         let (mut identical, mut worst, mut total) = (0usize, 0.0f64, 0usize);
+        let inputs: Vec<[u32; 4]> = inputs.iter().map(|&[px, py, i, _]| [px, py, i, replicate]).collect();
         for seed in [0u32, 42, 0xdead_beef, u32::MAX] {
-            let s = PointSampler::new(sampler, seed, spp);
+            let s = PointSampler::new(sampler, seed, spp, replicate);
             let gpu = probe.run("points", sampler.shader_id(), seed, s.strata, &inputs);
             for (&[px, py, index, _], [g, _]) in inputs.iter().zip(&gpu) {
-                let c = sample_point_uniforms(sampler.shader_id(), px, py, index, seed, s.strata);
+                let c = sample_point_uniforms(sampler.shader_id(), px, py, index, seed, s.strata, replicate);
                 let d = g
                     .iter()
                     .zip(&c)
@@ -641,7 +650,8 @@ fn wgsl_point_samplers_match_rust() {
             }
         }
         eprintln!(
-            "parity sampler {:<11} spp {:>7}: {total} samples, {identical} bit-identical, worst |Δ| {worst:.2e}",
+            "parity sampler {:<11} spp {:>7} replicate {replicate:>3}: {total} samples, {identical} bit-identical, \
+             worst |Δ| {worst:.2e}",
             sampler.name(),
             spp
         );

@@ -3,7 +3,7 @@
 use crate::args::{SamplingArgs, SceneArgs, check_output_extension};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::output::write_atomically;
-use aorender::{Probe, ProbeValue, Session};
+use aorender::{Control, ErrorTarget, Probe, ProbeValue, Session};
 use glam::Vec3;
 use std::path::{Path, PathBuf};
 
@@ -17,9 +17,13 @@ pub struct ProbeArgs {
     /// Output CSV (x,y,z,nx,ny,nz,ao,std_error,samples); `-` for standard output.
     #[arg(short, long, default_value = "-")]
     output: PathBuf,
-    /// Samples per probe.
+    /// Samples per probe; with --target-error, the most to take.
     #[arg(long, default_value_t = 4096)]
     samples: u32,
+    /// Stop once every point's standard error is at most E (checked after every
+    /// replicate, from eight replicates on).
+    #[arg(long, value_name = "E")]
+    target_error: Option<f64>,
     #[command(flatten)]
     sampling: SamplingArgs,
 }
@@ -35,9 +39,17 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         check_output_extension(&args.output, &["csv"])?;
     }
     let probes = read_probes(&args.points)?;
+    let target = args.target_error.map(ErrorTarget::PointStdError);
+    if target.is_some() && args.sampling.replicate.is_none() {
+        scene.settings.replicate = Some(scene.settings.sampler.replicate_for(args.samples.min(256), 16));
+    }
     let settings = scene.settings.clone();
     let session = Session::new(&args.scene.device()?, scene, &args.scene.bvh())?;
-    let out = session.probe(&probes, args.samples, &settings)?;
+    let mut control = Control { target, ..Control::default() };
+    let out = session.probe_with(&probes, args.samples, &settings, &mut control).map_err(|e| match e {
+        aorender::Error::Settings { .. } => anyhow!("invalid option: {}", e.message()),
+        e => e.into(),
+    })?;
     let csv = to_csv(&probes, &out.values);
     if to_stdout {
         print!("{csv}");

@@ -6,8 +6,15 @@ use crate::args::{
 };
 use crate::{memory, signals};
 use anyhow::Result;
-use aorender::output::{IMAGE_EXTENSIONS, write_image};
-use aorender::{Accumulation, Control, Device, ImageRequest, Progress, Session};
+use aorender::output::{FLOAT_IMAGE_EXTENSIONS, IMAGE_EXTENSIONS, write_error_image, write_image};
+use aorender::{Accumulation, Control, Device, ErrorTarget, ImageRequest, Progress, Session};
+
+/// Samples per pixel a render with an error target takes at most, unless --spp says.
+const TARGET_SPP_CAP: u32 = 65536;
+/// Samples per replicate of a render with an error target, unless --replicate says (or
+/// fewer, to make 16 replicates of the samples asked for): the target is checked after
+/// every replicate.
+const TARGET_REPLICATE: u32 = 16;
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -22,9 +29,20 @@ pub struct RenderArgs {
     /// Output image: .png (8-bit sRGB), .exr or .pfm (32-bit float, linear).
     #[arg(short, long, default_value = "out.png")]
     output: PathBuf,
-    /// Samples per pixel (default: the scene's).
+    /// Samples per pixel (default: the scene's); with an error target, the most to take
+    /// (default 65536).
     #[arg(long)]
     spp: Option<u32>,
+    /// Stop once the image's root-mean-square error against its converged value is at
+    /// most E, with 95 % confidence (checked after every replicate).
+    #[arg(long, value_name = "E", conflicts_with = "target_relative_error")]
+    target_error: Option<f64>,
+    /// Stop once that error is at most R times the image's mean.
+    #[arg(long, value_name = "R")]
+    target_relative_error: Option<f64>,
+    /// Also write each pixel's standard error (.exr or .pfm, 32-bit float).
+    #[arg(long, value_name = "FILE")]
+    error_image: Option<PathBuf>,
     #[command(flatten)]
     sampling: SamplingArgs,
     #[command(flatten)]
@@ -39,32 +57,55 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let mut scene = args.scene.load()?;
     let load_seconds = load_start.elapsed().as_secs_f64();
     args.size.apply(&mut scene);
+    let target = match (args.target_error, args.target_relative_error) {
+        (Some(e), _) => Some(ErrorTarget::Rmse(e)),
+        (_, Some(r)) => Some(ErrorTarget::RelativeRmse(r)),
+        _ => None,
+    };
     let s = &mut scene.settings;
-    if let Some(n) = args.spp {
-        s.spp = n;
+    match (args.spp, target) {
+        (Some(n), _) => s.spp = n,
+        (None, Some(_)) => s.spp = TARGET_SPP_CAP,
+        (None, None) => {}
     }
     args.sampling.apply(&mut scene)?;
+    if target.is_some() && scene.settings.replicate.is_none() {
+        let s = &mut scene.settings;
+        s.replicate = Some(s.sampler.replicate_for(s.spp.min(TARGET_REPLICATE * 16), 16));
+    }
     scene.settings.validate().map_err(invalid_option)?;
     let checkpoint_path = args.run.check(scene.settings.spp, "pixel")?;
     check_output_extension(&args.output, &IMAGE_EXTENSIONS)?;
     let bvh = args.scene.bvh();
+    if let Some(path) = &args.error_image {
+        check_output_extension(path, &FLOAT_IMAGE_EXTENSIONS)?;
+    }
     let resume = match &args.run.resume {
         Some(path) => {
             let saved = Accumulation::read(path)?;
+            if args.sampling.replicate.is_none() {
+                scene.settings.replicate = Some(saved.settings.replicate);
+            }
             // Before any work: the checkpoint must hold samples of this very render.
             let s = &scene.settings;
             let range = args.run.sample_range.clone().unwrap_or(0..s.spp);
-            saved.check_resume(&Accumulation::image(
-                &scene,
-                &scene.camera,
-                s,
-                range,
-                args.scene.device.kind(),
-                &bvh,
-            ))?;
+            let expected = Accumulation::image(&scene, &scene.camera, s, range, args.scene.device.kind(), &bvh);
+            saved.check_resume(&expected)?;
+            if let Some(t) = target {
+                expected.check_target(t).map_err(invalid_option)?;
+            }
             Some(saved)
         }
-        None => None,
+        None => {
+            if let Some(t) = target {
+                let s = &scene.settings;
+                let kind = args.scene.device.kind();
+                Accumulation::image(&scene, &scene.camera, s, 0..s.spp, kind, &bvh)
+                    .check_target(t)
+                    .map_err(invalid_option)?;
+            }
+            None
+        }
     };
     if let Some(path) = &checkpoint_path {
         check_writable(path)?;
@@ -85,6 +126,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         progress: Some(&mut on_progress),
         save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None },
         save_interval: args.run.checkpoint_interval,
+        target,
         ..Control::default()
     };
     let rendered = (|| {
@@ -124,6 +166,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
         std::process::exit(128 + signal);
     }
     write_image(&out.film, &args.output)?;
+    if let Some(path) = &args.error_image {
+        write_error_image(&out.film, path)?;
+    }
     let json = serde_json::to_string_pretty(&out.stats)?;
     if let Some(path) = &args.run.stats {
         write_json(path, &json)?;
@@ -169,8 +214,21 @@ pub fn run(args: RenderArgs) -> Result<()> {
         std::io::stdout().flush()?;
         std::process::exit(128 + signal);
     }
-    if st.samples_per_pixel < st.samples_requested {
-        eprintln!("time limit reached after {} of {} samples per pixel", st.samples_per_pixel, st.samples_requested);
+    if st.ended_by == "target" {
+        eprintln!(
+            "error target met after {} of at most {} samples per pixel (RMSE bound {:.3e})",
+            st.samples_per_pixel,
+            st.samples_requested,
+            st.rmse_bound.unwrap_or(f64::NAN)
+        );
+    } else if st.samples_per_pixel < st.samples_requested {
+        let why = if target.is_some() && st.ended_by == "time limit" { "; the error target was not met" } else { "" };
+        eprintln!(
+            "time limit reached after {} of {} samples per pixel{why}",
+            st.samples_per_pixel, st.samples_requested
+        );
+    } else if target.is_some() {
+        eprintln!("the error target was not met within {} samples per pixel", st.samples_requested);
     }
     Ok(())
 }

@@ -285,7 +285,7 @@ impl CpuTracer {
         first: u32,
         count: u32,
     ) -> u64 {
-        let sampler = PointSampler::new(settings.sampler, settings.seed, samples);
+        let sampler = PointSampler::new(settings.sampler, settings.seed, samples, settings.replicate_samples());
         let rays: u64 = film
             .sum
             .par_chunks_mut(4)
@@ -348,7 +348,7 @@ impl CpuTracer {
         count: u32,
     ) -> u64 {
         let lanes = sums.width;
-        let sampler = PointSampler::new(settings.sampler, settings.seed, samples);
+        let sampler = PointSampler::new(settings.sampler, settings.seed, samples, settings.replicate_samples());
         let rays: u64 = sums
             .sum
             .par_iter_mut()
@@ -382,7 +382,7 @@ impl CpuTracer {
     pub fn render_pass(&self, camera: &Camera, settings: &Settings, film: &mut Film, first: u32, count: u32) -> u64 {
         let s = settings;
         let rg = camera.ray_gen(s.width, s.height);
-        let sampler = PointSampler::new(s.sampler, s.seed, s.spp);
+        let sampler = PointSampler::new(s.sampler, s.seed, s.spp, s.replicate_samples());
         let w = s.width as usize;
         let ao_rays: u64 = film
             .sum

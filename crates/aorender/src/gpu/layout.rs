@@ -72,8 +72,10 @@ gpu_struct! {
         pub strata: u32 = "u32",
         /// Samples per point of the probe kernel.
         pub probe_samples: u32 = "u32",
+        /// Samples per replicate of the point sampler (0: one sequence).
+        pub replicate: u32 = "u32",
         /// Padding to a 16-byte multiple.
-        pub _pad: [u32; 2] = "vec2u",
+        pub _pad: u32 = "u32",
     }
 }
 
@@ -144,9 +146,10 @@ impl FrameUniforms {
             background: s.background,
             plane_count,
             node_count,
-            strata: s.sampler.strata_per_axis(s.spp),
+            strata: s.strata(s.spp),
             probe_samples: 0,
-            _pad: [0; 2],
+            replicate: s.replicate_samples(),
+            _pad: 0,
         }
     }
 
@@ -173,9 +176,10 @@ impl FrameUniforms {
             background: settings.background,
             plane_count,
             node_count,
-            strata: settings.sampler.strata_per_axis(samples),
+            strata: settings.strata(samples),
             probe_samples: samples,
-            _pad: [0; 2],
+            replicate: settings.replicate_samples(),
+            _pad: 0,
         }
     }
 }

@@ -9,7 +9,7 @@
 //! accumulations of disjoint sample ranges (`accumulation::merge`) is exact integer
 //! addition.
 //!
-//! File layout (version 1), every number little-endian:
+//! File layout (version 2; version 1 is read too), every number little-endian:
 //!
 //! | bytes | field |
 //! |---|---|
@@ -23,7 +23,10 @@
 //! | 4 × 4 | first sample, end of the range, next sample, samples of the block in progress (u32) |
 //! | 8 + 4 + 8 | AO rays (u64), passes (u32), render seconds (f64) |
 //! | 4 + n | adapter name: length (u32, at most 4096), UTF-8 |
+//! | 4 + 4 | samples per replicate (u32); film layout code (u8), three zero bytes |
+//! | 8 + 4 | complete replicates (u64), groups of replicate sums (u32, 0 for none) |
 //! | 32 × pixels | exact sums: Σv for every pixel, then Σv² (i128) |
+//! | 16 × groups | Σ of the squares of complete replicates' sums, per group (i128) |
 //! | 16 × pixels | block in progress, when present: GPU, 4 × f32 per pixel; CPU, Σv then Σv² (f64) |
 //! | 32 | BLAKE3 hash of every byte before it |
 //!
@@ -42,9 +45,13 @@
 //! | device | 0 GPU, 1 CPU |
 //! | BVH layout | 0 BVH2, 1 CWBVH |
 //! | BVH quality | 0 fastest, 1 fast, 2 medium, 3 slow |
+//! | film layout | 0 image, 1 probes, 2 probes with bent normals |
+//!
+//! A version 1 file has none of the replicate fields: it is an image whose samples are
+//! one replicate (independent ones: replicates of one sample each).
 
 use super::atomic::write_atomically_with;
-use crate::accumulation::{Accumulation, SampleSettings};
+use crate::accumulation::{Accumulation, FilmLayout, SampleSettings};
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::DeviceKind;
 use crate::error::{Error, Result};
@@ -57,7 +64,7 @@ use std::path::Path;
 /// The first bytes of a checkpoint file.
 pub const MAGIC: [u8; 8] = *b"AOCKPT\r\n";
 /// The format version this build writes and reads.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 /// The most film slots a checkpoint holds: those of the largest image, 16384 × 16384.
 const MAX_SLOTS: u64 = 16384 * 16384;
 /// Longest adapter name stored.
@@ -131,6 +138,19 @@ fn quality_of(code: u8) -> Option<BuildQuality> {
     BuildQuality::ALL.into_iter().find(|&q| quality_code(q) == code)
 }
 
+/// The file's code of a film layout.
+fn film_code(f: FilmLayout) -> u8 {
+    match f {
+        FilmLayout::Image => 0,
+        FilmLayout::Probes => 1,
+        FilmLayout::BentProbes => 2,
+    }
+}
+
+fn film_of(code: u8) -> Option<FilmLayout> {
+    [FilmLayout::Image, FilmLayout::Probes, FilmLayout::BentProbes].into_iter().find(|&f| film_code(f) == code)
+}
+
 /// Why the bytes of a checkpoint are unusable, in one line (the file is named by the
 /// caller).
 struct Invalid(String);
@@ -191,6 +211,10 @@ impl Accumulation {
         let name = &self.adapter.as_bytes()[..self.adapter.len().min(MAX_ADAPTER_NAME)];
         w.write_all(&(name.len() as u32).to_le_bytes())?;
         w.write_all(name)?;
+        w.write_all(&s.replicate.to_le_bytes())?;
+        w.write_all(&[film_code(s.layout), 0, 0, 0])?;
+        w.write_all(&self.exact.replicates.to_le_bytes())?;
+        w.write_all(&(self.exact.replicate_sq.len() as u32).to_le_bytes())?;
         let mut buf = Vec::with_capacity(1 << 16);
         let flush = |w: &mut dyn Write, buf: &mut Vec<u8>, force: bool| -> std::io::Result<()> {
             if force || buf.len() >= 1 << 16 {
@@ -199,7 +223,7 @@ impl Accumulation {
             }
             Ok(())
         };
-        for v in self.exact.sum.iter().chain(&self.exact.sum_sq) {
+        for v in self.exact.sum.iter().chain(&self.exact.sum_sq).chain(&self.exact.replicate_sq) {
             buf.extend_from_slice(&v.to_le_bytes());
             flush(w, &mut buf, false)?;
         }
@@ -241,8 +265,9 @@ impl Accumulation {
     /// header's figures agree with `len`, so a damaged or hostile header cannot ask for
     /// more than the file holds.
     fn from_stream(stream: &mut dyn Read, len: u64) -> Result<Accumulation, Invalid> {
-        // The fixed fields (through the adapter name's length), and the name at most.
-        const FIXED_HEADER: usize = 8 + 4 + 32 + 16 + 8 + 12 + 12 + 16 + 20 + 4;
+        // The fixed fields (through the adapter name's length), the name at most, and the
+        // replicate fields after it.
+        const FIXED_HEADER: usize = 8 + 4 + 32 + 16 + 8 + 12 + 12 + 16 + 20 + 4 + 20;
         let mut head = Vec::new();
         stream
             .take((FIXED_HEADER + MAX_ADAPTER_NAME) as u64)
@@ -255,8 +280,10 @@ impl Accumulation {
         }
         r.at = MAGIC.len();
         let version = r.u32()?;
-        if version != VERSION {
-            return Err(format!("checkpoint format version {version}; this aorender reads version {VERSION}").into());
+        if version != VERSION && version != 1 {
+            return Err(
+                format!("checkpoint format version {version}; this aorender reads versions 1 and {VERSION}").into()
+            );
         }
         let scene_hash: [u8; 32] = r.take(32)?.try_into().expect("32 bytes");
         let (width, height, spp, strata) = (r.u32()?, r.u32()?, r.u32()?, r.u32()?);
@@ -280,14 +307,29 @@ impl Accumulation {
             return Err(format!("adapter name of {name_len} bytes (at most {MAX_ADAPTER_NAME})").into());
         }
         let adapter = String::from_utf8(r.take(name_len)?.to_vec()).map_err(|_| "adapter name is not UTF-8")?;
+        let (replicate, layout, replicates, groups) = if version == 1 {
+            (if sampler == Sampler::Independent { 1 } else { 0 }, FilmLayout::Image, 0, 0)
+        } else {
+            let replicate = r.u32()?;
+            let codes = r.take(4)?;
+            let layout = film_of(codes[0]).ok_or_else(|| invalid("film layout", codes[0]))?;
+            if codes[1..] != [0, 0, 0] {
+                return Err("invalid reserved bytes".into());
+            }
+            (replicate, layout, r.u64()?, r.u32()?)
+        };
 
         // An image is at most 16384 on a side; a probe film (bake: one slot per point) may be
         // long and narrow, within the same number of slots.
         if width == 0 || height == 0 || width as u64 * height as u64 > MAX_SLOTS {
             return Err(format!("invalid film size {width}x{height} (at most {MAX_SLOTS} slots)").into());
         }
-        if spp == 0 || strata != sampler.strata_per_axis(spp) {
-            return Err(format!("invalid samples per pixel {spp} or strata {strata}").into());
+        if spp == 0
+            || sampler.check_replicate(replicate).is_err()
+            || replicate != sampler.replicate_samples(Some(replicate))
+            || strata != sampler.strata_per_axis(spp, replicate)
+        {
+            return Err(format!("invalid samples per pixel {spp}, strata {strata} or replicate {replicate}").into());
         }
         // A NaN distance is refused too.
         if (has_max_distance == 1 && (max_distance.is_nan() || max_distance < 0.0)) || !background.is_finite() {
@@ -314,7 +356,11 @@ impl Accumulation {
         }
         // The length the header implies, checked against the file's before reading the sums.
         let pixels = width as u64 * height as u64;
-        let expected = r.at as u64 + 32 * pixels + if has_partial == 1 { 16 * pixels } else { 0 } + 32;
+        if groups as u64 > pixels || replicates > u32::MAX as u64 {
+            return Err(format!("invalid replicates: {replicates} in {groups} groups").into());
+        }
+        let expected =
+            r.at as u64 + 32 * pixels + 16 * groups as u64 + if has_partial == 1 { 16 * pixels } else { 0 } + 32;
         if len != expected {
             return Err(format!("truncated or corrupt: {len} bytes, but its header describes {expected}").into());
         }
@@ -325,7 +371,9 @@ impl Accumulation {
         let n = pixels as usize;
         let sum = body.read_vec(n, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
         let sum_sq = body.read_vec(n, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
-        let exact = ExactSums { width, height, sum_exponent, sq_exponent, sum, sum_sq };
+        let replicate_sq =
+            body.read_vec(groups as usize, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
+        let exact = ExactSums { width, height, sum_exponent, sq_exponent, sum, sum_sq, replicate_sq, replicates };
         let partial = if has_partial == 0 {
             None
         } else {
@@ -352,6 +400,8 @@ impl Accumulation {
                 height,
                 spp,
                 strata,
+                replicate,
+                layout,
                 hemisphere,
                 sampler,
                 max_distance: (has_max_distance == 1).then_some(max_distance),

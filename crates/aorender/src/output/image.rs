@@ -1,5 +1,6 @@
 //! Images of a film's per-pixel means: `.png` (8-bit, sRGB-encoded), `.exr` and `.pfm`
-//! (32-bit float, linear), written atomically.
+//! (32-bit float, linear), and of their standard errors (`.exr`, `.pfm`), written
+//! atomically.
 
 use super::atomic::write_atomically;
 use crate::error::{Error, Result};
@@ -12,10 +13,30 @@ pub const IMAGE_EXTENSIONS: [&str; 3] = ["png", "exr", "pfm"];
 /// Writes the image; the extension picks the format: `.png` (8-bit sRGB-encoded,
 /// values clamped to [0, 1]), `.exr` or `.pfm` (32-bit float, linear).
 pub fn write_image(film: &Film, path: &Path) -> Result<()> {
+    let mean: Vec<f32> = film.mean().into_iter().map(|v| v as f32).collect();
+    write_values(&mean, film.width, film.height, path)
+}
+
+/// The float image formats, by extension: what [`write_error_image`] writes.
+pub const FLOAT_IMAGE_EXTENSIONS: [&str; 2] = ["exr", "pfm"];
+
+/// Writes the per-pixel standard error of the film's means ([`Film::std_error`]) as a
+/// float image, `.exr` or `.pfm`; an infinite error (fewer than two replicates) is
+/// written as infinity.
+pub fn write_error_image(film: &Film, path: &Path) -> Result<()> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    if !FLOAT_IMAGE_EXTENSIONS.contains(&ext.as_str()) {
+        return Err(Error::output(path, "an error image holds float values: use .exr or .pfm"));
+    }
+    let se: Vec<f32> = film.std_error().into_iter().map(|v| v as f32).collect();
+    write_values(&se, film.width, film.height, path)
+}
+
+/// Writes `values`, a `w` × `h` image row by row, in the format of the extension.
+fn write_values(values: &[f32], w: u32, h: u32, path: &Path) -> Result<()> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     let out_err = |m: String| Error::output(path, m);
-    let mean: Vec<f32> = film.mean().into_iter().map(|v| v as f32).collect();
-    let (w, h) = (film.width, film.height);
+    let mean = values;
     let bytes = match ext.as_str() {
         "png" => {
             let px: Vec<u8> = mean.iter().map(|&v| linear_to_srgb8(v)).collect();
@@ -28,7 +49,7 @@ pub fn write_image(film: &Film, path: &Path) -> Result<()> {
             encode(image::DynamicImage::ImageRgb32F(img), image::ImageFormat::OpenExr)
                 .map_err(|e| out_err(e.to_string()))?
         }
-        "pfm" => pfm_bytes(w, h, &mean),
+        "pfm" => pfm_bytes(w, h, mean),
         "" => return Err(out_err("no file extension: expected .png, .exr or .pfm".into())),
         e => return Err(out_err(format!("unsupported image format '.{e}': expected .png, .exr or .pfm"))),
     };

@@ -60,6 +60,7 @@ struct SamplingSection {
     sampler: Option<Sampler>,
     max_distance: Option<f32>,
     seed: Option<u32>,
+    replicate: Option<u32>,
 }
 
 #[derive(Deserialize)]
@@ -230,6 +231,7 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
         sampler: file.sampling.sampler.unwrap_or(defaults.sampler),
         max_distance: file.sampling.max_distance,
         seed: file.sampling.seed.unwrap_or(defaults.seed),
+        replicate: file.sampling.replicate,
     };
     settings.validate().map_err(|e| err(e.message()))?;
 

@@ -118,6 +118,10 @@ pub struct Settings {
     pub background: f32,
     /// Seed of the random numbers.
     pub seed: u32,
+    /// Samples per independently randomised replicate (`sampler` module doc); `None`
+    /// for the sampler's default (one replicate of every sample for `stratified` and
+    /// `sobol`: no valid error estimate).
+    pub replicate: Option<u32>,
 }
 
 impl Default for Settings {
@@ -131,6 +135,7 @@ impl Default for Settings {
             max_distance: None,
             background: 0.0,
             seed: 0,
+            replicate: None,
         }
     }
 }
@@ -157,9 +162,23 @@ impl Settings {
         Ok(())
     }
 
+    /// Samples per replicate of a request ([`Sampler::replicate_samples`]).
+    pub fn replicate_samples(&self) -> u32 {
+        self.sampler.replicate_samples(self.replicate)
+    }
+
+    /// Cells per axis of a request of `spp` samples per pixel or point
+    /// ([`Sampler::strata_per_axis`]).
+    pub fn strata(&self, spp: u32) -> u32 {
+        self.sampler.strata_per_axis(spp, self.replicate_samples())
+    }
+
     /// Checks what AO at a point depends on besides the hemisphere, sampler and seed (the
-    /// maximum distance), leaving the image's settings aside.
+    /// maximum distance and the replicate size), leaving the image's settings aside.
     pub fn validate_sampling(&self) -> Result<()> {
+        if let Some(r) = self.replicate {
+            self.sampler.check_replicate(r).map_err(Error::settings)?;
+        }
         if let Some(d) = self.max_distance
             && (d.is_nan() || d < 0.0)
         {

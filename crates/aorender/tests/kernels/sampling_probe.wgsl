@@ -60,6 +60,6 @@ fn points(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) gr
         return;
     }
     let v = inputs[i];
-    outputs[2u * i] = sample_point_uniforms(params.id, v.x, v.y, v.z, params.seed, params.strata);
+    outputs[2u * i] = sample_point_uniforms(params.id, v.x, v.y, v.z, params.seed, params.strata, v.w);
     outputs[2u * i + 1u] = vec4f(0.0);
 }

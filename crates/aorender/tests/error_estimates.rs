@@ -1,0 +1,318 @@
+//! Error estimates that hold for every sampler: the reported 95 % intervals contain the
+//! true value for 93–97 % of points (closed forms) and pixels (a converged scan), the
+//! image-level RMSE estimate is within 10 % of the measured RMSE, and renders that stop at
+//! an error target meet it.
+
+mod common;
+
+use aorender::accumulation::max_sample_value;
+use aorender::closed_form::configurations;
+use aorender::geometry::Plane;
+use aorender::scene::Sphere;
+use aorender::{
+    Accumulation, Control, DeviceKind, ErrorTarget, Film, Hemisphere, ImageRequest, Probe, Sampler, Scene, Session,
+    Settings, interval_95, merge,
+};
+use common::{Config, device, gpu_available, repo, session};
+use glam::Vec3;
+
+/// Samples per point or pixel of the coverage tests: 16 replicates of 4 for stratified
+/// and Sobol, 64 independent samples.
+const SAMPLES: u32 = 64;
+
+/// The devices a test runs on: the CPU reference, and the GPU where there is one.
+fn kinds() -> Vec<DeviceKind> {
+    let mut k = vec![DeviceKind::Cpu];
+    if gpu_available() {
+        k.push(DeviceKind::Gpu);
+    }
+    k
+}
+
+/// Degrees of freedom of the error estimate of `samples` samples drawn with `settings`.
+fn dof(settings: &Settings, samples: u32) -> u64 {
+    match settings.replicate_samples() {
+        1 => samples as u64 - 1,
+        b => (samples / b) as u64 - 1,
+    }
+}
+
+/// A floor under a sphere of radius 1 whose centre is 1.5 above the origin, and `n`
+/// points on the floor from the origin outwards, with their AO 1 − h r² / d³.
+fn floor_under_sphere(n: usize) -> (Scene, Vec<Probe>, Vec<f64>) {
+    let (h, r) = (1.5f32, 1.0f32);
+    let mut scene = Scene::from_triangles("floor under a sphere", Vec::new());
+    scene.spheres.push(Sphere { center: Vec3::new(0.0, h, 0.0), radius: r, albedo: 1.0 });
+    scene.planes.push(Plane { normal: Vec3::Y, point: Vec3::ZERO, albedo: 1.0 });
+    let mut probes = Vec::new();
+    let mut exact = Vec::new();
+    for i in 0..n {
+        // Out to 3 radii: AO from 0.56 at the origin towards 0.96.
+        let x = 3.0 * i as f32 / n as f32;
+        let p = Vec3::new(x, 0.0, 0.37 * x);
+        probes.push(Probe::new(p, Vec3::Y).unwrap());
+        let d = (Vec3::new(0.0, h, 0.0) - p).as_dvec3().length();
+        exact.push(1.0 - h as f64 * (r * r) as f64 / (d * d * d));
+    }
+    (scene, probes, exact)
+}
+
+/// The share of reported 95 % intervals around `mean` that contain the reference,
+/// each side widened by the reference's own 95 % half-width (1.96 of its standard error,
+/// in quadrature). An exact reference (a closed form: `reference_se` `None`) counts
+/// every point; a converged one only the pixels whose value varied in it, not those
+/// that every sample found the same (background, surfaces open all round), whose value
+/// is known exactly. Returns how many were counted, and how many of those had a zero
+/// standard error (every sample equal).
+fn coverage(
+    mean: &[f64],
+    se: &[f64],
+    intervals: &[(f64, f64)],
+    reference: &[f64],
+    reference_se: Option<&[f64]>,
+) -> Coverage {
+    let mut c = Coverage::default();
+    for (i, &(lo, hi)) in intervals.iter().enumerate() {
+        let r = reference_se.map_or(0.0, |e| 1.96 * e[i]);
+        if reference_se.is_some() && r == 0.0 {
+            continue;
+        }
+        c.counted += 1;
+        c.degenerate += (se[i] == 0.0) as usize;
+        let (below, above) = ((mean[i] - lo).hypot(r), (hi - mean[i]).hypot(r));
+        let d = reference[i] - mean[i];
+        c.covered += (-below <= d && d <= above) as usize;
+    }
+    c
+}
+
+#[derive(Default)]
+struct Coverage {
+    counted: usize,
+    covered: usize,
+    degenerate: usize,
+}
+
+impl Coverage {
+    fn share(&self) -> f64 {
+        self.covered as f64 / self.counted.max(1) as f64
+    }
+}
+
+#[test]
+fn probe_intervals_cover_the_closed_form_for_every_sampler() {
+    let (scene, probes, exact) = floor_under_sphere(2000);
+    for kind in kinds() {
+        let session = Session::new(&device(kind), scene.clone(), &Default::default()).unwrap();
+        for (hemisphere, sampler) in configurations() {
+            let replicate = Some(sampler.replicate_for(SAMPLES, 16));
+            let settings = Settings { hemisphere, sampler, seed: 11, replicate, ..Settings::default() };
+            let values = session.probe(&probes, SAMPLES, &settings).unwrap().values;
+            let mean: Vec<f64> = values.iter().map(|v| v.mean).collect();
+            let se: Vec<f64> = values.iter().map(|v| v.std_error).collect();
+            let d = dof(&settings, SAMPLES);
+            let intervals: Vec<_> =
+                values.iter().map(|v| interval_95(v.mean, v.std_error, d, v.samples, 2.0)).collect();
+            let cov = coverage(&mean, &se, &intervals, &exact, None);
+            let (c, n) = (cov.share(), cov.counted);
+            eprintln!(
+                "{kind:?} {} {}: {:.2} % of {n} points covered ({} with every sample equal)",
+                hemisphere.name(),
+                sampler.name(),
+                100.0 * c,
+                cov.degenerate
+            );
+            assert!(
+                (0.93..=0.97).contains(&c),
+                "{kind:?} {} {}: 95 % intervals cover {:.2} % of {n} points",
+                hemisphere.name(),
+                sampler.name(),
+                100.0 * c
+            );
+        }
+    }
+}
+
+/// The bunny at 64 × 64, its camera's framing.
+fn bunny() -> Scene {
+    let mut scene = Scene::load(&repo().join("scenes/bunny.obj")).unwrap_or_else(|e| panic!("{e}"));
+    (scene.settings.width, scene.settings.height) = (64, 64);
+    scene.settings.max_distance = Some(0.05);
+    scene
+}
+
+/// A converged film of `scene`: 4096 independent samples a pixel on the CPU reference.
+fn converged(scene: &Scene) -> Film {
+    let settings = Settings { spp: 4096, seed: 1234, sampler: Sampler::Independent, ..scene.settings.clone() };
+    common::render_settings(&session(scene, &Config::cpu()), &settings)
+}
+
+/// The measured RMSE of `film` against `reference`, the reference's own variance
+/// taken out: √(mean (m − r)² − mean se_r²).
+fn measured_rmse(film: &Film, reference: &Film) -> f64 {
+    let (m, r, se_r) = (film.mean(), reference.mean(), reference.std_error());
+    let n = m.len() as f64;
+    let ms: f64 = m.iter().zip(&r).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / n;
+    let ref_var: f64 = se_r.iter().map(|e| e * e).sum::<f64>() / n;
+    (ms - ref_var).max(0.0).sqrt()
+}
+
+#[test]
+fn image_intervals_and_rmse_estimates_hold_for_every_sampler_on_a_scan() {
+    let scene = bunny();
+    let reference = converged(&scene);
+    let (r, r_se) = (reference.mean(), reference.std_error());
+    for kind in kinds() {
+        let session = session(&scene, &Config { device: kind, ..Default::default() });
+        for (hemisphere, sampler) in configurations() {
+            let replicate = Some(sampler.replicate_for(SAMPLES, 16));
+            let settings = Settings { hemisphere, sampler, seed: 5, spp: SAMPLES, replicate, ..scene.settings.clone() };
+            let film = common::render_settings(&session, &settings);
+            let intervals = film.intervals_95(max_sample_value(&scene, 0.0)).unwrap();
+            let cov = coverage(&film.mean(), &film.std_error(), &intervals, &r, Some(&r_se));
+            let (c, n) = (cov.share(), cov.counted);
+            let (estimate, measured) = (film.rmse_estimate().unwrap(), measured_rmse(&film, &reference));
+            eprintln!(
+                "{kind:?} {} {}: {:.2} % of {n} pixels covered ({} with every sample equal); \
+                 RMSE estimated {estimate:.5}, measured {measured:.5}",
+                hemisphere.name(),
+                sampler.name(),
+                100.0 * c,
+                cov.degenerate
+            );
+            let what = format!("{kind:?} {} {}", hemisphere.name(), sampler.name());
+            assert!((0.93..=0.97).contains(&c), "{what}: 95 % intervals cover {:.2} % of {n} pixels", 100.0 * c);
+            assert!(
+                (estimate / measured - 1.0).abs() <= 0.10,
+                "{what}: RMSE estimated {estimate}, measured {measured}"
+            );
+        }
+    }
+}
+
+#[test]
+fn renders_with_an_error_target_meet_it() {
+    let scene = bunny();
+    let reference = converged(&scene);
+    let target = 0.02;
+    for kind in kinds() {
+        let session = session(&scene, &Config { device: kind, ..Default::default() });
+        for sampler in [Sampler::Independent, Sampler::Sobol] {
+            let seeds = 20u32;
+            let mut met = 0;
+            let mut means = Vec::new();
+            for seed in 0..seeds {
+                let settings = Settings { sampler, seed, spp: 4096, replicate: Some(16), ..scene.settings.clone() };
+                let request = ImageRequest { camera: scene.camera, settings, samples: None };
+                let mut control = Control { target: Some(ErrorTarget::Rmse(target)), ..Control::default() };
+                let out = session.render(&request).unwrap().complete(&mut control).unwrap();
+                assert_eq!(out.stats.ended_by, "target", "{kind:?} {} seed {seed}", sampler.name());
+                let measured = measured_rmse(&out.film, &reference);
+                met += (measured <= target) as u32;
+                means.push(out.film.image_mean());
+                eprintln!(
+                    "{kind:?} {} seed {seed}: stopped at {} spp, bound {:.5}, measured RMSE {measured:.5}",
+                    sampler.name(),
+                    out.stats.samples_per_pixel,
+                    out.stats.rmse_bound.unwrap()
+                );
+            }
+            assert!(met * 100 >= 95 * seeds, "{kind:?} {}: target met in {met} of {seeds} seeds", sampler.name());
+            // The stopping rule does not bias the image: the mean over seeds agrees with
+            // the converged mean within 4 standard errors of that mean.
+            let n = means.len() as f64;
+            let avg = means.iter().sum::<f64>() / n;
+            let sd = (means.iter().map(|m| (m - avg) * (m - avg)).sum::<f64>() / (n - 1.0)).sqrt();
+            let (truth, truth_se) = (reference.image_mean(), common::image_mean_std_error(&reference));
+            let se = (sd * sd / n + truth_se * truth_se).sqrt();
+            assert!(
+                (avg - truth).abs() <= 4.0 * se,
+                "{kind:?} {}: image mean over seeds {avg} against {truth} (4 SE = {})",
+                sampler.name(),
+                4.0 * se
+            );
+        }
+    }
+}
+
+/// Replicate sums survive checkpoints and merges: a Sobol render cut into shards at
+/// replicate boundaries merges to the uninterrupted render's bits, and a render resumed
+/// from a checkpoint taken mid-replicate ends with the same bits and error.
+#[test]
+fn replicates_resume_and_merge_to_the_same_bits() {
+    let mut scene = bunny();
+    (scene.settings.width, scene.settings.height) = (24, 24);
+    let settings = Settings { sampler: Sampler::Sobol, spp: 96, seed: 3, replicate: Some(4), ..scene.settings.clone() };
+    for kind in kinds() {
+        let session = session(&scene, &Config { device: kind, ..Default::default() });
+        let request = |samples| ImageRequest { camera: scene.camera, settings: settings.clone(), samples };
+        let whole = session.render(&request(None)).unwrap().complete(&mut Control::default()).unwrap();
+        assert_eq!((whole.film.replicate, whole.film.replicates), (4, 24), "{kind:?}");
+        // Shards at 32 and 64 (multiples of the replicate), merged in another order.
+        let mut shards = Vec::new();
+        for (i, range) in [(64..96), (0..32), (32..64)].into_iter().enumerate() {
+            let out = session.render(&request(Some(range))).unwrap().complete(&mut Control::default()).unwrap();
+            shards.push((format!("shard{i}").into(), out.accumulation));
+        }
+        let merged = merge(&shards).unwrap();
+        assert!(merged.film == whole.film, "{kind:?}: merged replicates differ from the whole render's");
+        // Interrupted after 7 samples (inside the second replicate), saved, resumed.
+        let mut first = session.render(&request(None)).unwrap();
+        first.run_to(7, &mut Control { sizing: aorender::PassSizing::Fixed(3), ..Control::default() }).unwrap();
+        let saved = Accumulation::from_bytes(&checkpoint_bytes(&first.accumulation().unwrap())).unwrap();
+        assert_eq!(saved.samples(), 7);
+        let mut resumed = session.render(&request(None)).unwrap();
+        resumed.resume(saved).unwrap();
+        let out = resumed.complete(&mut Control::default()).unwrap();
+        assert!(out.film == whole.film, "{kind:?}: the resumed render differs from the whole one");
+        assert_eq!(out.stats.rmse_estimate, whole.stats.rmse_estimate);
+    }
+}
+
+/// The bytes of `acc` as a checkpoint file.
+fn checkpoint_bytes(acc: &Accumulation) -> Vec<u8> {
+    let dir = common::temp_dir();
+    let path = dir.path().join("c.ck");
+    acc.write(&path).unwrap();
+    std::fs::read(&path).unwrap()
+}
+
+#[test]
+fn replicate_sizes_are_checked_and_one_replicate_has_no_estimate() {
+    let scene = bunny();
+    let s = |sampler, replicate| Settings { sampler, replicate: Some(replicate), ..Settings::default() };
+    assert!(s(Sampler::Sobol, 3).validate().unwrap_err().to_string().contains("power of two"));
+    assert!(s(Sampler::Stratified, 8).validate().unwrap_err().to_string().contains("1, 4, 16, 64 or 256"));
+    assert!(s(Sampler::Sobol, 512).validate().is_err());
+    assert!(s(Sampler::Stratified, 64).validate().is_ok() && s(Sampler::Sobol, 0).validate().is_ok());
+    // One replicate of Sobol points: the film reports no error estimate, and a target is
+    // refused before any work.
+    let session = session(&scene, &Config::cpu());
+    let settings = Settings { spp: 16, ..s(Sampler::Sobol, 0) };
+    let request = ImageRequest { camera: scene.camera, settings, samples: None };
+    let out = session.render(&request).unwrap().complete(&mut Control::default()).unwrap();
+    assert_eq!(out.film.rmse_estimate(), None);
+    assert_eq!(out.stats.rmse_estimate, None);
+    let mut control = Control { target: Some(ErrorTarget::Rmse(0.01)), ..Control::default() };
+    let err = session.render(&request).unwrap().complete(&mut control).err().expect("refused");
+    assert!(err.to_string().contains("needs an error estimate"), "{err}");
+    let mut control = Control { target: Some(ErrorTarget::PointStdError(0.01)), ..Control::default() };
+    let image = ImageRequest { settings: Settings { spp: 16, ..Settings::default() }, ..request };
+    assert!(session.render(&image).unwrap().complete(&mut control).is_err());
+}
+
+#[test]
+fn probes_with_a_target_stop_when_every_point_meets_it() {
+    let (scene, probes, _) = floor_under_sphere(20);
+    let session = Session::new(&device(DeviceKind::Cpu), scene, &Default::default()).unwrap();
+    let settings =
+        Settings { sampler: Sampler::Sobol, replicate: Some(16), hemisphere: Hemisphere::Cosine, ..Default::default() };
+    let mut control = Control { target: Some(ErrorTarget::PointStdError(0.005)), ..Control::default() };
+    let out = session.probe_with(&probes, 1 << 16, &settings, &mut control).unwrap();
+    let most = out.values.iter().map(|v| v.std_error).fold(0.0, f64::max);
+    let samples = out.values[0].samples;
+    assert!(most <= 0.005 && samples < 1 << 16, "max standard error {most} after {samples} samples");
+    // One replicate fewer would not have met it: the render stopped at the first check
+    // that met the target, not later.
+    assert!(samples >= 8 * 16, "{samples} samples: fewer than eight replicates");
+}
