@@ -151,7 +151,7 @@ pub const MIN_TARGET_REPLICATES: u64 = 8;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ErrorTarget {
     /// An image's root-mean-square error against its converged value, at most this,
-    /// with 95 % confidence ([`Film::rmse_bound`]).
+    /// with 99 % confidence ([`Film::rmse_bound`]).
     Rmse(f64),
     /// The same, relative to the image's mean.
     RelativeRmse(f64),

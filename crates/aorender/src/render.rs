@@ -211,7 +211,7 @@ pub struct RenderStats {
     /// `rmse_estimate` over `image_mean`.
     pub relative_rmse_estimate: Option<f64>,
     /// The bound the error target is checked against: `rmse_estimate` raised to a
-    /// one-sided 95 % bound on the realised RMSE ([`Film::rmse_bound`]).
+    /// one-sided 99 % bound on the realised RMSE ([`Film::rmse_bound`]).
     pub rmse_bound: Option<f64>,
 }
 
