@@ -74,7 +74,8 @@ impl Session {
     /// One session of `scene` on each of `devices` (a GPU and the CPU reference, to compare
     /// them), the BVH built once for all and the scene shared.
     pub fn on_devices(devices: &[Device], scene: Scene, options: &BvhOptions) -> Result<Vec<Session>> {
-        let (scene, frame, prepared) = prepare_in_local_frame(devices, scene, options)?;
+        let mut scene = scene;
+        let (frame, prepared) = prepare_in_local_frame(devices, &mut scene, options)?;
         let scene = Arc::new(scene);
         Ok(devices
             .iter()
@@ -304,27 +305,25 @@ impl Session {
     }
 }
 
-/// Prepares `scene` on `devices` in its local frame ([`Scene::local_origin`]) and gives
-/// it back in its own coordinates. A scene that moves exactly is moved in place and back
-/// (both exact), so no second copy is held; one that does not is copied, the copy moved.
+/// Prepares `scene` on `devices` in its local frame ([`Scene::local_origin`]), leaving it
+/// in its own coordinates. A scene that moves exactly is moved in place and back (both
+/// exact), so no second copy is held; one that does not is copied, the copy moved.
 fn prepare_in_local_frame(
     devices: &[Device],
-    mut scene: Scene,
+    scene: &mut Scene,
     options: &BvhOptions,
-) -> Result<(Scene, LocalFrame, Vec<(Prepared, Setup)>)> {
+) -> Result<(LocalFrame, Vec<(Prepared, Setup)>)> {
     let origin = scene.local_origin();
     if origin == DVec3::ZERO {
-        let prepared = Prepared::new(devices, &scene, options)?;
-        return Ok((scene, LocalFrame::IDENTITY, prepared));
+        return Ok((LocalFrame::IDENTITY, Prepared::new(devices, scene, options)?));
     }
     if scene.moves_exactly(origin) {
         let frame = scene.move_to(origin);
-        let prepared = Prepared::new(devices, &scene, options);
+        let prepared = Prepared::new(devices, scene, options);
         scene.move_to(-origin);
-        return Ok((scene, frame, prepared?));
+        return Ok((frame, prepared?));
     }
     let mut local = scene.clone();
     let frame = local.move_to(origin);
-    let prepared = Prepared::new(devices, &local, options)?;
-    Ok((scene, frame, prepared))
+    Ok((frame, Prepared::new(devices, &local, options)?))
 }

@@ -67,7 +67,7 @@ const GRID_OVER_SIZE: f64 = 2.0;
 const COORDINATE_OVER_GRID: f64 = (1u64 << 20) as f64;
 
 impl Scene {
-    /// The local origin of the scene ([module documentation](self)): zero when its
+    /// The local origin of the scene (see [`LocalFrame`]): zero when its
     /// bounds are near the origin or it has no finite primitive.
     pub fn local_origin(&self) -> DVec3 {
         let Some((min, max)) = self.frame_bounds() else { return DVec3::ZERO };
