@@ -58,8 +58,8 @@ impl LocalFrame {
     }
 }
 
-/// Largest side of the bounds over the spacing `G`: the origin's grid is a power of two
-/// at least this many times the scene's size.
+/// The origin's grid `G` over the bounds' largest side, at least: with `G` at least twice
+/// the scene's size, every coordinate in the bounds is within a factor 2 of the origin.
 const GRID_OVER_SIZE: f64 = 2.0;
 
 /// Largest coordinate over `G`: keeps `G` at least 2⁻²⁰ of the coordinates, so that a
@@ -77,7 +77,10 @@ impl Scene {
         if !(at_least > 0.0 && at_least.is_finite()) {
             return DVec3::ZERO;
         }
-        let grid = 2f64.powi(at_least.log2().ceil() as i32);
+        let mut grid = 2f64.powi(at_least.log2().ceil() as i32);
+        if grid < at_least {
+            grid *= 2.0; // log2 rounded down to a power just below
+        }
         let centre = 0.5 * (min + max);
         let axis = |c: f64| if c.abs() < grid { 0.0 } else { (c / grid).round() * grid };
         let origin = DVec3::new(axis(centre.x), axis(centre.y), axis(centre.z));
