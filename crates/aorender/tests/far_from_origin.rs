@@ -20,7 +20,7 @@ use glam::{DVec3, Vec3};
 
 /// A multiple of 2¹⁶ near 10⁶: a multiple of the local origin's grid for every scene here.
 const GRID_SHIFT: f32 = 983_040.0;
-/// The distance of the measurement.
+/// 10⁶: for the bunny and aobench scaled by 10³, not a multiple of the local origin's grid.
 const SHIFT: f32 = 1e6;
 
 /// `p` moved by `t` on every axis; panics unless the sum is exact in f32.
