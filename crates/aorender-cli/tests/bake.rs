@@ -2,8 +2,9 @@
 //! the written files (a convex closed mesh is exactly 1 at every vertex and face, a floor
 //! under a sphere is 1 − cos β (r/d)² within 4 standard errors, an open floor exactly 1),
 //! instances baked per placement, the GPU agreeing with the CPU, resumed and sharded
-//! bakes bit for bit the same file as one uninterrupted bake, and bad input refused in one
-//! line with nothing written.
+//! bakes bit for bit the same file as one uninterrupted bake, a scene moved far from the
+//! origin baking the origin's values bit for bit, and bad input refused in one line with
+//! nothing written.
 
 mod common;
 use common::*;
@@ -200,6 +201,50 @@ fn a_floor_under_a_sphere_matches_the_closed_form() {
         bake(d, &["floor.ply", "-o", &out, "--device", device, "--samples", "64"]);
         let (ao, _) = values(&d.join(&out), "vertex");
         assert!(ao.iter().all(|&a| a == 1.0), "{device}: {ao:?}");
+    }
+}
+
+/// The same scene far from the origin (moved by 983,040 = 15 × 2¹⁶, exactly: every
+/// coordinate is a multiple of 1/16) bakes the values it has at the origin, bit for bit:
+/// the session moves the meshes and the bake's points into its local frame alike, and
+/// the files keep their own positions.
+#[test]
+fn a_scene_far_from_the_origin_bakes_its_values_at_the_origin() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (floor_v, floor_f) = floor(12, 3.0, 0.0);
+    let (box_v, box_f) = cuboid(DVec3::new(-2.5, 0.0, -2.5), DVec3::new(-1.25, 1.5, -1.0));
+    let (centre, r) = (DVec3::new(0.25, 1.5, -0.5), 1.0);
+    for shift in [0.0, 983_040.0] {
+        let moved = |v: &[DVec3]| v.iter().map(|p| *p + DVec3::splat(shift)).collect::<Vec<_>>();
+        std::fs::write(d.join(format!("floor-{shift}.ply")), ply(&moved(&floor_v), &floor_f, None)).unwrap();
+        std::fs::write(d.join(format!("box-{shift}.ply")), ply(&moved(&box_v), &box_f, None)).unwrap();
+        let (eye, c) = (DVec3::new(0.0, 5.0, 5.0) + shift, centre + shift);
+        let scene = format!(
+            "[camera]\ntype = \"perspective\"\neye = [{}, {}, {}]\nlook_at = [{shift}, {shift}, {shift}]\nfov = 45\n\n\
+             [[object]]\ntype = \"mesh\"\nfile = \"floor-{shift}.ply\"\n\n\
+             [[object]]\ntype = \"mesh\"\nfile = \"box-{shift}.ply\"\n\n\
+             [[object]]\ntype = \"sphere\"\ncenter = [{}, {}, {}]\nradius = {r}\n",
+            eye.x, eye.y, eye.z, c.x, c.y, c.z
+        );
+        std::fs::write(d.join(format!("scene-{shift}.toml")), scene).unwrap();
+    }
+    for device in devices() {
+        let baked = |shift: f64| {
+            let out = format!("{device}-{shift}");
+            let scene = format!("scene-{shift}.toml");
+            bake(d, &[&scene, "-o", &out, "--device", device, "--samples", "256", "--hemisphere", "uniform"]);
+            let floor = d.join(&out).join(format!("floor-{shift}.ply"));
+            let first = &read_ply(&floor).payload["vertex"][0];
+            assert_eq!(float(first, "x") as f64, floor_v[0].x + shift, "{device}: the file keeps its positions");
+            let (floor_ao, _) = values(&floor, "vertex");
+            let (box_ao, _) = values(&d.join(&out).join(format!("box-{shift}.ply")), "vertex");
+            [floor_ao, box_ao].concat()
+        };
+        let (at_origin, far) = (baked(0.0), baked(983_040.0));
+        assert!(at_origin.iter().any(|&a| a < 0.9), "{device}: the sphere and the box occlude the floor");
+        let differ = far.iter().zip(&at_origin).filter(|(a, b)| a != b).count();
+        assert_eq!(differ, 0, "{device}: {differ} of {} values differ far from the origin", far.len());
     }
 }
 

@@ -2,6 +2,11 @@
 //! and then asked for many things — images with any camera and sampling settings,
 //! progressively, and AO at given points — without rebuilding or re-uploading anything.
 //! Pipelines are compiled once per adapter for each specialisation a request needs.
+//!
+//! The device holds the scene in its local frame ([`LocalFrame`]): a session moves each
+//! request's camera and probe points into it, and everything a caller passes or reads
+//! back (the scene, cameras, probes, the hashes of checkpoints) is in the scene's own
+//! coordinates.
 
 use crate::accumulation::{
     Accumulation, FilmLayout, MAX_PROBE_SAMPLE, SampleSettings, geometry_hash, max_sample_value, probes_hash,
@@ -11,7 +16,8 @@ use crate::device::{BvhOptions, Device, Prepared, Setup};
 use crate::error::{Error, Result};
 use crate::probe::{Probe, ProbeValue, checked, lanes_for};
 use crate::render::{Control, Render, RenderInfo};
-use crate::scene::{Camera, Scene, Settings};
+use crate::scene::{Camera, LocalFrame, Scene, Settings, round_up};
+use glam::DVec3;
 use std::ops::Range;
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
@@ -46,6 +52,8 @@ pub struct ProbeOutput {
 /// A scene prepared on a device, answering requests.
 pub struct Session {
     scene: Arc<Scene>,
+    /// The frame the devices hold the scene in.
+    frame: LocalFrame,
     device: Device,
     options: BvhOptions,
     prepared: Prepared,
@@ -67,13 +75,15 @@ impl Session {
     /// One session of `scene` on each of `devices` (a GPU and the CPU reference, to compare
     /// them), the BVH built once for all and the scene shared.
     pub fn on_devices(devices: &[Device], scene: Scene, options: &BvhOptions) -> Result<Vec<Session>> {
+        let mut scene = scene;
+        let (frame, prepared) = prepare_in_local_frame(devices, &mut scene, options)?;
         let scene = Arc::new(scene);
-        let prepared = Prepared::new(devices, &scene, options)?;
         Ok(devices
             .iter()
             .zip(prepared)
             .map(|(device, (prepared, setup))| Session {
                 scene: scene.clone(),
+                frame,
                 device: device.clone(),
                 options: *options,
                 prepared,
@@ -87,6 +97,26 @@ impl Session {
     /// The scene.
     pub fn scene(&self) -> &Scene {
         &self.scene
+    }
+
+    /// The frame the scene is rendered in: its origin in the scene's coordinates (zero
+    /// for a scene near the origin) and how far moving the scene there moved a surface.
+    pub fn frame(&self) -> &LocalFrame {
+        &self.frame
+    }
+
+    /// `probes` (checked) in the local frame: each position moved as the scene was, its
+    /// offset bound grown by that move's rounding and the scene's (both zero when exact).
+    fn local_probes(&self, probes: &[Probe]) -> Vec<Probe> {
+        probes
+            .iter()
+            .map(|p| {
+                let (position, rounding) = self.frame.point(p.position);
+                let shift = rounding + self.frame.surface_shift as f64;
+                let error = if shift == 0.0 { p.error } else { round_up(p.error as f64 + shift) };
+                Probe { position, error, ..*p }
+            })
+            .collect()
     }
 
     /// The device.
@@ -146,8 +176,10 @@ impl Session {
                 range.start, range.end, s.spp
             )));
         }
+        let camera = self.frame.camera(&request.camera);
+        camera.validate()?;
         let start = Instant::now();
-        let passes = self.prepared.image(&request.camera, s)?;
+        let passes = self.prepared.image(&camera, s)?;
         let target_seconds = start.elapsed().as_secs_f64();
         let settings = SampleSettings::with_hash(self.scene_hash(&request.camera), s);
         let mut acc = Accumulation::new(
@@ -195,7 +227,7 @@ impl Session {
         let probes = checked(probes)?;
         let start = Instant::now();
         let slots = if bent_normals { 4 } else { 1 };
-        let passes = self.prepared.probes(&probes, slots, spp, settings, bent_normals)?;
+        let passes = self.prepared.probes(&self.local_probes(&probes), slots, spp, settings, bent_normals)?;
         let target_seconds = start.elapsed().as_secs_f64();
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let layout = if bent_normals { FilmLayout::BentProbes } else { FilmLayout::Probes };
@@ -244,7 +276,7 @@ impl Session {
         }
         let lanes = lanes_for(probes.len(), samples);
         let rounds = samples.div_ceil(lanes);
-        let passes = self.prepared.probes(probes, lanes, samples, settings, false)?;
+        let passes = self.prepared.probes(&self.local_probes(probes), lanes, samples, settings, false)?;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let hash = probes_hash(geometry, probes);
         let sample_settings =
@@ -264,4 +296,27 @@ impl Session {
         let values = acc.lane_probe_values()?;
         Ok(ProbeOutput { values, rays: acc.ao_rays, seconds: acc.render_seconds, adapter })
     }
+}
+
+/// Prepares `scene` on `devices` in its local frame ([`Scene::local_origin`]), leaving it
+/// in its own coordinates. A scene that moves exactly is moved in place and back (both
+/// exact), so no second copy is held; one that does not is copied, the copy moved.
+fn prepare_in_local_frame(
+    devices: &[Device],
+    scene: &mut Scene,
+    options: &BvhOptions,
+) -> Result<(LocalFrame, Vec<(Prepared, Setup)>)> {
+    let origin = scene.local_origin();
+    if origin == DVec3::ZERO {
+        return Ok((LocalFrame::IDENTITY, Prepared::new(devices, scene, options)?));
+    }
+    if scene.moves_exactly(origin) {
+        let frame = scene.move_to(origin);
+        let prepared = Prepared::new(devices, scene, options);
+        scene.move_to(-origin);
+        return Ok((frame, prepared?));
+    }
+    let mut local = scene.clone();
+    let frame = local.move_to(origin);
+    Ok((frame, Prepared::new(devices, &local, options)?))
 }

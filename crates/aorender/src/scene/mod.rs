@@ -5,6 +5,7 @@
 
 mod camera;
 mod file;
+mod frame;
 pub(crate) mod gltf;
 pub(crate) mod input;
 mod load;
@@ -17,6 +18,8 @@ mod types;
 pub use crate::geometry::Plane;
 pub use camera::{Camera, Projection, RayGen};
 pub use file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME};
+pub use frame::LocalFrame;
+pub(crate) use frame::round_up;
 pub(crate) use meshes::extension;
 pub use meshes::mesh_triangles;
 pub use types::{
