@@ -193,3 +193,57 @@ fn bad_sample_ranges_are_refused() {
         assert!(!d.join("x.ck").exists(), "{range}: a checkpoint was written");
     }
 }
+
+/// An error target stops the render and says so; the error image holds the per-pixel
+/// standard errors the statistics' RMSE estimate comes from; a target or an error image
+/// without a valid estimate, or an error image in an 8-bit format, is refused before any
+/// work.
+#[test]
+fn error_targets_and_error_images() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let args = [
+        "render",
+        "--width",
+        "24",
+        "--height",
+        "16",
+        "--sampler",
+        "sobol",
+        "--target-error",
+        "0.02",
+        "--device",
+        "cpu",
+        "-o",
+        "t.pfm",
+        "--error-image",
+        "se.pfm",
+        "--stats",
+        "t.json",
+    ];
+    let output = aorender(&args, d);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "{stderr}");
+    assert!(stderr.contains("error target met after"), "{stderr}");
+    let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("t.json")).unwrap()).unwrap();
+    assert_eq!(stats["ended_by"], "target");
+    assert_eq!(stats["replicate_samples"], 16);
+    let (bound, rmse) = (stats["rmse_bound"].as_f64().unwrap(), stats["rmse_estimate"].as_f64().unwrap());
+    assert!(bound <= 0.02 && rmse <= bound, "bound {bound}, estimate {rmse}");
+    assert!(stats["samples_per_pixel"].as_u64().unwrap() < 65536);
+    // The RMSE estimate is the root of the mean of the error image's squares.
+    let bytes = std::fs::read(d.join("se.pfm")).unwrap();
+    let header = b"Pf\n24 16\n-1.0\n";
+    assert!(bytes.starts_with(header));
+    let se: Vec<f64> =
+        bytes[header.len()..].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap()) as f64).collect();
+    let from_image = (se.iter().map(|e| e * e).sum::<f64>() / se.len() as f64).sqrt();
+    assert!((from_image / rmse - 1.0).abs() < 1e-5, "error image {from_image}, statistics {rmse}");
+
+    let sobol = ["render", "--width", "8", "--height", "8", "--sampler", "sobol", "--device", "cpu", "-o", "out.png"];
+    assert_rejected(&[&sobol[..], &["--target-error", "0.01", "--replicate", "0"]].concat(), d, &["error estimate"]);
+    assert_rejected(&[&sobol[..], &["--replicate", "3"]].concat(), d, &["replicate", "power of two"]);
+    assert_rejected(&[&sobol[..], &["--error-image", "se.png"]].concat(), d, &["se.png"]);
+    assert_rejected(&[&sobol[..], &["--target-error", "0"]].concat(), d, &["positive"]);
+    assert_rejected(&[&sobol[..], &["--error-image", "se.pfm"]].concat(), d, &["--error-image", "--replicate"]);
+}

@@ -5,7 +5,7 @@ use crate::args::{
     RunArgs, SamplingArgs, SceneArgs, SizeArgs, check_output_extension, check_writable, invalid_option, write_json,
 };
 use crate::{memory, signals};
-use anyhow::Result;
+use anyhow::{Result, bail};
 use aorender::output::{FLOAT_IMAGE_EXTENSIONS, IMAGE_EXTENSIONS, write_error_image, write_image};
 use aorender::{Accumulation, Control, Device, ErrorTarget, ImageRequest, Progress, Session};
 
@@ -107,6 +107,14 @@ pub fn run(args: RenderArgs) -> Result<()> {
             None
         }
     };
+    let s = &scene.settings;
+    if args.error_image.is_some() && s.sampler.replicate_samples(s.replicate) == 0 {
+        bail!(
+            "invalid option: --error-image needs an error estimate, which the {} sampler has only in replicates: \
+             add --replicate N",
+            s.sampler.name()
+        );
+    }
     if let Some(path) = &checkpoint_path {
         check_writable(path)?;
     }
