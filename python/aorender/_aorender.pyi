@@ -30,6 +30,7 @@ def ambient_occlusion(
     sampler: SamplerName = "sobol",
     max_distance: Optional[float] = None,
     seed: int = 0,
+    replicate: Optional[int] = None,
     device: str = "auto",
 ) -> Values:
     """AO of the mesh (V, F) at the points P about the normals N: (ao, std_error).
@@ -39,6 +40,10 @@ def ambient_occlusion(
     drawn directions (not weighted by cos θ) that hit the mesh; 1 minus it is the
     unweighted uniform visibility, a different quantity (equal only where the point is
     fully open or fully closed).
+
+    std_error is valid for "independent" samples; for "sobol" and "stratified" pass
+    replicate=N (samples per independently randomised replicate, e.g. 16), else it is the
+    spread of single samples, an overestimate.
     """
 
 class Scene:
@@ -66,6 +71,7 @@ class Scene:
         sampler: SamplerName = "sobol",
         max_distance: Optional[float] = None,
         seed: int = 0,
+        replicate: Optional[int] = None,
         device: str = "auto",
     ) -> Values:
         """AO at the points P about the normals N: (ao, std_error), float64, k each."""
@@ -80,6 +86,7 @@ class Scene:
         sampler: SamplerName = "sobol",
         seed: int = 0,
         max_distance: Optional[float] = None,
+        replicate: Optional[int] = None,
         background: float = 0.0,
         device: str = "auto",
     ) -> Tuple[npt.NDArray[np.float32], Dict[str, Any]]:
@@ -93,6 +100,7 @@ class Scene:
         sampler: SamplerName = "sobol",
         seed: int = 0,
         max_distance: Optional[float] = None,
+        replicate: Optional[int] = None,
         device: str = "auto",
         output: Union[None, str, "os.PathLike[str]"] = None,
         std_error: bool = False,

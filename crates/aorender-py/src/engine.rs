@@ -51,7 +51,13 @@ pub fn device(py: Python<'_>, name: &str) -> PyResult<Device> {
 }
 
 /// Sampling settings from the keyword arguments every call takes.
-pub fn settings(hemisphere: &str, sampler: &str, seed: u32, max_distance: Option<f64>) -> PyResult<Settings> {
+pub fn settings(
+    hemisphere: &str,
+    sampler: &str,
+    seed: u32,
+    max_distance: Option<f64>,
+    replicate: Option<u32>,
+) -> PyResult<Settings> {
     let names =
         |all: &mut dyn Iterator<Item = &'static str>| all.map(|n| format!("'{n}'")).collect::<Vec<_>>().join(", ");
     let h = Hemisphere::from_name(hemisphere).ok_or_else(|| {
@@ -76,6 +82,7 @@ pub fn settings(hemisphere: &str, sampler: &str, seed: u32, max_distance: Option
         sampler: s,
         seed,
         max_distance: max_distance.map(|d| d as f32),
+        replicate,
         ..Settings::default()
     };
     settings.validate_sampling().map_err(to_py)?;

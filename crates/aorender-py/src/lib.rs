@@ -12,7 +12,7 @@ use pyo3::prelude::*;
 use scene::PyScene;
 
 /// ambient_occlusion(V, F, P, N, samples=256, *, hemisphere="cosine", sampler="sobol",
-/// max_distance=None, seed=0, device="auto") -> (ao, std_error)
+/// max_distance=None, seed=0, replicate=None, device="auto") -> (ao, std_error)
 ///
 /// Ambient occlusion of the triangle mesh (V, F) at the points P about the normals N.
 ///
@@ -41,7 +41,11 @@ use scene::PyScene;
 /// fully open or fully closed).
 ///
 /// samples: rays per point. sampler: "sobol" (scrambled Sobol' points, lower error),
-/// "independent", "stratified" or "grid". seed: the random numbers' seed; the same seed,
+/// "independent", "stratified" or "grid". replicate: samples per independently
+/// randomised replicate of "sobol" and "stratified" (a power of two up to 256, of four
+/// for stratified), from whose spread std_error is estimated; None (the default) keeps one
+/// replicate, the best points, and std_error is then the spread of single samples, which
+/// overestimates their error (valid as it stands for "independent"). seed: the random numbers' seed; the same seed,
 /// samples and device give the same values as `aorender probe --seed`. device: "auto" (the
 /// best GPU adapter, else the CPU reference), "gpu", "cpu", or part of an adapter's name.
 ///
@@ -50,7 +54,7 @@ use scene::PyScene;
 /// the current pass and raises KeyboardInterrupt. Bad input raises ValueError before any
 /// work; a device failure raises RuntimeError.
 #[pyfunction]
-#[pyo3(signature = (V, F, P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, device = "auto"))]
+#[pyo3(signature = (V, F, P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, replicate = None, device = "auto"))]
 #[allow(non_snake_case, clippy::too_many_arguments)]
 fn ambient_occlusion<'py>(
     py: Python<'py>,
@@ -63,13 +67,14 @@ fn ambient_occlusion<'py>(
     sampler: &str,
     max_distance: Option<f64>,
     seed: u32,
+    replicate: Option<u32>,
     device: &str,
 ) -> PyResult<scene::Values<'py>> {
     // Every argument checked before the BVH is built.
     let v = arrays::vec3s(py, V, "V")?;
     let f = arrays::faces(py, F, "F", v.len())?;
     let probes = scene::probes(py, P, N, samples)?;
-    let settings = engine::settings(hemisphere, sampler, seed, max_distance)?;
+    let settings = engine::settings(hemisphere, sampler, seed, max_distance, replicate)?;
     let scene = PyScene::of_arrays("arrays", v, f)
         .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("V, F: {}", e.value(py))))?;
     scene.probe(py, &probes, samples, &settings, device)

@@ -220,12 +220,12 @@ impl PyScene {
     }
 
     /// s.ambient_occlusion(P, N, samples=256, *, hemisphere="cosine", sampler="sobol",
-    /// max_distance=None, seed=0, device="auto") -> (ao, std_error)
+    /// max_distance=None, seed=0, replicate=None, device="auto") -> (ao, std_error)
     ///
     /// AO at the points P (k, 3) about the normals N (k, 3) (any length but zero), with
     /// `samples` rays each: float64 arrays of k values, 1 fully open, and their standard
     /// errors. See `aorender.ambient_occlusion` for the estimator and its arguments.
-    #[pyo3(signature = (P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, device = "auto"))]
+    #[pyo3(signature = (P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, replicate = None, device = "auto"))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn ambient_occlusion<'py>(
         &self,
@@ -237,15 +237,16 @@ impl PyScene {
         sampler: &str,
         max_distance: Option<f64>,
         seed: u32,
+        replicate: Option<u32>,
         device: &str,
     ) -> PyResult<Values<'py>> {
         let probes = probes(py, P, N, samples)?;
-        let settings = settings(hemisphere, sampler, seed, max_distance)?;
+        let settings = settings(hemisphere, sampler, seed, max_distance, replicate)?;
         self.probe(py, &probes, samples, &settings, device)
     }
 
     /// s.render(width, height, spp, *, camera=None, hemisphere="cosine", sampler="sobol",
-    /// seed=0, max_distance=None, background=0.0, device="auto") -> (image, stats)
+    /// seed=0, max_distance=None, replicate=None, background=0.0, device="auto") -> (image, stats)
     ///
     /// An AO image as `aorender render` makes it: a float32 array (height, width), row 0
     /// at the top, each pixel the mean of `spp` samples (albedo × AO at the surface its
@@ -253,7 +254,7 @@ impl PyScene {
     /// `aorender render --stats` writes them (a dict). `camera` is a dict of any of eye,
     /// look_at, up (3 numbers each) and fov (vertical, degrees) or ortho_height; keys left
     /// out keep the scene's camera (a mesh's, the automatic framing).
-    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "sobol", seed = 0, max_distance = None, background = 0.0, device = "auto"))]
+    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "sobol", seed = 0, max_distance = None, replicate = None, background = 0.0, device = "auto"))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -266,10 +267,11 @@ impl PyScene {
         sampler: &str,
         seed: u32,
         max_distance: Option<f64>,
+        replicate: Option<u32>,
         background: f64,
         device: &str,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        let sampling = settings(hemisphere, sampler, seed, max_distance)?;
+        let sampling = settings(hemisphere, sampler, seed, max_distance, replicate)?;
         let settings = Settings { width, height, spp, background: background as f32, ..sampling };
         settings.validate().map_err(to_py)?;
         let camera = match camera {
@@ -292,7 +294,7 @@ impl PyScene {
     }
 
     /// s.bake(samples=256, *, at="vertices", hemisphere="cosine", sampler="sobol", seed=0,
-    /// max_distance=None, device="auto", output=None, std_error=False, colors=False,
+    /// max_distance=None, replicate=None, device="auto", output=None, std_error=False, colors=False,
     /// overwrite=False) -> (ao, std_error)
     ///
     /// AO baked at every vertex (about its area-weighted normal, or the file's normal
@@ -303,7 +305,7 @@ impl PyScene {
     ///
     /// For a loaded scene, `output` writes the files as `aorender bake -o output` does: a
     /// mesh file of the input's format for a mesh file, a directory for a scene file.
-    #[pyo3(signature = (samples = 256, *, at = "vertices", hemisphere = "cosine", sampler = "sobol", seed = 0, max_distance = None, device = "auto", output = None, std_error = false, colors = false, overwrite = false))]
+    #[pyo3(signature = (samples = 256, *, at = "vertices", hemisphere = "cosine", sampler = "sobol", seed = 0, max_distance = None, replicate = None, device = "auto", output = None, std_error = false, colors = false, overwrite = false))]
     #[allow(clippy::too_many_arguments)]
     fn bake<'py>(
         &self,
@@ -314,13 +316,14 @@ impl PyScene {
         sampler: &str,
         seed: u32,
         max_distance: Option<f64>,
+        replicate: Option<u32>,
         device: &str,
         output: Option<PathBuf>,
         std_error: bool,
         colors: bool,
         overwrite: bool,
     ) -> PyResult<Values<'py>> {
-        let settings = settings(hemisphere, sampler, seed, max_distance)?;
+        let settings = settings(hemisphere, sampler, seed, max_distance, replicate)?;
         let at = match at {
             "vertices" => BakeAt::Vertices,
             "faces" => BakeAt::Faces,
