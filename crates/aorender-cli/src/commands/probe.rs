@@ -56,14 +56,19 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     } else {
         write_atomically(&args.output, csv.as_bytes())?;
     }
+    let samples = out.values.first().map_or(0, |v| v.samples);
     eprintln!(
-        "{} probes × {} samples in {:.2} s ({:.1} M AO rays/s) on {}",
+        "{} probes × {samples} samples in {:.2} s ({:.1} M AO rays/s) on {}",
         probes.len(),
-        args.samples,
         out.seconds,
         out.rays as f64 / out.seconds.max(1e-9) / 1e6,
         out.adapter
     );
+    if let Some(e) = args.target_error {
+        let most = out.values.iter().map(|v| v.std_error).fold(0.0, f64::max);
+        let met = if most <= e { "met" } else { "not met" };
+        eprintln!("error target {e} {met}: the largest standard error is {most:.3e} after {samples} samples");
+    }
     Ok(())
 }
 
