@@ -4,7 +4,7 @@
 
 use super::atomic::write_atomically;
 use crate::error::{Error, Result};
-use crate::film::Film;
+use crate::film::{ErrorEstimator, Film};
 use std::path::Path;
 
 /// The image formats, by extension.
@@ -21,14 +21,17 @@ pub fn write_image(film: &Film, path: &Path) -> Result<()> {
 pub const FLOAT_IMAGE_EXTENSIONS: [&str; 2] = ["exr", "pfm"];
 
 /// Writes the per-pixel standard error of the film's means ([`Film::std_error`]) as a
-/// float image, `.exr` or `.pfm`; an infinite error (fewer than two replicates) is
-/// written as infinity.
+/// float image, `.exr` or `.pfm`; without a valid estimate (fewer than two complete
+/// replicates, or one replicate of stratified or Sobol points) every pixel is infinity.
 pub fn write_error_image(film: &Film, path: &Path) -> Result<()> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     if !FLOAT_IMAGE_EXTENSIONS.contains(&ext.as_str()) {
         return Err(Error::output(path, "an error image holds float values: use .exr or .pfm"));
     }
-    let se: Vec<f32> = film.std_error().into_iter().map(|v| v as f32).collect();
+    let se: Vec<f32> = match film.error_estimator() {
+        ErrorEstimator::None => vec![f32::INFINITY; film.sum.len()],
+        _ => film.std_error().into_iter().map(|v| v as f32).collect(),
+    };
     write_values(&se, film.width, film.height, path)
 }
 
