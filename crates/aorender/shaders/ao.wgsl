@@ -168,13 +168,16 @@ fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_i
     if (pixel.x < frame.width && pixel.y < frame.height) {
         let i = pixel.y * frame.width + pixel.x;
         var acc = film[i];
-        for (var k = 0u; k < dispatch.sample_count; k++) {
-            let index = dispatch.first_sample + k;
-            let u = sample_point_uniforms(SAMPLER, pixel.x, pixel.y, index, frame.seed, frame.strata, frame.replicate);
-            acc = accumulate(acc, shade_sample(pixel, u));
+        // A pixel an adaptive render no longer samples is marked in its slot's last word.
+        if (bitcast<u32>(acc.w) != INACTIVE_SLOT) {
+            for (var k = 0u; k < dispatch.sample_count; k++) {
+                let index = dispatch.first_sample + k;
+                let u = sample_point_uniforms(SAMPLER, pixel.x, pixel.y, index, frame.seed, frame.strata, frame.replicate);
+                acc = accumulate(acc, shade_sample(pixel, u));
+            }
+            film[i] = acc;
+            atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);
         }
-        film[i] = acc;
-        atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);
     }
     workgroupBarrier();
     flush_counters(lid);

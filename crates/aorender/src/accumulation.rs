@@ -147,6 +147,11 @@ pub const TARGET_CHECK_SAMPLES: u32 = 16;
 /// freedom at least.
 pub const MIN_TARGET_REPLICATES: u64 = 8;
 
+/// The share of an adaptive render's target within which a pixel's own 95 % interval
+/// (in units of 1.96 standard errors) must lie for it to stop being sampled: below 1, so
+/// that the pixels still sampled bring the image's RMSE bound under the target.
+pub const ADAPTIVE_SHARE: f64 = 0.9;
+
 /// An accuracy to stop at.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ErrorTarget {
@@ -393,6 +398,9 @@ pub struct Accumulation {
     pub partial: Option<BlockSums>,
     /// The file it was read from, for messages (not stored).
     pub source: Option<PathBuf>,
+    /// The largest magnitude of a sample (`max_sample_value`), for the intervals of an
+    /// adaptive render's decisions (not stored: a resumed render takes its own).
+    pub max_value: f64,
 }
 
 impl Accumulation {
@@ -426,6 +434,7 @@ impl Accumulation {
             exact: ExactSums::new(width, height, max_value),
             partial: None,
             source: None,
+            max_value,
         }
     }
 
@@ -530,11 +539,69 @@ impl Accumulation {
     /// The sums as a film: the exact sums, plus the block in progress rounded to the same
     /// quanta (as [`merge`] adds it).
     pub fn film(&self) -> Result<Film> {
-        let replicate = self.film_replicate();
-        match &self.partial {
-            None => Ok(self.exact.to_film(self.samples() as u64, replicate)),
-            Some(_) => Ok(self.sums()?.to_film(self.samples() as u64, replicate)),
+        Ok(self.counted_sums()?.to_film(self.samples() as u64, self.film_replicate()))
+    }
+
+    /// [`Accumulation::sums`], with the block in progress counted in the samples of the
+    /// pixels it holds when the sums are counted per pixel.
+    pub fn counted_sums(&self) -> Result<ExactSums> {
+        let mut sums = self.sums()?;
+        if self.partial.is_some() && !sums.pixel_samples.is_empty() {
+            for (n, off) in sums.pixel_samples.iter_mut().zip(self.inactive()) {
+                if !off {
+                    *n += self.partial_samples;
+                }
+            }
         }
+        Ok(sums)
+    }
+
+    /// Samples of the finished blocks of the pixels still sampled.
+    fn finished(&self) -> u32 {
+        self.samples() - self.partial_samples
+    }
+
+    /// The pixels an adaptive render no longer samples (empty while it samples all).
+    pub fn inactive(&self) -> Vec<bool> {
+        self.exact.stopped.clone()
+    }
+
+    /// An adaptive render's decision after a complete replicate: the pixels still sampled
+    /// whose 95 % interval ([`Film::intervals_95`]) is within 1.96 × `ADAPTIVE_SHARE` of the
+    /// target (the RMSE's value, or its share of the image mean) stop being sampled.
+    /// Returns the new mask when a pixel stopped.
+    pub fn adapt(&mut self, target: ErrorTarget) -> Result<Option<Vec<bool>>> {
+        if self.exact.replicate_count() < MIN_TARGET_REPLICATES || self.partial_samples > 0 {
+            return Ok(None);
+        }
+        let film = self.film()?;
+        let e = match target {
+            ErrorTarget::Rmse(e) => e,
+            ErrorTarget::RelativeRmse(r) => r * film.image_mean().abs(),
+            ErrorTarget::PointStdError(_) => return Ok(None),
+        };
+        let Some(intervals) = film.intervals_95(self.max_value) else {
+            return Ok(None);
+        };
+        let mean = film.mean();
+        let mut mask = self.inactive();
+        if mask.is_empty() {
+            mask = vec![false; mean.len()];
+        }
+        let limit = 1.96 * ADAPTIVE_SHARE * e;
+        let mut changed = false;
+        for (i, &(lo, hi)) in intervals.iter().enumerate() {
+            if !mask[i] && (hi - mean[i]).max(mean[i] - lo) <= limit {
+                mask[i] = true;
+                changed = true;
+            }
+        }
+        if !changed {
+            return Ok(None);
+        }
+        self.exact.count_per_pixel(self.finished());
+        self.exact.stopped.clone_from(&mask);
+        Ok(Some(mask))
     }
 
     /// The replicate size a film of this accumulation reports: 0 where the replicates'
@@ -568,6 +635,20 @@ impl Accumulation {
         if image == matches!(target, ErrorTarget::PointStdError(_)) {
             let what = if image { "an image" } else { "probe points" };
             return Err(Error::settings(format!("{target:?} is not a target for {what}")));
+        }
+        Ok(())
+    }
+
+    /// Why this render cannot be adaptive: no image target, or samples not in
+    /// replicates (whose ends are where the decisions are taken).
+    pub fn check_adaptive(&self, target: Option<ErrorTarget>) -> Result<()> {
+        if !matches!(target, Some(ErrorTarget::Rmse(_) | ErrorTarget::RelativeRmse(_))) {
+            return Err(Error::settings("adaptive sampling needs an image's error target"));
+        }
+        if self.settings.layout != FilmLayout::Image || self.settings.replicate_plan().is_none() {
+            return Err(Error::settings(
+                "adaptive sampling needs the samples in replicates of 2 or more (--replicate N)",
+            ));
         }
         Ok(())
     }
@@ -621,7 +702,13 @@ impl Accumulation {
     /// Adds the device's sums of rounds `rounds` (taken from it): to the exact sums, and,
     /// when they are whole replicates, their squares to the replicates' sums.
     pub fn add_taken(&mut self, block: &BlockSums, rounds: std::ops::Range<u32>) -> Result<()> {
+        // Which pixels the block holds.
+        let active: Vec<bool> = self.inactive().iter().map(|&off| !off).collect();
         self.exact.add_block(block).map_err(|e| self.error(e))?;
+        let taken = rounds.end - rounds.start;
+        for (n, &on) in self.exact.pixel_samples.iter_mut().zip(&active) {
+            *n += if on { taken } else { 0 };
+        }
         let Some(plan) = self.settings.replicate_plan() else {
             return Ok(());
         };
@@ -644,7 +731,11 @@ impl Accumulation {
                 sums.push((first..first + plan.summed).map(|i| block.pixel(i).0).sum::<f64>());
             }
         }
-        self.exact.add_replicates(&sums, plan.per_take as u64).map_err(|e| self.error(e))
+        self.exact.add_replicates(&sums, plan.per_take as u64).map_err(|e| self.error(e))?;
+        for (k, &on) in self.exact.pixel_replicates.iter_mut().zip(&active) {
+            *k += on as u32;
+        }
+        Ok(())
     }
 
     /// The exact sums with the block in progress, if any, rounded to the same quanta and
@@ -796,11 +887,18 @@ pub fn merge(shards: &[(PathBuf, Accumulation)]) -> Result<Merged> {
     }
     let mut exact = first.exact.clone();
     exact.clear();
+    // Adaptive shards count their samples per pixel; the others then do too.
+    let per_pixel = order.iter().any(|(_, a)| !a.exact.pixel_samples.is_empty());
+    if per_pixel {
+        exact.count_per_pixel(0);
+    }
     for (path, a) in &order {
-        exact.add(&a.exact).map_err(|m| Error::checkpoint(path, m))?;
-        if let Some(block) = &a.partial {
-            exact.add_block(block).map_err(|m| Error::checkpoint(path, m))?;
+        let mut sums = a.counted_sums()?;
+        if per_pixel {
+            sums.count_per_pixel(a.samples());
+            sums.stopped.clear();
         }
+        exact.add(&sums).map_err(|m| Error::checkpoint(path, m))?;
     }
     let (lo, hi) = (order[0].1.first, order[order.len() - 1].1.next);
     let aligned = order.windows(2).all(|p| p[0].1.next % BLOCK_SAMPLES == 0);

@@ -6,7 +6,7 @@
 use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::{Error, Result};
-use crate::film::{BlockSums, Film};
+use crate::film::{BlockSums, Film, INACTIVE_SLOT_BITS};
 use crate::gpu::{AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget};
 use crate::probe::Probe;
 use crate::scene::{Camera, Scene, Settings};
@@ -240,6 +240,7 @@ impl Prepared {
                 Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?))
             }
             Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
+                inactive: Vec::new(),
                 work: CpuImage { tracer: tracer.clone(), camera: *camera, settings: settings.clone() },
                 film: Film::new(settings.width, settings.height),
             })),
@@ -287,6 +288,7 @@ impl Prepared {
                 )?))
             }
             Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
+                inactive: Vec::new(),
                 work: CpuProbes {
                     tracer: tracer.clone(),
                     settings: settings.clone(),
@@ -323,6 +325,9 @@ pub(crate) trait Passes {
     fn load(&mut self, block: &BlockSums) -> Result<()>;
     /// Bytes of device memory the film and its buffers take (0 on the CPU).
     fn device_bytes(&self) -> u64;
+    /// Stops sampling the slots marked in `inactive` (from the next pass on; an empty
+    /// mask samples every slot). Their sums read back as empty.
+    fn set_inactive(&mut self, inactive: &[bool]) -> Result<()>;
 }
 
 impl Passes for GpuTarget {
@@ -332,18 +337,28 @@ impl Passes for GpuTarget {
     }
 
     fn read(&mut self) -> Result<BlockSums> {
-        Ok(BlockSums::Gpu(self.film_words()?))
+        let mut words = self.film_words()?;
+        for w in &mut words {
+            if w[3].to_bits() == INACTIVE_SLOT_BITS {
+                *w = [0.0; 4];
+            }
+        }
+        Ok(BlockSums::Gpu(words))
     }
 
     fn take(&mut self) -> Result<BlockSums> {
         let block = Passes::read(self)?;
         self.clear_film()?;
+        self.mark_inactive(None)?;
         Ok(block)
     }
 
     fn load(&mut self, block: &BlockSums) -> Result<()> {
         match block {
-            BlockSums::Gpu(words) => self.set_film_words(words),
+            BlockSums::Gpu(words) => {
+                self.set_film_words(words)?;
+                self.mark_inactive(Some(words))
+            }
             BlockSums::Cpu { .. } => Err(Error::Gpu("the CPU reference's sums cannot continue on the GPU".into())),
         }
     }
@@ -351,13 +366,19 @@ impl Passes for GpuTarget {
     fn device_bytes(&self) -> u64 {
         self.device_bytes
     }
+
+    fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
+        let words = self.film_words()?;
+        self.inactive = inactive.to_vec();
+        self.mark_inactive(Some(&words))
+    }
 }
 
 /// What the CPU reference traces into a film: an image, or probe points.
 trait CpuWork {
-    /// Adds samples (or probe rounds) `first .. first + count` to `film`; returns the AO
-    /// rays traced.
-    fn pass(&self, film: &mut Film, first: u32, count: u32) -> u64;
+    /// Adds samples (or probe rounds) `first .. first + count` to `film`, leaving the
+    /// slots marked in `inactive` (empty: none); returns the AO rays traced.
+    fn pass(&self, film: &mut Film, first: u32, count: u32, inactive: &[bool]) -> u64;
 }
 
 /// An image on the CPU reference.
@@ -368,8 +389,8 @@ struct CpuImage {
 }
 
 impl CpuWork for CpuImage {
-    fn pass(&self, film: &mut Film, first: u32, count: u32) -> u64 {
-        self.tracer.render_pass(&self.camera, &self.settings, film, first, count)
+    fn pass(&self, film: &mut Film, first: u32, count: u32, inactive: &[bool]) -> u64 {
+        self.tracer.render_pass(&self.camera, &self.settings, film, first, count, inactive)
     }
 }
 
@@ -384,7 +405,8 @@ struct CpuProbes {
 }
 
 impl CpuWork for CpuProbes {
-    fn pass(&self, film: &mut Film, first: u32, count: u32) -> u64 {
+    // Probe requests are not adaptive: every point is sampled.
+    fn pass(&self, film: &mut Film, first: u32, count: u32, _inactive: &[bool]) -> u64 {
         let (t, s, p) = (&self.tracer, &self.settings, &self.probes);
         if self.bent_normals {
             t.probe_bent_pass(s, p, self.samples, film, first, count)
@@ -398,11 +420,18 @@ impl CpuWork for CpuProbes {
 struct CpuTarget<W> {
     work: W,
     film: Film,
+    /// Slots not sampled (empty: none).
+    inactive: Vec<bool>,
 }
 
 impl<W: CpuWork> Passes for CpuTarget<W> {
     fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
-        Ok(PassReport { ao_rays: self.work.pass(&mut self.film, first, count), gpu_seconds: None })
+        Ok(PassReport { ao_rays: self.work.pass(&mut self.film, first, count, &self.inactive), gpu_seconds: None })
+    }
+
+    fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
+        self.inactive = inactive.to_vec();
+        Ok(())
     }
 
     fn read(&mut self) -> Result<BlockSums> {

@@ -24,6 +24,11 @@ pub struct Film {
     /// Σ over complete replicates of (the replicate's Σ value)², per group: per pixel for
     /// an image, per point for a probe film; empty unless `replicate` ≥ 2.
     pub replicate_sq: Vec<f64>,
+    /// Samples of each pixel, when an adaptive render gave pixels different counts
+    /// (`samples` is then the most); empty when every pixel has `samples`.
+    pub pixel_samples: Vec<u64>,
+    /// Complete replicates of each pixel, likewise (`replicates` is then the fewest).
+    pub pixel_replicates: Vec<u64>,
 }
 
 /// How a film's error is estimated.
@@ -155,13 +160,24 @@ impl Film {
             replicate: 1,
             replicates: 0,
             replicate_sq: Vec::new(),
+            pixel_samples: Vec::new(),
+            pixel_replicates: Vec::new(),
         }
+    }
+
+    /// Samples of pixel `i`.
+    pub fn samples_of(&self, i: usize) -> u64 {
+        self.pixel_samples.get(i).copied().unwrap_or(self.samples)
+    }
+
+    /// Complete replicates of pixel `i`.
+    pub fn replicates_of(&self, i: usize) -> u64 {
+        self.pixel_replicates.get(i).copied().unwrap_or(self.replicates)
     }
 
     /// Per-pixel estimates (sample means).
     pub fn mean(&self) -> Vec<f64> {
-        let n = self.samples.max(1) as f64;
-        self.sum.iter().map(|s| s / n).collect()
+        (0..self.sum.len()).map(|i| self.sum[i] / self.samples_of(i).max(1) as f64).collect()
     }
 
     /// How [`Film::std_error`] estimates the error.
@@ -186,7 +202,13 @@ impl Film {
         (0..self.sum.len())
             .map(|i| {
                 let r = self.replicate_sq.get(i).copied().unwrap_or(0.0);
-                standard_error(estimator, self.samples, self.sum[i], self.sum_sq[i], r)
+                let e = match estimator {
+                    ErrorEstimator::Replicates { size, .. } => {
+                        ErrorEstimator::Replicates { size, count: self.replicates_of(i) }
+                    }
+                    e => e,
+                };
+                standard_error(e, self.samples_of(i), self.sum[i], self.sum_sq[i], r)
             })
             .collect()
     }
@@ -230,9 +252,19 @@ impl Film {
         if estimator == ErrorEstimator::None {
             return None;
         }
-        let dof = estimator.degrees_of_freedom(self.samples);
         let (mean, se) = (self.mean(), self.std_error());
-        Some(mean.iter().zip(&se).map(|(&m, &e)| interval_95(m, e, dof, self.samples, max_value)).collect())
+        Some(
+            (0..mean.len())
+                .map(|i| {
+                    let n = self.samples_of(i);
+                    let dof = match estimator {
+                        ErrorEstimator::Replicates { .. } => self.replicates_of(i).saturating_sub(1),
+                        e => e.degrees_of_freedom(n),
+                    };
+                    interval_95(mean[i], se[i], dof, n, max_value)
+                })
+                .collect(),
+        )
     }
 
     /// Mean over all pixels of the per-pixel estimates.
@@ -267,6 +299,11 @@ mod tests {
         assert_eq!(standard_error(ErrorEstimator::Replicates { size: 4, count: 1 }, 4, 1.0, 0.0, 1.0), f64::INFINITY);
     }
 }
+
+/// The bits a device film slot's last word holds while its pixel is inactive (an
+/// adaptive render has stopped sampling it): a NaN no sum produces. The GPU kernel skips
+/// such a slot; the slot reads back as empty.
+pub const INACTIVE_SLOT_BITS: u32 = 0x7fc0_0a0d;
 
 /// Samples per block, the unit of exact accumulation: block `k` holds sample indices
 /// `256k .. 256k + 256` (cut short by the ends of the rendered range). A device sums one
@@ -361,6 +398,13 @@ pub struct ExactSums {
     pub replicate_sq: Vec<i128>,
     /// Complete replicates in `replicate_sq`.
     pub replicates: u64,
+    /// Samples of each pixel's finished blocks, once an adaptive render has stopped
+    /// sampling some pixels; empty while every pixel has the same.
+    pub pixel_samples: Vec<u32>,
+    /// Complete replicates of each pixel, likewise.
+    pub pixel_replicates: Vec<u32>,
+    /// The pixels an adaptive render has stopped sampling (empty: none).
+    pub stopped: Vec<bool>,
 }
 
 /// log2 of the ratio of the quantum of [`ExactSums::replicate_sq`] to that of Σv²: the
@@ -382,6 +426,9 @@ impl ExactSums {
             sum_sq: vec![0; n],
             replicate_sq: Vec::new(),
             replicates: 0,
+            pixel_samples: Vec::new(),
+            pixel_replicates: Vec::new(),
+            stopped: Vec::new(),
         }
     }
 
@@ -391,6 +438,19 @@ impl ExactSums {
         self.sum_sq.fill(0);
         self.replicate_sq.fill(0);
         self.replicates = 0;
+        self.pixel_samples.clear();
+        self.pixel_replicates.clear();
+        self.stopped.clear();
+    }
+
+    /// Keeps counts per pixel from now on, every pixel starting from `samples` samples
+    /// and the common count of replicates (nothing to do when it already does).
+    pub fn count_per_pixel(&mut self, samples: u32) {
+        if self.pixel_samples.is_empty() {
+            self.pixel_samples = vec![samples; self.sum.len()];
+            self.pixel_replicates = vec![self.replicates as u32; self.sum.len()];
+            self.stopped = vec![false; self.sum.len()];
+        }
     }
 
     /// Adds `count` complete replicates whose sums are `sums` (`count` per group, group
@@ -469,6 +529,13 @@ impl ExactSums {
         for (a, b) in pairs.chain(self.replicate_sq.iter_mut().zip(&other.replicate_sq)) {
             *a = a.checked_add(*b).ok_or_else(|| SumsError("a sum overflowed".into()))?;
         }
+        if self.pixel_samples.len() != other.pixel_samples.len() {
+            return Err(SumsError("sums counted per pixel added to sums counted per image".into()));
+        }
+        let counts = self.pixel_samples.iter_mut().zip(&other.pixel_samples);
+        for (a, b) in counts.chain(self.pixel_replicates.iter_mut().zip(&other.pixel_replicates)) {
+            *a = a.checked_add(*b).ok_or_else(|| SumsError("a sample count overflowed".into()))?;
+        }
         self.replicates += other.replicates;
         Ok(())
     }
@@ -493,9 +560,16 @@ impl ExactSums {
             sum: self.sum.iter().map(|&s| s as f64 * qs).collect(),
             sum_sq: self.sum_sq.iter().map(|&q| q as f64 * qq).collect(),
             replicate,
-            replicates: self.replicates,
+            replicates: self.replicate_count(),
             replicate_sq: self.replicate_sq.iter().map(|&q| q as f64 * qr).collect(),
+            pixel_samples: self.pixel_samples.iter().map(|&n| n as u64).collect(),
+            pixel_replicates: self.pixel_replicates.iter().map(|&n| n as u64).collect(),
         }
+    }
+
+    /// Complete replicates: the fewest of any pixel when counted per pixel.
+    pub fn replicate_count(&self) -> u64 {
+        self.pixel_replicates.iter().min().map_or(self.replicates, |&k| k as u64)
     }
 }
 

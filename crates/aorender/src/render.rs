@@ -64,6 +64,10 @@ pub struct Control<'a> {
     /// Stop once the error estimate meets this target (checked after every replicate,
     /// or every `TARGET_CHECK_SAMPLES` independent samples).
     pub target: Option<ErrorTarget>,
+    /// With an image's target: after each complete replicate, stop sampling the pixels
+    /// whose own error is already within the target (`Accumulation::adapt`), so that
+    /// the samples go where the error is. Needs the samples in replicates.
+    pub adaptive: bool,
 }
 
 impl Default for Control<'_> {
@@ -76,6 +80,7 @@ impl Default for Control<'_> {
             save_interval: 5.0,
             sizing: PassSizing::Timed,
             target: None,
+            adaptive: false,
         }
     }
 }
@@ -190,6 +195,11 @@ pub struct RenderStats {
     pub passes: u32,
     /// Mean of the image.
     pub image_mean: f64,
+    /// Samples per pixel on average: `samples_per_pixel` unless an adaptive render stopped
+    /// sampling some pixels earlier.
+    pub mean_samples_per_pixel: f64,
+    /// Whether an adaptive render gave its pixels different sample counts.
+    pub adaptive: bool,
     /// What ended the render: `samples` (all asked for), `target`, `time limit` or
     /// `interrupted`.
     pub ended_by: String,
@@ -302,6 +312,12 @@ impl Render {
         if let Some(block) = saved.partial.take() {
             self.passes.load(&block).map_err(|e| saved.error(e.message()))?;
         }
+        // An adaptive render's pixels that no longer take samples stay so.
+        let inactive = saved.inactive();
+        if inactive.iter().any(|&off| off) {
+            self.passes.set_inactive(&inactive)?;
+        }
+        saved.max_value = self.acc.max_value;
         saved.adapter.clone_from(&self.acc.adapter);
         self.resumed = saved.samples();
         self.acc = saved;
@@ -366,6 +382,9 @@ impl Render {
         if let Some(target) = control.target {
             self.acc.check_target(target)?;
         }
+        if control.adaptive {
+            self.acc.check_adaptive(control.target)?;
+        }
         let acc = &mut self.acc;
         let until = (acc.first + samples.min(acc.end - acc.first)).max(acc.next);
         let pixels = acc.settings.width as u64 * acc.settings.height as u64;
@@ -420,6 +439,15 @@ impl Render {
                 let block = self.passes.take()?;
                 acc.add_taken(&block, acc.next - acc.partial_samples..acc.next)?;
                 acc.partial_samples = 0;
+                if let (true, Some(target)) = (control.adaptive, control.target)
+                    && let Some(mask) = acc.adapt(target)?
+                {
+                    self.passes.set_inactive(&mask)?;
+                    if mask.iter().all(|&off| off) {
+                        end = RunEnd::TargetMet;
+                        break;
+                    }
+                }
             }
             let mut target = PASS_TARGET_SECONDS;
             if let Some(limit) = control.time_limit {
@@ -501,7 +529,9 @@ impl Render {
         let info = &self.info;
         let setup = &info.setup;
         let done = acc.samples();
-        let camera_rays = done as u64 * s.width as u64 * s.height as u64;
+        // Every pixel's samples: fewer than `done` where an adaptive render stopped.
+        let pixel_samples: u64 = (0..film.sum.len()).map(|i| film.samples_of(i)).sum();
+        let camera_rays = pixel_samples;
         let rays = camera_rays + acc.ao_rays;
         let stats = RenderStats {
             scene: info.scene.clone(),
@@ -541,6 +571,8 @@ impl Render {
             load_seconds: 0.0,
             passes: acc.passes,
             image_mean: film.image_mean(),
+            mean_samples_per_pixel: pixel_samples as f64 / film.sum.len().max(1) as f64,
+            adaptive: !film.pixel_samples.is_empty(),
             ended_by: match self.ended {
                 Some((end, _)) => end.name().into(),
                 None if done == acc.end - acc.first => RunEnd::Done.name().into(),

@@ -101,11 +101,12 @@ impl Sampler {
 
     /// Samples per replicate of a render (module doc): `requested` (checked by
     /// [`Sampler::check_replicate`]), or by default one replicate of every sample (0) for
-    /// `stratified` and `sobol`, whose best point set is one sequence; always 1 for
-    /// `independent` and 0 for `grid`.
+    /// `stratified` and `sobol`, whose best point set is one sequence, and replicates of
+    /// one sample for `independent` (which may be batched too, for an adaptive render's
+    /// decisions: its numbers do not depend on it); always 0 for `grid`.
     pub fn replicate_samples(self, requested: Option<u32>) -> u32 {
         match self {
-            Sampler::Independent => 1,
+            Sampler::Independent => requested.filter(|&r| r > 0).unwrap_or(1),
             Sampler::Grid => 0,
             Sampler::Stratified | Sampler::Sobol => requested.unwrap_or(0),
         }
@@ -113,14 +114,12 @@ impl Sampler {
 
     /// The largest replicate size this sampler allows that cuts `spp` samples into at
     /// least `replicates` replicates (a power of two for `sobol`, of four for
-    /// `stratified`, at most `MAX_REPLICATE_SAMPLES`, at least 1); 1 for `independent`,
-    /// 0 for `grid`.
+    /// `stratified`, at most `MAX_REPLICATE_SAMPLES`, at least 1); 0 for `grid`.
     pub fn replicate_for(self, spp: u32, replicates: u32) -> u32 {
         let step = match self {
-            Sampler::Independent => return 1,
             Sampler::Grid => return 0,
             Sampler::Stratified => 4,
-            Sampler::Sobol => 2,
+            Sampler::Independent | Sampler::Sobol => 2,
         };
         let mut r = 1;
         while r * step <= MAX_REPLICATE_SAMPLES && (r * step) as u64 * replicates as u64 <= spp as u64 {
@@ -130,11 +129,13 @@ impl Sampler {
     }
 
     /// Why `replicate` samples per replicate cannot be asked of this sampler, in words;
-    /// `Ok` when they can (any size for `independent` and `grid`, which ignore it).
+    /// `Ok` when they can (any size for `grid`, which ignores it).
     pub fn check_replicate(self, replicate: u32) -> Result<(), String> {
         let ok = match self {
-            Sampler::Independent | Sampler::Grid => true,
-            Sampler::Sobol => replicate == 0 || (replicate.is_power_of_two() && replicate <= MAX_REPLICATE_SAMPLES),
+            Sampler::Grid => true,
+            Sampler::Independent | Sampler::Sobol => {
+                replicate == 0 || (replicate.is_power_of_two() && replicate <= MAX_REPLICATE_SAMPLES)
+            }
             Sampler::Stratified => {
                 replicate == 0
                     || (replicate.is_power_of_two()

@@ -68,7 +68,7 @@ fn two_to_the_twenty_samples_converge_to_the_closed_form() {
     for &target in &checkpoints {
         while done < target {
             let count = (target - done).min(1 << 14);
-            tracer.render_pass(&s.camera, &s.settings, &mut cpu, done, count);
+            tracer.render_pass(&s.camera, &s.settings, &mut cpu, done, count, &[]);
             done += count;
         }
         cpu_at.push(cpu.clone());

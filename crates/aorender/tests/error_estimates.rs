@@ -206,7 +206,9 @@ fn renders_with_an_error_target_meet_it() {
             let mut met = 0;
             let mut means = Vec::new();
             for seed in 0..seeds {
-                let settings = Settings { sampler, seed, spp: 4096, replicate: Some(16), ..scene.settings.clone() };
+                // Independent samples are their own replicates; Sobol's in replicates of 16.
+                let replicate = (sampler == Sampler::Sobol).then_some(16);
+                let settings = Settings { sampler, seed, spp: 4096, replicate, ..scene.settings.clone() };
                 let request = ImageRequest { camera: scene.camera, settings, samples: None };
                 let mut control = Control { target: Some(ErrorTarget::Rmse(target)), ..Control::default() };
                 let out = session.render(&request).unwrap().complete(&mut control).unwrap();
@@ -319,4 +321,118 @@ fn probes_with_a_target_stop_when_every_point_meets_it() {
     // One replicate fewer would not have met it: the render stopped at the first check
     // that met the target, not later.
     assert!(samples >= 8 * 16, "{samples} samples: fewer than eight replicates");
+}
+
+/// Adaptive renders stop sampling the pixels whose own error is within the target: they
+/// meet the target, take fewer samples than a uniform render, and the stopping decisions
+/// leave no bias the seeds can see (the image mean over 20 seeds agrees with the converged
+/// mean within 4 standard errors, and the bias is printed against the target).
+#[test]
+fn adaptive_renders_meet_the_target_with_fewer_samples_and_no_bias() {
+    let mut scene = bunny();
+    (scene.settings.width, scene.settings.height) = (32, 32);
+    let reference = converged(&scene, 16384);
+    let target = 0.006;
+    for kind in kinds() {
+        let session = session(&scene, &Config { device: kind, ..Default::default() });
+        for sampler in [Sampler::Independent, Sampler::Sobol] {
+            let seeds = 20u32;
+            let (mut met, mut means, mut adaptive_samples, mut uniform_samples) = (0, Vec::new(), 0.0, 0.0);
+            for seed in 0..seeds {
+                let settings = Settings { sampler, seed, spp: 4096, replicate: Some(16), ..scene.settings.clone() };
+                let request = ImageRequest { camera: scene.camera, settings, samples: None };
+                let run = |adaptive| {
+                    let mut control =
+                        Control { target: Some(ErrorTarget::Rmse(target)), adaptive, ..Control::default() };
+                    session.render(&request).unwrap().complete(&mut control).unwrap()
+                };
+                let (out, uniform) = (run(true), run(false));
+                assert_eq!(out.stats.ended_by, "target", "{kind:?} {} seed {seed}", sampler.name());
+                let measured = measured_rmse(&out.film, &reference);
+                met += (measured <= target) as u32;
+                means.push(out.film.image_mean());
+                adaptive_samples += out.stats.mean_samples_per_pixel / seeds as f64;
+                uniform_samples += uniform.stats.mean_samples_per_pixel / seeds as f64;
+            }
+            let n = means.len() as f64;
+            let avg = means.iter().sum::<f64>() / n;
+            let sd = (means.iter().map(|m| (m - avg) * (m - avg)).sum::<f64>() / (n - 1.0)).sqrt();
+            let (truth, truth_se) = (reference.image_mean(), common::image_mean_std_error(&reference));
+            let se = (sd * sd / n + truth_se * truth_se).sqrt();
+            eprintln!(
+                "{kind:?} {} adaptive: target met in {met} of {seeds}; {adaptive_samples:.0} samples a pixel on \
+                 average against {uniform_samples:.0} uniform; image mean {avg:.6} against {truth:.6}: bias \
+                 {:+.2e} ({:.3} of the target, {:.2} standard errors)",
+                sampler.name(),
+                avg - truth,
+                (avg - truth).abs() / target,
+                (avg - truth).abs() / se
+            );
+            let what = format!("{kind:?} {} adaptive", sampler.name());
+            assert!(met * 100 >= 95 * seeds, "{what}: target met in {met} of {seeds} seeds");
+            assert!((avg - truth).abs() <= 4.0 * se, "{what}: image mean {avg} against {truth} (4 SE = {})", 4.0 * se);
+            assert!(
+                adaptive_samples <= uniform_samples,
+                "{what}: {adaptive_samples} samples against {uniform_samples}"
+            );
+        }
+    }
+}
+
+/// An adaptive render stopped part-way and resumed from its checkpoint stops sampling
+/// the same pixels at the same points, and ends with the uninterrupted render's bits.
+#[test]
+fn adaptive_renders_resume_to_the_same_bits() {
+    let mut scene = bunny();
+    (scene.settings.width, scene.settings.height) = (32, 32);
+    let settings = Settings { spp: 4096, seed: 9, replicate: Some(16), ..scene.settings.clone() };
+    let request = ImageRequest { camera: scene.camera, settings, samples: None };
+    let control = || Control { target: Some(ErrorTarget::Rmse(0.008)), adaptive: true, ..Control::default() };
+    for kind in kinds() {
+        let session = session(&scene, &Config { device: kind, ..Default::default() });
+        let whole = session.render(&request).unwrap().complete(&mut control()).unwrap();
+        assert!(whole.stats.mean_samples_per_pixel < whole.stats.samples_per_pixel as f64, "{kind:?}: not adaptive");
+        // Stopped inside a replicate, after some pixels stopped being sampled.
+        let stop_at = whole.stats.samples_per_pixel - 24;
+        let mut first = session.render(&request).unwrap();
+        let mut c = Control { sizing: aorender::PassSizing::Fixed(5), ..control() };
+        first.run_to(stop_at, &mut c).unwrap();
+        let saved = Accumulation::from_bytes(&checkpoint_bytes(&first.accumulation().unwrap())).unwrap();
+        assert!(saved.inactive().iter().any(|&off| off), "{kind:?}: no pixel had stopped");
+        let mut resumed = session.render(&request).unwrap();
+        resumed.resume(saved).unwrap();
+        let out = resumed.complete(&mut control()).unwrap();
+        assert_eq!(out.stats.samples_per_pixel, whole.stats.samples_per_pixel, "{kind:?}");
+        assert!(out.film == whole.film, "{kind:?}: the resumed adaptive render differs from the whole one");
+    }
+}
+
+/// Shards of an adaptive render (each deciding on its own samples, and running to the
+/// end of its range when the target is not met there) merge exactly: in any order to the
+/// same bits, each pixel's count the sum of its counts in the shards.
+#[test]
+fn adaptive_shards_merge_exactly_in_any_order() {
+    let mut scene = bunny();
+    (scene.settings.width, scene.settings.height) = (24, 24);
+    let settings = Settings { spp: 768, seed: 4, replicate: Some(16), ..scene.settings.clone() };
+    let session = session(&scene, &Config::cpu());
+    let mut shards = Vec::new();
+    for (i, range) in [(0..384), (384..768)].into_iter().enumerate() {
+        let request = ImageRequest { camera: scene.camera, settings: settings.clone(), samples: Some(range) };
+        let mut control = Control { target: Some(ErrorTarget::Rmse(0.008)), adaptive: true, ..Control::default() };
+        let out = session.render(&request).unwrap().complete(&mut control).unwrap();
+        assert!(out.stats.adaptive, "shard {i} stopped no pixel");
+        assert_eq!(out.stats.ended_by, "samples", "shard {i} met the target inside its range");
+        shards.push((std::path::PathBuf::from(format!("shard{i}")), out.accumulation));
+    }
+    let forward = merge(&shards).unwrap();
+    shards.reverse();
+    let backward = merge(&shards).unwrap();
+    assert!(forward.film == backward.film, "the merge depends on the order of the shards");
+    let film = &forward.film;
+    for i in 0..film.sum.len() {
+        let counted: u64 = shards.iter().map(|(_, a)| a.film().unwrap().samples_of(i)).sum();
+        assert_eq!(film.samples_of(i), counted, "pixel {i}");
+    }
+    assert!(film.rmse_estimate().is_some());
 }

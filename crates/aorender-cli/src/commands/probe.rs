@@ -3,7 +3,7 @@
 use crate::args::{SamplingArgs, SceneArgs, check_output_extension};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::output::write_atomically;
-use aorender::{Control, ErrorTarget, Probe, ProbeValue, Session};
+use aorender::{Control, ErrorTarget, Probe, ProbeValue, Sampler, Session};
 use glam::Vec3;
 use std::path::{Path, PathBuf};
 
@@ -64,6 +64,15 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         out.rays as f64 / out.seconds.max(1e-9) / 1e6,
         out.adapter
     );
+    if matches!(settings.sampler, Sampler::Sobol | Sampler::Stratified)
+        && settings.sampler.replicate_samples(settings.replicate) == 0
+    {
+        eprintln!(
+            "note: std_error is the spread of single samples, which overestimates the error of {} points: \
+             --replicate N gives a valid one",
+            settings.sampler.name()
+        );
+    }
     if let Some(e) = args.target_error {
         let most = out.values.iter().map(|v| v.std_error).fold(0.0, f64::max);
         let met = if most <= e { "met" } else { "not met" };

@@ -7,7 +7,7 @@ use crate::args::{
 use crate::{memory, signals};
 use anyhow::{Result, bail};
 use aorender::output::{FLOAT_IMAGE_EXTENSIONS, IMAGE_EXTENSIONS, write_error_image, write_image};
-use aorender::{Accumulation, Control, Device, ErrorTarget, ImageRequest, Progress, Session};
+use aorender::{Accumulation, Control, Device, ErrorTarget, ImageRequest, Progress, Sampler, Session};
 
 /// Samples per pixel a render with an error target takes at most, unless --spp says.
 const TARGET_SPP_CAP: u32 = 65536;
@@ -40,6 +40,10 @@ pub struct RenderArgs {
     /// Stop once that error is at most R times the image's mean.
     #[arg(long, value_name = "R")]
     target_relative_error: Option<f64>,
+    /// With an error target: after every replicate, stop sampling the pixels whose own
+    /// error is already within the target, so that the samples go where the error is.
+    #[arg(long)]
+    adaptive: bool,
     /// Also write each pixel's standard error (.exr or .pfm, 32-bit float).
     #[arg(long, value_name = "FILE")]
     error_image: Option<PathBuf>,
@@ -69,8 +73,13 @@ pub fn run(args: RenderArgs) -> Result<()> {
         (None, None) => {}
     }
     args.sampling.apply(&mut scene)?;
-    if target.is_some() && scene.settings.replicate.is_none() {
-        let s = &mut scene.settings;
+    if args.adaptive && target.is_none() {
+        bail!("invalid option: --adaptive needs --target-error or --target-relative-error");
+    }
+    // Independent samples are their own replicates, unless an adaptive render needs
+    // replicates to decide at.
+    let s = &mut scene.settings;
+    if target.is_some() && s.replicate.is_none() && (s.sampler != Sampler::Independent || args.adaptive) {
         s.replicate = Some(s.sampler.replicate_for(s.spp.min(TARGET_REPLICATE * 16), 16));
     }
     scene.settings.validate().map_err(invalid_option)?;
@@ -135,6 +144,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None },
         save_interval: args.run.checkpoint_interval,
         target,
+        adaptive: args.adaptive,
         ..Control::default()
     };
     let rendered = (|| {
@@ -224,9 +234,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     if st.ended_by == "target" {
         eprintln!(
-            "error target met after {} of at most {} samples per pixel (RMSE bound {:.3e})",
+            "error target met after {} of at most {} samples per pixel ({:.1} on average; RMSE bound {:.3e})",
             st.samples_per_pixel,
             st.samples_requested,
+            st.mean_samples_per_pixel,
             st.rmse_bound.unwrap_or(f64::NAN)
         );
     } else if st.samples_per_pixel < st.samples_requested {

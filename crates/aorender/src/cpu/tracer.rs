@@ -379,7 +379,16 @@ impl CpuTracer {
 
     /// Adds samples `first .. first + count` of every pixel of the image of `settings`
     /// seen by `camera` to `film`; returns the number of AO rays traced.
-    pub fn render_pass(&self, camera: &Camera, settings: &Settings, film: &mut Film, first: u32, count: u32) -> u64 {
+    /// Pixels marked in `inactive` (empty: none) are left as they are.
+    pub fn render_pass(
+        &self,
+        camera: &Camera,
+        settings: &Settings,
+        film: &mut Film,
+        first: u32,
+        count: u32,
+        inactive: &[bool],
+    ) -> u64 {
         let s = settings;
         let rg = camera.ray_gen(s.width, s.height);
         let sampler = PointSampler::new(s.sampler, s.seed, s.spp, s.replicate_samples());
@@ -392,6 +401,9 @@ impl CpuTracer {
             .map(|(y, (sum, sum_sq))| {
                 let mut rays = 0u64;
                 for x in 0..w {
+                    if inactive.get(y * w + x).copied().unwrap_or(false) {
+                        continue;
+                    }
                     for k in 0..count {
                         let (v, traced) =
                             self.shade_sample(&rg, s, &sampler, x as u32, y as u32, first.wrapping_add(k));

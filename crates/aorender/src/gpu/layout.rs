@@ -6,6 +6,7 @@
 
 use crate::bvh::PRIM_TRIANGLE;
 use crate::bvh::{CWBVH_STACK_SIZE, CwNodeWords, GpuNode, GpuPrimitive, INVALID_INDEX, PRIM_INSTANCE, PRIM_SPHERE};
+use crate::film::INACTIVE_SLOT_BITS;
 use crate::geometry::{BOX_EXIT_WIDENING, Plane, gamma};
 use crate::mirror::{GpuStruct, StructLayout, gpu_struct};
 use crate::sampler::Sampler;
@@ -209,6 +210,7 @@ pub fn constants() -> Vec<Constant> {
     use Constant::{F32, U32};
     vec![
         U32("INVALID_INDEX", INVALID_INDEX),
+        U32("INACTIVE_SLOT", INACTIVE_SLOT_BITS),
         U32("PRIM_TRIANGLE", PRIM_TRIANGLE),
         U32("PRIM_SPHERE", PRIM_SPHERE),
         U32("PRIM_INSTANCE", PRIM_INSTANCE),

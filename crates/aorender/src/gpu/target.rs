@@ -11,6 +11,7 @@ use super::layout::{
 use super::pipeline::{Kernel, PipelineKey};
 use super::upload::{GpuScene, storage_buffer};
 use crate::error::{Error, Result};
+use crate::film::INACTIVE_SLOT_BITS;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use std::sync::Arc;
@@ -65,6 +66,8 @@ pub struct GpuTarget {
     passes_run: u32,
     /// The test hook's pass count.
     lose_device_after: Option<u32>,
+    /// Pixels an adaptive render no longer samples (empty: none).
+    pub(crate) inactive: Vec<bool>,
 }
 
 impl GpuTarget {
@@ -261,6 +264,7 @@ impl GpuTarget {
             device_bytes,
             passes_run: 0,
             lose_device_after,
+            inactive: Vec::new(),
         })
     }
 
@@ -409,6 +413,22 @@ impl GpuTarget {
         ctx.queue.write_buffer(&self.film, 0, bytemuck::cast_slice(words));
         ctx.submit([])?;
         ctx.wait()
+    }
+
+    /// Marks the slots of the inactive pixels in the film (`words`: its current words, or
+    /// `None` for a cleared film), so that the kernel skips them; nothing to do when every
+    /// pixel is active.
+    pub fn mark_inactive(&mut self, words: Option<&[[f32; 4]]>) -> Result<()> {
+        if !self.inactive.iter().any(|&x| x) {
+            return Ok(());
+        }
+        let mut marked = words.map_or_else(|| vec![[0.0f32; 4]; self.slots()], <[_]>::to_vec);
+        for (w, &off) in marked.iter_mut().zip(&self.inactive) {
+            if off {
+                *w = [0.0, 0.0, 0.0, f32::from_bits(INACTIVE_SLOT_BITS)];
+            }
+        }
+        self.set_film_words(&marked)
     }
 
     /// Zeroes the film.

@@ -27,6 +27,7 @@
 //! | 8 + 4 | complete replicates (u64), groups of replicate sums (u32, 0 for none) |
 //! | 32 × pixels | exact sums: Σv for every pixel, then Σv² (i128) |
 //! | 16 × groups | Σ of the squares of complete replicates' sums, per group (i128) |
+//! | 9 × pixels | with the per-pixel flag (an adaptive render): each pixel's samples, then its complete replicates (u32), then whether it is no longer sampled (u8, 0 or 1) |
 //! | 16 × pixels | block in progress, when present: GPU, 4 × f32 per pixel; CPU, Σv then Σv² (f64) |
 //! | 32 | BLAKE3 hash of every byte before it |
 //!
@@ -72,6 +73,8 @@ const MAX_ADAPTER_NAME: usize = 4096;
 /// Flag: the blocks follow the absolute grid of [`BLOCK_SAMPLES`] (cleared when a render
 /// whose last block was cut short by its end is continued past that end).
 const FLAG_ON_GRID: u8 = 1;
+/// Flag: the sums are counted per pixel (an adaptive render stopped sampling some).
+const FLAG_PER_PIXEL: u8 = 2;
 
 /// The file's code of a hemisphere distribution.
 fn hemisphere_code(h: Hemisphere) -> u8 {
@@ -194,7 +197,8 @@ impl Accumulation {
             quality_code(self.bvh_quality),
             s.max_distance.is_some() as u8,
             self.partial.is_some() as u8,
-            if self.on_grid { FLAG_ON_GRID } else { 0 },
+            if self.on_grid { FLAG_ON_GRID } else { 0 }
+                | if self.exact.pixel_samples.is_empty() { 0 } else { FLAG_PER_PIXEL },
         ])?;
         w.write_all(&s.max_distance.unwrap_or(0.0).to_le_bytes())?;
         w.write_all(&s.background.to_le_bytes())?;
@@ -226,6 +230,17 @@ impl Accumulation {
         for v in self.exact.sum.iter().chain(&self.exact.sum_sq).chain(&self.exact.replicate_sq) {
             buf.extend_from_slice(&v.to_le_bytes());
             flush(w, &mut buf, false)?;
+        }
+        for v in self.exact.pixel_samples.iter().chain(&self.exact.pixel_replicates) {
+            buf.extend_from_slice(&v.to_le_bytes());
+            flush(w, &mut buf, false)?;
+        }
+        if !self.exact.pixel_samples.is_empty() {
+            let stopped = |i: usize| self.exact.stopped.get(i).copied().unwrap_or(false);
+            for i in 0..self.exact.pixel_samples.len() {
+                buf.push(stopped(i) as u8);
+                flush(w, &mut buf, false)?;
+            }
         }
         match &self.partial {
             None => {}
@@ -295,7 +310,7 @@ impl Accumulation {
         let bvh_layout = layout_of(codes[3]).ok_or_else(|| invalid("BVH layout", codes[3]))?;
         let bvh_quality = quality_of(codes[4]).ok_or_else(|| invalid("BVH quality", codes[4]))?;
         let (has_max_distance, has_partial, flags) = (codes[5], codes[6], codes[7]);
-        if has_max_distance > 1 || has_partial > 1 || flags & !FLAG_ON_GRID != 0 {
+        if has_max_distance > 1 || has_partial > 1 || flags & !(FLAG_ON_GRID | FLAG_PER_PIXEL) != 0 {
             return Err("invalid flags".into());
         }
         let (max_distance, background, seed) = (r.f32()?, r.f32()?, r.u32()?);
@@ -359,8 +374,13 @@ impl Accumulation {
         if groups as u64 > pixels || replicates > u32::MAX as u64 {
             return Err(format!("invalid replicates: {replicates} in {groups} groups").into());
         }
-        let expected =
-            r.at as u64 + 32 * pixels + 16 * groups as u64 + if has_partial == 1 { 16 * pixels } else { 0 } + 32;
+        let per_pixel = flags & FLAG_PER_PIXEL != 0;
+        let expected = r.at as u64
+            + 32 * pixels
+            + 16 * groups as u64
+            + if per_pixel { 9 * pixels } else { 0 }
+            + if has_partial == 1 { 16 * pixels } else { 0 }
+            + 32;
         if len != expected {
             return Err(format!("truncated or corrupt: {len} bytes, but its header describes {expected}").into());
         }
@@ -373,7 +393,33 @@ impl Accumulation {
         let sum_sq = body.read_vec(n, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
         let replicate_sq =
             body.read_vec(groups as usize, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
-        let exact = ExactSums { width, height, sum_exponent, sq_exponent, sum, sum_sq, replicate_sq, replicates };
+        let (pixel_samples, pixel_replicates, stopped) = if per_pixel {
+            let u = |c: &[u8]| u32::from_le_bytes(c.try_into().expect("4 bytes"));
+            let (samples, replicates) = (body.read_vec(n, 4, u)?, body.read_vec(n, 4, u)?);
+            let flags = body.read_vec(n, 1, |c| c[0])?;
+            if flags.iter().any(|&f| f > 1) {
+                return Err("invalid per-pixel flags".into());
+            }
+            (samples, replicates, flags.into_iter().map(|f| f == 1).collect())
+        } else {
+            (Vec::new(), Vec::new(), Vec::new())
+        };
+        if pixel_samples.iter().any(|&k| k > next - first) {
+            return Err("a pixel holds more samples than the range".into());
+        }
+        let exact = ExactSums {
+            width,
+            height,
+            sum_exponent,
+            sq_exponent,
+            sum,
+            sum_sq,
+            replicate_sq,
+            replicates,
+            pixel_samples,
+            pixel_replicates,
+            stopped,
+        };
         let partial = if has_partial == 0 {
             None
         } else {
@@ -423,6 +469,8 @@ impl Accumulation {
             exact,
             partial,
             source: None,
+            // The power of two the sums' scale was set from: at least the largest sample.
+            max_value: 2f64.powi(sum_exponent - ExactSums::exponents(1.0).0),
         })
     }
 }
