@@ -227,11 +227,11 @@ pub struct SamplingArgs {
     /// else independent).
     #[arg(long, value_parser = sampler_parser())]
     pub sampler: Option<Sampler>,
-    /// Samples per independently randomised replicate of the stratified and Sobol
-    /// samplers, from whose spread the error is estimated: a power of two up to 256 (of
-    /// four for stratified), or 0 for one replicate of all samples (the best point set, no
-    /// error estimate; the default, or with an error target 16). With --resume, the
-    /// checkpoint's.
+    /// Samples per independently randomised replicate, from whose spread the error is
+    /// estimated: a power of two up to 256 (of four for stratified). For stratified and
+    /// Sobol, 0 is one replicate of all samples (the best point set, no error estimate;
+    /// the default, or 16 with an error target); independent samples are their own
+    /// replicates unless batched (16 with --adaptive). With --resume, the checkpoint's.
     #[arg(long, value_name = "N")]
     pub replicate: Option<u32>,
 }
