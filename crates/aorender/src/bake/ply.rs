@@ -10,7 +10,7 @@
 //! positions are the loader's, bit for bit). Output is binary little-endian, or ascii
 //! when the input was.
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
+use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, UvSet, WriteOptions};
 use crate::error::{Error, Result};
 use crate::output::write_atomically_with;
 use crate::scene::input::Input;
@@ -551,7 +551,46 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
             .map_err(|_| Error::scene(path, "more than 4294967295 face corners: too many for a mesh"))?;
         face_starts.push(end);
     }
-    Ok(AssetMesh { label, positions, normals, face_starts, face_indices, to_file: glam::Mat3::IDENTITY })
+    // Per-corner texture coordinates (MeshLab's face `texcoord` list, u v per corner), else
+    // per-vertex ones under the names the common writers use.
+    let wedge = column(face, "texcoord").filter(|c| c.list.is_some()).map(|c| {
+        let mut corners = Vec::with_capacity(face_indices.len());
+        for f in 0..face.count {
+            let n = (face_starts[f + 1] - face_starts[f]) as usize;
+            let items: Vec<usize> = c.items(f).collect();
+            for k in 0..n {
+                corners.push(match (items.get(2 * k), items.get(2 * k + 1)) {
+                    (Some(&a), Some(&b)) if items.len() == 2 * n => glam::Vec2::new(c.values.f32(a), c.values.f32(b)),
+                    _ => glam::Vec2::NAN,
+                });
+            }
+        }
+        vec![UvSet { set: 0, corners }]
+    });
+    let uv_sets = wedge
+        .or_else(|| {
+            [["s", "t"], ["u", "v"], ["texture_u", "texture_v"], ["texture_s", "texture_t"]]
+                .into_iter()
+                .find_map(|names| scalar_columns(vertex, names))
+                .map(|[u, v]| {
+                    let corners = face_indices
+                        .iter()
+                        .map(|&i| glam::Vec2::new(u.values.f32(i as usize), v.values.f32(i as usize)));
+                    vec![UvSet { set: 0, corners: corners.collect() }]
+                })
+        })
+        .unwrap_or_default();
+    Ok(AssetMesh {
+        label,
+        positions,
+        normals,
+        face_starts,
+        face_indices,
+        to_file: glam::Mat3::IDENTITY,
+        uv_sets,
+        uv_v_down: false,
+        material: None,
+    })
 }
 
 /// AO as a grey colour channel in type `t`: 0 to 1 for the floating-point types, 0 to 255
