@@ -9,7 +9,7 @@
 //! - **Points.** Each covered texel has `points` positions inside its square, a
 //!   Cranley–Patterson rotation of the R2 sequence (Roberts, "The unreasonable
 //!   effectiveness of quasirandom sequences", 2018) by a hash of the texel and the seed,
-//!   so neighbouring texels are decorrelated. A position inside a triangle is traced at
+//!   so neighbouring texels are decorrelated (with one point a texel, its centre). A position inside a triangle is traced at
 //!   the matching surface point; a position outside every triangle of a texel at the
 //!   edge of a chart moves to the nearest point of the nearest triangle. The normal is
 //!   the vertex normals interpolated; the position's offset bound is its distance to the
@@ -402,8 +402,12 @@ fn rasterise(t: &UvTriangle, w: u32, h: u32, wrap: UvWrap, mut covered: impl FnM
 }
 
 /// Position `k` of the texel `texel` inside its square, in [0, 1)²: the R2 sequence
-/// rotated by a hash of the texel and the seed.
+/// rotated by a hash of the texel and the seed; the centre when there is one point.
 fn position(options: &TextureOptions, texel: u32, k: u32) -> DVec2 {
+    if options.points == 1 {
+        // One point: the texel's centre, where a map is sampled.
+        return DVec2::splat(0.5);
+    }
     // 1/φ₂ and 1/φ₂², φ₂ the plastic number (Roberts 2018).
     const A: [f64; 2] = [0.754_877_666_246_692_8, 0.569_840_290_998_053_2];
     let h1 = hash(texel ^ hash(options.seed ^ 0x9e37_79b9));
@@ -490,40 +494,6 @@ fn closest_on_segment(a: DVec2, b: DVec2, p: DVec2) -> DVec2 {
         return a;
     }
     a + d * ((p - a).dot(d) / len).clamp(0.0, 1.0)
-}
-
-/// The point of the triangle `[a, b, c]` nearest to `p` (Ericson, Real-Time Collision
-/// Detection, 5.1.5).
-fn closest_point([a, b, c]: [DVec2; 3], p: DVec2) -> DVec2 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return a;
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return b;
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return a + ab * (d1 / (d1 - d3));
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return c;
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return a + ac * (d2 / (d2 - d6));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-    }
-    let denom = 1.0 / (va + vb + vc);
-    a + ab * (vb * denom) + ac * (vc * denom)
 }
 
 /// The vertex normals interpolated at barycentrics `b`; `None` when unusable.
@@ -791,6 +761,7 @@ mod tests {
 
     #[test]
     fn positions_differ_between_texels_and_seeds() {
+        assert_eq!(position(&options(8, 1, 0), 10, 0), DVec2::splat(0.5));
         let o = options(8, 4, 0);
         let a: Vec<DVec2> = (0..4).map(|k| position(&o, 10, k)).collect();
         let b: Vec<DVec2> = (0..4).map(|k| position(&o, 11, k)).collect();
