@@ -385,3 +385,44 @@ fn bad_input_is_refused_in_one_line_with_nothing_written() {
     left.sort();
     assert_eq!(left, ["bunny.obj", "floor.ply", "wide.gltf", "wide.ply"]);
 }
+
+/// A texture bake stopped and resumed, and one traced as two sample-range shards and
+/// merged, write the uninterrupted bake's map bit for bit (bent normals too: four film
+/// slots a point).
+#[test]
+fn resumed_and_merged_texture_bakes_are_bit_identical() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, f) = uv_sphere(DVec3::new(0.0, 1.5, 0.0), 1.0, 24, 12);
+    std::fs::write(d.join("sphere.ply"), ply(&v, &f)).unwrap();
+    let plane = "[[object]]\ntype = \"plane\"\npoint = [0, 0, 0]\nnormal = [0, 1, 0]\n";
+    std::fs::write(d.join("scene.toml"), scene("sphere.ply", plane)).unwrap();
+    for device in devices() {
+        let common = ["--device", device, "--texture", "48x24", "--samples", "64", "--bent-normals"];
+        let full = format!("{device}-full.exr");
+        bake(d, &[&["scene.toml", "-o", &full][..], &common].concat());
+        let ck = format!("{device}.ck");
+        let part = format!("{device}-part.exr");
+        let stopped =
+            bake(d, &[&["scene.toml", "-o", &part, "--checkpoint", &ck, "--time-limit", "1e-9"][..], &common].concat());
+        assert!(stopped.contains("time limit reached"), "{stopped}");
+        let resumed = format!("{device}-resumed.exr");
+        bake(d, &[&["scene.toml", "-o", &resumed, "--resume", &ck][..], &common].concat());
+        let (a, b) = (format!("{device}-a.ck"), format!("{device}-b.ck"));
+        let shard = format!("{device}-shard.exr");
+        bake(d, &[&["scene.toml", "-o", &shard, "--sample-range", "0..32", "--checkpoint", &a][..], &common].concat());
+        bake(d, &[&["scene.toml", "-o", &shard, "--sample-range", "32..64", "--checkpoint", &b][..], &common].concat());
+        let merged = format!("{device}-merged.exr");
+        bake(d, &[&["scene.toml", "-o", &merged, "--merge", &b, &a][..], &common].concat());
+        for other in [&resumed, &merged] {
+            for suffix in [".exr", "_bent_normals.png"] {
+                let name = |n: &str| n.replace(".exr", suffix);
+                assert_eq!(
+                    std::fs::read(d.join(name(other))).unwrap(),
+                    std::fs::read(d.join(name(&full))).unwrap(),
+                    "{device}: {other} {suffix}"
+                );
+            }
+        }
+    }
+}

@@ -578,6 +578,19 @@ mod tests {
         assert_eq!((m.face_count(), m.face_starts.as_slice()), (0, [0].as_slice()));
     }
 
+    /// `vt` per face corner, relative indices too; a corner without one is NaN; a file
+    /// without `vt` has no set.
+    #[test]
+    fn texture_coordinates_are_read_per_corner() {
+        let m = mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0.1 0.2\nvt 0.3 0.4 0\nvt 0.5\nf 1/1 2/-2 3/3\nf 1/3 3 2/1\n");
+        let uv: Vec<[f32; 2]> = m.uv_set(0).unwrap().corners.iter().map(|c| c.to_array()).collect();
+        assert_eq!(&uv[..4], &[[0.1, 0.2], [0.3, 0.4], [0.5, 0.0], [0.5, 0.0]]);
+        assert!(uv[4][0].is_nan());
+        assert_eq!(uv[5], [0.1, 0.2]);
+        assert!(!m.uv_v_down);
+        assert!(mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").uv_sets.is_empty());
+    }
+
     #[test]
     fn normals_come_from_the_corners_that_name_them() {
         let m = mesh(CUBE_CORNER);

@@ -1055,6 +1055,35 @@ mod tests {
 
     const ALL: WriteOptions = WriteOptions { at: BakeAt::Vertices, std_error: true, colors: true };
 
+    /// Texture coordinates per corner: from vertex `s t` (or `u v`…), or from MeshLab's
+    /// face `texcoord` lists, which win.
+    #[test]
+    fn texture_coordinates_are_read_per_corner() {
+        let dir = tempfile::tempdir().unwrap();
+        let header = |vertex: &str, face: &str| {
+            format!(
+                "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n{vertex}\
+                 element face 1\nproperty list uchar int vertex_indices\n{face}end_header\n"
+            )
+        };
+        for (names, list) in [("s t", false), ("u v", false), ("texture_u texture_v", false), ("s t", true)] {
+            let vertex: String = names.split(' ').map(|n| format!("property float {n}\n")).collect();
+            let face = if list { "property list uchar float texcoord\n" } else { "" };
+            let mut text = header(&vertex, face);
+            text += "0 0 0 0.1 0.2\n1 0 0 0.3 0.4\n0 1 0 0.5 0.6\n3 2 0 1";
+            text += if list { " 6 0.7 0.8 0.9 1.0 0.0 0.25\n" } else { "\n" };
+            let path = dir.path().join("uv.ply");
+            std::fs::write(&path, text).unwrap();
+            let asset = PlyAsset::read(&path).unwrap();
+            let mesh = &asset.meshes()[0];
+            let corners: Vec<[f32; 2]> = mesh.uv_set(0).unwrap().corners.iter().map(|c| c.to_array()).collect();
+            let expected =
+                if list { [[0.7, 0.8], [0.9, 1.0], [0.0, 0.25]] } else { [[0.5, 0.6], [0.1, 0.2], [0.3, 0.4]] };
+            assert_eq!(corners, expected, "{names} {list}");
+            assert!(!mesh.uv_v_down);
+        }
+    }
+
     #[test]
     fn every_encoding_round_trips_with_the_bake_added() {
         let dir = tempfile::tempdir().unwrap();

@@ -37,13 +37,14 @@ pub const MAX_TEXTURE_SIZE: u32 = 16384;
 /// beyond its points.
 pub const BYTES_PER_TEXEL: u64 = 48;
 
-/// Host and adapter bytes a traced point needs: the probe (held three times: the plan,
-/// the checked copy and the one in the local frame, and once on the adapter) and its
-/// accumulation, 16 bytes on the adapter and 24 on the host per film slot (one, or four
-/// with bent normals).
+/// Host and adapter bytes a traced point needs: the probe (the plan's, with room for its
+/// growth, the checked copy, the one in the local frame and the adapter's: six), its
+/// mesh index and record, and its accumulation, 16 bytes on the adapter and 24 on the
+/// host per film slot (one, or four with bent normals). A 2048² bake of 23 million
+/// points peaked at 188 bytes a point on the host.
 pub fn bytes_per_point(bent_normals: bool) -> u64 {
     let slots = if bent_normals { 4 } else { 1 };
-    4 * std::mem::size_of::<Probe>() as u64 + 8 + 40 * slots
+    6 * std::mem::size_of::<Probe>() as u64 + 8 + 40 * slots
 }
 
 /// What to do with texture coordinates outside [0, 1].
