@@ -230,8 +230,9 @@ fn a_uv_spheres_map_has_no_seam() {
 }
 
 /// A glTF of a UV-mapped floor quad with a material (and extras) and a UV-mapped cube
-/// above it without one, in a `data:` URI buffer.
-fn gltf_fixture(uv_scale: f32) -> serde_json::Value {
+/// above it without one, in a `data:` URI buffer; the floor's u scaled by `uv_scale`, its
+/// material given a base colour texture (whose sampler repeats) when `textured`.
+fn gltf_fixture(uv_scale: f32, textured: bool) -> serde_json::Value {
     use base64::Engine;
     let (fv, _) = floor(1, 2.0, (DVec2::ZERO, 1.0));
     let (cv, _) = cube(DVec3::new(0.0, 1.5, 0.0));
@@ -255,10 +256,9 @@ fn gltf_fixture(uv_scale: f32) -> serde_json::Value {
     };
     let mut prims = Vec::new();
     // glTF's v runs down the image: flip the test meshes' v.
-    for (vs, faces) in [
-        (fv, vec![[0u32, 2, 3], [0, 3, 1]]),
-        (cv, (0..6).flat_map(|k| [[4 * k, 4 * k + 1, 4 * k + 2], [4 * k, 4 * k + 2, 4 * k + 3]]).collect()),
-    ] {
+    let floor_faces = vec![[0u32, 2, 3], [0, 3, 1]];
+    let cube_faces = (0..6).flat_map(|k| [[4 * k, 4 * k + 1, 4 * k + 2], [4 * k, 4 * k + 2, 4 * k + 3]]).collect();
+    for (vs, faces, uv_scale) in [(fv, floor_faces, uv_scale), (cv, cube_faces, 1.0)] {
         let pos = push(vs.iter().flat_map(|v| v.p.as_vec3().to_array()).collect(), "VEC3", vs.len(), 5126);
         let nor = push(vs.iter().flat_map(|v| v.n.as_vec3().to_array()).collect(), "VEC3", vs.len(), 5126);
         let uv = push(
@@ -275,7 +275,7 @@ fn gltf_fixture(uv_scale: f32) -> serde_json::Value {
     prims[0]["material"] = 0.into();
     let uri =
         format!("data:application/octet-stream;base64,{}", base64::engine::general_purpose::STANDARD.encode(&bytes));
-    serde_json::json!({
+    let mut doc = serde_json::json!({
         "asset": {"version": "2.0"},
         "scene": 0,
         "scenes": [{"nodes": [0, 1]}],
@@ -285,7 +285,14 @@ fn gltf_fixture(uv_scale: f32) -> serde_json::Value {
         "buffers": [{"uri": uri, "byteLength": bytes.len()}],
         "bufferViews": views,
         "accessors": accessors
-    })
+    });
+    if textured {
+        doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = serde_json::json!({"index": 0});
+        doc["textures"] = serde_json::json!([{"source": 0, "sampler": 0}]);
+        doc["samplers"] = serde_json::json!([{"magFilter": 9729}]);
+        doc["images"] = serde_json::json!([{"uri": "colour.png"}]);
+    }
+    doc
 }
 
 /// The output GLB validates with the `gltf` crate; each material (the floor's, and the one
@@ -296,7 +303,7 @@ fn gltf_fixture(uv_scale: f32) -> serde_json::Value {
 fn a_glb_references_the_baked_texture_from_its_materials() {
     let dir = temp_dir();
     let d = dir.path();
-    std::fs::write(d.join("model.gltf"), serde_json::to_vec(&gltf_fixture(1.0)).unwrap()).unwrap();
+    std::fs::write(d.join("model.gltf"), serde_json::to_vec(&gltf_fixture(1.0, false)).unwrap()).unwrap();
     for device in devices() {
         let out = format!("{device}.glb");
         let args = [
@@ -333,6 +340,13 @@ fn a_glb_references_the_baked_texture_from_its_materials() {
             assert_eq!((img.width(), img.height(), img.color()), (64, 32, image::ColorType::L16));
         }
     }
+    // The floor's u runs to 1.5 and its material's texture repeats: the bake follows.
+    std::fs::write(d.join("wrapped.gltf"), serde_json::to_vec(&gltf_fixture(1.5, true)).unwrap()).unwrap();
+    bake(d, &["wrapped.gltf", "-o", "wrapped.glb", "--texture", "32", "--device", "cpu", "--samples", "4"]);
+    let gltf = ::gltf::Gltf::from_slice(&std::fs::read(d.join("wrapped.glb")).unwrap()).unwrap();
+    let floor = gltf.materials().next().unwrap().occlusion_texture().unwrap().texture();
+    assert_eq!(floor.sampler().wrap_s(), ::gltf::texture::WrappingMode::Repeat);
+    assert!(floor.source().index() > 0, "a new image beside the colour texture");
     bake(d, &["model.gltf", "-o", "out.gltf", "--texture", "32", "--device", "cpu", "--samples", "4"]);
     let doc: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("out.gltf")).unwrap()).unwrap();
     let images = doc["images"].as_array().unwrap();
@@ -352,7 +366,7 @@ fn bad_input_is_refused_in_one_line_with_nothing_written() {
     std::fs::write(d.join("floor.ply"), ply(&v, &f)).unwrap();
     let (v, f) = floor(2, 1.0, (DVec2::new(0.5, 0.0), 1.0));
     std::fs::write(d.join("wide.ply"), ply(&v, &f)).unwrap();
-    std::fs::write(d.join("wide.gltf"), serde_json::to_vec(&gltf_fixture(1.5)).unwrap()).unwrap();
+    std::fs::write(d.join("wide.gltf"), serde_json::to_vec(&gltf_fixture(1.5, false)).unwrap()).unwrap();
     std::fs::copy(repo().join("scenes/bunny.obj"), d.join("bunny.obj")).unwrap();
     for (args, expect) in [
         (&["bunny.obj", "-o", "b.png", "--texture", "256"][..], "no mesh has texture coordinates of set 0"),

@@ -67,8 +67,9 @@ pub struct BakeArgs {
     /// Positions traced per texel (each with --samples samples, its own sample sequence).
     #[arg(long, default_value_t = 4, value_name = "K")]
     texel_points: u32,
-    /// Texture coordinates outside [0, 1]: refuse the mesh, or repeat the texture.
-    #[arg(long, value_enum, default_value = "refuse")]
+    /// Texture coordinates outside [0, 1]: follow the file (repeat where its own
+    /// textures on the set repeat: glTF samplers; else refuse), refuse, or repeat.
+    #[arg(long, value_enum, default_value = "file")]
     uv_wrap: WrapArg,
     #[command(flatten)]
     run: RunArgs,
@@ -88,6 +89,7 @@ enum AtArg {
 /// `--uv-wrap`.
 #[derive(Clone, Copy, ValueEnum)]
 enum WrapArg {
+    File,
     Refuse,
     Repeat,
 }
@@ -374,7 +376,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
                     uv_set: options.uv_set,
                     png: map.ao_png(args.bit_depth)?,
                     bent_png: map.bent_png(args.bit_depth).transpose()?,
-                    repeat: options.wrap == UvWrap::Repeat,
+                    repeat: options.wrap == UvWrap::Repeat || tp.wrapped_triangles > 0,
                 });
             }
             for note in target.asset.write_textures(&args.output, &encoded)? {
@@ -645,6 +647,7 @@ fn texture_options(args: &BakeArgs, input: &Path, is_scene: bool) -> Result<Opti
         points: args.texel_points,
         padding: args.padding,
         wrap: match args.uv_wrap {
+            WrapArg::File => UvWrap::File,
             WrapArg::Refuse => UvWrap::Refuse,
             WrapArg::Repeat => UvWrap::Repeat,
         },

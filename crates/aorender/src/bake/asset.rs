@@ -57,6 +57,10 @@ pub struct AssetMesh {
     pub uv_v_down: bool,
     /// The glTF material of the primitive; meshes sharing one share a texture.
     pub material: Option<usize>,
+    /// The texture coordinate sets the file's own textures on this mesh repeat along
+    /// (glTF: the material's textures on the set, every one's sampler `REPEAT` in both
+    /// directions, the default); empty for OBJ and PLY, which do not say.
+    pub repeating_sets: Vec<u32>,
 }
 
 /// One set of texture coordinates of an [`AssetMesh`].

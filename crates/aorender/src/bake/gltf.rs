@@ -114,11 +114,15 @@ impl GltfAsset {
                 uv_sets,
                 uv_v_down: true,
                 material: placement.material,
+                repeating_sets: Vec::new(),
             });
             targets.push(Target { node: placement.node, mesh: placement.mesh, primitive: placement.primitive });
         }
         if meshes.is_empty() {
             return Err(Error::scene(path, "the scene has no triangle primitives to bake"));
+        }
+        for mesh in &mut meshes {
+            mesh.repeating_sets = repeating_sets(&json, mesh.material);
         }
         Ok(GltfAsset { path: path.to_path_buf(), meshes, targets, json, bin, warnings: placed.mesh.warnings })
     }
@@ -482,6 +486,35 @@ impl GltfAsset {
             .filter_map(|item| item.get("uri").and_then(Value::as_str))
             .filter_map(relative_file)
     }
+}
+
+/// The texture coordinate sets along which every texture of `material` on that set
+/// repeats in both directions (glTF 2.0, 5.26: a texture without a sampler, or a sampler
+/// without a wrap mode, repeats).
+fn repeating_sets(json: &Value, material: Option<usize>) -> Vec<u32> {
+    const REPEAT: u64 = 10497;
+    let Some(m) = material.and_then(|m| json.get("materials")?.get(m)) else { return Vec::new() };
+    let pbr = m.get("pbrMetallicRoughness");
+    let infos = [
+        pbr.and_then(|p| p.get("baseColorTexture")),
+        pbr.and_then(|p| p.get("metallicRoughnessTexture")),
+        m.get("normalTexture"),
+        m.get("occlusionTexture"),
+        m.get("emissiveTexture"),
+    ];
+    let mut sets: BTreeMap<u32, bool> = BTreeMap::new();
+    for info in infos.into_iter().flatten() {
+        let set = info.get("texCoord").and_then(Value::as_u64).unwrap_or(0) as u32;
+        let sampler = info
+            .get("index")
+            .and_then(Value::as_u64)
+            .and_then(|t| json.get("textures")?.get(t as usize)?.get("sampler")?.as_u64())
+            .and_then(|s| json.get("samplers")?.get(s as usize));
+        let wrap = |key: &str| sampler.and_then(|s| s.get(key)?.as_u64()).unwrap_or(REPEAT);
+        let repeats = wrap("wrapS") == REPEAT && wrap("wrapT") == REPEAT;
+        *sets.entry(set).or_insert(true) &= repeats;
+    }
+    sets.into_iter().filter(|(_, r)| *r).map(|(s, _)| s).collect()
 }
 
 /// `doc[key]` as an array, made one when missing.

@@ -290,6 +290,7 @@ fn parse(text: &[u8], label: String) -> std::result::Result<AssetMesh, String> {
         uv_sets,
         uv_v_down: false,
         material: None,
+        repeating_sets: Vec::new(),
     })
 }
 

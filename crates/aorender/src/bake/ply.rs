@@ -590,6 +590,7 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
         uv_sets,
         uv_v_down: false,
         material: None,
+        repeating_sets: Vec::new(),
     })
 }
 

@@ -50,8 +50,11 @@ pub fn bytes_per_point(bent_normals: bool) -> u64 {
 /// What to do with texture coordinates outside [0, 1].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum UvWrap {
-    /// Refuse the mesh.
+    /// Follow the file: repeat along a set the file's own textures repeat along (glTF
+    /// samplers), refuse otherwise.
     #[default]
+    File,
+    /// Refuse the mesh.
     Refuse,
     /// Repeat the texture (glTF's default `REPEAT` wrap): a texel takes every surface
     /// point whose coordinates land on it modulo 1.
@@ -203,11 +206,11 @@ impl TexturePlan {
                             continue;
                         }
                         if t.iter().any(|c| outside_unit(*c)) {
-                            if options.wrap == UvWrap::Refuse {
+                            if wrap(options, mesh) == UvWrap::Refuse {
                                 let bad = t.into_iter().find(|c| outside_unit(*c)).unwrap_or_default();
                                 return Err(Error::settings(format!(
-                                    "{}: texture coordinates outside [0, 1] (face {f} has ({}, {})): bake with --uv-wrap repeat to wrap them, or remap the UVs",
-                                    mesh.label, bad.x, bad.y
+                                    "{}: texture coordinates outside [0, 1] (face {f} has ({}, {})) and no texture of the file repeats along set {}: bake with --uv-wrap repeat to wrap them, or remap the UVs",
+                                    mesh.label, bad.x, bad.y, options.uv_set
                                 )));
                             }
                             plan.wrapped_triangles += 1;
@@ -232,7 +235,7 @@ impl TexturePlan {
             // Covered texels, each with the triangles touching it.
             let mut records: Vec<Record> = Vec::new();
             for (i, t) in triangles.iter().enumerate() {
-                rasterise(t, w, h, options.wrap, |texel, copy| records.push((texel, i as u32, copy)));
+                rasterise(t, w, h, |texel, copy| records.push((texel, i as u32, copy)));
             }
             records.sort_unstable();
             records.dedup();
@@ -350,6 +353,15 @@ fn too_large(options: &TextureOptions, needed: u64, memory: u64, what: &str) -> 
     ))
 }
 
+/// How `mesh`'s coordinates outside [0, 1] are taken: [`UvWrap::File`] resolved.
+fn wrap(options: &TextureOptions, mesh: &AssetMesh) -> UvWrap {
+    match options.wrap {
+        UvWrap::File if mesh.repeating_sets.contains(&options.uv_set) => UvWrap::Repeat,
+        UvWrap::File => UvWrap::Refuse,
+        w => w,
+    }
+}
+
 /// Whether a coordinate lies outside [0, 1] by more than rounding.
 fn outside_unit(c: Vec2) -> bool {
     const SLACK: f32 = 1e-5;
@@ -362,7 +374,7 @@ fn cross(a: DVec2, b: DVec2) -> f64 {
 
 /// Calls `covered` with every texel (`y * w + x`) whose closed square meets the triangle,
 /// and the copy of the texture it met it in.
-fn rasterise(t: &UvTriangle, w: u32, h: u32, wrap: UvWrap, mut covered: impl FnMut(u32, [i32; 2])) {
+fn rasterise(t: &UvTriangle, w: u32, h: u32, mut covered: impl FnMut(u32, [i32; 2])) {
     let lo = t.uv[0].min(t.uv[1]).min(t.uv[2]);
     let hi = t.uv[0].max(t.uv[1]).max(t.uv[2]);
     let (mut x0, mut y0) = (lo.x.floor() as i64, lo.y.floor() as i64);
@@ -370,9 +382,12 @@ fn rasterise(t: &UvTriangle, w: u32, h: u32, wrap: UvWrap, mut covered: impl FnM
     // A corner on a texel's edge touches the texels on both sides.
     x1 = x1.max(hi.x.floor() as i64);
     y1 = y1.max(hi.y.floor() as i64);
-    if wrap == UvWrap::Refuse {
-        (x0, y0) = (x0.max(0), y0.max(0));
-        (x1, y1) = (x1.min(i64::from(w) - 1), y1.min(i64::from(h) - 1));
+    // Coordinates within rounding of [0, 1] stay in the texture.
+    if lo.x > -0.5 && hi.x < f64::from(w) + 0.5 {
+        (x0, x1) = (x0.max(0), x1.min(i64::from(w) - 1));
+    }
+    if lo.y > -0.5 && hi.y < f64::from(h) + 0.5 {
+        (y0, y1) = (y0.max(0), y1.min(i64::from(h) - 1));
     }
     // Each edge's outward normal (away from the third corner).
     let area = cross(t.uv[1] - t.uv[0], t.uv[2] - t.uv[0]);
@@ -693,7 +708,7 @@ mod tests {
     use glam::Mat4;
 
     fn options(size: u32, points: u32, padding: u32) -> TextureOptions {
-        TextureOptions { width: size, height: size, uv_set: 0, points, padding, wrap: UvWrap::Refuse, seed: 0 }
+        TextureOptions { width: size, height: size, uv_set: 0, points, padding, wrap: UvWrap::File, seed: 0 }
     }
 
     /// A mesh of triangles in the plane z = 0 whose positions are their UVs (v up).
@@ -794,6 +809,11 @@ mod tests {
         let tri = [[0.5f32, 0.5], [1.5, 0.5], [0.5, 1.25]];
         let e = plan(&flat(&[tri]), &options(8, 1, 0)).unwrap_err().to_string();
         assert!(e.contains("outside [0, 1]") && e.contains("--uv-wrap repeat") && !e.contains('\n'), "{e}");
+        let o = TextureOptions { wrap: UvWrap::Refuse, ..options(8, 1, 0) };
+        let repeating = AssetMesh { repeating_sets: vec![0], ..flat(&[tri]) };
+        assert!(plan(&repeating, &o).is_err(), "refused whatever the file says");
+        // The file's own wrap: its textures repeat along set 0.
+        assert_eq!(plan(&repeating, &options(8, 1, 0)).unwrap().wrapped_triangles, 1);
         let o = TextureOptions { wrap: UvWrap::Repeat, ..options(8, 1, 0) };
         let p = plan(&flat(&[tri]), &o).unwrap();
         assert_eq!(p.wrapped_triangles, 1);
