@@ -77,3 +77,12 @@ unsafe impl GlobalAlloc for CountingAlloc {
 pub fn heap_peak_bytes() -> Option<u64> {
     INSTALLED.load(Ordering::Relaxed).then(|| PEAK.load(Ordering::Relaxed) as u64)
 }
+
+/// The memory the system says is available to a new allocation (`MemAvailable` of
+/// `/proc/meminfo`), in bytes; `None` where it cannot be read.
+pub fn available_bytes() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}

@@ -47,6 +47,7 @@ impl PyScene {
             face_starts: (0..=f.len() as u32).map(|k| 3 * k).collect(),
             face_indices: f.into_iter().flatten().collect(),
             to_file: glam::Mat3::IDENTITY,
+            ..AssetMesh::default()
         };
         Ok(PyScene { scene, arrays: Some(mesh), source: None, sessions: Mutex::new(Vec::new()) })
     }

@@ -6,10 +6,14 @@ use crate::args::{RunArgs, SamplingArgs, SceneArgs, check_writable, write_json};
 use crate::{memory, signals};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::bake::{
-    Asset, BakeAt, BakePlan, Placement, UNUSABLE_VALUE, WriteOptions, check_output, format_of, output_path, read_asset,
+    Asset, BakeAt, BakePlan, Placement, TextureMap, TextureOptions, TexturePlan, TextureStats, UNUSABLE_VALUE, UvWrap,
+    WriteOptions, check_output, format_of, output_path, read_asset,
 };
+use aorender::output::write_atomically;
 use aorender::scene::MeshObject;
-use aorender::{Accumulation, Control, Device, Progress, Session, merge, probe_film_bent_normals, probe_film_values};
+use aorender::{
+    Accumulation, Control, Device, Probe, Progress, Session, merge, probe_film_bent_normals, probe_film_values,
+};
 use clap::ValueEnum;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -45,6 +49,28 @@ pub struct BakeArgs {
     /// Allow the output to replace the input file.
     #[arg(long)]
     overwrite: bool,
+    /// Bake into a texture of SIZE (N or WxH texels) addressed by the mesh's texture
+    /// coordinates, instead of into vertices: glTF/GLB output gets it as each baked
+    /// material's occlusionTexture; `-o NAME.png` or `NAME.exr` writes the map alone (the
+    /// only output for OBJ and PLY, whose files are unchanged).
+    #[arg(long, value_name = "SIZE")]
+    texture: Option<String>,
+    /// The texture coordinate set to bake into (glTF TEXCOORD_n; OBJ and PLY have set 0).
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    uv_set: u32,
+    /// Texels of padding (dilation) around the charts.
+    #[arg(long, default_value_t = 4, value_name = "PX")]
+    padding: u32,
+    /// Bits per channel of the PNG map: 8 or 16.
+    #[arg(long, default_value_t = 8, value_parser = parse_bit_depth)]
+    bit_depth: u8,
+    /// Positions traced per texel (each with --samples samples, its own sample sequence).
+    #[arg(long, default_value_t = 4, value_name = "K")]
+    texel_points: u32,
+    /// Texture coordinates outside [0, 1]: follow the file (repeat where its own
+    /// textures on the set repeat: glTF samplers; else refuse), refuse, or repeat.
+    #[arg(long, value_enum, default_value = "file")]
+    uv_wrap: WrapArg,
     #[command(flatten)]
     run: RunArgs,
     /// Write the bake from these shards' checkpoints (`--sample-range … --checkpoint FILE`)
@@ -58,6 +84,32 @@ pub struct BakeArgs {
 enum AtArg {
     Vertices,
     Faces,
+}
+
+/// `--uv-wrap`.
+#[derive(Clone, Copy, ValueEnum)]
+enum WrapArg {
+    File,
+    Refuse,
+    Repeat,
+}
+
+/// What a texture bake reports besides the points.
+#[derive(serde::Serialize)]
+struct TextureReport {
+    width: u32,
+    height: u32,
+    uv_set: u32,
+    textures: usize,
+    points_per_texel: u32,
+    samples_per_texel: u64,
+    padding: u32,
+    bit_depth: u8,
+    overlapping_texels: usize,
+    skipped_triangles: usize,
+    wrapped_triangles: usize,
+    /// Per texture: covered and padded texels, mean AO, the standard errors' RMS and maximum.
+    maps: Vec<TextureStats>,
 }
 
 /// What `aorender bake` reports.
@@ -90,6 +142,8 @@ struct BakeStats {
     max_distance: Option<f32>,
     mean_ao: f64,
     heap_peak_bytes: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    texture: Option<TextureReport>,
 }
 
 /// One baked file: the mesh object it comes from, its asset, and where it goes.
@@ -106,7 +160,8 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     signals::install(stop.clone())?;
     let is_scene = input.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-    if !is_scene {
+    let mut texture = texture_options(&args, &input, is_scene)?;
+    if !is_scene && (texture.is_none() || !is_map(&args.output)) {
         check_output(&input, &args.output, args.overwrite)?;
     }
     if args.samples == 0 {
@@ -127,7 +182,24 @@ pub fn run(args: BakeArgs) -> Result<()> {
     if scene.mesh_objects.is_empty() {
         bail!("{}: the scene has no mesh objects to bake", input.display());
     }
-    let targets = targets(&scene.mesh_objects, is_scene, &args.output, args.overwrite)?;
+    if let Some(options) = texture.as_mut() {
+        options.seed = scene.settings.seed;
+    }
+    let targets = match texture {
+        None => targets(&scene.mesh_objects, is_scene, &args.output, args.overwrite)?,
+        Some(_) => {
+            if scene.mesh_objects.len() > 1 {
+                bail!(
+                    "{}: the scene has {} mesh objects: a texture bake takes a scene with one (the others may be spheres, planes…)",
+                    input.display(),
+                    scene.mesh_objects.len()
+                );
+            }
+            let object = scene.mesh_objects[0].clone();
+            let asset: Arc<dyn Asset> = Arc::from(read_asset(&object.path)?);
+            vec![Target { object, asset, output: args.output.clone() }]
+        }
+    };
     let at = match args.at {
         AtArg::Vertices => BakeAt::Vertices,
         AtArg::Faces => BakeAt::Faces,
@@ -142,10 +214,34 @@ pub fn run(args: BakeArgs) -> Result<()> {
         );
     }
     let meshes = targets.iter().flat_map(|t| t.asset.meshes().iter().map(|m| (m, Placement::of(&t.object))));
-    let plan = BakePlan::new(meshes, at);
+    let (plan, texture_plan) = match &texture {
+        None => (BakePlan::new(meshes, at), None),
+        Some(options) => {
+            let meshes: Vec<_> = meshes.collect();
+            if !meshes.iter().any(|(m, _)| m.uv_set(options.uv_set).is_some()) {
+                bail!("{}", no_uv_message(&input, &meshes.iter().map(|(m, _)| *m).collect::<Vec<_>>(), options.uv_set));
+            }
+            let memory = memory::available_bytes().unwrap_or(u64::MAX);
+            let plan = TexturePlan::new(&meshes, options, args.bent_normals, memory).map_err(|e| {
+                anyhow!("{}: {}", input.display(), e.to_string().trim_start_matches("invalid settings: "))
+            })?;
+            if plan.targets.len() > 1 && is_map(&args.output) {
+                bail!(
+                    "{}: its meshes use {} materials, each baked into its own texture: bake into a .glb or .gltf file",
+                    input.display(),
+                    plan.targets.len()
+                );
+            }
+            (BakePlan::default(), Some(plan))
+        }
+    };
+    let probes: &[Probe] = texture_plan.as_ref().map_or(&plan.probes, |t| &t.probes);
     let load_seconds = load_start.elapsed().as_secs_f64();
-    if plan.probes.is_empty() {
-        bail!("{}: no {} has a usable normal: nothing to bake", input.display(), singular(at));
+    if probes.is_empty() {
+        match &texture_plan {
+            Some(_) => bail!("{}: no triangle covers a texel with a usable normal: nothing to bake", input.display()),
+            None => bail!("{}: no {} has a usable normal: nothing to bake", input.display(), singular(at)),
+        }
     }
     for t in &targets {
         // The directory of a scene's outputs is made when they are written: until then the
@@ -160,27 +256,17 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let bvh = args.scene.bvh();
     let kind = args.scene.device.kind();
     let range = args.run.sample_range.clone().unwrap_or(0..args.samples);
-    let expected = || {
-        Accumulation::probes(
-            &scene,
-            &plan.probes,
-            args.samples,
-            range.clone(),
-            &settings,
-            args.bent_normals,
-            kind,
-            &bvh,
-        )
-    };
+    let expected =
+        || Accumulation::probes(&scene, probes, args.samples, range.clone(), &settings, args.bent_normals, kind, &bvh);
 
     // The values: from the shards' sums, or traced.
     let mut stats = BakeStats {
         input: input.clone(),
         outputs: targets.iter().map(|t| t.output.clone()).collect(),
         at: at.name(),
-        meshes: plan.mesh_count(),
-        points: plan.entry_count(),
-        points_traced: plan.probes.len(),
+        meshes: texture_plan.as_ref().map_or(plan.mesh_count(), |t| t.targets.iter().map(|t| t.meshes.len()).sum()),
+        points: texture_plan.as_ref().map_or(plan.entry_count(), TexturePlan::covered_texels),
+        points_traced: probes.len(),
         points_without_normal: plan.unusable,
         unusable_value: UNUSABLE_VALUE,
         file_normals: plan.file_normals,
@@ -202,6 +288,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         max_distance: settings.max_distance,
         mean_ao: 0.0,
         heap_peak_bytes: None,
+        texture: None,
     };
     let film = if args.merge.is_empty() {
         let resume = match &args.run.resume {
@@ -215,7 +302,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         if let Some(path) = &checkpoint_path {
             check_writable(path)?;
         }
-        let acc = trace(&args, scene, &plan, resume, checkpoint_path.as_deref(), &stop, &mut stats)?;
+        let acc = trace(&args, scene, probes, resume, checkpoint_path.as_deref(), &stop, &mut stats)?;
         acc.film()?
     } else {
         let mut shards = Vec::with_capacity(args.merge.len());
@@ -249,6 +336,96 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let bent = probe_film_bent_normals(&film);
     let traced = values.len().max(1) as f64;
     stats.mean_ao = values.iter().map(|v| v.mean).sum::<f64>() / traced;
+    if let (Some(tp), Some(options)) = (&texture_plan, &texture) {
+        let maps = tp.textures(&values, bent.as_deref(), options.padding);
+        let report = TextureReport {
+            width: options.width,
+            height: options.height,
+            uv_set: options.uv_set,
+            textures: maps.len(),
+            points_per_texel: options.points,
+            samples_per_texel: u64::from(options.points) * u64::from(stats.samples_per_point),
+            padding: options.padding,
+            bit_depth: args.bit_depth,
+            overlapping_texels: tp.overlapping_texels,
+            skipped_triangles: tp.skipped_triangles,
+            wrapped_triangles: tp.wrapped_triangles,
+            maps: maps.iter().map(|m| m.stats()).collect(),
+        };
+        let target = &targets[0];
+        let mut written = vec![args.output.clone()];
+        if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the directory", dir.display()))?;
+        }
+        if is_map(&args.output) {
+            let map = &maps[0];
+            let bytes = if is_exr(&args.output) { map.ao_exr()? } else { map.ao_png(args.bit_depth)? };
+            let bent = map.bent_png(args.bit_depth).transpose()?;
+            if let Some(png) = bent {
+                let path = sibling(&args.output, "_bent_normals.png");
+                write_atomically(&path, &png)?;
+                written.push(path);
+            }
+            write_atomically(&args.output, &bytes)?;
+        } else {
+            let mut encoded = Vec::with_capacity(maps.len());
+            for (map, t) in maps.iter().zip(&tp.targets) {
+                encoded.push(TextureMap {
+                    material: t.material,
+                    meshes: t.meshes.clone(),
+                    uv_set: options.uv_set,
+                    png: map.ao_png(args.bit_depth)?,
+                    bent_png: map.bent_png(args.bit_depth).transpose()?,
+                    repeat: options.wrap == UvWrap::Repeat || tp.wrapped_triangles > 0,
+                });
+            }
+            for note in target.asset.write_textures(&args.output, &encoded)? {
+                eprintln!("note: {}: {note}", args.output.display());
+            }
+        }
+        let covered: usize = report.maps.iter().map(|m| m.covered_texels).sum();
+        let rms = (report.maps.iter().map(|m| m.rms_std_error.powi(2) * m.covered_texels as f64).sum::<f64>()
+            / covered.max(1) as f64)
+            .sqrt();
+        stats.mean_ao =
+            report.maps.iter().map(|m| m.mean_ao * m.covered_texels as f64).sum::<f64>() / covered.max(1) as f64;
+        stats.outputs = written.clone();
+        stats.heap_peak_bytes = memory::heap_peak_bytes();
+        let written: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
+        eprintln!(
+            "{}: {}×{} texture, {} texels × {} points × {} samples in {:.2} s ({:.1} M AO rays/s) on {}; mean AO {:.4}, RMS standard error {:.4}",
+            written.join(", "),
+            options.width,
+            options.height,
+            covered,
+            options.points,
+            stats.samples_per_point,
+            stats.render_seconds,
+            stats.rays_per_second / 1e6,
+            stats.adapter,
+            stats.mean_ao,
+            rms
+        );
+        if tp.overlapping_texels > 0 {
+            eprintln!(
+                "note: {} texels are covered by overlapping charts (mirrored or stacked UVs): each holds the mean over the surfaces mapped to it",
+                tp.overlapping_texels
+            );
+        }
+        if tp.skipped_triangles > 0 {
+            eprintln!(
+                "note: {} triangles without texture coordinates at a corner or of zero area in UV space were not baked",
+                tp.skipped_triangles
+            );
+        }
+        stats.texture = Some(report);
+        let json = serde_json::to_string_pretty(&stats)?;
+        if let Some(path) = &args.run.stats {
+            write_json(path, &json)?;
+        }
+        println!("{json}");
+        return finish(&stats, &written, checkpoint_path.as_deref());
+    }
     let baked = plan.values(&values, bent.as_deref());
 
     // Written back, file by file (each atomically).
@@ -288,6 +465,11 @@ pub fn run(args: BakeArgs) -> Result<()> {
         );
     }
     println!("{json}");
+    finish(&stats, &written, checkpoint_path.as_deref())
+}
+
+/// Exits as `render` does after an interrupted bake; notes a time limit.
+fn finish(stats: &BakeStats, written: &[String], checkpoint_path: Option<&Path>) -> Result<()> {
     if stats.interrupted {
         let signal = signals::stop_signal();
         let mut message = format!(
@@ -298,7 +480,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
             written.join(" and "),
             if written.len() == 1 { "holds" } else { "hold" }
         );
-        if let Some(path) = &checkpoint_path {
+        if let Some(path) = checkpoint_path {
             message += &format!("; continue with --resume {}", path.display());
         }
         eprintln!("aorender: {message}");
@@ -319,7 +501,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
 fn trace(
     args: &BakeArgs,
     scene: aorender::Scene,
-    plan: &BakePlan,
+    probes: &[Probe],
     resume: Option<Accumulation>,
     checkpoint: Option<&Path>,
     stop: &AtomicBool,
@@ -346,13 +528,8 @@ fn trace(
     let out = (|| {
         let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
         let session = Session::new(&device, scene, &args.scene.bvh())?;
-        let mut render = session.probe_render(
-            &plan.probes,
-            args.samples,
-            args.run.sample_range.clone(),
-            &settings,
-            args.bent_normals,
-        )?;
+        let mut render =
+            session.probe_render(probes, args.samples, args.run.sample_range.clone(), &settings, args.bent_normals)?;
         if let Some(acc) = resume {
             render.resume(acc)?;
         }
@@ -425,5 +602,108 @@ fn plural(at: BakeAt) -> &'static str {
     match at {
         BakeAt::Vertices => "vertices",
         BakeAt::Faces => "faces",
+    }
+}
+
+/// Whether `path` names a texture map file (`.png` or `.exr`) rather than a mesh.
+fn is_map(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) || is_exr(path)
+}
+
+fn is_exr(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"))
+}
+
+/// `path` with its extension replaced by `suffix` (`map.png` → `map_bent_normals.png`).
+fn sibling(path: &Path, suffix: &str) -> PathBuf {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!("{stem}{suffix}"))
+}
+
+/// `--texture` and its companions, checked before anything is loaded; `None` for a
+/// bake into vertices.
+fn texture_options(args: &BakeArgs, input: &Path, is_scene: bool) -> Result<Option<TextureOptions>> {
+    let Some(size) = &args.texture else {
+        if is_map(&args.output) {
+            bail!(
+                "{}: a bake into vertices writes a mesh file; bake a texture (--texture SIZE) to write a map",
+                args.output.display()
+            );
+        }
+        return Ok(None);
+    };
+    let parse = |s: &str| s.trim().parse::<u32>().ok();
+    let (width, height) = match size.split_once(['x', 'X', '×']) {
+        Some((w, h)) => (parse(w), parse(h)),
+        None => (parse(size), parse(size)),
+    };
+    let (Some(width), Some(height)) = (width, height) else {
+        bail!("invalid option: --texture {size}: expected a size in texels, N or WxH (for example 2048)");
+    };
+    let options = TextureOptions {
+        width,
+        height,
+        uv_set: args.uv_set,
+        points: args.texel_points,
+        padding: args.padding,
+        wrap: match args.uv_wrap {
+            WrapArg::File => UvWrap::File,
+            WrapArg::Refuse => UvWrap::Refuse,
+            WrapArg::Repeat => UvWrap::Repeat,
+        },
+        seed: args.scene.seed.unwrap_or(0),
+    };
+    options.validate().map_err(|e| {
+        anyhow!("invalid option: --texture: {}", e.to_string().trim_start_matches("invalid settings: "))
+    })?;
+    if is_scene && !is_map(&args.output) {
+        bail!("{}: a scene file's texture bake writes the map itself: -o NAME.png or NAME.exr", args.output.display());
+    }
+    if matches!(args.at, AtArg::Faces) {
+        bail!(
+            "invalid option: --at faces bakes per face, not into a texture: leave out one of --at faces and --texture"
+        );
+    }
+    if args.std_error || args.colors {
+        bail!(
+            "invalid option: --std-error and --colors are for vertex bakes: a texture's standard errors go into the G channel of a .exr map (-o NAME.exr)"
+        );
+    }
+    let gltf = format_of(input) == Some("glTF");
+    if !is_scene && !is_map(&args.output) && !gltf {
+        bail!(
+            "{}: {} files have no place for an AO texture: write the map itself (-o NAME.png or NAME.exr)",
+            args.output.display(),
+            format_of(input).unwrap_or("these")
+        );
+    }
+    Ok(Some(options))
+}
+
+/// Why nothing can be baked into a texture: no mesh has the set.
+fn no_uv_message(input: &Path, meshes: &[&aorender::bake::AssetMesh], set: u32) -> String {
+    let mut sets: Vec<u32> = meshes.iter().flat_map(|m| m.uv_sets.iter().map(|s| s.set)).collect();
+    sets.sort_unstable();
+    sets.dedup();
+    let others = if sets.is_empty() {
+        "it has none".to_string()
+    } else {
+        format!(
+            "it has set{} {}",
+            if sets.len() == 1 { "" } else { "s" },
+            sets.iter().map(u32::to_string).collect::<Vec<_>>().join(", ")
+        )
+    };
+    format!(
+        "{}: no mesh has texture coordinates of set {set} ({others}); generating UVs is not supported: unwrap the mesh first (for example Blender's Smart UV Project, or xatlas)",
+        input.display()
+    )
+}
+
+fn parse_bit_depth(text: &str) -> Result<u8, String> {
+    match text {
+        "8" => Ok(8),
+        "16" => Ok(16),
+        _ => Err(format!("'{text}': a PNG map has 8 or 16 bits per channel")),
     }
 }

@@ -2,7 +2,7 @@
 //! values it computed for them, and the writing options.
 
 use crate::error::Result;
-use glam::{Mat3, Vec3};
+use glam::{Mat3, Vec2, Vec3};
 use std::path::Path;
 
 /// Where AO is baked.
@@ -49,12 +49,38 @@ pub struct AssetMesh {
     /// the inverse of the node's world transform; the identity for the others): bent
     /// normals are written in the file's space.
     pub to_file: Mat3,
+    /// The file's texture coordinate sets, one coordinate per face corner (parallel to
+    /// `face_indices`; a corner without one is NaN), in the file's convention (see
+    /// `uv_v_down`).
+    pub uv_sets: Vec<UvSet>,
+    /// Whether v = 0 is an image's top row (glTF) rather than its bottom row (OBJ, PLY).
+    pub uv_v_down: bool,
+    /// The glTF material of the primitive; meshes sharing one share a texture.
+    pub material: Option<usize>,
+    /// The texture coordinate sets the file's own textures on this mesh repeat along
+    /// (glTF: the material's textures on the set, every one's sampler `REPEAT` in both
+    /// directions, the default); empty for OBJ and PLY, which do not say.
+    pub repeating_sets: Vec<u32>,
+}
+
+/// One set of texture coordinates of an [`AssetMesh`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct UvSet {
+    /// Its number: glTF's `TEXCOORD_n`; 0 for OBJ `vt` and PLY's vertex coordinates.
+    pub set: u32,
+    /// One coordinate per face corner.
+    pub corners: Vec<Vec2>,
 }
 
 impl AssetMesh {
     /// Number of faces.
     pub fn face_count(&self) -> usize {
         self.face_starts.len().saturating_sub(1)
+    }
+
+    /// The texture coordinate set numbered `set`.
+    pub fn uv_set(&self, set: u32) -> Option<&UvSet> {
+        self.uv_sets.iter().find(|s| s.set == set)
     }
 
     /// The corners of face `f`.
@@ -86,6 +112,24 @@ pub struct WriteOptions {
     pub colors: bool,
 }
 
+/// A baked AO texture, encoded, and what it belongs to.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TextureMap {
+    /// The glTF material whose `occlusionTexture` it becomes (`None`: a new material for
+    /// `meshes`).
+    pub material: Option<usize>,
+    /// The meshes (indices into [`Asset::meshes`]) baked into it.
+    pub meshes: Vec<usize>,
+    /// The texture coordinate set it is addressed by.
+    pub uv_set: u32,
+    /// The AO as a PNG.
+    pub png: Vec<u8>,
+    /// The bent normals as a PNG, when baked.
+    pub bent_png: Option<Vec<u8>>,
+    /// Whether coordinates outside [0, 1] repeat it (else they are clamped).
+    pub repeat: bool,
+}
+
 /// A mesh file read for baking: its meshes, and whatever of the file is needed to write
 /// it back with the values added.
 pub trait Asset: Send + Sync {
@@ -96,4 +140,14 @@ pub trait Asset: Send + Sync {
     /// `values[i]` added to mesh `i`. Returns notes for the user, one line each (for
     /// example, a glTF primitive whose own `COLOR_0` was kept).
     fn write(&self, path: &Path, values: &[BakedValues], options: &WriteOptions) -> Result<Vec<String>>;
+
+    /// Writes the file to `path` (atomically) with `maps` as its materials' occlusion
+    /// textures. Only glTF has a place for them: the others refuse.
+    fn write_textures(&self, path: &Path, maps: &[TextureMap]) -> Result<Vec<String>> {
+        let _ = maps;
+        Err(crate::error::Error::output(
+            path,
+            "only glTF references an AO texture: write the map itself (-o NAME.png or NAME.exr)",
+        ))
+    }
 }

@@ -9,7 +9,7 @@
 //! A mesh placed by several nodes is occluded differently at each placement: every node
 //! after the first gets its own copy of the mesh, sharing its accessors and material.
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
+use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, TextureMap, UvSet, WriteOptions};
 use crate::error::{Error, Result};
 use crate::output::{write_atomically, write_atomically_with};
 use crate::scene::extension;
@@ -98,7 +98,12 @@ impl GltfAsset {
                 .collect::<std::result::Result<Vec<u32>, _>>()
                 .map_err(|_| Error::scene(path, format!("{}: too many triangles to bake", placement.label)))?;
             // The loader's indices are `base + i` with `i` below the accessor's count.
-            let face_indices = triangles.iter().flatten().map(|&v| (v as usize - base) as u32).collect();
+            let face_indices: Vec<u32> = triangles.iter().flatten().map(|&v| (v as usize - base) as u32).collect();
+            let uv_sets = placement
+                .texcoords
+                .iter()
+                .map(|(set, uv)| UvSet { set: *set, corners: face_indices.iter().map(|&v| uv[v as usize]).collect() })
+                .collect();
             meshes.push(AssetMesh {
                 label: placement.label,
                 positions: placed.mesh.positions[placement.vertices].to_vec(),
@@ -106,11 +111,18 @@ impl GltfAsset {
                 face_starts,
                 face_indices,
                 to_file: glam::DMat3::from_mat4(placement.world).inverse().as_mat3(),
+                uv_sets,
+                uv_v_down: true,
+                material: placement.material,
+                repeating_sets: Vec::new(),
             });
             targets.push(Target { node: placement.node, mesh: placement.mesh, primitive: placement.primitive });
         }
         if meshes.is_empty() {
             return Err(Error::scene(path, "the scene has no triangle primitives to bake"));
+        }
+        for mesh in &mut meshes {
+            mesh.repeating_sets = repeating_sets(&json, mesh.material);
         }
         Ok(GltfAsset { path: path.to_path_buf(), meshes, targets, json, bin, warnings: placed.mesh.warnings })
     }
@@ -300,6 +312,145 @@ impl Asset for GltfAsset {
         }
         Ok(notes)
     }
+    fn write_textures(&self, path: &Path, maps: &[TextureMap]) -> Result<Vec<String>> {
+        let fail = |message: String| Error::output(path, message);
+        let glb = match extension(path).as_str() {
+            "glb" => true,
+            "gltf" => false,
+            ext => return Err(fail(format!("cannot write glTF to a '.{ext}' file: expected .gltf or .glb"))),
+        };
+        let mut notes = self.warnings.clone();
+        let mut doc = self.json.clone();
+        let input_dir = directory(&self.path);
+        let output_dir = directory(path);
+        if !same_directory(&input_dir, &output_dir) {
+            rebase_uris(&mut doc, &input_dir, &output_dir);
+        }
+        // A GLB's images go into its binary chunk (buffer 0, made when missing); a .gltf's
+        // into PNG files beside it.
+        let mut data = self.bin.clone().unwrap_or_default();
+        if glb && self.bin.is_none() {
+            insert_first_buffer(&mut doc);
+        }
+        let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+        let used: BTreeSet<PathBuf> = self.external_files().map(|f| comparable(&input_dir.join(f))).collect();
+        let stem = stem(path);
+        let mut add_image = |doc: &mut Value, png: &[u8], name: &str| -> usize {
+            let image = if glb {
+                pad(&mut data, 0);
+                let offset = data.len();
+                data.extend_from_slice(png);
+                let views = array(doc, "bufferViews");
+                views.push(object([
+                    ("buffer", 0.into()),
+                    ("byteOffset", offset.into()),
+                    ("byteLength", png.len().into()),
+                ]));
+                object([("bufferView", (views.len() - 1).into()), ("mimeType", "image/png".into())])
+            } else {
+                let mut k = 0;
+                let file = loop {
+                    let file = output_dir.join(if k == 0 {
+                        format!("{stem}_{name}.png")
+                    } else {
+                        format!("{stem}_{name}{k}.png")
+                    });
+                    if !used.contains(&comparable(&file)) && !files.iter().any(|(f, _)| *f == file) {
+                        break file;
+                    }
+                    k += 1;
+                };
+                let uri = file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+                files.push((file, png.to_vec()));
+                object([("uri", utf8_percent_encode(&uri, URI_PATH).to_string().into())])
+            };
+            let images = array(doc, "images");
+            images.push(image);
+            images.len() - 1
+        };
+        for map in maps {
+            let wrap = if map.repeat { 10497 } else { 33071 };
+            let samplers = array(&mut doc, "samplers");
+            // LINEAR magnification, LINEAR_MIPMAP_LINEAR minification.
+            samplers.push(object([
+                ("magFilter", 9729.into()),
+                ("minFilter", 9987.into()),
+                ("wrapS", wrap.into()),
+                ("wrapT", wrap.into()),
+            ]));
+            let sampler = samplers.len() - 1;
+            let texture = |doc: &mut Value, image: usize| {
+                let textures = array(doc, "textures");
+                textures.push(object([("sampler", sampler.into()), ("source", image.into())]));
+                textures.len() - 1
+            };
+            let image = add_image(&mut doc, &map.png, "ao");
+            let ao = texture(&mut doc, image);
+            let bent = map.bent_png.as_ref().map(|png| {
+                let image = add_image(&mut doc, png, "bent_normals");
+                texture(&mut doc, image)
+            });
+            let material = match map.material {
+                Some(m) => m,
+                None => {
+                    let materials = array(&mut doc, "materials");
+                    materials.push(object([("name", "AO".into())]));
+                    let m = materials.len() - 1;
+                    for &i in &map.meshes {
+                        let t = &self.targets[i];
+                        if let Some(p) = doc
+                            .get_mut("meshes")
+                            .and_then(|ms| ms.get_mut(t.mesh))
+                            .and_then(|ms| ms.get_mut("primitives"))
+                            .and_then(|ps| ps.get_mut(t.primitive))
+                        {
+                            p["material"] = m.into();
+                        }
+                    }
+                    notes.push(format!(
+                        "{} primitive(s) without a material got material {m} for the AO texture",
+                        map.meshes.len()
+                    ));
+                    m
+                }
+            };
+            let Some(entry) = doc.get_mut("materials").and_then(|ms| ms.get_mut(material)).filter(|m| m.is_object())
+            else {
+                return Err(fail(format!("material {material} is missing from the JSON")));
+            };
+            if entry.get("occlusionTexture").is_some() {
+                notes.push(format!("material {material}: its occlusionTexture was replaced by the baked one"));
+            }
+            entry["occlusionTexture"] = object([("index", ao.into()), ("texCoord", map.uv_set.into())]);
+            if let Some(bent) = bent {
+                if !entry["extras"].is_object() && !entry["extras"].is_null() {
+                    notes.push(format!("material {material}: its extras are not an object: the bent normals texture ({bent}) is not referenced"));
+                } else {
+                    entry["extras"]["bentNormalTexture"] =
+                        object([("index", bent.into()), ("texCoord", map.uv_set.into())]);
+                }
+            }
+        }
+        if glb {
+            pad(&mut data, 0);
+            if data.is_empty() {
+                data.extend([0; 4]);
+            }
+            array(&mut doc, "buffers")[0]["byteLength"] = data.len().into();
+            let json = serialize::to_vec(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
+            let bytes = glb_bytes(json, data).ok_or_else(|| fail("the GLB would exceed 4 GiB".to_string()))?;
+            write_maybe_gzipped(path, &bytes)?;
+        } else {
+            let json =
+                serialize::to_vec_pretty(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
+            let json = if is_gzip_name(path) { gzip(&json).map_err(|e| fail(e.to_string()))? } else { json };
+            for (file, png) in &files {
+                write_atomically(file, png)?;
+            }
+            write_atomically(path, &json)?;
+        }
+        Ok(notes)
+    }
 }
 
 impl GltfAsset {
@@ -335,6 +486,35 @@ impl GltfAsset {
             .filter_map(|item| item.get("uri").and_then(Value::as_str))
             .filter_map(relative_file)
     }
+}
+
+/// The texture coordinate sets along which every texture of `material` on that set
+/// repeats in both directions (glTF 2.0, 5.26: a texture without a sampler, or a sampler
+/// without a wrap mode, repeats).
+fn repeating_sets(json: &Value, material: Option<usize>) -> Vec<u32> {
+    const REPEAT: u64 = 10497;
+    let Some(m) = material.and_then(|m| json.get("materials")?.get(m)) else { return Vec::new() };
+    let pbr = m.get("pbrMetallicRoughness");
+    let infos = [
+        pbr.and_then(|p| p.get("baseColorTexture")),
+        pbr.and_then(|p| p.get("metallicRoughnessTexture")),
+        m.get("normalTexture"),
+        m.get("occlusionTexture"),
+        m.get("emissiveTexture"),
+    ];
+    let mut sets: BTreeMap<u32, bool> = BTreeMap::new();
+    for info in infos.into_iter().flatten() {
+        let set = info.get("texCoord").and_then(Value::as_u64).unwrap_or(0) as u32;
+        let sampler = info
+            .get("index")
+            .and_then(Value::as_u64)
+            .and_then(|t| json.get("textures")?.get(t as usize)?.get("sampler")?.as_u64())
+            .and_then(|s| json.get("samplers")?.get(s as usize));
+        let wrap = |key: &str| sampler.and_then(|s| s.get(key)?.as_u64()).unwrap_or(REPEAT);
+        let repeats = wrap("wrapS") == REPEAT && wrap("wrapT") == REPEAT;
+        *sets.entry(set).or_insert(true) &= repeats;
+    }
+    sets.into_iter().filter(|(_, r)| *r).map(|(s, _)| s).collect()
 }
 
 /// `doc[key]` as an array, made one when missing.

@@ -11,9 +11,14 @@ pub(crate) mod gltf;
 pub(crate) mod obj;
 mod plan;
 pub(crate) mod ply;
+mod texture;
 
-pub use asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
+pub use asset::{Asset, AssetMesh, BakeAt, BakedValues, TextureMap, UvSet, WriteOptions};
 pub use plan::{BakePlan, Placement, UNUSABLE_VALUE};
+pub use texture::{
+    BYTES_PER_TEXEL, BakedTexture, Coverage, MAX_TEXTURE_SIZE, TextureOptions, TexturePlan, TextureStats,
+    TextureTarget, UvWrap, bytes_per_point, texture_targets,
+};
 
 use crate::error::{Error, Result};
 use crate::scene::MeshObject;

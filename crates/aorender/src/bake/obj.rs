@@ -7,7 +7,7 @@
 //! OBJ has no per-face attribute nor a place for standard errors or bent normals: a bake
 //! at faces is refused (PLY and glTF take it), and the other two are left out with a note.
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
+use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, UvSet, WriteOptions};
 use crate::error::{Error, Result};
 use crate::scene::input::{Input, is_gzip};
 use crate::scene::obj::{non_finite_coordinate, parse_vertex_line};
@@ -88,6 +88,10 @@ struct LargestIndex {
 struct Parser {
     positions: Vec<Vec3>,
     texcoords: usize,
+    /// The `vt` coordinates (u, v; a missing v is 0, a w is ignored).
+    uvs: Vec<glam::Vec2>,
+    /// The `vt` index of every corner (`u32::MAX` for none or one out of range).
+    corner_uvs: Vec<u32>,
     normals: Vec<Vec3>,
     face_starts: Vec<u32>,
     face_indices: Vec<u32>,
@@ -186,9 +190,11 @@ impl Parser {
                 Some(v) if !v.is_empty() => self.index(v, Element::Vertex, line)?.unwrap_or_default(),
                 _ => return Err(format!("line {line}: the corner '{word}' names no vertex")),
             };
+            let mut uv = u32::MAX;
             if let Some(vt) = parts.next().filter(|s| !s.is_empty()) {
-                self.index(vt, Element::TexCoord, line)?;
+                uv = self.index(vt, Element::TexCoord, line)?.unwrap_or(u32::MAX);
             }
+            self.corner_uvs.push(uv);
             if let Some(vn) = parts.next().filter(|s| !s.is_empty())
                 && let Some(n) = self.index(vn, Element::Normal, line)?
             {
@@ -202,6 +208,7 @@ impl Parser {
         if self.face_indices.len() - start < 3 {
             // A point or a segment: no surface, as the scene loader ignores it.
             self.face_indices.truncate(start);
+            self.corner_uvs.truncate(start);
             self.corner_normals.truncate(normals_start);
             return Ok(());
         }
@@ -243,7 +250,16 @@ fn parse(text: &[u8], label: String) -> std::result::Result<AssetMesh, String> {
         let text = String::from_utf8_lossy(bytes);
         match keyword(&text) {
             Some("v") => parser.vertex(&text, line)?,
-            Some("vt") => parser.texcoords += 1,
+            Some("vt") => {
+                parser.texcoords += 1;
+                let mut words = text.split_whitespace().skip(1).map(|w| w.parse::<f32>());
+                let uv = match (words.next(), words.next()) {
+                    (Some(Ok(u)), Some(Ok(v))) => glam::Vec2::new(u, v),
+                    (Some(Ok(u)), None) => glam::Vec2::new(u, 0.0),
+                    _ => return Err(format!("line {line}: a texture coordinate needs 1 to 3 numbers")),
+                };
+                parser.uvs.push(uv);
+            }
             Some("vn") => parser.normal(&text, line)?,
             Some("f") => parser.face(&text, line)?,
             _ => {}
@@ -258,6 +274,12 @@ fn parse(text: &[u8], label: String) -> std::result::Result<AssetMesh, String> {
     }
     let normals = (!parser.normals.is_empty())
         .then(|| vertex_normals(parser.positions.len(), &parser.normals, parser.corner_normals));
+    let uv_sets = if parser.uvs.is_empty() {
+        Vec::new()
+    } else {
+        let uv = |&k: &u32| parser.uvs.get(k as usize).copied().unwrap_or(glam::Vec2::NAN);
+        vec![UvSet { set: 0, corners: parser.corner_uvs.iter().map(uv).collect() }]
+    };
     Ok(AssetMesh {
         label,
         positions: parser.positions,
@@ -265,6 +287,10 @@ fn parse(text: &[u8], label: String) -> std::result::Result<AssetMesh, String> {
         face_starts: parser.face_starts,
         face_indices: parser.face_indices,
         to_file: glam::Mat3::IDENTITY,
+        uv_sets,
+        uv_v_down: false,
+        material: None,
+        repeating_sets: Vec::new(),
     })
 }
 
@@ -553,6 +579,19 @@ mod tests {
         assert_eq!((m.face_count(), m.face_starts.as_slice()), (0, [0].as_slice()));
     }
 
+    /// `vt` per face corner, relative indices too; a corner without one is NaN; a file
+    /// without `vt` has no set.
+    #[test]
+    fn texture_coordinates_are_read_per_corner() {
+        let m = mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0.1 0.2\nvt 0.3 0.4 0\nvt 0.5\nf 1/1 2/-2 3/3\nf 1/3 3 2/1\n");
+        let uv: Vec<[f32; 2]> = m.uv_set(0).unwrap().corners.iter().map(|c| c.to_array()).collect();
+        assert_eq!(&uv[..4], &[[0.1, 0.2], [0.3, 0.4], [0.5, 0.0], [0.5, 0.0]]);
+        assert!(uv[4][0].is_nan());
+        assert_eq!(uv[5], [0.1, 0.2]);
+        assert!(!m.uv_v_down);
+        assert!(mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").uv_sets.is_empty());
+    }
+
     #[test]
     fn normals_come_from_the_corners_that_name_them() {
         let m = mesh(CUBE_CORNER);
@@ -618,7 +657,13 @@ mod tests {
             again.meshes()[0].positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>(),
             original.positions.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>()
         );
-        assert_eq!(again.meshes()[0], AssetMesh { label: "out.obj".into(), ..original.clone() });
+        // Texture coordinates compare by their bits (a corner without one is NaN).
+        let bits = |m: &AssetMesh| -> Vec<Vec<[u32; 2]>> {
+            m.uv_sets.iter().map(|s| s.corners.iter().map(|c| c.to_array().map(f32::to_bits)).collect()).collect()
+        };
+        assert_eq!(bits(&again.meshes()[0]), bits(&original));
+        let without_uvs = |m: &AssetMesh| AssetMesh { uv_sets: Vec::new(), ..m.clone() };
+        assert_eq!(without_uvs(&again.meshes()[0]), AssetMesh { label: "out.obj".into(), ..without_uvs(&original) });
         assert_eq!(loader_triangles(&out), fan_triangles(&original));
 
         // Read by tobj on its own: every corner's position and colour.

@@ -107,51 +107,22 @@ impl BakePlan {
     /// Adds a probe at `p` (in the mesh's space) with world normal `n` (usable), `p`
     /// within `e` (componentwise) of the mesh's surface; returns its index.
     fn push(&mut self, placement: &Placement, p: Vec3, e: Vec3, n: Vec3) -> u32 {
-        let n = n.normalize();
-        let probe = if placement.instanced {
-            let rows = AffineRows::from_mat4(&placement.to_world);
-            let back = InverseAffine::of(&placement.to_world);
-            let point = instance_point(&rows, &back, p, e, n);
-            Probe { position: point.p, normal: n, error: point.error }
-        } else {
-            // A vertex, as the loader placed it: exactly on the world's triangles. (Face
-            // centroids of triangles placed into the world never come here: `add_faces`
-            // finds them, and their bound, in the world.)
-            debug_assert_eq!(e, Vec3::ZERO);
-            Probe { position: placement.to_world.transform_point3(p), normal: n, error: 0.0 }
-        };
-        self.probes.push(probe);
+        self.probes.push(place(placement, p, e, n));
         self.probes.len() as u32 - 1
     }
 
     fn add_vertices(&mut self, mesh: &AssetMesh, placement: &Placement) -> Vec<u32> {
-        let m = placement.to_world;
-        let normal_matrix = Mat3::from_mat4(m).as_dmat3().inverse().transpose();
-        // Area-weighted face normals (twice the area), in the world, summed per vertex.
-        let world: Vec<DVec3> = mesh.positions.iter().map(|&p| m.transform_point3(p).as_dvec3()).collect();
-        let mut area = vec![DVec3::ZERO; mesh.positions.len()];
-        for f in 0..mesh.face_count() {
-            let face = mesh.face(f);
-            let n = polygon_area_vector(face.iter().map(|&i| world[i as usize]));
-            for &i in face {
-                area[i as usize] += n;
-            }
-        }
-        (0..mesh.positions.len())
-            .map(|i| {
-                let file = mesh.normals.as_ref().map(|n| (normal_matrix * n[i].as_dvec3()).as_vec3());
-                let normal = match file {
-                    Some(n) if usable(n) => {
-                        self.file_normals += 1;
-                        n
-                    }
-                    _ => area[i].as_vec3(),
-                };
-                if !usable(normal) {
+        let (normals, file) = vertex_normals(mesh, placement);
+        self.file_normals += file;
+        normals
+            .iter()
+            .enumerate()
+            .map(|(i, normal)| match normal {
+                Some(n) => self.push(placement, mesh.positions[i], Vec3::ZERO, *n),
+                None => {
                     self.unusable += 1;
-                    return NO_PROBE;
+                    NO_PROBE
                 }
-                self.push(placement, mesh.positions[i], Vec3::ZERO, normal)
             })
             .collect()
     }
@@ -190,6 +161,81 @@ impl BakePlan {
     }
 }
 
+/// A probe at `p` (in the mesh's space) with world normal `n` (usable), `p` within `e`
+/// (componentwise) of the mesh's surface.
+fn place(placement: &Placement, p: Vec3, e: Vec3, n: Vec3) -> Probe {
+    let n = n.normalize();
+    if placement.instanced {
+        let rows = AffineRows::from_mat4(&placement.to_world);
+        let back = InverseAffine::of(&placement.to_world);
+        let point = instance_point(&rows, &back, p, e, n);
+        Probe { position: point.p, normal: n, error: point.error }
+    } else {
+        // A vertex, as the loader placed it: exactly on the world's triangles. (Points
+        // inside triangles placed into the world never come here: their bound is found
+        // in the world, from the corners as the scene holds them.)
+        debug_assert_eq!(e, Vec3::ZERO);
+        Probe { position: placement.to_world.transform_point3(p), normal: n, error: 0.0 }
+    }
+}
+
+/// The world normal of every vertex of `mesh` as the bake uses it: the file's where it is
+/// usable, else the sum of its faces' area vectors; `None` where neither is usable. With
+/// the number that are the file's.
+pub(super) fn vertex_normals(mesh: &AssetMesh, placement: &Placement) -> (Vec<Option<Vec3>>, usize) {
+    let m = placement.to_world;
+    let normal_matrix = Mat3::from_mat4(m).as_dmat3().inverse().transpose();
+    // Area-weighted face normals (twice the area), in the world, summed per vertex.
+    let world: Vec<DVec3> = mesh.positions.iter().map(|&p| m.transform_point3(p).as_dvec3()).collect();
+    let mut area = vec![DVec3::ZERO; mesh.positions.len()];
+    for f in 0..mesh.face_count() {
+        let face = mesh.face(f);
+        let n = polygon_area_vector(face.iter().map(|&i| world[i as usize]));
+        for &i in face {
+            area[i as usize] += n;
+        }
+    }
+    let mut file_normals = 0;
+    let normals = (0..mesh.positions.len())
+        .map(|i| {
+            let file = mesh.normals.as_ref().map(|n| (normal_matrix * n[i].as_dvec3()).as_vec3());
+            let normal = match file {
+                Some(n) if usable(n) => {
+                    file_normals += 1;
+                    n
+                }
+                _ => area[i].as_vec3(),
+            };
+            usable(normal).then_some(normal)
+        })
+        .collect();
+    (normals, file_normals)
+}
+
+/// A probe at the barycentric coordinates `b` (of corners 1 and 2) of the triangle `tri`
+/// (vertex indices) of `mesh` under `placement`, with the world normal `n` (usable): the
+/// point rounded to f32, and its largest distance to the triangle's plane as the offset
+/// bound, found where the rays meet the triangle (the world for triangles placed into
+/// it, the mesh's space for an instance).
+pub(super) fn triangle_probe(mesh: &AssetMesh, placement: &Placement, tri: [u32; 3], b: [f64; 2], n: Vec3) -> Probe {
+    let corner = |i: u32| {
+        let p = mesh.positions[i as usize];
+        if placement.instanced { p.as_dvec3() } else { placement.to_world.transform_point3(p).as_dvec3() }
+    };
+    let [a, p1, p2] = tri.map(corner);
+    let point = (a + b[0] * (p1 - a) + b[1] * (p2 - a)).as_vec3();
+    let distance = plane_bound(point, &[a, p1, p2]);
+    if placement.instanced {
+        return place(placement, point, Vec3::splat(distance), n);
+    }
+    // The ray starts `error` along the (interpolated) normal: that far clears the plane
+    // by `distance` however far the normal leans from the triangle's.
+    let n = n.normalize();
+    let g = (p1 - a).cross(p2 - a).normalize_or_zero();
+    let lean = n.as_dvec3().dot(g).abs().max(1e-3) as f32;
+    Probe { position: point, normal: n, error: distance / lean * (1.0 + gamma(1)) }
+}
+
 /// The area-weighted centroid of a polygon's fan triangles, rounded to f32, and a bound on
 /// its distance to their planes.
 fn centroid(corners: &[DVec3]) -> (Vec3, f32) {
@@ -201,6 +247,11 @@ fn centroid(corners: &[DVec3]) -> (Vec3, f32) {
     }
     let c = if total > 0.0 { sum / total } else { corners.iter().sum::<DVec3>() / corners.len() as f64 };
     let c = c.as_vec3();
+    (c, plane_bound(c, corners))
+}
+
+/// A bound on the distance of `c` to the planes of the fan triangles of `corners`.
+fn plane_bound(c: Vec3, corners: &[DVec3]) -> f32 {
     let mut distance = 0.0f64;
     for k in 1..corners.len() - 1 {
         let n = (corners[k] - corners[0]).cross(corners[k + 1] - corners[0]);
@@ -209,7 +260,7 @@ fn centroid(corners: &[DVec3]) -> (Vec3, f32) {
         }
     }
     // The f64 arithmetic's own rounding, generously.
-    (c, (distance * (1.0 + 1e-9) + 1e-12 * c.as_dvec3().abs().max_element()) as f32 * (1.0 + gamma(1)))
+    (distance * (1.0 + 1e-9) + 1e-12 * c.as_dvec3().abs().max_element()) as f32 * (1.0 + gamma(1))
 }
 /// Twice the area times the unit normal of a polygon, summed over its fan triangles.
 fn polygon_area_vector(corners: impl Iterator<Item = DVec3>) -> DVec3 {

@@ -10,7 +10,7 @@
 //! positions are the loader's, bit for bit). Output is binary little-endian, or ascii
 //! when the input was.
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, WriteOptions};
+use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, UvSet, WriteOptions};
 use crate::error::{Error, Result};
 use crate::output::write_atomically_with;
 use crate::scene::input::Input;
@@ -551,7 +551,47 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
             .map_err(|_| Error::scene(path, "more than 4294967295 face corners: too many for a mesh"))?;
         face_starts.push(end);
     }
-    Ok(AssetMesh { label, positions, normals, face_starts, face_indices, to_file: glam::Mat3::IDENTITY })
+    // Per-corner texture coordinates (MeshLab's face `texcoord` list, u v per corner), else
+    // per-vertex ones under the names the common writers use.
+    let wedge = column(face, "texcoord").filter(|c| c.list.is_some()).map(|c| {
+        let mut corners = Vec::with_capacity(face_indices.len());
+        for f in 0..face.count {
+            let n = (face_starts[f + 1] - face_starts[f]) as usize;
+            let items: Vec<usize> = c.items(f).collect();
+            for k in 0..n {
+                corners.push(match (items.get(2 * k), items.get(2 * k + 1)) {
+                    (Some(&a), Some(&b)) if items.len() == 2 * n => glam::Vec2::new(c.values.f32(a), c.values.f32(b)),
+                    _ => glam::Vec2::NAN,
+                });
+            }
+        }
+        vec![UvSet { set: 0, corners }]
+    });
+    let uv_sets = wedge
+        .or_else(|| {
+            [["s", "t"], ["u", "v"], ["texture_u", "texture_v"], ["texture_s", "texture_t"]]
+                .into_iter()
+                .find_map(|names| scalar_columns(vertex, names))
+                .map(|[u, v]| {
+                    let corners = face_indices
+                        .iter()
+                        .map(|&i| glam::Vec2::new(u.values.f32(i as usize), v.values.f32(i as usize)));
+                    vec![UvSet { set: 0, corners: corners.collect() }]
+                })
+        })
+        .unwrap_or_default();
+    Ok(AssetMesh {
+        label,
+        positions,
+        normals,
+        face_starts,
+        face_indices,
+        to_file: glam::Mat3::IDENTITY,
+        uv_sets,
+        uv_v_down: false,
+        material: None,
+        repeating_sets: Vec::new(),
+    })
 }
 
 /// AO as a grey colour channel in type `t`: 0 to 1 for the floating-point types, 0 to 255
@@ -1015,6 +1055,35 @@ mod tests {
     }
 
     const ALL: WriteOptions = WriteOptions { at: BakeAt::Vertices, std_error: true, colors: true };
+
+    /// Texture coordinates per corner: from vertex `s t` (or `u v`…), or from MeshLab's
+    /// face `texcoord` lists, which win.
+    #[test]
+    fn texture_coordinates_are_read_per_corner() {
+        let dir = tempfile::tempdir().unwrap();
+        let header = |vertex: &str, face: &str| {
+            format!(
+                "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n{vertex}\
+                 element face 1\nproperty list uchar int vertex_indices\n{face}end_header\n"
+            )
+        };
+        for (names, list) in [("s t", false), ("u v", false), ("texture_u texture_v", false), ("s t", true)] {
+            let vertex: String = names.split(' ').map(|n| format!("property float {n}\n")).collect();
+            let face = if list { "property list uchar float texcoord\n" } else { "" };
+            let mut text = header(&vertex, face);
+            text += "0 0 0 0.1 0.2\n1 0 0 0.3 0.4\n0 1 0 0.5 0.6\n3 2 0 1";
+            text += if list { " 6 0.7 0.8 0.9 1.0 0.0 0.25\n" } else { "\n" };
+            let path = dir.path().join("uv.ply");
+            std::fs::write(&path, text).unwrap();
+            let asset = PlyAsset::read(&path).unwrap();
+            let mesh = &asset.meshes()[0];
+            let corners: Vec<[f32; 2]> = mesh.uv_set(0).unwrap().corners.iter().map(|c| c.to_array()).collect();
+            let expected =
+                if list { [[0.7, 0.8], [0.9, 1.0], [0.0, 0.25]] } else { [[0.5, 0.6], [0.1, 0.2], [0.3, 0.4]] };
+            assert_eq!(corners, expected, "{names} {list}");
+            assert!(!mesh.uv_v_down);
+        }
+    }
 
     #[test]
     fn every_encoding_round_trips_with_the_bake_added() {

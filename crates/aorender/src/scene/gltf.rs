@@ -24,7 +24,7 @@ use ::gltf::mesh::{Mode, Semantic};
 use ::gltf::scene::Transform;
 use ::gltf::{Accessor, Document, Node, json};
 use base64::Engine;
-use glam::{DMat3, DMat4, DQuat, DVec3, Vec3};
+use glam::{DMat3, DMat4, DQuat, DVec3, Vec2, Vec3};
 use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
 use std::ops::Range;
@@ -63,6 +63,11 @@ pub(crate) struct Placement {
     /// Its NORMAL attribute placed by the node's normal matrix (the inverse transpose of
     /// its world transform), not normalised; `None` unless asked for and present.
     pub normals: Option<Vec<Vec3>>,
+    /// Its `TEXCOORD_n` attributes as (n, one per position), when asked for (with
+    /// `normals`); in the file's convention (v = 0 is an image's top row).
+    pub texcoords: Vec<(u32, Vec<Vec2>)>,
+    /// The primitive's material.
+    pub material: Option<usize>,
     /// The node's world transform, which placed the vertices.
     pub world: DMat4,
 }
@@ -423,6 +428,7 @@ impl Loader<'_, '_> {
                     Some(a) if self.normals => Some(self.read_normals(&a, count, instance.world, &what)?),
                     _ => None,
                 };
+                let texcoords = if self.normals { self.read_texcoords(&primitive, count, &what)? } else { Vec::new() };
                 let first_triangle = mesh.triangles.len();
                 let indices = match primitive.indices() {
                     Some(a) => Some(self.read_indices(&a, &what)?),
@@ -466,6 +472,8 @@ impl Loader<'_, '_> {
                     vertices: base..base + count,
                     triangles: first_triangle..mesh.triangles.len(),
                     normals,
+                    texcoords,
+                    material: primitive.material().index(),
                     world: instance.world,
                 });
             }
@@ -679,6 +687,44 @@ impl Loader<'_, '_> {
                 *n = (normal_matrix * n.as_dvec3()).as_vec3();
             }
         }
+        Ok(out)
+    }
+
+    /// Every `TEXCOORD_n` of `primitive` (one per each of its `count` positions): VEC2 of
+    /// floats or of normalized unsigned 8- or 16-bit integers (glTF 2.0, 3.7.2.1).
+    fn read_texcoords(&self, primitive: &::gltf::Primitive, count: usize, what: &str) -> Result<Vec<(u32, Vec<Vec2>)>> {
+        let mut out = Vec::new();
+        for (semantic, a) in primitive.attributes() {
+            let Semantic::TexCoords(set) = semantic else { continue };
+            let quantized = [DataType::U8, DataType::U16].contains(&a.data_type()) && a.normalized();
+            if a.dimensions() != Dimensions::Vec2 || !(a.data_type() == DataType::F32 || quantized) {
+                return Err(self.error(format!(
+                    "{what}: TEXCOORD_{set} must be VEC2 of floats (or of normalized unsigned 8- or 16-bit integers), not {:?} of {:?}",
+                    a.dimensions(),
+                    a.data_type()
+                )));
+            }
+            if a.count() != count {
+                return Err(self.error(format!(
+                    "{what}: its TEXCOORD_{set} accessor {} has {} elements but its POSITION accessor has {count}",
+                    a.index(),
+                    a.count()
+                )));
+            }
+            let mut uv = match self.elements(&a, what)? {
+                Some(e) => (0..count).map(|i| Vec2::new(e.float(i, 0), e.float(i, 1))).collect(),
+                None => vec![Vec2::ZERO; count],
+            };
+            if let Some((index, value)) = self.sparse(&a, what)? {
+                for j in 0..index.count {
+                    if let Some(p) = uv.get_mut(index.index(j) as usize) {
+                        *p = Vec2::new(value.float(j, 0), value.float(j, 1));
+                    }
+                }
+            }
+            out.push((set, uv));
+        }
+        out.sort_by_key(|(set, _)| *set);
         Ok(out)
     }
 
