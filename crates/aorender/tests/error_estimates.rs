@@ -190,6 +190,16 @@ fn image_intervals_and_rmse_estimates_hold_for_every_sampler_on_a_scan() {
     }
 }
 
+/// The mean of the seeds' image means, the converged image's mean, and the standard
+/// error of their difference (the seeds' spread and the reference's own).
+fn mean_over_seeds(means: &[f64], reference: &Film) -> (f64, f64, f64) {
+    let n = means.len() as f64;
+    let avg = means.iter().sum::<f64>() / n;
+    let sd = (means.iter().map(|m| (m - avg) * (m - avg)).sum::<f64>() / (n - 1.0)).sqrt();
+    let (truth, truth_se) = (reference.image_mean(), common::image_mean_std_error(reference));
+    (avg, truth, (sd * sd / n + truth_se * truth_se).sqrt())
+}
+
 #[test]
 fn renders_with_an_error_target_meet_it() {
     let mut scene = bunny();
@@ -226,11 +236,7 @@ fn renders_with_an_error_target_meet_it() {
             assert!(met * 100 >= 95 * seeds, "{kind:?} {}: target met in {met} of {seeds} seeds", sampler.name());
             // The stopping rule does not bias the image: the mean over seeds agrees with
             // the converged mean within 4 standard errors of that mean.
-            let n = means.len() as f64;
-            let avg = means.iter().sum::<f64>() / n;
-            let sd = (means.iter().map(|m| (m - avg) * (m - avg)).sum::<f64>() / (n - 1.0)).sqrt();
-            let (truth, truth_se) = (reference.image_mean(), common::image_mean_std_error(&reference));
-            let se = (sd * sd / n + truth_se * truth_se).sqrt();
+            let (avg, truth, se) = mean_over_seeds(&means, &reference);
             assert!(
                 (avg - truth).abs() <= 4.0 * se,
                 "{kind:?} {}: image mean over seeds {avg} against {truth} (4 SE = {})",
@@ -354,11 +360,7 @@ fn adaptive_renders_meet_the_target_with_fewer_samples_and_no_bias() {
                 adaptive_samples += out.stats.mean_samples_per_pixel / seeds as f64;
                 uniform_samples += uniform.stats.mean_samples_per_pixel / seeds as f64;
             }
-            let n = means.len() as f64;
-            let avg = means.iter().sum::<f64>() / n;
-            let sd = (means.iter().map(|m| (m - avg) * (m - avg)).sum::<f64>() / (n - 1.0)).sqrt();
-            let (truth, truth_se) = (reference.image_mean(), common::image_mean_std_error(&reference));
-            let se = (sd * sd / n + truth_se * truth_se).sqrt();
+            let (avg, truth, se) = mean_over_seeds(&means, &reference);
             eprintln!(
                 "{kind:?} {} adaptive: target met in {met} of {seeds}; {adaptive_samples:.0} samples a pixel on \
                  average against {uniform_samples:.0} uniform; image mean {avg:.6} against {truth:.6}: bias \
