@@ -72,14 +72,7 @@ fn floor(n: u32, half: f64, y: f64) -> (Vec<DVec3>, Vec<Vec<u32>>) {
             v.push(DVec3::new(s(i), y, s(j)));
         }
     }
-    let mut f = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let k = j * (n + 1) + i;
-            f.push(vec![k, k + n + 1, k + n + 2, k + 1]);
-        }
-    }
-    (v, f)
+    (v, grid_quads(n))
 }
 
 /// The elements of a PLY file read with `ply-rs-bw`'s generic parser (an independent

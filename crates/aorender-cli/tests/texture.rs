@@ -59,14 +59,7 @@ fn floor(n: u32, half: f64, uv: (DVec2, f64)) -> (Vec<Vertex>, Vec<Vec<u32>>) {
             v.push(Vertex { p, n: DVec3::Y, uv: uv.0 + uv.1 * DVec2::new(s, t) });
         }
     }
-    let mut f = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let k = j * (n + 1) + i;
-            f.push(vec![k, k + n + 1, k + n + 2, k + 1]);
-        }
-    }
-    (v, f)
+    (v, grid_quads(n))
 }
 
 /// A UV sphere (latitude-longitude, the seam at u = 0 and 1 with its vertices doubled)

@@ -502,10 +502,7 @@ impl Accumulation {
         let sums = self.sums()?;
         let s = &self.settings;
         let n = s.samples_in(self.first..self.next);
-        let estimator = match s.error_estimator(sums.replicates) {
-            ErrorEstimator::None => ErrorEstimator::Samples,
-            e => e,
-        };
+        let estimator = s.error_estimator(sums.replicates).or_samples();
         let film = sums.to_film(n, self.film_replicate());
         let lanes = s.width as usize;
         Ok((0..s.height as usize)

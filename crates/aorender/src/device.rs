@@ -326,7 +326,8 @@ pub(crate) trait Passes {
     /// Bytes of device memory the film and its buffers take (0 on the CPU).
     fn device_bytes(&self) -> u64;
     /// Stops sampling the slots marked in `inactive` (from the next pass on; an empty
-    /// mask samples every slot). Their sums read back as empty.
+    /// mask samples every slot). Their sums read back as empty. Called while the block
+    /// holds no samples: right after a take, or before a checkpoint's block is loaded.
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()>;
 }
 
@@ -368,9 +369,8 @@ impl Passes for GpuTarget {
     }
 
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
-        let words = self.film_words()?;
         self.inactive = inactive.to_vec();
-        self.mark_inactive(Some(&words))
+        self.mark_inactive(None)
     }
 }
 

@@ -61,6 +61,16 @@ impl ErrorEstimator {
         }
     }
 
+    /// The estimator standard errors are reported with: this one, or without a valid
+    /// estimate the spread of single samples (an overestimate for stratified and Sobol
+    /// points, and no error at all for the grid's).
+    pub fn or_samples(self) -> ErrorEstimator {
+        match self {
+            ErrorEstimator::None => ErrorEstimator::Samples,
+            e => e,
+        }
+    }
+
     /// Degrees of freedom of the variance estimate (0 when there is none).
     pub fn degrees_of_freedom(&self, samples: u64) -> u64 {
         match *self {
@@ -195,10 +205,7 @@ impl Film {
     /// ([`ErrorEstimator::None`]) it is the spread of single samples, which overestimates
     /// the error of stratified and Sobol points (the grid's is not an error at all).
     pub fn std_error(&self) -> Vec<f64> {
-        let estimator = match self.error_estimator() {
-            ErrorEstimator::None => ErrorEstimator::Samples,
-            e => e,
-        };
+        let estimator = self.error_estimator().or_samples();
         (0..self.sum.len())
             .map(|i| {
                 let r = self.replicate_sq.get(i).copied().unwrap_or(0.0);

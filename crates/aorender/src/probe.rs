@@ -11,7 +11,7 @@
 //! slot sums are added exactly.
 
 use crate::error::{Error, Result};
-use crate::film::{ErrorEstimator, Film, standard_error};
+use crate::film::{Film, standard_error};
 use glam::Vec3;
 
 /// A point and the normal of its hemisphere.
@@ -94,11 +94,7 @@ impl ProbeValue {
 /// bent normals, the AO first): each point's AO.
 pub fn probe_film_values(film: &Film) -> Vec<ProbeValue> {
     let stride = film.width as usize;
-    // As Film::std_error: without a valid estimate, the spread of single samples.
-    let estimator = match film.error_estimator() {
-        ErrorEstimator::None => ErrorEstimator::Samples,
-        e => e,
-    };
+    let estimator = film.error_estimator().or_samples();
     (0..film.height as usize)
         .map(|k| {
             let (sum, sum_sq) = (film.sum[k * stride], film.sum_sq[k * stride]);

@@ -309,13 +309,14 @@ impl Render {
             }
             saved.end = self.acc.end;
         }
-        if let Some(block) = saved.partial.take() {
-            self.passes.load(&block).map_err(|e| saved.error(e.message()))?;
-        }
-        // An adaptive render's pixels that no longer take samples stay so.
+        // An adaptive render's pixels that no longer take samples stay so (marked before
+        // the block in progress is loaded, which keeps the marks).
         let inactive = saved.inactive();
         if inactive.iter().any(|&off| off) {
             self.passes.set_inactive(&inactive)?;
+        }
+        if let Some(block) = saved.partial.take() {
+            self.passes.load(&block).map_err(|e| saved.error(e.message()))?;
         }
         saved.max_value = self.acc.max_value;
         saved.adapter.clone_from(&self.acc.adapter);

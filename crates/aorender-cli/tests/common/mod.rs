@@ -88,3 +88,16 @@ pub fn flattened_dragons(dir: &std::path::Path) -> PathBuf {
     std::fs::write(&scene, text).unwrap();
     scene
 }
+
+/// The quads of an (n + 1) × (n + 1) grid of vertices numbered row by row, wound so that
+/// a grid laid out in x (along a row) and z (across rows) faces +y.
+pub fn grid_quads(n: u32) -> Vec<Vec<u32>> {
+    let mut f = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let k = j * (n + 1) + i;
+            f.push(vec![k, k + n + 1, k + n + 2, k + 1]);
+        }
+    }
+    f
+}

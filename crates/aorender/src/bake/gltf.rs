@@ -214,19 +214,9 @@ impl Asset for GltfAsset {
                 "glTF has no per-face attributes: bake at vertices, or per face into a .ply file".to_string(),
             ));
         }
-        let glb = match extension(path).as_str() {
-            "glb" => true,
-            "gltf" => false,
-            ext => return Err(fail(format!("cannot write glTF to a '.{ext}' file: expected .gltf or .glb"))),
-        };
+        let (glb, mut doc, input_dir, output_dir) = self.output_document(path)?;
         self.check_values(path, values, options)?;
         let mut notes = self.warnings.clone();
-        let mut doc = self.json.clone();
-        let input_dir = directory(&self.path);
-        let output_dir = directory(path);
-        if !same_directory(&input_dir, &output_dir) {
-            rebase_uris(&mut doc, &input_dir, &output_dir);
-        }
 
         // The new data goes after the GLB binary chunk's, in buffer 0; without one, into a
         // new buffer: first for a GLB (where the binary chunk's buffer must be), last for
@@ -314,18 +304,8 @@ impl Asset for GltfAsset {
     }
     fn write_textures(&self, path: &Path, maps: &[TextureMap]) -> Result<Vec<String>> {
         let fail = |message: String| Error::output(path, message);
-        let glb = match extension(path).as_str() {
-            "glb" => true,
-            "gltf" => false,
-            ext => return Err(fail(format!("cannot write glTF to a '.{ext}' file: expected .gltf or .glb"))),
-        };
+        let (glb, mut doc, input_dir, output_dir) = self.output_document(path)?;
         let mut notes = self.warnings.clone();
-        let mut doc = self.json.clone();
-        let input_dir = directory(&self.path);
-        let output_dir = directory(path);
-        if !same_directory(&input_dir, &output_dir) {
-            rebase_uris(&mut doc, &input_dir, &output_dir);
-        }
         // A GLB's images go into its binary chunk (buffer 0, made when missing); a .gltf's
         // into PNG files beside it.
         let mut data = self.bin.clone().unwrap_or_default();
@@ -454,6 +434,26 @@ impl Asset for GltfAsset {
 }
 
 impl GltfAsset {
+    /// What a write to `path` starts from: whether it is a GLB, the file's JSON with its
+    /// relative URIs rebased to `path`'s directory, the input's directory and the output's.
+    fn output_document(&self, path: &Path) -> Result<(bool, Value, PathBuf, PathBuf)> {
+        let glb = match extension(path).as_str() {
+            "glb" => true,
+            "gltf" => false,
+            ext => {
+                let message = format!("cannot write glTF to a '.{ext}' file: expected .gltf or .glb");
+                return Err(Error::output(path, message));
+            }
+        };
+        let mut doc = self.json.clone();
+        let input_dir = directory(&self.path);
+        let output_dir = directory(path);
+        if !same_directory(&input_dir, &output_dir) {
+            rebase_uris(&mut doc, &input_dir, &output_dir);
+        }
+        Ok((glb, doc, input_dir, output_dir))
+    }
+
     /// The file beside a `.gltf` output that holds its new buffer, and the URI naming it:
     /// `<stem>.bin`, or `<stem>_ao.bin`, `<stem>_ao2.bin`… when the input uses a file of
     /// that name (baking a file over itself must not overwrite its own buffers).
