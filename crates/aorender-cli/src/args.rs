@@ -2,7 +2,9 @@
 //! the image size, the value parsers and output checks.
 
 use anyhow::{Context, Result, bail};
-use aorender::{BuildQuality, BvhLayout, BvhOptions, Device, DeviceKind, GeometryStorage, Hemisphere, Sampler, Scene};
+use aorender::{
+    BuildQuality, BvhLayout, BvhOptions, Device, DeviceKind, GeometryStorage, Hemisphere, Sampler, Scene, Traversal,
+};
 use clap::ValueEnum;
 use clap::builder::TypedValueParser as _;
 use std::ops::Range;
@@ -62,6 +64,17 @@ pub enum StorageArg {
     Textures,
 }
 
+/// `--traversal`.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum TraversalArg {
+    /// What measured fastest on the adapter's kind, where the scene allows it.
+    Auto,
+    /// Each lane traces its own rays.
+    PerLane,
+    /// Eight lanes trace each ray together (subgroups; the cwbvh layout; no instances).
+    Cooperative,
+}
+
 /// Image size options shared by `render` and `compare`.
 #[derive(clap::Args)]
 pub struct SizeArgs {
@@ -112,6 +125,9 @@ pub struct SceneArgs {
     /// What holds the BVH and the primitives on the GPU: storage buffers or textures.
     #[arg(long, value_enum, default_value = "auto")]
     pub geometry_storage: StorageArg,
+    /// How the GPU kernel's lanes share the rays.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub traversal: TraversalArg,
 }
 
 impl SceneArgs {
@@ -157,6 +173,11 @@ impl SceneArgs {
                 StorageArg::Auto => None,
                 StorageArg::Buffers => Some(GeometryStorage::Buffers),
                 StorageArg::Textures => Some(GeometryStorage::Textures),
+            },
+            traversal: match self.traversal {
+                TraversalArg::Auto => None,
+                TraversalArg::PerLane => Some(Traversal::PerLane),
+                TraversalArg::Cooperative => Some(Traversal::Cooperative),
             },
         }
     }

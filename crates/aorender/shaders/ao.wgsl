@@ -4,6 +4,11 @@
 // (each a camera ray, then one AO ray from its hit), added one by one to the pixel's
 // compensated running sums: the same additions, in the same order, as one sample per
 // dispatch.
+//
+// Every invocation of a workgroup runs the same loops and calls `trace` together, a lane
+// with nothing to trace (outside the image, past its samples, its camera ray missed)
+// passing an empty interval: a cooperative traversal (trace_cwbvh_group.wgsl) needs its
+// whole group. `rays_left` ends a loop once no lane that traces with this one is live.
 
 // Per-workgroup counts, added to the global counters once per workgroup: one global
 // atomic per invocation costs lavapipe's two worker threads a contended cache line.
@@ -47,8 +52,14 @@ struct AoRay {
 
 fn ao_ray(p: vec3f, n: vec3f, error: f32, u: vec2f) -> AoRay {
     let w_local = sample_hemisphere(HEMISPHERE, u);
-    ao_rays += 1u;
     return AoRay(offset_ray_origin(p, n, error), local_to_world(w_local, n), w_local);
+}
+
+// The first hit of an AO ray within the maximum distance, counted; nothing where the lane
+// is not live.
+fn trace_ao(ray: AoRay, live: bool) -> Hit {
+    ao_rays += select(0u, 1u, live);
+    return trace(ray.o, ray.d, select(0.0, frame.max_distance, live), true);
 }
 
 // The hemisphere estimate of an AO ray that found `shadow`: 0 or cos(theta) / (pi pdf).
@@ -59,10 +70,11 @@ fn ao_estimate(shadow: Hit, w_local: vec3f) -> f32 {
     return hemisphere_weight(HEMISPHERE, w_local);
 }
 
-// The hemisphere estimate at p: one AO ray. The twin of CpuTracer::ao_at.
-fn ao_value(p: vec3f, n: vec3f, error: f32, u: vec2f) -> f32 {
+// The hemisphere estimate at p: one AO ray (none where the lane is not live). The twin of
+// CpuTracer::ao_at.
+fn ao_value(p: vec3f, n: vec3f, error: f32, u: vec2f, live: bool) -> f32 {
     let ray = ao_ray(p, n, error, u);
-    return ao_estimate(trace(ray.o, ray.d, frame.max_distance, true), ray.w_local);
+    return ao_estimate(trace_ao(ray, live), ray.w_local);
 }
 
 // Where a camera ray hit, and the albedo there.
@@ -98,36 +110,43 @@ fn camera_hit(o: vec3f, d: vec3f, hit: Hit) -> CameraHit {
 // AO value of one sample: albedo x the hemisphere estimate, or the background. The camera
 // ray and then, where it hits, the AO ray are traced at one call site, in two turns of a
 // loop: a SIMD batch none of whose camera rays hit ends the loop instead of running a
-// second traversal masked (lavapipe executes both sides of every branch).
-fn shade_sample(px: vec2u, u: vec4f) -> f32 {
+// second traversal masked (lavapipe executes both sides of every branch). A lane that is
+// not live traces nothing.
+fn shade_sample(px: vec2u, u: vec4f, live: bool) -> f32 {
     let camera = camera_ray(vec2f(px) + u.xy);
     var o = camera[0];
     var d = camera[1];
-    var t_max = INF;
+    var t_max = select(0.0, INF, live);
     var is_ao_ray = false;
     var albedo = 0.0;
     var w_local = vec3f(0.0);
-    var value = 0.0;
+    var value = frame.background;
     loop {
         let hit = trace(o, d, t_max, is_ao_ray);
         if (is_ao_ray) {
-            value = albedo * ao_estimate(hit, w_local);
+            if (t_max > 0.0) {
+                value = albedo * ao_estimate(hit, w_local);
+            }
             break;
         }
-        if (hit.kind == HIT_NONE) {
-            value = frame.background;
-            break;
-        }
-        let h = camera_hit(o, d, hit);
-        albedo = h.albedo;
-        // The hemisphere faces the side the camera ray came from.
-        let n = select(h.surface.n, -h.surface.n, dot(h.surface.n, d) > 0.0);
-        let ray = ao_ray(h.surface.p, n, h.surface.error, u.zw);
-        o = ray.o;
-        d = ray.d;
-        w_local = ray.w_local;
-        t_max = frame.max_distance;
         is_ao_ray = true;
+        if (hit.kind == HIT_NONE) {
+            t_max = 0.0;
+        } else {
+            let h = camera_hit(o, d, hit);
+            albedo = h.albedo;
+            // The hemisphere faces the side the camera ray came from.
+            let n = select(h.surface.n, -h.surface.n, dot(h.surface.n, d) > 0.0);
+            let ray = ao_ray(h.surface.p, n, h.surface.error, u.zw);
+            ao_rays += 1u;
+            o = ray.o;
+            d = ray.d;
+            w_local = ray.w_local;
+            t_max = frame.max_distance;
+        }
+        if (!rays_left(t_max > 0.0)) {
+            break;
+        }
     }
     return value;
 }
@@ -163,21 +182,27 @@ fn tile_pixel(tile: vec2u, lid: u32) -> vec2u {
 @compute @workgroup_size(WORKGROUP_WIDTH, WORKGROUP_HEIGHT, 1)
 fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_index) lid: u32) {
     load_constants();
-    lane = lid;
+    begin_traversal(lid);
     let pixel = tile_pixel(tile.xy, lid);
-    if (pixel.x < frame.width && pixel.y < frame.height) {
-        let i = pixel.y * frame.width + pixel.x;
-        var acc = film[i];
-        // A pixel an adaptive render no longer samples is marked in its slot's last word.
-        if (bitcast<u32>(acc.w) != INACTIVE_SLOT) {
-            for (var k = 0u; k < dispatch.sample_count; k++) {
-                let index = dispatch.first_sample + k;
-                let u = sample_point_uniforms(SAMPLER, pixel.x, pixel.y, index, frame.seed, frame.strata, frame.replicate);
-                acc = accumulate(acc, shade_sample(pixel, u));
-            }
-            film[i] = acc;
-            atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);
+    let inside = pixel.x < frame.width && pixel.y < frame.height;
+    let i = select(0u, pixel.y * frame.width + pixel.x, inside);
+    var acc = film[i];
+    // A pixel an adaptive render no longer samples is marked in its slot's last word.
+    let live = inside && bitcast<u32>(acc.w) != INACTIVE_SLOT;
+    for (var k = 0u; k < dispatch.sample_count; k++) {
+        if (!rays_left(live)) {
+            break;
         }
+        let index = dispatch.first_sample + k;
+        let u = sample_point_uniforms(SAMPLER, pixel.x, pixel.y, index, frame.seed, frame.strata, frame.replicate);
+        let value = shade_sample(pixel, u, live);
+        if (live) {
+            acc = accumulate(acc, value);
+        }
+    }
+    if (live) {
+        film[i] = acc;
+        atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);
     }
     workgroupBarrier();
     flush_counters(lid);
@@ -190,22 +215,27 @@ fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_i
 @compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
 fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
     load_constants();
-    lane = lid;
+    begin_traversal(lid);
     let lanes = frame.width;
-    let slot = gid.x;
-    if (slot < lanes * frame.height) {
-        let point = slot / lanes;
-        let q = probe_points[point];
-        var acc = film[slot];
-        for (var k = 0u; k < dispatch.sample_count; k++) {
-            let index = (dispatch.first_sample + k) * lanes + slot % lanes;
-            if (index >= frame.probe_samples) {
-                break;
-            }
-            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
-            // Pushed off its surface by its error bound (zero for a point exactly on it).
-            acc = accumulate(acc, ao_value(q.position, q.normal, q.error, u.zw));
+    let valid = gid.x < lanes * frame.height;
+    let slot = select(0u, gid.x, valid);
+    let point = slot / lanes;
+    let q = probe_points[point];
+    var acc = film[slot];
+    for (var k = 0u; k < dispatch.sample_count; k++) {
+        let index = (dispatch.first_sample + k) * lanes + slot % lanes;
+        let live = valid && index < frame.probe_samples;
+        if (!rays_left(live)) {
+            break;
         }
+        let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
+        // Pushed off its surface by its error bound (zero for a point exactly on it).
+        let value = ao_value(q.position, q.normal, q.error, u.zw, live);
+        if (live) {
+            acc = accumulate(acc, value);
+        }
+    }
+    if (valid) {
         film[slot] = acc;
         atomicAdd(&workgroup_counters[COUNTER_AO_RAYS], ao_rays);
     }
@@ -220,33 +250,35 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
 @compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
 fn probe_bent_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
     load_constants();
-    lane = lid;
-    let point = gid.x;
-    if (point < frame.height) {
-        let q = probe_points[point];
-        let base = point * 4u;
-        var ao = film[base];
-        var bx = film[base + 1u];
-        var by = film[base + 2u];
-        var bz = film[base + 3u];
-        for (var k = 0u; k < dispatch.sample_count; k++) {
-            let index = dispatch.first_sample + k;
-            if (index >= frame.probe_samples) {
-                break;
-            }
-            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
-            let ray = ao_ray(q.position, q.normal, q.error, u.zw);
-            let shadow = trace(ray.o, ray.d, frame.max_distance, true);
-            let open = select(vec3f(0.0), ray.d, shadow.kind == HIT_NONE);
-            if (truncated) {
-                atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
-            } else {
-                ao = accumulate(ao, ao_estimate(shadow, ray.w_local));
-                bx = accumulate(bx, open.x);
-                by = accumulate(by, open.y);
-                bz = accumulate(bz, open.z);
-            }
+    begin_traversal(lid);
+    let valid = gid.x < frame.height;
+    let point = select(0u, gid.x, valid);
+    let q = probe_points[point];
+    let base = point * 4u;
+    var ao = film[base];
+    var bx = film[base + 1u];
+    var by = film[base + 2u];
+    var bz = film[base + 3u];
+    for (var k = 0u; k < dispatch.sample_count; k++) {
+        let index = dispatch.first_sample + k;
+        let live = valid && index < frame.probe_samples;
+        if (!rays_left(live)) {
+            break;
         }
+        let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
+        let ray = ao_ray(q.position, q.normal, q.error, u.zw);
+        let shadow = trace_ao(ray, live);
+        let open = select(vec3f(0.0), ray.d, shadow.kind == HIT_NONE);
+        if (live && truncated) {
+            atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
+        } else if (live) {
+            ao = accumulate(ao, ao_estimate(shadow, ray.w_local));
+            bx = accumulate(bx, open.x);
+            by = accumulate(by, open.y);
+            bz = accumulate(bz, open.z);
+        }
+    }
+    if (valid) {
         film[base] = ao;
         film[base + 1u] = bx;
         film[base + 2u] = by;

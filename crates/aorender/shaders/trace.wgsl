@@ -1,4 +1,5 @@
 //#import trace_common.wgsl
+//#import per_lane.wgsl
 // BVH2 traversal as one loop that visits a node or a primitive per iteration.
 
 // Node (src/bvh/layout.rs GpuNode, BVH2 with both children's boxes) comes with the
@@ -6,11 +7,11 @@
 
 //#import node_bindings.wgsl
 
-// Closest hit within (0, t_max) or, with any_hit, the first hit found.
+// Closest hit within (0, t_max) or, with any_hit, the first hit found; none where t_max <= 0.
 fn trace(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     share_steps();
     var hit = trace_planes(o, d, t_max, any_hit);
-    if (frame.node_count == 0u || (any_hit && hit.kind != HIT_NONE)) {
+    if (frame.node_count == 0u || t_max <= 0.0 || (any_hit && hit.kind != HIT_NONE)) {
         share_steps();
         return hit;
     }

@@ -7,7 +7,7 @@ use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::{Error, Result};
 use crate::film::{BlockSums, Film, INACTIVE_SLOT_BITS};
-use crate::gpu::{AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget};
+use crate::gpu::{AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal};
 use crate::probe::Probe;
 use crate::scene::{Camera, Scene, Settings};
 use std::sync::Arc;
@@ -121,6 +121,9 @@ pub struct BvhOptions {
     /// Where the GPU kernel reads the geometry from; `None` is the adapter's preference
     /// ([`GeometryStorage::preferred`]).
     pub geometry_storage: Option<GeometryStorage>,
+    /// How the GPU kernel's lanes share the rays; `None` is the adapter's preference where
+    /// the scene allows it.
+    pub traversal: Option<Traversal>,
 }
 
 /// What preparing a scene on a device took and holds.
@@ -148,6 +151,8 @@ pub struct Setup {
     pub geometry_bindings: u32,
     /// `buffers` or `textures` on the GPU, empty on the CPU.
     pub geometry_storage: &'static str,
+    /// `per-lane` or `cooperative` on the GPU, empty on the CPU.
+    pub traversal: &'static str,
 }
 
 /// A scene prepared on a device: its BVH built and uploaded, ready for requests.
@@ -191,7 +196,7 @@ impl Prepared {
                     };
                     let upload = Instant::now();
                     let storage = options.geometry_storage.unwrap_or_else(|| dev.ctx.preferred_storage());
-                    let gpu_scene = GpuScene::upload(&dev.ctx, scene, &bvh, storage)?;
+                    let gpu_scene = GpuScene::upload(&dev.ctx, scene, &bvh, storage, options.traversal)?;
                     let setup = Setup {
                         adapter,
                         bvh_layout: options.layout,
@@ -203,6 +208,7 @@ impl Prepared {
                         device_bytes: gpu_scene.device_bytes(),
                         geometry_bindings: gpu_scene.geometry_bindings(),
                         geometry_storage: storage.name(),
+                        traversal: gpu_scene.traversal.name(),
                     };
                     out.push((Prepared::Gpu { dev: dev.clone(), scene: gpu_scene }, setup));
                 }
@@ -224,6 +230,7 @@ impl Prepared {
                         device_bytes: 0,
                         geometry_bindings: 0,
                         geometry_storage: "",
+                        traversal: "",
                     };
                     out.push((Prepared::Cpu(Arc::new(tracer)), setup));
                 }

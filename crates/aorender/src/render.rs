@@ -177,6 +177,9 @@ pub struct RenderStats {
     pub geometry_bindings: u32,
     /// What holds them on the device: `buffers` or `textures` (empty on the CPU).
     pub geometry_storage: String,
+    /// How the kernel's lanes share the rays: `per-lane` or `cooperative` (empty on the
+    /// CPU).
+    pub traversal: String,
     /// Bytes of the scene's geometry on the host: its triangles, spheres and planes.
     pub scene_bytes: u64,
     /// Bytes of the BVH as traversed: its nodes and primitive records, as uploaded to the
@@ -565,6 +568,7 @@ impl Render {
             device_bytes: setup.device_bytes + self.passes.device_bytes(),
             geometry_bindings: setup.geometry_bindings,
             geometry_storage: setup.geometry_storage.into(),
+            traversal: setup.traversal.into(),
             scene_bytes: info.scene_bytes,
             bvh_bytes: setup.bvh_bytes,
             host_peak_bytes: peak_rss_bytes().unwrap_or(0),

@@ -5,7 +5,7 @@
 
 mod common;
 use aorender::gpu::layout::{Access, BINDINGS, STRUCTS, constants, node_binding, primitive_binding, wgsl_header};
-use aorender::gpu::shaders::{GeometryChunks, compose};
+use aorender::gpu::shaders::{GeometryChunks, Traversal, compose};
 use aorender::{
     Accumulation, BvhLayout, BvhOptions, Control, Device, DeviceKind, Hemisphere, ImageRequest, Probe, Sampler, Scene,
     Session,
@@ -245,7 +245,7 @@ fn shared_constants_are_defined_once() {
 #[test]
 fn the_kernel_binds_what_the_table_lists() {
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
-        let source = compose("ao.wgsl", layout, GeometryChunks::SINGLE, layout.stack_size(), true).unwrap();
+        let source = compose("ao.wgsl", layout, Traversal::PerLane, GeometryChunks::SINGLE, layout.stack_size(), true).unwrap();
         let module = naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("{}", e.emit_to_string(&source)));
         let bound: BTreeMap<u32, (String, naga::AddressSpace)> = module
             .global_variables

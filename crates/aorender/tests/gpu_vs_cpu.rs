@@ -200,7 +200,7 @@ fn geometry_in_buffers_or_textures_whole_or_split_renders_the_same_film() {
     let mut tiny = GpuContext::new(None).unwrap();
     tiny.limit_chunk_bytes(64);
     let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
-    let e = GpuScene::upload(&tiny, &scene, &bvh, GeometryStorage::Buffers)
+    let e = GpuScene::upload(&tiny, &scene, &bvh, GeometryStorage::Buffers, None)
         .expect_err("too many chunks for the adapter")
         .to_string();
     assert!(e.contains("max_storage_buffers_per_shader_stage"), "{e}");

@@ -147,7 +147,7 @@ fn rounds_per_invocation_leave_the_sums_unchanged() {
     let settings = &s.settings;
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
         let bvh = GpuBvh::build(&s, layout, BuildQuality::default());
-        let gs = GpuScene::upload(&dev.ctx, &s, &bvh, dev.ctx.preferred_storage()).unwrap();
+        let gs = GpuScene::upload(&dev.ctx, &s, &bvh, dev.ctx.preferred_storage(), None).unwrap();
         let frame = FrameUniforms::probes(settings, lanes, points.len() as u32, samples, gs.node_count, gs.plane_count);
         let mut sums = Vec::new();
         for per in [1, 5, u32::MAX] {

@@ -3,7 +3,7 @@
 
 use aorender::bvh::{BvhLayout, GpuNode, GpuPrimitive};
 use aorender::gpu::layout::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint, wgsl_bindings};
-use aorender::gpu::shaders::{GeometryChunks, GeometryStorage, batch_file, compose_with, geometry_files};
+use aorender::gpu::shaders::{GeometryChunks, GeometryStorage, Traversal, batch_file, compose_with, geometry_files};
 use obvhs::cwbvh::node::CwBvhNode;
 use std::collections::BTreeMap;
 
@@ -28,9 +28,11 @@ fn validate_chunked(
     chunks: GeometryChunks,
     files: &BTreeMap<String, String>,
 ) -> naga::Module {
-    let layout = if traversal == "trace_cwbvh.wgsl" { BvhLayout::Cwbvh } else { BvhLayout::Bvh2 };
-    // With batch_max from subgroup operations and without.
-    let [module, _] = [true, false].map(|subgroups| {
+    let layout = if traversal.starts_with("trace_cwbvh") { BvhLayout::Cwbvh } else { BvhLayout::Bvh2 };
+    // With batch_max from subgroup operations and without; the cooperative traversal needs them.
+    let cooperative = traversal == "trace_cwbvh_group.wgsl" || name == "trace_cwbvh_group.wgsl";
+    let variants: &[bool] = if cooperative { &[true] } else { &[true, false] };
+    let mut modules = variants.iter().map(|&subgroups| {
         let [nodes, primitives] = geometry_files(layout, chunks, layout.stack_size());
         let generated = [nodes, primitives, batch_file(subgroups), ("resources.wgsl", wgsl_bindings())];
         let lookup = |n: &str| {
@@ -52,6 +54,8 @@ fn validate_chunked(
             .unwrap_or_else(|e| panic!("{name} (subgroups: {subgroups}): {}", e.emit_to_string(&source)));
         module
     });
+    let module = modules.next().expect("one variant");
+    modules.for_each(drop);
     module
 }
 
@@ -61,7 +65,12 @@ fn validate_with(name: &str, traversal: &str, files: &BTreeMap<String, String>) 
 
 fn validate(name: &str, files: &BTreeMap<String, String>) -> naga::Module {
     // Each traversal file with its own node type.
-    validate_with(name, if name == "trace_cwbvh.wgsl" { name } else { "trace.wgsl" }, files)
+    let traversal = match name {
+        "trace_cwbvh.wgsl" | "trace_cwbvh_group.wgsl" => name,
+        "cwbvh.wgsl" => "trace_cwbvh.wgsl",
+        _ => "trace.wgsl",
+    };
+    validate_with(name, traversal, files)
 }
 
 #[test]
@@ -82,9 +91,12 @@ fn every_shader_file_validates() {
     };
     let textures =
         |chunks: GeometryChunks| GeometryChunks { storage: GeometryStorage::Textures, row_texels: 600, ..chunks };
-    for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
+    for (layout, traversal) in
+        [(BvhLayout::Bvh2, Traversal::PerLane), (BvhLayout::Cwbvh, Traversal::PerLane), (BvhLayout::Cwbvh, Traversal::Cooperative)]
+    {
         for chunks in [GeometryChunks::SINGLE, split, textures(GeometryChunks::SINGLE), textures(split)] {
-            let module = validate_chunked("ao.wgsl", aorender::gpu::shaders::traversal_file(layout), chunks, &files);
+            let module =
+                validate_chunked("ao.wgsl", aorender::gpu::shaders::traversal_file(layout, traversal), chunks, &files);
             let bound = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).count() as u32;
             assert_eq!(
                 bound,
@@ -135,7 +147,7 @@ fn host_structs_match_wgsl_layout() {
 fn kernel_binds_no_uniform_buffer() {
     let files = shader_files();
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
-        let module = validate_with("ao.wgsl", aorender::gpu::shaders::traversal_file(layout), &files);
+        let module = validate_with("ao.wgsl", aorender::gpu::shaders::traversal_file(layout, Traversal::PerLane), &files);
         let bound: Vec<_> = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).collect();
         assert!(bound.len() >= 8, "{} bindings found", bound.len());
         for (_, g) in bound {

@@ -3,7 +3,7 @@
 //! submissions and read-backs every pass uses.
 
 use super::fault::{Fault, Faults, catch_panic};
-use super::shaders::GeometryStorage;
+use super::shaders::{GROUP_LANES, GeometryStorage, Traversal};
 use crate::error::{Error, Result};
 use std::sync::Arc;
 
@@ -136,6 +136,19 @@ impl GpuContext {
     /// ([`GeometryStorage::preferred`]).
     pub fn preferred_storage(&self) -> GeometryStorage {
         GeometryStorage::preferred(self.adapter.get_info().device_type)
+    }
+
+    /// Whether the adapter can run the cooperative traversal: subgroup operations, with
+    /// subgroups of a multiple of its group's eight lanes.
+    pub fn cooperative_traversal(&self) -> bool {
+        let info = self.adapter.get_info();
+        self.shared_steps() && info.subgroup_min_size >= GROUP_LANES && info.subgroup_min_size.is_power_of_two()
+    }
+
+    /// The traversal that measured fastest on an adapter of this kind (docs/performance.md,
+    /// "Eight lanes per ray").
+    pub fn preferred_traversal(&self) -> Traversal {
+        Traversal::PerLane
     }
 
     /// The kernel's `CPU_LANES`: true where the adapter is a CPU, unless a test chose.

@@ -22,6 +22,6 @@ pub use context::{AdapterInfo, list_adapters};
 pub use device::GpuDevice;
 pub use fault::catching_panics;
 pub use layout::{FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES};
-pub use shaders::GeometryStorage;
+pub use shaders::{GeometryStorage, Traversal};
 pub use target::GpuTarget;
 pub use upload::GpuScene;

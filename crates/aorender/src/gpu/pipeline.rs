@@ -4,7 +4,7 @@
 
 use super::context::GpuContext;
 use super::layout::{Access, BINDINGS, node_binding, primitive_binding};
-use super::shaders::{GeometryChunks, GeometryStorage, compose};
+use super::shaders::{GeometryChunks, GeometryStorage, Traversal, compose};
 use crate::bvh::BvhLayout;
 use crate::error::Result;
 use crate::sampler::Sampler;
@@ -44,6 +44,8 @@ impl Kernel {
 pub struct PipelineKey {
     /// The BVH layout traversed.
     pub layout: BvhLayout,
+    /// A ray per lane or per group of lanes.
+    pub traversal: Traversal,
     /// Image or probes.
     pub kernel: Kernel,
     /// How the geometry is split into bindings.
@@ -105,8 +107,8 @@ impl Pipelines {
         if let Some((_, l, p)) = cache.iter().find(|(k, _, _)| *k == key) {
             return Ok(Pipeline { bind_group_layout: l.clone(), pipeline: p.clone(), fresh: false });
         }
-        let PipelineKey { layout, kernel, chunks, stack_size, .. } = key;
-        let source = compose("ao.wgsl", layout, chunks, stack_size, ctx.shared_steps())?;
+        let PipelineKey { layout, traversal, kernel, chunks, stack_size, .. } = key;
+        let source = compose("ao.wgsl", layout, traversal, chunks, stack_size, ctx.shared_steps())?;
         let device = &ctx.device;
         let buffer = |binding: u32, read_only: bool, dynamic: bool| wgpu::BindGroupLayoutEntry {
             binding,

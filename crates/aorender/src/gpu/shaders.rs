@@ -11,20 +11,59 @@ use crate::error::{Error, Result};
 pub const FILES: &[(&str, &str)] = &[
     ("ao.wgsl", include_str!("../../shaders/ao.wgsl")),
     ("bindings.wgsl", include_str!("../../shaders/bindings.wgsl")),
+    ("cwbvh.wgsl", include_str!("../../shaders/cwbvh.wgsl")),
     ("intersect.wgsl", include_str!("../../shaders/intersect.wgsl")),
+    ("per_lane.wgsl", include_str!("../../shaders/per_lane.wgsl")),
     ("sampler.wgsl", include_str!("../../shaders/sampler.wgsl")),
     ("sampling.wgsl", include_str!("../../shaders/sampling.wgsl")),
     ("trace.wgsl", include_str!("../../shaders/trace.wgsl")),
     ("trace_common.wgsl", include_str!("../../shaders/trace_common.wgsl")),
     ("trace_cwbvh.wgsl", include_str!("../../shaders/trace_cwbvh.wgsl")),
+    ("trace_cwbvh_group.wgsl", include_str!("../../shaders/trace_cwbvh_group.wgsl")),
 ];
 
-/// The traversal file of a BVH layout; `ao.wgsl` imports `trace.wgsl`, which the
-/// composer replaces with this.
-pub fn traversal_file(layout: BvhLayout) -> &'static str {
-    match layout {
-        BvhLayout::Bvh2 => "trace.wgsl",
-        BvhLayout::Cwbvh => "trace_cwbvh.wgsl",
+/// How the kernel's invocations share the tracing of rays.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Traversal {
+    /// Each invocation traces its own rays (`trace.wgsl`, `trace_cwbvh.wgsl`).
+    #[default]
+    PerLane,
+    /// Groups of eight invocations trace their rays one at a time, together: a node's
+    /// eight children and a leaf's primitives spread over the lanes
+    /// (`trace_cwbvh_group.wgsl`). Needs subgroup operations with subgroups of a multiple
+    /// of eight lanes, the compressed wide BVH and a scene without instances.
+    Cooperative,
+}
+
+impl Traversal {
+    /// Invocations that trace each ray together.
+    pub fn lanes_per_ray(self) -> u32 {
+        match self {
+            Traversal::PerLane => 1,
+            Traversal::Cooperative => GROUP_LANES,
+        }
+    }
+
+    /// Name, as in the stats and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Traversal::PerLane => "per-lane",
+            Traversal::Cooperative => "cooperative",
+        }
+    }
+}
+
+/// Lanes of a cooperative traversal's group (`GROUP_LANES` in `trace_cwbvh_group.wgsl`).
+pub const GROUP_LANES: u32 = 8;
+
+/// The traversal file of a BVH layout and traversal; `ao.wgsl` imports `trace.wgsl`,
+/// which the composer replaces with this. The cooperative traversal exists for the
+/// compressed wide BVH only.
+pub fn traversal_file(layout: BvhLayout, traversal: Traversal) -> &'static str {
+    match (layout, traversal) {
+        (BvhLayout::Bvh2, _) => "trace.wgsl",
+        (BvhLayout::Cwbvh, Traversal::PerLane) => "trace_cwbvh.wgsl",
+        (BvhLayout::Cwbvh, Traversal::Cooperative) => "trace_cwbvh_group.wgsl",
     }
 }
 
@@ -135,23 +174,34 @@ struct Element {
     texels: u32,
     /// WGSL expression building the element from texels `t0`, `t1`, … (`vec4u` each).
     from_texels: &'static str,
+    /// The struct's `vec4u` members, one per texel, where the traversal reads an element
+    /// a texel at a time (`load_node_texel`); empty otherwise.
+    texel_fields: &'static [&'static str],
 }
 
-const CW_NODE: Element = Element { ty: "CwNode", texels: 5, from_texels: "CwNode(t0, t1, t2, t3, t4)" };
+const CW_NODE: Element = Element {
+    ty: "CwNode",
+    texels: 5,
+    from_texels: "CwNode(t0, t1, t2, t3, t4)",
+    texel_fields: &["n0", "n1", "n2", "n3", "n4"],
+};
 const BVH2_NODE: Element = Element {
     ty: "Node",
     texels: 4,
     from_texels: "Node(bitcast<vec3f>(t0.xyz), t0.w, bitcast<vec3f>(t1.xyz), t1.w, \
                   bitcast<vec3f>(t2.xyz), t2.w, bitcast<vec3f>(t3.xyz), t3.w)",
+    texel_fields: &[],
 };
 const PRIMITIVE: Element = Element {
     ty: "Primitive",
     texels: 3,
     from_texels: "Primitive(bitcast<vec4f>(t0), bitcast<vec4f>(t1), bitcast<vec4f>(t2))",
+    texel_fields: &[],
 };
 
 /// WGSL for `count` chunk bindings of `e` named `name_k`, and `load` returning element
-/// i, which lives in chunk i / per_chunk: storage buffers or textures as `chunks` says.
+/// i, which lives in chunk i / per_chunk: storage buffers or textures as `chunks` says;
+/// for an element read a texel at a time, also `{load}_texel(i, c)`, texel c of element i.
 fn chunked_array(
     name: &str,
     e: &Element,
@@ -174,30 +224,51 @@ fn chunked_array(
             }
         };
     }
-    s += &format!("fn {load}(i: u32) -> {ty} {{\n");
-    s += &if count == 1 {
-        "    let j = i;\n".to_string()
-    } else {
-        format!("    let chunk = i / {per_chunk}u;\n    let j = i - chunk * {per_chunk}u;\n")
+    let locate = |s: &mut String| {
+        *s += &if count == 1 {
+            "    let j = i;\n".to_string()
+        } else {
+            format!("    let chunk = i / {per_chunk}u;\n    let j = i - chunk * {per_chunk}u;\n")
+        };
+        if chunks.storage == GeometryStorage::Textures {
+            let per_row = chunks.row_texels / e.texels;
+            *s += &format!("    let y = j / {per_row}u;\n    let x = (j - y * {per_row}u) * {}u;\n", e.texels);
+        }
     };
-    // The read of chunk k at index j, as statements ending in a return.
-    let read = |k: u32| match chunks.storage {
+    // `read(k)` as statements ending in a return, in each chunk but the last behind a test.
+    let dispatch = |s: &mut String, read: &dyn Fn(u32) -> String| {
+        for k in 0..count - 1 {
+            *s += &format!("    if (chunk == {k}u) {{\n        {}\n    }}\n", read(k));
+        }
+        *s += &format!("    {}\n", read(count - 1));
+    };
+    s += &format!("fn {load}(i: u32) -> {ty} {{\n");
+    locate(&mut s);
+    // The read of chunk k at index j.
+    dispatch(&mut s, &|k| match chunks.storage {
         GeometryStorage::Buffers => format!("return {name}_{k}[j];"),
         GeometryStorage::Textures => {
             let loads: String =
                 (0..e.texels).map(|c| format!("let t{c} = textureLoad({name}_{k}, vec2u(x + {c}u, y)); ")).collect();
             format!("{loads}return {};", e.from_texels)
         }
-    };
-    if chunks.storage == GeometryStorage::Textures {
-        let per_row = chunks.row_texels / e.texels;
-        s += &format!("    let y = j / {per_row}u;\n    let x = (j - y * {per_row}u) * {}u;\n", e.texels);
-    }
-    for k in 0..count - 1 {
-        s += &format!("    if (chunk == {k}u) {{\n        {}\n    }}\n", read(k));
-    }
-    s += &format!("    {}\n", read(count - 1));
+    });
     s += "}\n";
+    if !e.texel_fields.is_empty() {
+        // Texel c (below e.texels) of element i alone.
+        s += &format!("fn {load}_texel(i: u32, c: u32) -> vec4u {{\n");
+        locate(&mut s);
+        dispatch(&mut s, &|k| match chunks.storage {
+            GeometryStorage::Buffers => {
+                let (last, rest) = e.texel_fields.split_last().expect("texel fields");
+                let cases: String =
+                    rest.iter().enumerate().map(|(c, f)| format!("case {c}u: {{ return {name}_{k}[j].{f}; }} ")).collect();
+                format!("switch c {{ {cases}default: {{ return {name}_{k}[j].{last}; }} }}")
+            }
+            GeometryStorage::Textures => format!("return textureLoad({name}_{k}, vec2u(x + c, y));"),
+        });
+        s += "}\n";
+    }
     s
 }
 
@@ -271,8 +342,8 @@ pub fn batch_file(subgroups: bool) -> (&'static str, String) {
     ("batch.wgsl", format!("{header}{body}"))
 }
 
-/// The composed source of a compiled-in shader file, with the traversal of `layout`, its
-/// stack of `stack_size` entries, the geometry split as `chunks` says, and `batch_max`
+/// The composed source of a compiled-in shader file, with the traversal of `layout` as
+/// `traversal` says ([`traversal_file`]), its stack of `stack_size` entries, the geometry split as `chunks` says, and `batch_max`
 /// from subgroup operations where `subgroups` is set ([`batch_file`]).
 ///
 /// With `AORENDER_SHADER_DIR` set, the files are read from that directory instead of the
@@ -281,6 +352,7 @@ pub fn batch_file(subgroups: bool) -> (&'static str, String) {
 pub fn compose(
     name: &str,
     layout: BvhLayout,
+    traversal: Traversal,
     chunks: GeometryChunks,
     stack_size: u32,
     subgroups: bool,
@@ -305,7 +377,7 @@ pub fn compose(
         if let Some((_, text)) = generated.iter().find(|(f, _)| *f == n) {
             return Some(text.as_str());
         }
-        let n = if n == "trace.wgsl" { traversal_file(layout) } else { n };
+        let n = if n == "trace.wgsl" { traversal_file(layout, traversal) } else { n };
         match &overridden {
             Some(files) => files.iter().find(|(f, _)| *f == n).map(|(_, t)| t.as_str()),
             None => FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t),

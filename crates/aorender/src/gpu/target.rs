@@ -179,6 +179,7 @@ impl GpuTarget {
 
         let key = PipelineKey {
             layout: scene.layout,
+            traversal: scene.traversal,
             kernel,
             chunks: scene.chunks,
             instances: scene.has_instances,
@@ -235,11 +236,17 @@ impl GpuTarget {
             .into_iter()
             .map(|b| b.size())
             .sum();
-        let rays_per_sample = match kernel {
-            Kernel::Image => 2,
-            Kernel::Probe | Kernel::BentProbe => 1,
-        };
-        let safe_samples_per_invocation = safe_samples_per_invocation(rays_per_sample, scene.ray_steps);
+        // A cooperative traversal traces the rays of its group's lanes in turn, each a
+        // step of the loop over them more: for the loop cap, an invocation's samples have
+        // that many rays, each a step longer.
+        let lanes_per_ray = scene.traversal.lanes_per_ray();
+        let rays_per_sample = lanes_per_ray
+            * match kernel {
+                Kernel::Image => 2,
+                Kernel::Probe | Kernel::BentProbe => 1,
+            };
+        let ray_steps = scene.ray_steps + u64::from(lanes_per_ray > 1);
+        let safe_samples_per_invocation = safe_samples_per_invocation(rays_per_sample, ray_steps);
         #[cfg(feature = "testing")]
         let lose_device_after = std::env::var(TEST_LOSE_DEVICE_ENV).ok().and_then(|v| v.trim().parse().ok());
         #[cfg(not(feature = "testing"))]
@@ -260,7 +267,7 @@ impl GpuTarget {
             samples_per_invocation: safe_samples_per_invocation.max(PREFERRED_SAMPLES_PER_INVOCATION),
             safe_samples_per_invocation,
             rays_per_sample,
-            ray_steps: scene.ray_steps,
+            ray_steps,
             device_bytes,
             passes_run: 0,
             lose_device_after,

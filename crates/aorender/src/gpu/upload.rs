@@ -4,7 +4,7 @@
 
 use super::context::GpuContext;
 use super::layout::{GpuPlane, OTHER_STORAGE_BINDINGS, node_binding, primitive_binding};
-use super::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE};
+use super::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE, Traversal};
 use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
 use crate::scene::Scene;
@@ -28,6 +28,8 @@ pub struct GpuScene {
     pub plane_count: u32,
     /// Entries of the traversal stack: the BVH's depth.
     pub stack_size: u32,
+    /// A ray per lane or per group of lanes.
+    pub traversal: Traversal,
     /// The most traversal loop iterations one ray can take, the planes included.
     pub ray_steps: u64,
     /// The BVH has instances (a second level).
@@ -44,9 +46,16 @@ pub struct GpuScene {
 
 impl GpuScene {
     /// Uploads `bvh` (built from `scene`) and the scene's planes, the geometry in
-    /// `storage`. The primitive records are made from the scene a piece at a time,
-    /// straight into the upload.
-    pub fn upload(ctx: &GpuContext, scene: &Scene, bvh: &GpuBvh, storage: GeometryStorage) -> Result<GpuScene> {
+    /// `storage`, to be traced as `traversal` says (`None`: the adapter's preference where
+    /// the scene allows it). The primitive records are made from the scene a piece at a
+    /// time, straight into the upload.
+    pub fn upload(
+        ctx: &GpuContext,
+        scene: &Scene,
+        bvh: &GpuBvh,
+        storage: GeometryStorage,
+        traversal: Option<Traversal>,
+    ) -> Result<GpuScene> {
         if bvh.depth > bvh.layout.stack_size() {
             return Err(Error::Gpu(format!(
                 "the {} BVH is {} levels deep; the shader's traversal stack holds {}",
@@ -55,6 +64,24 @@ impl GpuScene {
                 bvh.layout.stack_size()
             )));
         }
+        // The BVH2 layout flattens instances.
+        let has_instances = bvh.layout == BvhLayout::Cwbvh && !scene.instances.is_empty();
+        let cooperative = ctx.cooperative_traversal() && bvh.layout == BvhLayout::Cwbvh && !has_instances;
+        let traversal = match traversal {
+            Some(Traversal::Cooperative) if !cooperative => {
+                return Err(Error::Gpu(format!(
+                    "the cooperative traversal needs subgroups of 8 lanes or a multiple ({}), the {} layout ({}) \
+                     and a scene without instances ({})",
+                    if ctx.cooperative_traversal() { "the adapter has them" } else { "the adapter has none" },
+                    BvhLayout::Cwbvh.name(),
+                    bvh.layout.name(),
+                    if has_instances { "it has some" } else { "it has none" },
+                )));
+            }
+            Some(t) => t,
+            None if cooperative => ctx.preferred_traversal(),
+            None => Traversal::PerLane,
+        };
         let node_size = bvh.layout.node_size();
         let record_count = bvh.records.len();
         let chunks = geometry_chunks(ctx, storage, bvh.layout, bvh.node_count as usize, record_count)?;
@@ -89,9 +116,9 @@ impl GpuScene {
             node_count: bvh.node_count,
             plane_count: scene.planes.len() as u32,
             stack_size: bvh.stack_size(),
+            traversal,
             ray_steps: bvh.ray_steps(scene) + scene.planes.len() as u64,
-            // The BVH2 layout flattens instances.
-            has_instances: bvh.layout == BvhLayout::Cwbvh && !scene.instances.is_empty(),
+            has_instances,
             has_spheres: !scene.spheres.is_empty(),
             has_triangles: !scene.triangles.is_empty() || !scene.instances.is_empty(),
             has_planes: !scene.planes.is_empty(),

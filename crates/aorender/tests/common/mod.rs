@@ -151,7 +151,7 @@ pub fn gpu_image(
     storage: Option<GeometryStorage>,
 ) -> aorender::Result<(GpuScene, GpuTarget)> {
     let storage = storage.unwrap_or_else(|| dev.ctx.preferred_storage());
-    let gs = GpuScene::upload(&dev.ctx, scene, bvh, storage)?;
+    let gs = GpuScene::upload(&dev.ctx, scene, bvh, storage, None)?;
     let s = &scene.settings;
     let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count);
     let target = GpuTarget::image(dev, &gs, frame, s.sampler, s.hemisphere)?;
