@@ -62,6 +62,8 @@ pub struct GpuContext {
     max_texture_size: [u32; 2],
     /// The kernel's `CPU_LANES`: the adapter is a CPU (or a test asks for its formulations).
     cpu_lanes: bool,
+    /// The traversal a scene gets where none is asked for and it can run cooperatively.
+    preferred_traversal: Traversal,
 }
 
 impl GpuContext {
@@ -128,7 +130,19 @@ impl GpuContext {
         let max_chunk_bytes = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
         let max_texture_size = [limits.max_texture_dimension_2d; 2];
         let cpu_lanes = adapter.get_info().device_type == wgpu::DeviceType::Cpu;
-        Ok(GpuContext { adapter, device, queue, description, faults, max_chunk_bytes, max_texture_size, cpu_lanes })
+        Ok(GpuContext {
+            adapter,
+            device,
+            queue,
+            description,
+            faults,
+            max_chunk_bytes,
+            max_texture_size,
+            cpu_lanes,
+            // Per lane on every adapter: it measured faster on lavapipe (docs/performance.md,
+            // "Eight lanes per ray"), and no GPU has measured the cooperative one yet.
+            preferred_traversal: Traversal::PerLane,
+        })
     }
 
     /// Where the kernel should read the BVH nodes and primitives from on this adapter:
@@ -145,10 +159,18 @@ impl GpuContext {
         self.shared_steps() && info.subgroup_min_size >= GROUP_LANES && info.subgroup_min_size.is_power_of_two()
     }
 
-    /// The traversal that measured fastest on an adapter of this kind (docs/performance.md,
-    /// "Eight lanes per ray").
+    /// The traversal a scene that allows either gets where none is asked for.
     pub fn preferred_traversal(&self) -> Traversal {
-        Traversal::PerLane
+        self.preferred_traversal
+    }
+
+    /// Makes `traversal` the preferred one (where the adapter can run it), so that tests
+    /// run every scene that allows it cooperatively.
+    #[cfg(feature = "testing")]
+    pub fn prefer_traversal(&mut self, traversal: Traversal) {
+        if traversal == Traversal::PerLane || self.cooperative_traversal() {
+            self.preferred_traversal = traversal;
+        }
     }
 
     /// The kernel's `CPU_LANES`: true where the adapter is a CPU, unless a test chose.

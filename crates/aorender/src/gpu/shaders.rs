@@ -174,8 +174,8 @@ struct Element {
     texels: u32,
     /// WGSL expression building the element from texels `t0`, `t1`, … (`vec4u` each).
     from_texels: &'static str,
-    /// The struct's `vec4u` members, one per texel, where the traversal reads an element
-    /// a texel at a time (`load_node_texel`); empty otherwise.
+    /// Each texel of an element `@` as a `vec4u` expression, where the traversal reads an
+    /// element a texel at a time (`load_node_texel`); empty otherwise.
     texel_fields: &'static [&'static str],
 }
 
@@ -183,7 +183,7 @@ const CW_NODE: Element = Element {
     ty: "CwNode",
     texels: 5,
     from_texels: "CwNode(t0, t1, t2, t3, t4)",
-    texel_fields: &["n0", "n1", "n2", "n3", "n4"],
+    texel_fields: &["@.n0", "@.n1", "@.n2", "@.n3", "@.n4"],
 };
 const BVH2_NODE: Element = Element {
     ty: "Node",
@@ -260,10 +260,11 @@ fn chunked_array(
         locate(&mut s);
         dispatch(&mut s, &|k| match chunks.storage {
             GeometryStorage::Buffers => {
+                let texel = |f: &str| f.replace('@', &format!("{name}_{k}[j]"));
                 let (last, rest) = e.texel_fields.split_last().expect("texel fields");
                 let cases: String =
-                    rest.iter().enumerate().map(|(c, f)| format!("case {c}u: {{ return {name}_{k}[j].{f}; }} ")).collect();
-                format!("switch c {{ {cases}default: {{ return {name}_{k}[j].{last}; }} }}")
+                    rest.iter().enumerate().map(|(c, f)| format!("case {c}u: {{ return {}; }} ", texel(f))).collect();
+                format!("switch c {{ {cases}default: {{ return {}; }} }}", texel(last))
             }
             GeometryStorage::Textures => format!("return textureLoad({name}_{k}, vec2u(x + c, y));"),
         });

@@ -10,6 +10,7 @@ use aorender::gpu::layout::FrameUniforms;
 use aorender::gpu::{GpuScene, GpuTarget};
 use aorender::{
     BvhLayout, BvhOptions, Control, Device, DeviceKind, Film, GeometryStorage, ImageRequest, Scene, Session, Settings,
+    Traversal,
 };
 use std::path::PathBuf;
 use std::sync::{Arc, OnceLock};
@@ -46,6 +47,18 @@ pub fn device(kind: DeviceKind) -> Device {
     }
 }
 
+/// A second GPU device of the test binary's, on the same adapter, that traces every
+/// scene that allows it cooperatively, or `None` where the adapter cannot.
+pub fn cooperative_gpu_device() -> Option<Device> {
+    static GPU: OnceLock<Option<Device>> = OnceLock::new();
+    GPU.get_or_init(|| {
+        let mut ctx = GpuContext::new(None).ok()?;
+        ctx.prefer_traversal(Traversal::Cooperative);
+        (ctx.preferred_traversal() == Traversal::Cooperative).then(|| Device::from_gpu(GpuDevice::new(ctx)))
+    })
+    .clone()
+}
+
 /// Where and how a test renders: the device, and how the scene is prepared on it.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Config {
@@ -53,6 +66,9 @@ pub struct Config {
     pub device: DeviceKind,
     /// BVH build, layout and geometry storage.
     pub bvh: BvhOptions,
+    /// On the GPU, the device that traces cooperatively wherever the scene allows it
+    /// ([`cooperative_gpu_device`]).
+    pub cooperative: bool,
 }
 
 impl Config {
@@ -63,13 +79,18 @@ impl Config {
 
     /// The GPU with the BVH in `layout`.
     pub fn gpu(layout: BvhLayout) -> Config {
-        Config { device: DeviceKind::Gpu, bvh: BvhOptions { layout, ..Default::default() } }
+        Config { device: DeviceKind::Gpu, bvh: BvhOptions { layout, ..Default::default() }, cooperative: false }
     }
 }
 
-/// The GPU configurations: one per BVH layout.
+/// The GPU configurations: one per BVH layout, traced a ray per lane, and the compressed
+/// wide BVH traced cooperatively where the adapter can.
 pub fn gpu_configs() -> Vec<Config> {
-    [BvhLayout::Bvh2, BvhLayout::Cwbvh].into_iter().map(Config::gpu).collect()
+    let mut configs: Vec<Config> = [BvhLayout::Bvh2, BvhLayout::Cwbvh].into_iter().map(Config::gpu).collect();
+    if cooperative_gpu_device().is_some() {
+        configs.push(Config { cooperative: true, ..Config::gpu(BvhLayout::Cwbvh) });
+    }
+    configs
 }
 
 /// The CPU reference, then every GPU configuration when an adapter exists.
@@ -85,6 +106,7 @@ pub fn all_configs() -> Vec<Config> {
 pub fn label(config: &Config) -> String {
     match config.device {
         DeviceKind::Cpu => "cpu".into(),
+        DeviceKind::Gpu if config.cooperative => format!("gpu/{}/cooperative", config.bvh.layout.name()),
         DeviceKind::Gpu => format!("gpu/{}", config.bvh.layout.name()),
     }
 }
@@ -93,14 +115,18 @@ pub fn label(config: &Config) -> String {
 pub fn session_label(session: &Session) -> String {
     match session.device().kind() {
         DeviceKind::Cpu => "cpu".into(),
-        DeviceKind::Gpu => format!("gpu/{}", session.setup().bvh_layout.name()),
+        DeviceKind::Gpu => format!("gpu/{}/{}", session.setup().bvh_layout.name(), session.setup().traversal),
     }
 }
 
 /// `scene` prepared as `config` says (its BVH built and uploaded), panicking with the
 /// error's text on failure.
 pub fn session(scene: &Scene, config: &Config) -> Session {
-    Session::new(&device(config.device), scene.clone(), &config.bvh)
+    let device = match config.device {
+        DeviceKind::Gpu if config.cooperative => cooperative_gpu_device().expect("the adapter traces cooperatively"),
+        kind => device(kind),
+    };
+    Session::new(&device, scene.clone(), &config.bvh)
         .unwrap_or_else(|e| panic!("{} session of {} failed: {e}", label(config), scene.name))
 }
 
