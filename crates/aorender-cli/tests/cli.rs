@@ -148,6 +148,39 @@ fn render_writes_image_and_stats() {
     }
 }
 
+/// `--traversal cooperative` writes the image `per-lane` writes, byte for byte, and says
+/// so in the stats; a scene it cannot trace (instances) is one line and no output.
+#[test]
+fn the_traversals_write_the_same_image() {
+    if !gpu_available() {
+        return;
+    }
+    let dir = temp_dir();
+    let d = dir.path();
+    let bunny = repo().join("scenes/bunny.obj");
+    let bunny = bunny.to_str().unwrap();
+    let images = ["per-lane", "cooperative"].map(|traversal| {
+        let (image, stats) = (format!("{traversal}.pfm"), format!("{traversal}.json"));
+        let args = ["render", bunny, "--width", "40", "--height", "28", "--spp", "8", "--hemisphere", "uniform"];
+        let output = aorender(&[&args[..], &["--traversal", traversal, "-o", &image, "--stats", &stats]].concat(), d);
+        assert!(output.status.success(), "{traversal}: {}", String::from_utf8_lossy(&output.stderr));
+        let json: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join(&stats)).unwrap()).unwrap();
+        assert_eq!(json["traversal"], traversal);
+        std::fs::read(d.join(&image)).unwrap()
+    });
+    assert_eq!(images[0], images[1]);
+    std::fs::write(
+        d.join("twice.toml"),
+        format!(
+            "[camera]\ntype = \"perspective\"\neye = [0.0, 0.1, 0.6]\nlook_at = [0.0, 0.1, 0.0]\nfov = 50.0\n\
+             [[object]]\ntype = \"mesh\"\nfile = {bunny:?}\n\
+             [[object]]\ntype = \"mesh\"\nfile = {bunny:?}\ntransform = {{ translate = [0.3, 0.0, 0.0] }}\n"
+        ),
+    )
+    .unwrap();
+    assert_rejected(&["render", "twice.toml", "--traversal", "cooperative", "-o", "out.png"], d, &["cooperative"]);
+}
+
 /// Every file of the malformed-mesh corpus (`crates/aorender/tests/malformed/`), rendered
 /// as a bare mesh: one error line naming the file, a non-zero exit, no panic and no output.
 #[test]

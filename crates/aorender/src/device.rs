@@ -7,7 +7,9 @@ use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::{Error, Result};
 use crate::film::{BlockSums, Film, INACTIVE_SLOT_BITS};
-use crate::gpu::{AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal};
+use crate::gpu::{
+    AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal,
+};
 use crate::probe::Probe;
 use crate::scene::{Camera, Scene, Settings};
 use std::sync::Arc;

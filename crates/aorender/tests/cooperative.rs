@@ -213,9 +213,8 @@ fn cooperative_traversal_is_refused_where_it_cannot_run() {
         "[camera]\ntype = \"perspective\"\neye = [3.0, 4.0, 6.0]\nlook_at = [0.0, 0.0, -0.5]\nfov = 50.0\n",
     );
     for x in [0.0, 3.0] {
-        text += &format!(
-            "[[object]]\ntype = \"mesh\"\nfile = \"mesh.obj\"\ntransform = {{ translate = [{x}, 0, 0] }}\n"
-        );
+        text +=
+            &format!("[[object]]\ntype = \"mesh\"\nfile = \"mesh.obj\"\ntransform = {{ translate = [{x}, 0, 0] }}\n");
     }
     let instanced = scene_from_toml(&text, dir.path());
     assert!(!instanced.instances.is_empty());

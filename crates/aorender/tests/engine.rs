@@ -245,7 +245,8 @@ fn shared_constants_are_defined_once() {
 #[test]
 fn the_kernel_binds_what_the_table_lists() {
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
-        let source = compose("ao.wgsl", layout, Traversal::PerLane, GeometryChunks::SINGLE, layout.stack_size(), true).unwrap();
+        let source =
+            compose("ao.wgsl", layout, Traversal::PerLane, GeometryChunks::SINGLE, layout.stack_size(), true).unwrap();
         let module = naga::front::wgsl::parse_str(&source).unwrap_or_else(|e| panic!("{}", e.emit_to_string(&source)));
         let bound: BTreeMap<u32, (String, naga::AddressSpace)> = module
             .global_variables

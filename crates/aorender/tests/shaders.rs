@@ -91,9 +91,11 @@ fn every_shader_file_validates() {
     };
     let textures =
         |chunks: GeometryChunks| GeometryChunks { storage: GeometryStorage::Textures, row_texels: 600, ..chunks };
-    for (layout, traversal) in
-        [(BvhLayout::Bvh2, Traversal::PerLane), (BvhLayout::Cwbvh, Traversal::PerLane), (BvhLayout::Cwbvh, Traversal::Cooperative)]
-    {
+    for (layout, traversal) in [
+        (BvhLayout::Bvh2, Traversal::PerLane),
+        (BvhLayout::Cwbvh, Traversal::PerLane),
+        (BvhLayout::Cwbvh, Traversal::Cooperative),
+    ] {
         for chunks in [GeometryChunks::SINGLE, split, textures(GeometryChunks::SINGLE), textures(split)] {
             let module =
                 validate_chunked("ao.wgsl", aorender::gpu::shaders::traversal_file(layout, traversal), chunks, &files);
@@ -147,7 +149,8 @@ fn host_structs_match_wgsl_layout() {
 fn kernel_binds_no_uniform_buffer() {
     let files = shader_files();
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
-        let module = validate_with("ao.wgsl", aorender::gpu::shaders::traversal_file(layout, Traversal::PerLane), &files);
+        let module =
+            validate_with("ao.wgsl", aorender::gpu::shaders::traversal_file(layout, Traversal::PerLane), &files);
         let bound: Vec<_> = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).collect();
         assert!(bound.len() >= 8, "{} bindings found", bound.len());
         for (_, g) in bound {
