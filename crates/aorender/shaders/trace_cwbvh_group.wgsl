@@ -90,89 +90,46 @@ fn intersect_child(n0: vec4u, n1: vec4u, n2: vec4u, n3: vec4u, n4: vec4u, ray: R
 fn trace_group(o: vec3f, d: vec3f, t_max: f32, any_hit: bool) -> Hit {
     var hit = Hit(t_max, HIT_NONE, 0u, NO_INSTANCE);
     let ray = ray_state(o, d);
-    var sp = 0u;
-    var node_group = vec2u(0u, 0x80000000u);
-    var prim_group = vec2u(0u, 0u);
-    var prim_next = vec2u(0u, 0u);
-    var near0 = vec2u(0u, 0u);
-    var near1 = vec2u(0u, 0u);
-    var near = 0u;
+    var s = traversal_at(0u);
     loop {
         if (!take_step()) {
             break;
         }
-        if (prim_group.y == 0u) {
-            prim_group = prim_next;
-            prim_next = vec2u(0u, 0u);
-        }
-        if (prim_group.y != 0u) {
+        advance_leaf(&s);
+        if (s.leaf.y != 0u) {
             // The leaf's eight highest primitives still to test, slot top - i in lane i:
             // the order the per-lane traversal tests them in.
-            let top = msb24(prim_group.y);
+            let top = msb24(s.leaf.y);
             let local = top - group_lane;
-            let mine = group_lane <= top && ((prim_group.y >> local) & 1u) != 0u;
-            prim_group.y &= select(0u, (1u << (top - 7u)) - 1u, top >= 7u);
+            let mine = group_lane <= top && ((s.leaf.y >> local) & 1u) != 0u;
+            s.leaf.y &= select(0u, (1u << (top - 7u)) - 1u, top >= 7u);
             var t = hit.t;
             if (mine) {
-                t = intersect_record(load_primitive(prim_group.x + local), ray.o, ray.d, ray.sh, ray.op, hit.t);
+                t = intersect_record(load_primitive(s.leaf.x + local), ray.o, ray.d, ray.sh, ray.op, hit.t);
             }
             // The nearest, and on equal distances the lowest lane (the per-lane
             // traversal keeps the first of equal hits). Written out: a loop would count
             // against lavapipe's iteration cap.
             let best = group_nearest(group_nearest(group_nearest(vec2u(bitcast<u32>(t), group_lane), 1u), 2u), 4u);
-            let best_t = bitcast<f32>(best.x);
-            let best_lane = best.y;
-            if (best_t < hit.t) {
-                hit = Hit(best_t, HIT_PRIMITIVE, prim_group.x + top - best_lane, NO_INSTANCE);
+            if (bitcast<f32>(best.x) < hit.t) {
+                hit = Hit(bitcast<f32>(best.x), HIT_PRIMITIVE, s.leaf.x + top - best.y, NO_INSTANCE);
                 if (any_hit) {
                     break;
                 }
             }
         }
-        if (prim_next.y == 0u) {
-            if ((node_group.y & 0xff000000u) == 0u) {
-                if (near != 0u) {
-                    node_group = near0;
-                    near0 = near1;
-                    near -= 1u;
-                } else if (sp > 0u) {
-                    sp -= 1u;
-                    node_group = stacks[sp * TRAVERSAL_LANES + lane];
-                }
-            }
-            if ((node_group.y & 0xff000000u) != 0u) {
-                let hits_imask = node_group.y;
-                let child_bit = 24u + msb24(hits_imask >> 24u);
-                node_group.y &= ~(1u << child_bit);
-                if ((node_group.y & 0xff000000u) != 0u) {
-                    if (near == NEAR_ENTRIES) {
-                        // Each lane keeps the group's entries in its own column.
-                        stacks[sp * TRAVERSAL_LANES + lane] = near1;
-                        sp += 1u;
-                    }
-                    near1 = near0;
-                    near0 = node_group;
-                    near = min(near + 1u, NEAR_ENTRIES);
-                }
-                let slot_index = (child_bit - 24u) ^ (ray.oct_inv4 & 0xffu);
-                let relative_index = countOneBits(hits_imask & ~(0xffffffffu << slot_index));
-                let texel = load_node_texel(node_group.x + relative_index, min(group_lane, 4u));
-                let n0 = subgroupShuffle(texel, group_base);
-                let n1 = subgroupShuffle(texel, group_base + 1u);
-                let n2 = subgroupShuffle(texel, group_base + 2u);
-                let n3 = subgroupShuffle(texel, group_base + 3u);
-                let n4 = subgroupShuffle(texel, group_base + 4u);
-                let hitmask = group_or(intersect_child(n0, n1, n2, n3, n4, ray, hit.t));
-                node_group = vec2u(n1.x, (hitmask & 0xff000000u) | (n0.w >> 24u));
-                let leaf = vec2u(n1.y, hitmask & 0x00ffffffu);
-                if (prim_group.y == 0u) {
-                    prim_group = leaf;
-                } else {
-                    prim_next = leaf;
-                }
-            }
+        let index = next_node(&s, 0u, ray.oct_inv4);
+        if (index != NO_NODE) {
+            // The node, read a texel per lane (lanes 0 to 4) and handed round.
+            let texel = load_node_texel(index, min(group_lane, 4u));
+            let n0 = subgroupShuffle(texel, group_base);
+            let n1 = subgroupShuffle(texel, group_base + 1u);
+            let n2 = subgroupShuffle(texel, group_base + 2u);
+            let n3 = subgroupShuffle(texel, group_base + 3u);
+            let n4 = subgroupShuffle(texel, group_base + 4u);
+            enter_node(&s, n0, n1, group_or(intersect_child(n0, n1, n2, n3, n4, ray, hit.t)));
         }
-        if (prim_group.y == 0u && prim_next.y == 0u && (node_group.y & 0xff000000u) == 0u && near == 0u && sp == 0u) {
+        if (traversal_done(s, 0u)) {
             break;
         }
     }
