@@ -1,9 +1,10 @@
 //! What the bake and the formats share: the meshes of an asset as the bake sees them, the
 //! values it computed for them, and the writing options.
 
+use super::unwrap::GeneratedUvs;
 use crate::error::Result;
 use glam::{Mat3, Vec2, Vec3};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Where AO is baked.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -142,12 +143,28 @@ pub trait Asset: Send + Sync {
     fn write(&self, path: &Path, values: &[BakedValues], options: &WriteOptions) -> Result<Vec<String>>;
 
     /// Writes the file to `path` (atomically) with `maps` as its materials' occlusion
-    /// textures. Only glTF has a place for them: the others refuse.
-    fn write_textures(&self, path: &Path, maps: &[TextureMap]) -> Result<Vec<String>> {
-        let _ = maps;
-        Err(crate::error::Error::output(
-            path,
-            "only glTF references an AO texture: write the map itself (-o NAME.png or NAME.exr)",
-        ))
+    /// textures and `uvs` (one per mesh), when they were generated, as a new texture
+    /// coordinate set. glTF embeds or references the maps; OBJ and PLY write them beside
+    /// the mesh ([`map_path`]). Every other part of the file is kept.
+    fn write_textures(&self, path: &Path, maps: &[TextureMap], uvs: Option<&GeneratedUvs>) -> Result<Vec<String>>;
+}
+
+/// The file beside a mesh written to `path` that holds its map `name` (`ao`,
+/// `bent_normals`): `STEM_NAME.png`.
+pub fn map_path(path: &Path, name: &str) -> PathBuf {
+    path.with_file_name(format!("{}_{name}.png", crate::scene::meshes::stem(path)))
+}
+
+/// Writes the maps of an OBJ or PLY file's one texture beside `path` (`STEM_ao.png`,
+/// `STEM_bent_normals.png`): what [`Asset::write_textures`] does for formats without a
+/// place for them.
+pub(crate) fn write_maps_beside(path: &Path, maps: &[TextureMap]) -> Result<()> {
+    let [map] = maps else {
+        return Err(crate::error::Error::output(path, format!("{} textures for a file of one mesh", maps.len())));
+    };
+    crate::output::write_atomically(&map_path(path, "ao"), &map.png)?;
+    if let Some(png) = &map.bent_png {
+        crate::output::write_atomically(&map_path(path, "bent_normals"), png)?;
     }
+    Ok(())
 }
