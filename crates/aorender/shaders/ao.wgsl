@@ -186,13 +186,18 @@ fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_i
 // AO at given points (aorender probe). The film holds frame.width lanes per point for
 // frame.height points; lane l of point k takes sample indices l, l + lanes, l + 2 lanes, ...
 // below frame.probe_samples: round r is the sample r × lanes + l, and an invocation adds
-// rounds dispatch.first_sample .. + dispatch.sample_count in order.
+// rounds dispatch.first_sample .. + dispatch.sample_count in order. The dispatch is 2-D
+// when one dimension's workgroups cannot cover the slots: rows of groups.x workgroups.
 @compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
-fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+fn probe_sample(
+    @builtin(global_invocation_id) gid: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(num_workgroups) groups: vec3u,
+) {
     load_constants();
     lane = lid;
     let lanes = frame.width;
-    let slot = gid.x;
+    let slot = gid.y * groups.x * PROBE_WORKGROUP_SIZE + gid.x;
     if (slot < lanes * frame.height) {
         let point = slot / lanes;
         let q = probe_points[point];
@@ -218,10 +223,15 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
 // z of the unoccluded directions (world space), all from one ray a sample. Sample i of
 // point k takes the numbers probe_sample takes with one lane, so the AO is the same.
 @compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
-fn probe_bent_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+fn probe_bent_sample(
+    @builtin(global_invocation_id) gid: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(num_workgroups) groups: vec3u,
+) {
     load_constants();
     lane = lid;
-    let point = gid.x;
+    // Rows of groups.x workgroups, as probe_sample's.
+    let point = gid.y * groups.x * PROBE_WORKGROUP_SIZE + gid.x;
     if (point < frame.height) {
         let q = probe_points[point];
         let base = point * 4u;

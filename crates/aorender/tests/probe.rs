@@ -126,6 +126,44 @@ fn gpu_and_cpu_take_the_same_samples() {
     }
 }
 
+/// A probe dispatch wider than the adapter's workgroups per dimension runs as rows of
+/// workgroups (a 2-D dispatch): with the limit forced down to 3 workgroups (192
+/// invocations), 700 points over several rows take the CPU reference's samples, AO and
+/// bent normals alike (as `bake` traces them), so no point is skipped or traced twice.
+#[test]
+fn a_probe_dispatch_past_one_dimension_matches_the_cpu() {
+    if !gpu_available() {
+        return;
+    }
+    let s = scene(&(plane([0.0; 3], [0.0, 1.0, 0.0]) + &sphere([0.3, 0.8, 0.1], 0.4)), None);
+    let probes: Vec<Probe> = (0..700)
+        .map(|i| {
+            Probe::new(Vec3::new((i % 35) as f32 * 0.06 - 1.0, 0.0, (i / 35) as f32 * 0.06 - 0.6), Vec3::Y).unwrap()
+        })
+        .collect();
+    let (cpu_session, gpu_session) = (session(&s, &Config::cpu()), session(&s, &Config::default()));
+    aorender::gpu::target::limit_probe_groups_per_dimension(3);
+    let gpu = gpu_session.probe(&probes, 256, &s.settings);
+    let bent = |session: &aorender::Session| {
+        let mut render = session.probe_render(&probes, 64, None, &s.settings, true).unwrap();
+        render.run(&mut aorender::Control::default()).unwrap();
+        let film = render.finish().unwrap().accumulation.film().unwrap();
+        (aorender::probe_film_values(&film), aorender::probe_film_bent_normals(&film).unwrap())
+    };
+    let gpu_bent = bent(&gpu_session);
+    aorender::gpu::target::limit_probe_groups_per_dimension(0);
+    let (gpu, cpu) = (gpu.unwrap(), cpu_session.probe(&probes, 256, &s.settings).unwrap());
+    for (k, (c, g)) in cpu.values.iter().zip(&gpu.values).enumerate() {
+        assert!((c.mean - g.mean).abs() < 1e-6, "probe {k}: cpu {} gpu {}", c.mean, g.mean);
+    }
+    assert!(cpu.values.iter().any(|v| v.mean < 0.9), "the sphere occludes some points");
+    let cpu_bent = bent(&cpu_session);
+    for k in 0..probes.len() {
+        assert!((cpu_bent.0[k].mean - gpu_bent.0[k].mean).abs() < 1e-6, "bent probe {k}: AO");
+        assert!((cpu_bent.1[k] - gpu_bent.1[k]).length() < 1e-4, "bent probe {k}: {} {}", cpu_bent.1[k], gpu_bent.1[k]);
+    }
+}
+
 /// Probe invocations that render several rounds add them in the same order as one
 /// dispatch per round: the sums are the same bit for bit (uniform hemisphere, so that
 /// every sample has its own value), with passes that the rounds per invocation do not

@@ -15,6 +15,7 @@ use crate::film::INACTIVE_SLOT_BITS;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, Ordering};
 use wgpu::util::DeviceExt;
 
 /// Test hook: with this environment variable set to N, a target destroys its device
@@ -98,8 +99,9 @@ impl GpuTarget {
         let lanes = frame.width;
         // With bent normals, one invocation fills a point's four slots.
         let slots = if bent_normals { points.len() as u64 } else { lanes as u64 * points.len() as u64 };
-        let limits = dev.ctx.device.limits();
-        let max_slots = limits.max_compute_workgroups_per_dimension as u64 * PROBE_WORKGROUP_SIZE as u64;
+        // Workgroups in x and y (rows of x): the slot index must fit a u32.
+        let per_dimension = u64::from(dev.ctx.device.limits().max_compute_workgroups_per_dimension);
+        let max_slots = (per_dimension * per_dimension * u64::from(PROBE_WORKGROUP_SIZE)).min(u64::from(u32::MAX));
         if slots > max_slots {
             return Err(Error::Gpu(format!(
                 "{} probe points × {lanes} lanes need {slots} invocations per dispatch; the adapter allows {max_slots}",
@@ -354,8 +356,8 @@ impl GpuTarget {
             pass.set_pipeline(&self.pipeline);
             let (groups_x, groups_y) = match self.kernel {
                 Kernel::Image => (self.width.div_ceil(WORKGROUP_SIZE[0]), self.height.div_ceil(WORKGROUP_SIZE[1])),
-                Kernel::Probe => ((self.width * self.height).div_ceil(PROBE_WORKGROUP_SIZE), 1),
-                Kernel::BentProbe => (self.height.div_ceil(PROBE_WORKGROUP_SIZE), 1),
+                Kernel::Probe => probe_groups(&self.dev, self.width * self.height),
+                Kernel::BentProbe => probe_groups(&self.dev, self.height),
             };
             for k in 0..dispatches {
                 pass.set_bind_group(0, &self.bind_group, &[(DISPATCH_STRIDE * k as u64) as u32]);
@@ -439,4 +441,33 @@ impl GpuTarget {
         encoder.clear_buffer(&self.film, 0, None);
         ctx.submit([encoder.finish()])
     }
+}
+
+/// Overrides the adapter's limit on probe workgroups per dimension in the dispatch's
+/// shape when not zero (a smaller one: tests cross into the second dimension with few
+/// points); the largest dispatch allowed stays the adapter's.
+static PROBE_GROUPS_PER_DIMENSION: AtomicU32 = AtomicU32::new(0);
+
+/// Caps the probe dispatch at `n` workgroups per dimension (0: the adapter's limit), for
+/// tests of the 2-D dispatch; results do not change.
+#[cfg(feature = "testing")]
+pub fn limit_probe_groups_per_dimension(n: u32) {
+    PROBE_GROUPS_PER_DIMENSION.store(n, Ordering::Relaxed);
+}
+
+/// Probe workgroups a dispatch may have per dimension.
+fn probe_groups_per_dimension(dev: &GpuDevice) -> u32 {
+    let adapter = dev.ctx.device.limits().max_compute_workgroups_per_dimension;
+    match PROBE_GROUPS_PER_DIMENSION.load(Ordering::Relaxed) {
+        0 => adapter,
+        n => n.min(adapter),
+    }
+}
+
+/// The probe dispatch of `slots` invocations: rows of at most the per-dimension limit of
+/// workgroups (the kernels number slots row by row).
+fn probe_groups(dev: &GpuDevice, slots: u32) -> (u32, u32) {
+    let groups = slots.div_ceil(PROBE_WORKGROUP_SIZE).max(1);
+    let x = groups.min(probe_groups_per_dimension(dev));
+    (x, groups.div_ceil(x))
 }
