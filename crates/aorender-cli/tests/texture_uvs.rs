@@ -209,10 +209,13 @@ struct Baked {
     map: image::ImageBuffer<image::Luma<u16>, Vec<u16>>,
 }
 
+/// A triangle as a file gives it: positions, and coordinates (v down the image).
+type FileTriangle = ([Vec3; 3], [Vec2; 3]);
+
 /// Reads the output `name` in `d` back with the format's independent reader.
 fn read_back(d: &Path, name: &str) -> Baked {
     let path = d.join(name);
-    let (tris, map): (Vec<([Vec3; 3], [Vec2; 3])>, image::DynamicImage) = match name.rsplit_once('.').unwrap().1 {
+    let (tris, map): (Vec<FileTriangle>, image::DynamicImage) = match name.rsplit_once('.').unwrap().1 {
         "obj" => {
             let (models, _) = tobj::load_obj(&path, &tobj::LoadOptions { triangulate: true, ..Default::default() })
                 .unwrap_or_else(|e| panic!("{name}: {e}"));

@@ -186,7 +186,8 @@ fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_i
 // AO at given points (aorender probe). The film holds frame.width lanes per point for
 // frame.height points; lane l of point k takes sample indices l, l + lanes, l + 2 lanes, ...
 // below frame.probe_samples: round r is the sample r × lanes + l, and an invocation adds
-// rounds dispatch.first_sample .. + dispatch.sample_count in order. The dispatch is 2-D
+// rounds dispatch.first_sample .. + dispatch.sample_count in order. Sequences are numbered
+// by the point's index in the request (frame.first_point: targets split the points). The dispatch is 2-D
 // when one dimension's workgroups cannot cover the slots: rows of groups.x workgroups.
 @compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
 fn probe_sample(
@@ -207,7 +208,7 @@ fn probe_sample(
             if (index >= frame.probe_samples) {
                 break;
             }
-            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
+            let u = sample_point_uniforms(SAMPLER, frame.first_point + point, 0u, index, frame.seed, frame.strata, frame.replicate);
             // Pushed off its surface by its error bound (zero for a point exactly on it).
             acc = accumulate(acc, ao_value(q.position, q.normal, q.error, u.zw));
         }
@@ -244,7 +245,7 @@ fn probe_bent_sample(
             if (index >= frame.probe_samples) {
                 break;
             }
-            let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
+            let u = sample_point_uniforms(SAMPLER, frame.first_point + point, 0u, index, frame.seed, frame.strata, frame.replicate);
             let ray = ao_ray(q.position, q.normal, q.error, u.zw);
             let shadow = trace(ray.o, ray.d, frame.max_distance, true);
             let open = select(vec3f(0.0), ray.d, shadow.kind == HIT_NONE);

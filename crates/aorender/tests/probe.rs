@@ -127,11 +127,13 @@ fn gpu_and_cpu_take_the_same_samples() {
 }
 
 /// A probe dispatch wider than the adapter's workgroups per dimension runs as rows of
-/// workgroups (a 2-D dispatch): with the limit forced down to 3 workgroups (192
-/// invocations), 700 points over several rows take the CPU reference's samples, AO and
-/// bent normals alike (as `bake` traces them), so no point is skipped or traced twice.
+/// workgroups (a 2-D dispatch), and points past one target's storage bindings are split
+/// over several targets: with the workgroups per dimension forced down to 3 (192
+/// invocations), and then the points per target to 150 as well, 700 points take the CPU
+/// reference's samples, AO and bent normals alike (as `bake` traces them), so no point
+/// is skipped, traced twice or given another point's sequence.
 #[test]
-fn a_probe_dispatch_past_one_dimension_matches_the_cpu() {
+fn probes_past_one_dispatch_dimension_or_one_target_match_the_cpu() {
     if !gpu_available() {
         return;
     }
@@ -142,25 +144,31 @@ fn a_probe_dispatch_past_one_dimension_matches_the_cpu() {
         })
         .collect();
     let (cpu_session, gpu_session) = (session(&s, &Config::cpu()), session(&s, &Config::default()));
-    aorender::gpu::target::limit_probe_groups_per_dimension(3);
-    let gpu = gpu_session.probe(&probes, 256, &s.settings);
     let bent = |session: &aorender::Session| {
         let mut render = session.probe_render(&probes, 64, None, &s.settings, true).unwrap();
         render.run(&mut aorender::Control::default()).unwrap();
         let film = render.finish().unwrap().accumulation.film().unwrap();
         (aorender::probe_film_values(&film), aorender::probe_film_bent_normals(&film).unwrap())
     };
-    let gpu_bent = bent(&gpu_session);
-    aorender::gpu::target::limit_probe_groups_per_dimension(0);
-    let (gpu, cpu) = (gpu.unwrap(), cpu_session.probe(&probes, 256, &s.settings).unwrap());
-    for (k, (c, g)) in cpu.values.iter().zip(&gpu.values).enumerate() {
-        assert!((c.mean - g.mean).abs() < 1e-6, "probe {k}: cpu {} gpu {}", c.mean, g.mean);
-    }
+    let cpu = cpu_session.probe(&probes, 256, &s.settings).unwrap();
     assert!(cpu.values.iter().any(|v| v.mean < 0.9), "the sphere occludes some points");
     let cpu_bent = bent(&cpu_session);
-    for k in 0..probes.len() {
-        assert!((cpu_bent.0[k].mean - gpu_bent.0[k].mean).abs() < 1e-6, "bent probe {k}: AO");
-        assert!((cpu_bent.1[k] - gpu_bent.1[k]).length() < 1e-4, "bent probe {k}: {} {}", cpu_bent.1[k], gpu_bent.1[k]);
+    for points_per_target in [0, 150] {
+        aorender::gpu::target::limit_probe_groups_per_dimension(3);
+        aorender::gpu::target::limit_probe_points_per_target(points_per_target);
+        let gpu = gpu_session.probe(&probes, 256, &s.settings);
+        let gpu_bent = bent(&gpu_session);
+        aorender::gpu::target::limit_probe_groups_per_dimension(0);
+        aorender::gpu::target::limit_probe_points_per_target(0);
+        let tag = format!("{points_per_target} points a target");
+        for (k, (c, g)) in cpu.values.iter().zip(&gpu.unwrap().values).enumerate() {
+            assert!((c.mean - g.mean).abs() < 1e-6, "{tag}: probe {k}: cpu {} gpu {}", c.mean, g.mean);
+        }
+        for k in 0..probes.len() {
+            assert!((cpu_bent.0[k].mean - gpu_bent.0[k].mean).abs() < 1e-6, "{tag}: bent probe {k}: AO");
+            let (c, g) = (cpu_bent.1[k], gpu_bent.1[k]);
+            assert!((c - g).length() < 1e-4, "{tag}: bent probe {k}: {c} {g}");
+        }
     }
 }
 

@@ -1,7 +1,6 @@
 //! What the bake and the formats share: the meshes of an asset as the bake sees them, the
 //! values it computed for them, and the writing options.
 
-use super::unwrap::GeneratedUvs;
 use crate::error::Result;
 use glam::{Mat3, Vec2, Vec3};
 use std::path::{Path, PathBuf};
@@ -88,6 +87,40 @@ impl AssetMesh {
     pub fn face(&self, f: usize) -> &[u32] {
         &self.face_indices[self.face_starts[f] as usize..self.face_starts[f + 1] as usize]
     }
+}
+
+/// Generated texture coordinates of one mesh.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MeshUvs {
+    /// The set's number (glTF `TEXCOORD_n`; 0 for OBJ and PLY).
+    pub set: u32,
+    /// For each new vertex, the mesh's vertex it copies.
+    pub xref: Vec<u32>,
+    /// For each new vertex, its coordinates in [0, 1]², in the file's convention (v down
+    /// for glTF, up for OBJ and PLY).
+    pub uvs: Vec<Vec2>,
+    /// For each face corner (parallel to [`AssetMesh::face_indices`]), its new vertex.
+    pub corners: Vec<u32>,
+}
+
+impl MeshUvs {
+    /// The coordinates of every face corner: the [`UvSet`] the bake reads.
+    pub fn uv_set(&self) -> UvSet {
+        UvSet { set: self.set, corners: self.corners.iter().map(|&k| self.uvs[k as usize]).collect() }
+    }
+}
+
+/// What unwrapping made of an asset's meshes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GeneratedUvs {
+    /// One entry per mesh of the asset, in its order.
+    pub meshes: Vec<MeshUvs>,
+    /// Charts in all atlases.
+    pub charts: u32,
+    /// Atlases made: one per texture (glTF material).
+    pub atlases: usize,
+    /// Fraction of the texture covered by the charts' surface, mean over the atlases.
+    pub utilization: f32,
 }
 
 /// What a bake computed for one [`AssetMesh`]: one entry per vertex (or per face, for

@@ -9,8 +9,7 @@
 //! A mesh placed by several nodes is occluded differently at each placement: every node
 //! after the first gets its own copy of the mesh, sharing its accessors and material.
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, TextureMap, UvSet, WriteOptions};
-use super::unwrap::GeneratedUvs;
+use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureMap, UvSet, WriteOptions};
 use crate::error::{Error, Result};
 use crate::output::{write_atomically, write_atomically_with};
 use crate::scene::extension;

@@ -15,13 +15,15 @@ pub(crate) mod ply;
 mod texture;
 mod unwrap;
 
-pub use asset::{Asset, AssetMesh, BakeAt, BakedValues, TextureMap, UvSet, WriteOptions, map_path};
+pub use asset::{
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, map_path,
+};
 pub use plan::{BakePlan, Placement, UNUSABLE_VALUE};
 pub use texture::{
     BYTES_PER_TEXEL, BakedTexture, Coverage, MAX_TEXTURE_SIZE, TextureOptions, TexturePlan, TextureStats,
     TextureTarget, UvWrap, bytes_per_point, texture_targets,
 };
-pub use unwrap::{GeneratedUvs, MeshUvs, generate_uvs};
+pub use unwrap::generate_uvs;
 
 use crate::error::{Error, Result};
 use crate::scene::MeshObject;

@@ -10,8 +10,9 @@
 //! A texture bake writes the map beside the file; generated texture coordinates go in as
 //! `vt` lines before the first face, each face's corners given theirs (`v/vt`, `v/vt/vn`).
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, TextureMap, UvSet, WriteOptions, write_maps_beside};
-use super::unwrap::{GeneratedUvs, MeshUvs};
+use super::asset::{
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
+};
 use crate::error::{Error, Result};
 use crate::scene::input::{Input, is_gzip};
 use crate::scene::obj::{non_finite_coordinate, parse_vertex_line};

@@ -13,8 +13,9 @@
 //! A texture bake writes the map beside the file; generated texture coordinates go in as
 //! MeshLab's face `texcoord` lists (`u v` per corner), so the vertices stay as they are.
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, TextureMap, UvSet, WriteOptions, write_maps_beside};
-use super::unwrap::GeneratedUvs;
+use super::asset::{
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
+};
 use crate::error::{Error, Result};
 use crate::output::write_atomically_with;
 use crate::scene::input::Input;

@@ -12,44 +12,13 @@
 //! lists (per corner), glTF as a new `TEXCOORD_n` on primitives whose vertices are
 //! split accordingly.
 
-use super::asset::{AssetMesh, UvSet};
+use super::asset::{AssetMesh, GeneratedUvs, MeshUvs};
 use super::texture::TextureOptions;
 use crate::error::{Error, Result};
 use glam::Vec2;
 
-/// Generated texture coordinates of one mesh.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct MeshUvs {
-    /// The set's number (glTF `TEXCOORD_n`; 0 for OBJ and PLY).
-    pub set: u32,
-    /// For each new vertex, the mesh's vertex it copies.
-    pub xref: Vec<u32>,
-    /// For each new vertex, its coordinates in [0, 1]², in the file's convention (v down
-    /// for glTF, up for OBJ and PLY).
-    pub uvs: Vec<Vec2>,
-    /// For each face corner (parallel to [`AssetMesh::face_indices`]), its new vertex.
-    pub corners: Vec<u32>,
-}
-
-impl MeshUvs {
-    /// The coordinates of every face corner: the [`UvSet`] the bake reads.
-    pub fn uv_set(&self) -> UvSet {
-        UvSet { set: self.set, corners: self.corners.iter().map(|&k| self.uvs[k as usize]).collect() }
-    }
-}
-
-/// What unwrapping made of an asset's meshes.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct GeneratedUvs {
-    /// One entry per mesh of the asset, in its order.
-    pub meshes: Vec<MeshUvs>,
-    /// Charts in all atlases.
-    pub charts: u32,
-    /// Atlases made: one per texture (glTF material).
-    pub atlases: usize,
-    /// Fraction of the texture covered by the charts' surface, mean over the atlases.
-    pub utilization: f32,
-}
+/// A mesh as the unwrapper takes it: positions, fan triangles, each triangle's face.
+type Triangulated = (Vec<[f32; 3]>, Vec<u32>, Vec<u32>);
 
 /// Unwraps `meshes` into set `set`: the meshes sharing a material (one texture) share an
 /// atlas of `options`' size with charts `max(padding, 1)` texels apart (twice that
@@ -66,7 +35,7 @@ pub fn generate_uvs(meshes: &[AssetMesh], set: u32, options: &TextureOptions) ->
     }
     // Fan triangulation of every face, each triangle marked with its face (a polygon's
     // triangles share a chart, so each corner gets one coordinate).
-    let triangulated: Vec<(Vec<[f32; 3]>, Vec<u32>, Vec<u32>)> = meshes
+    let triangulated: Vec<Triangulated> = meshes
         .iter()
         .map(|m| {
             let (mut indices, mut polygons) = (Vec::new(), Vec::new());

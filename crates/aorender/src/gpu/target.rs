@@ -471,3 +471,29 @@ fn probe_groups(dev: &GpuDevice, slots: u32) -> (u32, u32) {
     let x = groups.min(probe_groups_per_dimension(dev));
     (x, groups.div_ceil(x))
 }
+
+/// Overrides how many probe points one target takes when not zero (fewer: tests split a
+/// request over several targets with few points).
+static PROBE_POINTS_PER_TARGET: AtomicU32 = AtomicU32::new(0);
+
+/// Caps the probe points of one target at `n` (0: as many as its storage bindings
+/// take), for tests of requests split over several targets; results do not change.
+#[cfg(feature = "testing")]
+pub fn limit_probe_points_per_target(n: u32) {
+    PROBE_POINTS_PER_TARGET.store(n, Ordering::Relaxed);
+}
+
+/// The most probe points one target binds with `slots_per_point` film slots each: its
+/// points' and its film's storage buffers must each fit one binding.
+pub(crate) fn probe_points_per_target(dev: &GpuDevice, slots_per_point: u32) -> usize {
+    let limits = dev.ctx.device.limits();
+    let binding = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
+    let point_bytes = std::mem::size_of::<GpuProbePoint>() as u64;
+    // A film slot is four f32 words (the sum, its compensation, the sum of squares, its).
+    let slot_bytes = 16 * u64::from(slots_per_point.max(1));
+    let n = (binding / point_bytes).min(binding / slot_bytes).min(u64::from(u32::MAX)) as usize;
+    match PROBE_POINTS_PER_TARGET.load(Ordering::Relaxed) {
+        0 => n,
+        k => n.min(k as usize),
+    }
+}
