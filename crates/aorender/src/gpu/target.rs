@@ -487,7 +487,7 @@ pub fn limit_probe_points_per_target(n: u32) {
 /// points' and its film's storage buffers must each fit one binding.
 pub(crate) fn probe_points_per_target(dev: &GpuDevice, slots_per_point: u32) -> usize {
     let limits = dev.ctx.device.limits();
-    let binding = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
+    let binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
     let point_bytes = std::mem::size_of::<GpuProbePoint>() as u64;
     // A film slot is four f32 words (the sum, its compensation, the sum of squares, its).
     let slot_bytes = 16 * u64::from(slots_per_point.max(1));
