@@ -156,9 +156,9 @@ fn write_ply(m: &Mesh, path: &Path) {
     std::fs::write(path, s).unwrap();
 }
 
-/// A glTF of the mesh (one primitive, a material without textures) in a `data:` URI.
-fn write_gltf(m: &Mesh, path: &Path) {
-    use base64::Engine;
+/// A GLB of the mesh (one primitive, a material without textures) in its binary chunk,
+/// placed by `nodes` nodes 100 apart along x (each gets its own charts).
+fn write_glb(m: &Mesh, path: &Path, nodes: usize) {
     let mut bytes: Vec<u8> = m.p.iter().flat_map(|p| p.as_vec3().to_array()).flat_map(f32::to_le_bytes).collect();
     let positions = bytes.len();
     let lo = m.p.iter().fold(DVec3::MAX, |a, &b| a.min(b)).as_vec3().to_array();
@@ -169,16 +169,17 @@ fn write_gltf(m: &Mesh, path: &Path) {
     let normals = bytes.len() - positions;
     let start = bytes.len();
     bytes.extend(m.f.iter().flatten().flat_map(|i| i.to_le_bytes()));
-    let uri =
-        format!("data:application/octet-stream;base64,{}", base64::engine::general_purpose::STANDARD.encode(&bytes));
+    let nodes: Vec<serde_json::Value> = (0..nodes)
+        .map(|k| serde_json::json!({"name": format!("model {k}"), "mesh": 0, "translation": [100.0 * k as f64, 0.0, 0.0]}))
+        .collect();
     let mut doc = serde_json::json!({
         "asset": {"version": "2.0"},
         "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"name": "model", "mesh": 0}],
+        "scenes": [{"nodes": (0..nodes.len()).collect::<Vec<_>>()}],
+        "nodes": nodes,
         "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 0}]}],
         "materials": [{"name": "paint"}],
-        "buffers": [{"uri": uri, "byteLength": bytes.len()}],
+        "buffers": [{"byteLength": bytes.len()}],
         "bufferViews": [
             {"buffer": 0, "byteOffset": 0, "byteLength": positions},
             {"buffer": 0, "byteOffset": start, "byteLength": bytes.len() - start}
@@ -199,7 +200,21 @@ fn write_gltf(m: &Mesh, path: &Path) {
             .push(serde_json::json!({"bufferView": 2, "componentType": 5126, "count": m.p.len(), "type": "VEC3"}));
         doc["meshes"][0]["primitives"][0]["attributes"]["NORMAL"] = 2.into();
     }
-    std::fs::write(path, serde_json::to_vec(&doc).unwrap()).unwrap();
+    // The GLB container: header, JSON chunk (padded with spaces), BIN chunk.
+    let mut json = serde_json::to_vec(&doc).unwrap();
+    json.resize(json.len().next_multiple_of(4), b' ');
+    bytes.resize(bytes.len().next_multiple_of(4), 0);
+    let mut glb = Vec::new();
+    glb.extend(b"glTF");
+    glb.extend(2u32.to_le_bytes());
+    glb.extend(((12 + 8 + json.len() + 8 + bytes.len()) as u32).to_le_bytes());
+    glb.extend((json.len() as u32).to_le_bytes());
+    glb.extend(b"JSON");
+    glb.extend(json);
+    glb.extend((bytes.len() as u32).to_le_bytes());
+    glb.extend(b"BIN\0");
+    glb.extend(bytes);
+    std::fs::write(path, glb).unwrap();
 }
 
 /// What a baked output holds: its triangles (positions, and texture coordinates in
@@ -380,7 +395,8 @@ fn assert_no_overlap(name: &str, b: &Baked) {
     assert!(charts > 1 && owner.iter().filter(|&&o| o != usize::MAX).count() > w * h / 10, "{name}: {charts} charts");
 }
 
-/// A floor and a ball in one mesh without texture coordinates, baked into each format:
+/// A floor and a ball in one mesh without texture coordinates (placed twice, 100 apart,
+/// in the GLB), baked into each format:
 /// every output carries the generated set inside [0, 1] without overlaps, references its
 /// map, and every texel whose centre lies on a floor triangle holds the AO of the floor
 /// point there: between the closed forms 1 − cos β (r/d)² of the ball's inscribed and
@@ -393,7 +409,7 @@ fn generated_uvs_are_written_into_every_format_and_address_the_baked_map() {
     let mesh = floor_and_ball();
     write_obj(&mesh, &d.join("in.obj"));
     write_ply(&mesh, &d.join("in.ply"));
-    write_gltf(&mesh, &d.join("in.gltf"));
+    write_glb(&mesh, &d.join("in.glb"), 2);
     // The icosphere (level 2) lies between the sphere of radius R and its inscribed one.
     let (sp, sf) = icosphere(CENTRE, R, 2);
     let r_in = sf
@@ -405,15 +421,17 @@ fn generated_uvs_are_written_into_every_format_and_address_the_baked_map() {
         .fold(f64::MAX, f64::min);
     let samples = 1024;
     for device in devices() {
-        for input in ["in.obj", "in.ply", "in.gltf"] {
-            let out = format!("{device}-{}", input.replace("in.gltf", "in.glb"));
+        for input in ["in.obj", "in.ply", "in.glb"] {
+            let out = format!("{device}-{input}");
             let args = [input, "-o", &out, "--texture", "64", "--texel-points", "1", "--bit-depth", "16"];
             let s = samples.to_string();
             let run =
                 aorender(&[&["bake"][..], &args, &["--samples", &s, "--device", device, "--seed", "5"]].concat(), d);
             assert!(run.status.success(), "{out}: {}", String::from_utf8_lossy(&run.stderr));
             let b = read_back(d, &out);
-            assert_eq!(b.triangles.len(), mesh.f.len(), "{out}: the triangles");
+            // The GLB places the mesh twice: each node gets a copy with its own charts.
+            let placements = if input.ends_with(".glb") { 2 } else { 1 };
+            assert_eq!(b.triangles.len(), placements * mesh.f.len(), "{out}: the triangles");
             assert_no_overlap(&out, &b);
             let (mut checked, mut sum_z, mut slack) = (0, 0.0, 0.0f64);
             for (p, uv) in b.triangles.iter().filter(|(p, _)| p.iter().all(|q| q.y == 0.0)) {
@@ -483,14 +501,14 @@ fn meshes_without_uvs_are_refused_when_generation_is_off() {
     let dir = temp_dir();
     let d = dir.path();
     write_obj(&faceted_icosphere(), &d.join("ball.obj"));
-    write_gltf(&faceted_icosphere(), &d.join("ball.gltf"));
+    write_glb(&faceted_icosphere(), &d.join("ball.glb"), 1);
     std::fs::write(d.join("mapped.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 3/3\n").unwrap();
     for (args, expect) in [
         (
             &["ball.obj", "-o", "out.obj", "--texture", "64", "--generate-uvs", "never"][..],
             "no mesh has texture coordinates of set 0",
         ),
-        (&["ball.gltf", "-o", "out.glb", "--texture", "64", "--generate-uvs", "never"][..], "(--generate-uvs never)"),
+        (&["ball.glb", "-o", "out.glb", "--texture", "64", "--generate-uvs", "never"][..], "(--generate-uvs never)"),
         (&["ball.obj", "-o", "out.png", "--texture", "64"][..], "would lose the generated ones"),
         (&["mapped.obj", "-o", "out.obj", "--texture", "64", "--generate-uvs", "always"][..], "hold one set"),
         (&["ball.obj", "-o", "out.obj", "--texture", "8", "--padding", "4"][..], "too small to unwrap"),
@@ -508,5 +526,5 @@ fn meshes_without_uvs_are_refused_when_generation_is_off() {
     let mut left: Vec<_> =
         std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
     left.sort();
-    assert_eq!(left, ["ball.gltf", "ball.obj", "mapped.obj"]);
+    assert_eq!(left, ["ball.glb", "ball.obj", "mapped.obj"]);
 }

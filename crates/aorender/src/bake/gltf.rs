@@ -324,13 +324,13 @@ impl Asset for GltfAsset {
                     buffers.push(object([]));
                     buffers.len() - 1
                 };
-                let mut split = Vec::new();
                 let fill = self.meshes_to_fill(&mut doc, &mut notes);
-                self.split_primitives(&mut doc, &mut split, buffer, &fill, uvs).map_err(fail)?;
                 if glb {
-                    pad(&mut data, 0);
-                    data.extend(split);
+                    // After the binary chunk's data: the views' offsets are into it.
+                    self.split_primitives(&mut doc, &mut data, buffer, &fill, uvs).map_err(fail)?;
                 } else {
+                    let mut split = Vec::new();
+                    self.split_primitives(&mut doc, &mut split, buffer, &fill, uvs).map_err(fail)?;
                     new_buffer = Some((buffer, split));
                 }
                 fill
