@@ -131,7 +131,8 @@ fn gpu_and_cpu_take_the_same_samples() {
 /// over several targets: with the workgroups per dimension forced down to 3 (192
 /// invocations), and then the points per target to 150 as well, 700 points take the CPU
 /// reference's samples, AO and bent normals alike (as `bake` traces them), so no point
-/// is skipped, traced twice or given another point's sequence.
+/// is skipped, traced twice or given another point's sequence; also when the render is
+/// stopped after its first pass and resumed from its accumulation.
 #[test]
 fn probes_past_one_dispatch_dimension_or_one_target_match_the_cpu() {
     if !gpu_available() {
@@ -158,13 +159,24 @@ fn probes_past_one_dispatch_dimension_or_one_target_match_the_cpu() {
         aorender::gpu::target::limit_probe_points_per_target(points_per_target);
         let gpu = gpu_session.probe(&probes, 256, &s.settings);
         let gpu_bent = bent(&gpu_session);
+        // Stopped after its first pass and resumed: each target takes its part of the sums.
+        let mut first = gpu_session.probe_render(&probes, 64, None, &s.settings, true).unwrap();
+        first.run(&mut aorender::Control { time_limit: Some(1e-9), ..aorender::Control::default() }).unwrap();
+        let saved = first.finish().unwrap().accumulation;
+        assert!(saved.samples() < 64, "{points_per_target} points a target: the first run stopped early");
+        let mut resumed = gpu_session.probe_render(&probes, 64, None, &s.settings, true).unwrap();
+        resumed.resume(saved).unwrap();
+        resumed.run(&mut aorender::Control::default()).unwrap();
+        let resumed_film = resumed.finish().unwrap().accumulation.film().unwrap();
         aorender::gpu::target::limit_probe_groups_per_dimension(0);
         aorender::gpu::target::limit_probe_points_per_target(0);
         let tag = format!("{points_per_target} points a target");
         for (k, (c, g)) in cpu.values.iter().zip(&gpu.unwrap().values).enumerate() {
             assert!((c.mean - g.mean).abs() < 1e-6, "{tag}: probe {k}: cpu {} gpu {}", c.mean, g.mean);
         }
+        let resumed = aorender::probe_film_values(&resumed_film);
         for k in 0..probes.len() {
+            assert!((cpu_bent.0[k].mean - resumed[k].mean).abs() < 1e-6, "{tag}: resumed probe {k}: AO");
             assert!((cpu_bent.0[k].mean - gpu_bent.0[k].mean).abs() < 1e-6, "{tag}: bent probe {k}: AO");
             let (c, g) = (cpu_bent.1[k], gpu_bent.1[k]);
             assert!((c - g).length() < 1e-4, "{tag}: bent probe {k}: {c} {g}");
