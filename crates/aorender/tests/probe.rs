@@ -175,9 +175,10 @@ fn probes_past_one_dispatch_dimension_or_one_target_match_the_cpu() {
             assert!((c.mean - g.mean).abs() < 1e-6, "{tag}: probe {k}: cpu {} gpu {}", c.mean, g.mean);
         }
         let resumed = aorender::probe_film_values(&resumed_film);
-        for k in 0..probes.len() {
-            assert!((cpu_bent.0[k].mean - resumed[k].mean).abs() < 1e-6, "{tag}: resumed probe {k}: AO");
-            assert!((cpu_bent.0[k].mean - gpu_bent.0[k].mean).abs() < 1e-6, "{tag}: bent probe {k}: AO");
+        assert_eq!((resumed.len(), gpu_bent.0.len()), (probes.len(), probes.len()), "{tag}");
+        for (k, c) in cpu_bent.0.iter().enumerate() {
+            assert!((c.mean - resumed[k].mean).abs() < 1e-6, "{tag}: resumed probe {k}: AO");
+            assert!((c.mean - gpu_bent.0[k].mean).abs() < 1e-6, "{tag}: bent probe {k}: AO");
             let (c, g) = (cpu_bent.1[k], gpu_bent.1[k]);
             assert!((c - g).length() < 1e-4, "{tag}: bent probe {k}: {c} {g}");
         }
