@@ -211,14 +211,22 @@ fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_i
 // AO at given points (aorender probe). The film holds frame.width lanes per point for
 // frame.height points; lane l of point k takes sample indices l, l + lanes, l + 2 lanes, ...
 // below frame.probe_samples: round r is the sample r × lanes + l, and an invocation adds
-// rounds dispatch.first_sample .. + dispatch.sample_count in order.
+// rounds dispatch.first_sample .. + dispatch.sample_count in order. Sequences are numbered
+// by the point's index in the request (frame.first_point: targets split the points). The
+// dispatch is 2-D when one dimension's workgroups cannot cover the slots: rows of
+// groups.x workgroups.
 @compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
-fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+fn probe_sample(
+    @builtin(global_invocation_id) gid: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(num_workgroups) groups: vec3u,
+) {
     load_constants();
     begin_traversal(lid);
     let lanes = frame.width;
-    let valid = gid.x < lanes * frame.height;
-    let slot = select(0u, gid.x, valid);
+    let at = gid.y * groups.x * PROBE_WORKGROUP_SIZE + gid.x;
+    let valid = at < lanes * frame.height;
+    let slot = select(0u, at, valid);
     let point = slot / lanes;
     let q = probe_points[point];
     var acc = film[slot];
@@ -228,7 +236,7 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
         if (!rays_left(live)) {
             break;
         }
-        let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
+        let u = sample_point_uniforms(SAMPLER, frame.first_point + point, 0u, index, frame.seed, frame.strata, frame.replicate);
         // Pushed off its surface by its error bound (zero for a point exactly on it).
         let value = ao_value(q.position, q.normal, q.error, u.zw, live);
         if (live) {
@@ -248,11 +256,17 @@ fn probe_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invoca
 // z of the unoccluded directions (world space), all from one ray a sample. Sample i of
 // point k takes the numbers probe_sample takes with one lane, so the AO is the same.
 @compute @workgroup_size(PROBE_WORKGROUP_SIZE, 1, 1)
-fn probe_bent_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_invocation_index) lid: u32) {
+fn probe_bent_sample(
+    @builtin(global_invocation_id) gid: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+    @builtin(num_workgroups) groups: vec3u,
+) {
     load_constants();
     begin_traversal(lid);
-    let valid = gid.x < frame.height;
-    let point = select(0u, gid.x, valid);
+    // Rows of groups.x workgroups, as probe_sample's.
+    let at = gid.y * groups.x * PROBE_WORKGROUP_SIZE + gid.x;
+    let valid = at < frame.height;
+    let point = select(0u, at, valid);
     let q = probe_points[point];
     let base = point * 4u;
     var ao = film[base];
@@ -265,7 +279,7 @@ fn probe_bent_sample(@builtin(global_invocation_id) gid: vec3u, @builtin(local_i
         if (!rays_left(live)) {
             break;
         }
-        let u = sample_point_uniforms(SAMPLER, point, 0u, index, frame.seed, frame.strata, frame.replicate);
+        let u = sample_point_uniforms(SAMPLER, frame.first_point + point, 0u, index, frame.seed, frame.strata, frame.replicate);
         let ray = ao_ray(q.position, q.normal, q.error, u.zw);
         let shadow = trace_ao(ray, live);
         let open = select(vec3f(0.0), ray.d, shadow.kind == HIT_NONE);

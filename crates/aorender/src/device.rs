@@ -269,14 +269,6 @@ impl Prepared {
     ) -> Result<Box<dyn Passes>> {
         match self {
             Prepared::Gpu { dev, scene } => {
-                let frame = FrameUniforms::probes(
-                    settings,
-                    lanes,
-                    probes.len() as u32,
-                    samples,
-                    scene.node_count,
-                    scene.plane_count,
-                );
                 let points: Vec<GpuProbePoint> = probes
                     .iter()
                     .map(|p| GpuProbePoint {
@@ -286,15 +278,34 @@ impl Prepared {
                         _pad1: 0.0,
                     })
                     .collect();
-                Ok(Box::new(GpuTarget::probes(
-                    dev,
-                    scene,
-                    frame,
-                    settings.sampler,
-                    settings.hemisphere,
-                    &points,
-                    bent_normals,
-                )?))
+                let slots_per_point = if bent_normals { 4 } else { lanes };
+                let per_target = crate::gpu::target::probe_points_per_target(dev, slots_per_point).max(1);
+                let mut targets = Vec::new();
+                for (k, chunk) in points.chunks(per_target).enumerate() {
+                    let mut frame = FrameUniforms::probes(
+                        settings,
+                        lanes,
+                        chunk.len() as u32,
+                        samples,
+                        scene.node_count,
+                        scene.plane_count,
+                    );
+                    frame.first_point = (k * per_target) as u32;
+                    let target = GpuTarget::probes(
+                        dev,
+                        scene,
+                        frame,
+                        settings.sampler,
+                        settings.hemisphere,
+                        chunk,
+                        bent_normals,
+                    )?;
+                    targets.push((target, chunk.len() * slots_per_point as usize));
+                }
+                match targets.len() {
+                    1 => Ok(Box::new(targets.pop().expect("one target").0)),
+                    _ => Ok(Box::new(GpuChunks { targets })),
+                }
             }
             Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
                 inactive: Vec::new(),
@@ -380,6 +391,90 @@ impl Passes for GpuTarget {
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
         self.inactive = inactive.to_vec();
         self.mark_inactive(None)
+    }
+}
+
+/// Probe points past one target's storage bindings (lavapipe binds 128 MiB: 4,194,304
+/// points) over several targets, each a contiguous range of the points numbering its
+/// sample sequences from its first point's index, driven as one film: slot order and
+/// sums are those of a single target.
+struct GpuChunks {
+    /// Each target, and its film's slots.
+    targets: Vec<(GpuTarget, usize)>,
+}
+
+impl GpuChunks {
+    /// `words` (one entry per slot of the whole film) cut into the targets' parts.
+    fn split<'a, T>(&self, words: &'a [T]) -> Vec<&'a [T]> {
+        let mut start = 0;
+        self.targets
+            .iter()
+            .map(|(_, slots)| {
+                let part = &words[start.min(words.len())..(start + slots).min(words.len())];
+                start += slots;
+                part
+            })
+            .collect()
+    }
+
+    fn join(blocks: Vec<BlockSums>) -> Result<BlockSums> {
+        let mut out = Vec::new();
+        for block in blocks {
+            match block {
+                BlockSums::Gpu(words) => out.extend(words),
+                BlockSums::Cpu { .. } => return Err(Error::Gpu("a GPU target read back CPU sums".into())),
+            }
+        }
+        Ok(BlockSums::Gpu(out))
+    }
+}
+
+impl Passes for GpuChunks {
+    fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
+        let mut report = PassReport { ao_rays: 0, gpu_seconds: Some(0.0) };
+        for (target, _) in &mut self.targets {
+            let r = Passes::pass(target, first, count)?;
+            report.ao_rays += r.ao_rays;
+            report.gpu_seconds = report.gpu_seconds.zip(r.gpu_seconds).map(|(a, b)| a + b);
+        }
+        Ok(report)
+    }
+
+    fn read(&mut self) -> Result<BlockSums> {
+        let blocks = self.targets.iter_mut().map(|(t, _)| Passes::read(t)).collect::<Result<Vec<_>>>()?;
+        GpuChunks::join(blocks)
+    }
+
+    fn take(&mut self) -> Result<BlockSums> {
+        let blocks = self.targets.iter_mut().map(|(t, _)| Passes::take(t)).collect::<Result<Vec<_>>>()?;
+        GpuChunks::join(blocks)
+    }
+
+    fn load(&mut self, block: &BlockSums) -> Result<()> {
+        let BlockSums::Gpu(words) = block else {
+            return Err(Error::Gpu("the CPU reference's sums cannot continue on the GPU".into()));
+        };
+        let parts: Vec<Vec<[f32; 4]>> = self.split(words).into_iter().map(<[_]>::to_vec).collect();
+        for ((target, _), part) in self.targets.iter_mut().zip(parts) {
+            Passes::load(target, &BlockSums::Gpu(part))?;
+        }
+        Ok(())
+    }
+
+    fn device_bytes(&self) -> u64 {
+        self.targets.iter().map(|(t, _)| t.device_bytes).sum()
+    }
+
+    fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
+        let parts: Vec<Vec<bool>> = if inactive.is_empty() {
+            vec![Vec::new(); self.targets.len()]
+        } else {
+            self.split(inactive).into_iter().map(<[_]>::to_vec).collect()
+        };
+        for ((target, _), part) in self.targets.iter_mut().zip(parts) {
+            Passes::set_inactive(target, &part)?;
+        }
+        Ok(())
     }
 }
 

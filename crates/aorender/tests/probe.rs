@@ -126,6 +126,65 @@ fn gpu_and_cpu_take_the_same_samples() {
     }
 }
 
+/// A probe dispatch wider than the adapter's workgroups per dimension runs as rows of
+/// workgroups (a 2-D dispatch), and points past one target's storage bindings are split
+/// over several targets: with the workgroups per dimension forced down to 3 (192
+/// invocations), and then the points per target to 150 as well, 700 points take the CPU
+/// reference's samples, AO and bent normals alike (as `bake` traces them), so no point
+/// is skipped, traced twice or given another point's sequence; also when the render is
+/// stopped after its first pass and resumed from its accumulation.
+#[test]
+fn probes_past_one_dispatch_dimension_or_one_target_match_the_cpu() {
+    if !gpu_available() {
+        return;
+    }
+    let s = scene(&(plane([0.0; 3], [0.0, 1.0, 0.0]) + &sphere([0.3, 0.8, 0.1], 0.4)), None);
+    let probes: Vec<Probe> = (0..700)
+        .map(|i| {
+            Probe::new(Vec3::new((i % 35) as f32 * 0.06 - 1.0, 0.0, (i / 35) as f32 * 0.06 - 0.6), Vec3::Y).unwrap()
+        })
+        .collect();
+    let (cpu_session, gpu_session) = (session(&s, &Config::cpu()), session(&s, &Config::default()));
+    let bent = |session: &aorender::Session| {
+        let mut render = session.probe_render(&probes, 64, None, &s.settings, true).unwrap();
+        render.run(&mut aorender::Control::default()).unwrap();
+        let film = render.finish().unwrap().accumulation.film().unwrap();
+        (aorender::probe_film_values(&film), aorender::probe_film_bent_normals(&film).unwrap())
+    };
+    let cpu = cpu_session.probe(&probes, 256, &s.settings).unwrap();
+    assert!(cpu.values.iter().any(|v| v.mean < 0.9), "the sphere occludes some points");
+    let cpu_bent = bent(&cpu_session);
+    for points_per_target in [0, 150] {
+        aorender::gpu::target::limit_probe_groups_per_dimension(3);
+        aorender::gpu::target::limit_probe_points_per_target(points_per_target);
+        let gpu = gpu_session.probe(&probes, 256, &s.settings);
+        let gpu_bent = bent(&gpu_session);
+        // Stopped after its first pass and resumed: each target takes its part of the sums.
+        let mut first = gpu_session.probe_render(&probes, 64, None, &s.settings, true).unwrap();
+        first.run(&mut aorender::Control { time_limit: Some(1e-9), ..aorender::Control::default() }).unwrap();
+        let saved = first.finish().unwrap().accumulation;
+        assert!(saved.samples() < 64, "{points_per_target} points a target: the first run stopped early");
+        let mut resumed = gpu_session.probe_render(&probes, 64, None, &s.settings, true).unwrap();
+        resumed.resume(saved).unwrap();
+        resumed.run(&mut aorender::Control::default()).unwrap();
+        let resumed_film = resumed.finish().unwrap().accumulation.film().unwrap();
+        aorender::gpu::target::limit_probe_groups_per_dimension(0);
+        aorender::gpu::target::limit_probe_points_per_target(0);
+        let tag = format!("{points_per_target} points a target");
+        for (k, (c, g)) in cpu.values.iter().zip(&gpu.unwrap().values).enumerate() {
+            assert!((c.mean - g.mean).abs() < 1e-6, "{tag}: probe {k}: cpu {} gpu {}", c.mean, g.mean);
+        }
+        let resumed = aorender::probe_film_values(&resumed_film);
+        assert_eq!((resumed.len(), gpu_bent.0.len()), (probes.len(), probes.len()), "{tag}");
+        for (k, c) in cpu_bent.0.iter().enumerate() {
+            assert!((c.mean - resumed[k].mean).abs() < 1e-6, "{tag}: resumed probe {k}: AO");
+            assert!((c.mean - gpu_bent.0[k].mean).abs() < 1e-6, "{tag}: bent probe {k}: AO");
+            let (c, g) = (cpu_bent.1[k], gpu_bent.1[k]);
+            assert!((c - g).length() < 1e-4, "{tag}: bent probe {k}: {c} {g}");
+        }
+    }
+}
+
 /// Probe invocations that render several rounds add them in the same order as one
 /// dispatch per round: the sums are the same bit for bit (uniform hemisphere, so that
 /// every sample has its own value), with passes that the rounds per invocation do not

@@ -6,8 +6,8 @@ use crate::args::{RunArgs, SamplingArgs, SceneArgs, check_writable, write_json};
 use crate::{memory, signals};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::bake::{
-    Asset, BakeAt, BakePlan, Placement, TextureMap, TextureOptions, TexturePlan, TextureStats, UNUSABLE_VALUE, UvWrap,
-    WriteOptions, check_output, format_of, output_path, read_asset,
+    Asset, AssetMesh, BakeAt, BakePlan, GeneratedUvs, Placement, TextureMap, TextureOptions, TexturePlan, TextureStats,
+    UNUSABLE_VALUE, UvWrap, WriteOptions, check_output, format_of, generate_uvs, map_path, output_path, read_asset,
 };
 use aorender::output::write_atomically;
 use aorender::scene::MeshObject;
@@ -71,6 +71,11 @@ pub struct BakeArgs {
     /// textures on the set repeat: glTF samplers; else refuse), refuse, or repeat.
     #[arg(long, value_enum, default_value = "file")]
     uv_wrap: WrapArg,
+    /// Lightmap texture coordinates for the texture bake: generate them when the mesh has
+    /// none (auto), always (a new set: glTF TEXCOORD_n), or never. They are written into
+    /// the output mesh.
+    #[arg(long, value_enum, default_value = "auto")]
+    generate_uvs: GenerateArg,
     #[command(flatten)]
     run: RunArgs,
     /// Write the bake from these shards' checkpoints (`--sample-range … --checkpoint FILE`)
@@ -94,6 +99,26 @@ enum WrapArg {
     Repeat,
 }
 
+/// `--generate-uvs`.
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum GenerateArg {
+    Auto,
+    Always,
+    Never,
+}
+
+/// What unwrapping made, in the statistics.
+#[derive(serde::Serialize)]
+struct GeneratedReport {
+    /// The set written (glTF TEXCOORD_n; 0 for OBJ and PLY).
+    set: u32,
+    charts: u32,
+    atlases: usize,
+    /// Fraction of the texture the charts' surface covers.
+    utilization: f32,
+    seconds: f64,
+}
+
 /// What a texture bake reports besides the points.
 #[derive(serde::Serialize)]
 struct TextureReport {
@@ -108,6 +133,8 @@ struct TextureReport {
     overlapping_texels: usize,
     skipped_triangles: usize,
     wrapped_triangles: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    generated_uvs: Option<GeneratedReport>,
     /// Per texture: covered and padded texels, mean AO, the standard errors' RMS and maximum.
     maps: Vec<TextureStats>,
 }
@@ -160,7 +187,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     signals::install(stop.clone())?;
     let is_scene = input.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-    let mut texture = texture_options(&args, &input, is_scene)?;
+    let mut texture = texture_options(&args, is_scene)?;
     if !is_scene && (texture.is_none() || !is_map(&args.output)) {
         check_output(&input, &args.output, args.overwrite)?;
     }
@@ -213,14 +240,29 @@ pub fn run(args: BakeArgs) -> Result<()> {
             format_of(&t.output).unwrap_or_default()
         );
     }
-    let meshes = targets.iter().flat_map(|t| t.asset.meshes().iter().map(|m| (m, Placement::of(&t.object))));
+    // Generated texture coordinates, when the texture bake needs them.
+    let (generated, generated_report) = match texture.as_mut() {
+        Some(options) => match generated_uvs(&args, &input, &*targets[0].asset, options)? {
+            Some((g, report)) => (Some(g), Some(report)),
+            None => (None, None),
+        },
+        None => (None, None),
+    };
+    let with_uvs: Option<Vec<AssetMesh>> = generated.as_ref().map(|g| {
+        let mut meshes = targets[0].asset.meshes().to_vec();
+        for (m, uvs) in meshes.iter_mut().zip(&g.meshes) {
+            m.uv_sets.push(uvs.uv_set());
+        }
+        meshes
+    });
+    let meshes = targets.iter().flat_map(|t| {
+        let meshes = with_uvs.as_deref().unwrap_or(t.asset.meshes());
+        meshes.iter().map(|m| (m, Placement::of(&t.object)))
+    });
     let (plan, texture_plan) = match &texture {
         None => (BakePlan::new(meshes, at), None),
         Some(options) => {
             let meshes: Vec<_> = meshes.collect();
-            if !meshes.iter().any(|(m, _)| m.uv_set(options.uv_set).is_some()) {
-                bail!("{}", no_uv_message(&input, &meshes.iter().map(|(m, _)| *m).collect::<Vec<_>>(), options.uv_set));
-            }
             let memory = memory::available_bytes().unwrap_or(u64::MAX);
             let plan = TexturePlan::new(&meshes, options, args.bent_normals, memory).map_err(|e| {
                 anyhow!("{}: {}", input.display(), e.to_string().trim_start_matches("invalid settings: "))
@@ -350,6 +392,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
             overlapping_texels: tp.overlapping_texels,
             skipped_triangles: tp.skipped_triangles,
             wrapped_triangles: tp.wrapped_triangles,
+            generated_uvs: generated_report,
             maps: maps.iter().map(|m| m.stats()).collect(),
         };
         let target = &targets[0];
@@ -379,8 +422,14 @@ pub fn run(args: BakeArgs) -> Result<()> {
                     repeat: options.wrap == UvWrap::Repeat || tp.wrapped_triangles > 0,
                 });
             }
-            for note in target.asset.write_textures(&args.output, &encoded)? {
+            for note in target.asset.write_textures(&args.output, &encoded, generated.as_ref())? {
                 eprintln!("note: {}: {note}", args.output.display());
+            }
+            if format_of(&args.output) != Some("glTF") {
+                written.push(map_path(&args.output, "ao"));
+                if args.bent_normals {
+                    written.push(map_path(&args.output, "bent_normals"));
+                }
             }
         }
         let covered: usize = report.maps.iter().map(|m| m.covered_texels).sum();
@@ -622,7 +671,7 @@ fn sibling(path: &Path, suffix: &str) -> PathBuf {
 
 /// `--texture` and its companions, checked before anything is loaded; `None` for a
 /// bake into vertices.
-fn texture_options(args: &BakeArgs, input: &Path, is_scene: bool) -> Result<Option<TextureOptions>> {
+fn texture_options(args: &BakeArgs, is_scene: bool) -> Result<Option<TextureOptions>> {
     let Some(size) = &args.texture else {
         if is_map(&args.output) {
             bail!(
@@ -669,15 +718,60 @@ fn texture_options(args: &BakeArgs, input: &Path, is_scene: bool) -> Result<Opti
             "invalid option: --std-error and --colors are for vertex bakes: a texture's standard errors go into the G channel of a .exr map (-o NAME.exr)"
         );
     }
-    let gltf = format_of(input) == Some("glTF");
-    if !is_scene && !is_map(&args.output) && !gltf {
+    Ok(Some(options))
+}
+
+/// Unwraps the asset's meshes when `--generate-uvs` asks for it (auto: when no mesh has
+/// any texture coordinates) and points `options` at the new set; checked before any ray.
+fn generated_uvs(
+    args: &BakeArgs,
+    input: &Path,
+    asset: &dyn Asset,
+    options: &mut TextureOptions,
+) -> Result<Option<(GeneratedUvs, GeneratedReport)>> {
+    let meshes = asset.meshes();
+    let any = meshes.iter().any(|m| !m.uv_sets.is_empty());
+    let generate = match args.generate_uvs {
+        GenerateArg::Never => false,
+        GenerateArg::Auto => !any,
+        GenerateArg::Always => true,
+    };
+    if !generate {
+        if !meshes.iter().any(|m| m.uv_set(options.uv_set).is_some()) {
+            let never = if args.generate_uvs == GenerateArg::Never && !any { " (--generate-uvs never)" } else { "" };
+            bail!("{}{never}", no_uv_message(input, &meshes.iter().collect::<Vec<_>>(), options.uv_set));
+        }
+        return Ok(None);
+    }
+    let gltf = format_of(&args.output) == Some("glTF");
+    if any && !gltf {
         bail!(
-            "{}: {} files have no place for an AO texture: write the map itself (-o NAME.png or NAME.exr)",
-            args.output.display(),
+            "{}: the mesh has texture coordinates, and {} files hold one set: bake into them (--generate-uvs auto), or convert the mesh to glTF",
+            input.display(),
             format_of(input).unwrap_or("these")
         );
     }
-    Ok(Some(options))
+    if is_map(&args.output) {
+        bail!(
+            "{}: the mesh has no texture coordinates, and a map alone would lose the generated ones: write the mesh (-o NAME.{}) to get both, or --generate-uvs never",
+            args.output.display(),
+            input.extension().and_then(|e| e.to_str()).unwrap_or("glb")
+        );
+    }
+    // A new set after the file's own (glTF numbers them from 0 without gaps).
+    let set = meshes.iter().flat_map(|m| m.uv_sets.iter().map(|s| s.set + 1)).max().unwrap_or(0);
+    let start = std::time::Instant::now();
+    let generated = generate_uvs(meshes, set, options)
+        .map_err(|e| anyhow!("{}: {}", input.display(), e.to_string().trim_start_matches("invalid settings: ")))?;
+    let report = GeneratedReport {
+        set,
+        charts: generated.charts,
+        atlases: generated.atlases,
+        utilization: generated.utilization,
+        seconds: start.elapsed().as_secs_f64(),
+    };
+    options.uv_set = set;
+    Ok(Some((generated, report)))
 }
 
 /// Why nothing can be baked into a texture: no mesh has the set.
@@ -694,10 +788,12 @@ fn no_uv_message(input: &Path, meshes: &[&aorender::bake::AssetMesh], set: u32) 
             sets.iter().map(u32::to_string).collect::<Vec<_>>().join(", ")
         )
     };
-    format!(
-        "{}: no mesh has texture coordinates of set {set} ({others}); generating UVs is not supported: unwrap the mesh first (for example Blender's Smart UV Project, or xatlas)",
-        input.display()
-    )
+    let hint = if sets.is_empty() {
+        "generate them (--generate-uvs auto), or unwrap the mesh first"
+    } else {
+        "choose one with --uv-set, or generate a new set (--generate-uvs always)"
+    };
+    format!("{}: no mesh has texture coordinates of set {set} ({others}): {hint}", input.display())
 }
 
 fn parse_bit_depth(text: &str) -> Result<u8, String> {

@@ -3,7 +3,7 @@
 
 use crate::error::Result;
 use glam::{Mat3, Vec2, Vec3};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Where AO is baked.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -89,6 +89,40 @@ impl AssetMesh {
     }
 }
 
+/// Generated texture coordinates of one mesh.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MeshUvs {
+    /// The set's number (glTF `TEXCOORD_n`; 0 for OBJ and PLY).
+    pub set: u32,
+    /// For each new vertex, the mesh's vertex it copies.
+    pub xref: Vec<u32>,
+    /// For each new vertex, its coordinates in [0, 1]², in the file's convention (v down
+    /// for glTF, up for OBJ and PLY).
+    pub uvs: Vec<Vec2>,
+    /// For each face corner (parallel to [`AssetMesh::face_indices`]), its new vertex.
+    pub corners: Vec<u32>,
+}
+
+impl MeshUvs {
+    /// The coordinates of every face corner: the [`UvSet`] the bake reads.
+    pub fn uv_set(&self) -> UvSet {
+        UvSet { set: self.set, corners: self.corners.iter().map(|&k| self.uvs[k as usize]).collect() }
+    }
+}
+
+/// What unwrapping made of an asset's meshes.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GeneratedUvs {
+    /// One entry per mesh of the asset, in its order.
+    pub meshes: Vec<MeshUvs>,
+    /// Charts in all atlases.
+    pub charts: u32,
+    /// Atlases made: one per texture (glTF material).
+    pub atlases: usize,
+    /// Fraction of the texture covered by the charts' surface, mean over the atlases.
+    pub utilization: f32,
+}
+
 /// What a bake computed for one [`AssetMesh`]: one entry per vertex (or per face, for
 /// [`BakeAt::Faces`]).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -142,12 +176,28 @@ pub trait Asset: Send + Sync {
     fn write(&self, path: &Path, values: &[BakedValues], options: &WriteOptions) -> Result<Vec<String>>;
 
     /// Writes the file to `path` (atomically) with `maps` as its materials' occlusion
-    /// textures. Only glTF has a place for them: the others refuse.
-    fn write_textures(&self, path: &Path, maps: &[TextureMap]) -> Result<Vec<String>> {
-        let _ = maps;
-        Err(crate::error::Error::output(
-            path,
-            "only glTF references an AO texture: write the map itself (-o NAME.png or NAME.exr)",
-        ))
+    /// textures and `uvs` (one per mesh), when they were generated, as a new texture
+    /// coordinate set. glTF embeds or references the maps; OBJ and PLY write them beside
+    /// the mesh ([`map_path`]). Every other part of the file is kept.
+    fn write_textures(&self, path: &Path, maps: &[TextureMap], uvs: Option<&GeneratedUvs>) -> Result<Vec<String>>;
+}
+
+/// The file beside a mesh written to `path` that holds its map `name` (`ao`,
+/// `bent_normals`): `STEM_NAME.png`.
+pub fn map_path(path: &Path, name: &str) -> PathBuf {
+    path.with_file_name(format!("{}_{name}.png", crate::scene::meshes::stem(path)))
+}
+
+/// Writes the maps of an OBJ or PLY file's one texture beside `path` (`STEM_ao.png`,
+/// `STEM_bent_normals.png`): what [`Asset::write_textures`] does for formats without a
+/// place for them.
+pub(crate) fn write_maps_beside(path: &Path, maps: &[TextureMap]) -> Result<()> {
+    let [map] = maps else {
+        return Err(crate::error::Error::output(path, format!("{} textures for a file of one mesh", maps.len())));
+    };
+    crate::output::write_atomically(&map_path(path, "ao"), &map.png)?;
+    if let Some(png) = &map.bent_png {
+        crate::output::write_atomically(&map_path(path, "bent_normals"), png)?;
     }
+    Ok(())
 }

@@ -9,11 +9,11 @@
 //! A mesh placed by several nodes is occluded differently at each placement: every node
 //! after the first gets its own copy of the mesh, sharing its accessors and material.
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, TextureMap, UvSet, WriteOptions};
+use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureMap, UvSet, WriteOptions};
 use crate::error::{Error, Result};
 use crate::output::{write_atomically, write_atomically_with};
 use crate::scene::extension;
-use crate::scene::gltf::{GltfBytes, read_gltf};
+use crate::scene::gltf::{GltfBytes, read_buffers, read_gltf};
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::one_line;
 use crate::scene::meshes::stem;
@@ -302,7 +302,7 @@ impl Asset for GltfAsset {
         }
         Ok(notes)
     }
-    fn write_textures(&self, path: &Path, maps: &[TextureMap]) -> Result<Vec<String>> {
+    fn write_textures(&self, path: &Path, maps: &[TextureMap], uvs: Option<&GeneratedUvs>) -> Result<Vec<String>> {
         let fail = |message: String| Error::output(path, message);
         let (glb, mut doc, input_dir, output_dir) = self.output_document(path)?;
         let mut notes = self.warnings.clone();
@@ -312,6 +312,31 @@ impl Asset for GltfAsset {
         if glb && self.bin.is_none() {
             insert_first_buffer(&mut doc);
         }
+        // Generated coordinates: each baked primitive's vertices split along the seams,
+        // in new accessors (after the binary chunk's data; a .gltf's in a new buffer file).
+        let mut new_buffer = None;
+        let fill = match uvs {
+            Some(uvs) => {
+                let buffer = if glb {
+                    0
+                } else {
+                    let buffers = array(&mut doc, "buffers");
+                    buffers.push(object([]));
+                    buffers.len() - 1
+                };
+                let fill = self.meshes_to_fill(&mut doc, &mut notes);
+                if glb {
+                    // After the binary chunk's data: the views' offsets are into it.
+                    self.split_primitives(&mut doc, &mut data, buffer, &fill, uvs).map_err(fail)?;
+                } else {
+                    let mut split = Vec::new();
+                    self.split_primitives(&mut doc, &mut split, buffer, &fill, uvs).map_err(fail)?;
+                    new_buffer = Some((buffer, split));
+                }
+                fill
+            }
+            None => self.targets.iter().map(|t| t.mesh).collect(),
+        };
         let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
         let used: BTreeSet<PathBuf> = self.external_files().map(|f| comparable(&input_dir.join(f))).collect();
         let stem = stem(path);
@@ -380,7 +405,7 @@ impl Asset for GltfAsset {
                         let t = &self.targets[i];
                         if let Some(p) = doc
                             .get_mut("meshes")
-                            .and_then(|ms| ms.get_mut(t.mesh))
+                            .and_then(|ms| ms.get_mut(fill[i]))
                             .and_then(|ms| ms.get_mut("primitives"))
                             .and_then(|ps| ps.get_mut(t.primitive))
                         {
@@ -421,6 +446,15 @@ impl Asset for GltfAsset {
             let bytes = glb_bytes(json, data).ok_or_else(|| fail("the GLB would exceed 4 GiB".to_string()))?;
             write_maybe_gzipped(path, &bytes)?;
         } else {
+            if let Some((buffer, bytes)) = &new_buffer {
+                let (bin_path, uri) = self.bin_file(path, &input_dir, &output_dir, &mut notes);
+                let buffers = array(&mut doc, "buffers");
+                buffers[*buffer]["byteLength"] = bytes.len().max(1).into();
+                buffers[*buffer]["uri"] = uri.into();
+                let mut bytes = bytes.clone();
+                pad(&mut bytes, 0);
+                files.push((bin_path, bytes));
+            }
             let json =
                 serialize::to_vec_pretty(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
             let json = if is_gzip_name(path) { gzip(&json).map_err(|e| fail(e.to_string()))? } else { json };
@@ -430,6 +464,81 @@ impl Asset for GltfAsset {
             write_atomically(path, &json)?;
         }
         Ok(notes)
+    }
+}
+
+impl GltfAsset {
+    /// Rewrites each baked primitive (in the meshes `fill` gives each target) on its
+    /// vertices split along the seams of `uvs`: every attribute and morph target gathered
+    /// through `xref` into new accessors of `buffer` (their bytes appended to `data`), the
+    /// generated set added as `TEXCOORD_n`, and new 32-bit triangle indices.
+    fn split_primitives(
+        &self,
+        doc: &mut Value,
+        data: &mut Vec<u8>,
+        buffer: usize,
+        fill: &[usize],
+        uvs: &GeneratedUvs,
+    ) -> std::result::Result<(), String> {
+        let buffers = read_buffers(&self.path).map_err(|e| e.to_string())?;
+        for (i, (t, mesh)) in self.targets.iter().zip(&self.meshes).enumerate() {
+            let Some(generated) = uvs.meshes.get(i).filter(|u| !u.xref.is_empty()) else { continue };
+            let primitive = &self.json["meshes"][t.mesh]["primitives"][t.primitive];
+            let fail = |m: String| format!("{}: cannot add texture coordinates: {m}", mesh.label);
+            let gather = |doc: &mut Value, data: &mut Vec<u8>, accessor: &Value, position: bool| {
+                let index = accessor.as_u64().ok_or_else(|| fail("an attribute is not an accessor index".into()))?;
+                let (bytes, size) = accessor_bytes(&self.json, &buffers, index as usize).map_err(fail)?;
+                let mut out = Vec::with_capacity(generated.xref.len() * size);
+                for &v in &generated.xref {
+                    let v = v as usize;
+                    out.extend_from_slice(
+                        bytes.get(v * size..(v + 1) * size).ok_or_else(|| fail("index past the attribute".into()))?,
+                    );
+                }
+                Ok::<usize, String>(add_gathered(
+                    doc,
+                    data,
+                    buffer,
+                    &self.json["accessors"][index as usize],
+                    &out,
+                    size,
+                    position,
+                ))
+            };
+            let mut attributes = object([]);
+            for (name, accessor) in primitive["attributes"].as_object().into_iter().flatten() {
+                attributes[name.as_str()] = gather(doc, data, accessor, name == "POSITION")?.into();
+            }
+            let set = format!("TEXCOORD_{}", generated.set);
+            let coordinates = generated.uvs.iter().flat_map(|c| c.to_array());
+            attributes[set.as_str()] = add_accessor(doc, data, buffer, "VEC2", generated.uvs.len(), coordinates).into();
+            let mut targets = Vec::new();
+            for target in primitive.get("targets").and_then(Value::as_array).into_iter().flatten() {
+                let mut out = object([]);
+                for (name, accessor) in target.as_object().into_iter().flatten() {
+                    out[name.as_str()] = gather(doc, data, accessor, false)?.into();
+                }
+                targets.push(out);
+            }
+            let indices = add_indices(doc, data, buffer, &generated.corners);
+            let Some(p) = doc
+                .get_mut("meshes")
+                .and_then(|m| m.get_mut(fill[i]))
+                .and_then(|m| m.get_mut("primitives"))
+                .and_then(|p| p.get_mut(t.primitive))
+                .filter(|p| p.is_object())
+            else {
+                return Err(fail("the primitive is missing from the JSON".into()));
+            };
+            p["attributes"] = attributes;
+            p["indices"] = indices.into();
+            // The loader gave strips and fans as triangles: the new indices list those.
+            p["mode"] = 4.into();
+            if !targets.is_empty() {
+                p["targets"] = Value::Array(targets);
+            }
+        }
+        Ok(())
     }
 }
 
@@ -569,6 +678,169 @@ fn add_accessor(
         ("componentType", FLOAT.into()),
         ("count", count.into()),
         ("type", kind.into()),
+    ]));
+    accessors.len() - 1
+}
+
+/// Bytes of one component of glTF's `componentType`.
+fn component_bytes(component_type: Option<u64>) -> std::result::Result<usize, String> {
+    match component_type {
+        Some(5120 | 5121) => Ok(1),
+        Some(5122 | 5123) => Ok(2),
+        Some(5125 | 5126) => Ok(4),
+        t => Err(format!("unknown componentType {t:?}")),
+    }
+}
+
+/// The bytes of buffer view `view`, and its stride when it gives one.
+fn view_bytes<'a>(
+    json: &Value,
+    buffers: &'a [Vec<u8>],
+    view: Option<u64>,
+) -> std::result::Result<(&'a [u8], Option<usize>), String> {
+    let v = view.and_then(|i| json["bufferViews"].get(i as usize)).ok_or("a buffer view is missing")?;
+    if v.get("extensions").and_then(Value::as_object).is_some_and(|e| e.keys().any(|k| k.contains("meshopt"))) {
+        return Err("its vertex data is compressed (meshopt)".into());
+    }
+    let number = |key: &str| v.get(key).and_then(Value::as_u64).map(|n| n as usize);
+    let (offset, length) = (number("byteOffset").unwrap_or(0), number("byteLength").unwrap_or(0));
+    let bytes = number("buffer")
+        .and_then(|b| buffers.get(b))
+        .and_then(|b| b.get(offset..offset + length))
+        .ok_or("a buffer view lies outside its buffer")?;
+    Ok((bytes, number("byteStride")))
+}
+
+/// Accessor `index`'s elements, tightly packed (an accessor without a view is zeros, a
+/// sparse one has its substitutions applied), and the bytes of one element.
+fn accessor_bytes(json: &Value, buffers: &[Vec<u8>], index: usize) -> std::result::Result<(Vec<u8>, usize), String> {
+    let a = json["accessors"].get(index).ok_or_else(|| format!("accessor {index} is missing"))?;
+    let count = a["count"].as_u64().ok_or("an accessor has no count")? as usize;
+    let components = match a["type"].as_str() {
+        Some("SCALAR") => 1,
+        Some("VEC2") => 2,
+        Some("VEC3") => 3,
+        Some("VEC4") => 4,
+        t => return Err(format!("accessor {index} has type {t:?}, not a vertex attribute's")),
+    };
+    let component = component_bytes(a["componentType"].as_u64())?;
+    let size = components * component;
+    let mut out = vec![0u8; count * size];
+    let offset = |v: &Value| v.get("byteOffset").and_then(Value::as_u64).unwrap_or(0) as usize;
+    if a.get("bufferView").is_some() {
+        let (bytes, stride) = view_bytes(json, buffers, a["bufferView"].as_u64())?;
+        let (start, stride) = (offset(a), stride.unwrap_or(size));
+        for i in 0..count {
+            let at = start + i * stride;
+            let element = bytes.get(at..at + size).ok_or_else(|| format!("accessor {index} overruns its view"))?;
+            out[i * size..(i + 1) * size].copy_from_slice(element);
+        }
+    }
+    if let Some(sparse) = a.get("sparse") {
+        let n = sparse["count"].as_u64().unwrap_or(0) as usize;
+        let (ix, vx) = (&sparse["indices"], &sparse["values"]);
+        let (indices, _) = view_bytes(json, buffers, ix["bufferView"].as_u64())?;
+        let (values, _) = view_bytes(json, buffers, vx["bufferView"].as_u64())?;
+        let width = component_bytes(ix["componentType"].as_u64())?;
+        for k in 0..n {
+            let at = offset(ix) + k * width;
+            let raw = indices.get(at..at + width).ok_or_else(|| format!("accessor {index}: sparse indices overrun"))?;
+            let i = raw.iter().rev().fold(0usize, |acc, &b| (acc << 8) | usize::from(b));
+            let at = offset(vx) + k * size;
+            let value = values.get(at..at + size).ok_or_else(|| format!("accessor {index}: sparse values overrun"))?;
+            out.get_mut(i * size..(i + 1) * size)
+                .ok_or_else(|| format!("accessor {index}: a sparse index is out of range"))?
+                .copy_from_slice(value);
+        }
+    }
+    Ok((out, size))
+}
+
+/// Adds an accessor like `like` (type, component type, normalisation) of `bytes`
+/// (elements of `size` bytes, each stored on a 4-byte boundary as vertex attributes must
+/// be) in a new view of `buffer`; a float `POSITION` (`position`) gets its bounds, which
+/// glTF requires.
+fn add_gathered(
+    doc: &mut Value,
+    data: &mut Vec<u8>,
+    buffer: usize,
+    like: &Value,
+    bytes: &[u8],
+    size: usize,
+    position: bool,
+) -> usize {
+    pad(data, 0);
+    let offset = data.len();
+    let stride = size.next_multiple_of(4);
+    for element in bytes.chunks_exact(size) {
+        data.extend_from_slice(element);
+        data.resize(data.len() + stride - size, 0);
+    }
+    let count = bytes.len() / size;
+    let views = array(doc, "bufferViews");
+    let mut view = object([
+        ("buffer", buffer.into()),
+        ("byteOffset", offset.into()),
+        ("byteLength", (data.len() - offset).max(stride).into()),
+        ("target", ARRAY_BUFFER.into()),
+    ]);
+    if stride != size {
+        view["byteStride"] = stride.into();
+    }
+    views.push(view);
+    let view = views.len() - 1;
+    let mut accessor = object([
+        ("bufferView", view.into()),
+        ("componentType", like["componentType"].clone()),
+        ("count", count.into()),
+        ("type", like["type"].clone()),
+    ]);
+    if like.get("normalized").and_then(Value::as_bool) == Some(true) {
+        accessor["normalized"] = true.into();
+    }
+    if position {
+        if like["componentType"].as_u64() == Some(u64::from(FLOAT)) && size == 12 {
+            let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            for element in bytes.chunks_exact(12) {
+                for c in 0..3 {
+                    let v = f32::from_le_bytes(element[4 * c..4 * c + 4].try_into().expect("4 bytes"));
+                    (lo[c], hi[c]) = (lo[c].min(v), hi[c].max(v));
+                }
+            }
+            accessor["min"] = lo.map(f64::from).to_vec().into();
+            accessor["max"] = hi.map(f64::from).to_vec().into();
+        } else {
+            // Quantised positions: the file's bounds, which hold every vertex copied.
+            accessor["min"] = like["min"].clone();
+            accessor["max"] = like["max"].clone();
+        }
+    }
+    let accessors = array(doc, "accessors");
+    accessors.push(accessor);
+    accessors.len() - 1
+}
+
+/// Adds a 32-bit index accessor of `indices` in a new view of `buffer`.
+fn add_indices(doc: &mut Value, data: &mut Vec<u8>, buffer: usize, indices: &[u32]) -> usize {
+    pad(data, 0);
+    let offset = data.len();
+    data.extend(indices.iter().flat_map(|i| i.to_le_bytes()));
+    let views = array(doc, "bufferViews");
+    views.push(object([
+        ("buffer", buffer.into()),
+        ("byteOffset", offset.into()),
+        ("byteLength", (data.len() - offset).into()),
+        // ELEMENT_ARRAY_BUFFER.
+        ("target", 34963.into()),
+    ]));
+    let view = views.len() - 1;
+    let accessors = array(doc, "accessors");
+    // UNSIGNED_INT.
+    accessors.push(object([
+        ("bufferView", view.into()),
+        ("componentType", 5125.into()),
+        ("count", indices.len().into()),
+        ("type", "SCALAR".into()),
     ]));
     accessors.len() - 1
 }

@@ -4,7 +4,8 @@
 //! with the values added ([`Asset::write`]), every element, property, node and line the
 //! bake does not touch preserved.
 //!
-//! One module per format: `ply`, `obj`, `gltf`.
+//! One module per format: `ply`, `obj`, `gltf`; textures in `texture`, and their
+//! coordinates, when a mesh has none, in `unwrap`.
 
 mod asset;
 pub(crate) mod gltf;
@@ -12,13 +13,17 @@ pub(crate) mod obj;
 mod plan;
 pub(crate) mod ply;
 mod texture;
+mod unwrap;
 
-pub use asset::{Asset, AssetMesh, BakeAt, BakedValues, TextureMap, UvSet, WriteOptions};
+pub use asset::{
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, map_path,
+};
 pub use plan::{BakePlan, Placement, UNUSABLE_VALUE};
 pub use texture::{
     BYTES_PER_TEXEL, BakedTexture, Coverage, MAX_TEXTURE_SIZE, TextureOptions, TexturePlan, TextureStats,
     TextureTarget, UvWrap, bytes_per_point, texture_targets,
 };
+pub use unwrap::generate_uvs;
 
 use crate::error::{Error, Result};
 use crate::scene::MeshObject;

@@ -6,8 +6,13 @@
 //!
 //! OBJ has no per-face attribute nor a place for standard errors or bent normals: a bake
 //! at faces is refused (PLY and glTF take it), and the other two are left out with a note.
+//!
+//! A texture bake writes the map beside the file; generated texture coordinates go in as
+//! `vt` lines before the first face, each face's corners given theirs (`v/vt`, `v/vt/vn`).
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, UvSet, WriteOptions};
+use super::asset::{
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
+};
 use crate::error::{Error, Result};
 use crate::scene::input::{Input, is_gzip};
 use crate::scene::obj::{non_finite_coordinate, parse_vertex_line};
@@ -401,6 +406,51 @@ impl ObjAsset {
     }
 }
 
+impl ObjAsset {
+    /// Writes the file with the coordinates `uvs` (the file has none): their `vt` lines
+    /// before the first face line, and each face's corners naming theirs.
+    fn write_uv_lines(&self, out: &mut dyn Write, uvs: &MeshUvs) -> io::Result<()> {
+        let mesh = &self.meshes[0];
+        let (mut face, mut wrote_uvs) = (0, false);
+        for line in lines(&self.text) {
+            let text = String::from_utf8_lossy(line);
+            if keyword(&text) != Some("f") {
+                out.write_all(line)?;
+                continue;
+            }
+            if !wrote_uvs {
+                for c in &uvs.uvs {
+                    writeln!(out, "vt {} {}", c.x, c.y)?;
+                }
+                wrote_uvs = true;
+            }
+            let spans = word_spans(&text);
+            if spans.len() < 4 {
+                // Fewer than three corners: not a face of the mesh.
+                out.write_all(line)?;
+                continue;
+            }
+            let Some(&start) = mesh.face_starts.get(face) else {
+                return Err(io::Error::other("more faces than when the file was read"));
+            };
+            let mut last_end = 0;
+            for (k, &(a, b)) in spans.iter().enumerate().skip(1) {
+                out.write_all(&text.as_bytes()[last_end..a])?;
+                let vt = uvs.corners[start as usize + k - 1] + 1;
+                match text[a..b].split_once('/') {
+                    None => write!(out, "{}/{vt}", &text[a..b])?,
+                    // `v//vn` (the file has no `vt`, so the middle is empty).
+                    Some((v, rest)) => write!(out, "{v}/{vt}{}", rest.trim_start_matches(|c| c != '/'))?,
+                }
+                last_end = b;
+            }
+            out.write_all(&text.as_bytes()[last_end..])?;
+            face += 1;
+        }
+        Ok(())
+    }
+}
+
 impl Asset for ObjAsset {
     fn meshes(&self) -> &[AssetMesh] {
         &self.meshes
@@ -458,6 +508,31 @@ impl Asset for ObjAsset {
             notes.push(format!("bent normals not written: {elsewhere}"));
         }
         Ok(notes)
+    }
+
+    /// Writes the map beside the file (`STEM_ao.png`) and the file with the generated
+    /// coordinates, when there are some; else the file as it was.
+    fn write_textures(&self, path: &Path, maps: &[TextureMap], uvs: Option<&GeneratedUvs>) -> Result<Vec<String>> {
+        let uvs = uvs.and_then(|g| g.meshes.first());
+        if uvs.is_some() && !self.meshes[0].uv_sets.is_empty() {
+            return Err(Error::output(path, "the file has texture coordinates of its own: OBJ holds one set"));
+        }
+        let gzip = is_gzip(path);
+        write_maps_beside(path, maps)?;
+        let body = |out: &mut dyn Write| match uvs {
+            Some(uvs) => self.write_uv_lines(out, uvs),
+            None => out.write_all(&self.text),
+        };
+        crate::output::write_atomically_with(path, &mut |w| {
+            if gzip {
+                let mut encoder = GzEncoder::new(w, Compression::default());
+                body(&mut encoder)?;
+                encoder.finish().map(|_| ())
+            } else {
+                body(w)
+            }
+        })?;
+        Ok(Vec::new())
     }
 }
 

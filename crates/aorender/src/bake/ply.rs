@@ -9,8 +9,13 @@
 //! here, ascii tokens accepted and converted exactly as the loader's crate does (so the
 //! positions are the loader's, bit for bit). Output is binary little-endian, or ascii
 //! when the input was.
+//!
+//! A texture bake writes the map beside the file; generated texture coordinates go in as
+//! MeshLab's face `texcoord` lists (`u v` per corner), so the vertices stay as they are.
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, UvSet, WriteOptions};
+use super::asset::{
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
+};
 use crate::error::{Error, Result};
 use crate::output::write_atomically_with;
 use crate::scene::input::Input;
@@ -689,12 +694,46 @@ impl Asset for PlyAsset {
             return Err(Error::output(path, format!("the file has no {target_name} element")));
         };
         let element = &self.elements[target];
-        let (added, mut notes) = self.added_columns(element, values, options).map_err(|m| Error::output(path, m))?;
+        let (added, notes) = self.added_columns(element, values, options).map_err(|m| Error::output(path, m))?;
+        self.write_added(path, target, &added, notes)
+    }
 
+    /// Writes the map beside the file (`STEM_ao.png`) and the file with the generated
+    /// coordinates, when there are some, as MeshLab's face `texcoord` lists (u v per
+    /// corner, the first convention the loader reads); else the file as it was.
+    fn write_textures(&self, path: &Path, maps: &[TextureMap], uvs: Option<&GeneratedUvs>) -> Result<Vec<String>> {
+        let uvs = uvs.and_then(|g| g.meshes.first());
+        let Some(face) = self.elements.iter().position(|e| e.name == "face") else {
+            return Err(Error::output(path, "the file has no face element"));
+        };
+        let mut added = Vec::new();
+        if let Some(uvs) = uvs {
+            if !self.meshes[0].uv_sets.is_empty() {
+                return Err(Error::output(path, "the file has texture coordinates of its own: PLY holds one set"));
+            }
+            let mesh = &self.meshes[0];
+            let starts = mesh.face_starts.iter().map(|&s| 2 * s as usize).collect();
+            let values = uvs.corners.iter().flat_map(|&k| uvs.uvs[k as usize].to_array()).collect();
+            added.push(Column {
+                name: "texcoord".to_string(),
+                list: Some((ScalarType::UChar, starts)),
+                values: Values::Float(values),
+            });
+        }
+        write_maps_beside(path, maps)?;
+        self.write_added(path, face, &added, Vec::new())
+    }
+}
+
+impl PlyAsset {
+    /// Writes the file with the columns `added` on element `target`, each replacing the
+    /// element's own property of its name in place, the others after its last property.
+    fn write_added(&self, path: &Path, target: usize, added: &[Column], mut notes: Vec<String>) -> Result<Vec<String>> {
+        let element = &self.elements[target];
         // The columns written, element by element: the bake's replace the file's own of
         // the same name in place; the others follow the element's last property.
         let mut plan: Vec<Vec<&Column>> = self.elements.iter().map(|e| e.columns.iter().collect()).collect();
-        for a in &added {
+        for a in added {
             match plan[target].iter().position(|c| c.name == a.name) {
                 Some(i) => plan[target][i] = a,
                 None => plan[target].push(a),

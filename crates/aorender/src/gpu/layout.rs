@@ -75,8 +75,8 @@ gpu_struct! {
         pub probe_samples: u32 = "u32",
         /// Samples per replicate of the point sampler (0: one sequence).
         pub replicate: u32 = "u32",
-        /// Padding to a 16-byte multiple.
-        pub _pad: u32 = "u32",
+        /// Index of the target's first probe point in the request; 0 for images.
+        pub first_point: u32 = "u32",
     }
 }
 
@@ -150,7 +150,7 @@ impl FrameUniforms {
             strata: s.strata(s.spp),
             probe_samples: 0,
             replicate: s.replicate_samples(),
-            _pad: 0,
+            first_point: 0,
         }
     }
 
@@ -180,7 +180,7 @@ impl FrameUniforms {
             strata: settings.strata(samples),
             probe_samples: samples,
             replicate: settings.replicate_samples(),
-            _pad: 0,
+            first_point: 0,
         }
     }
 }

@@ -15,6 +15,7 @@ use crate::film::INACTIVE_SLOT_BITS;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, Ordering};
 use wgpu::util::DeviceExt;
 
 /// Test hook: with this environment variable set to N, a target destroys its device
@@ -98,8 +99,9 @@ impl GpuTarget {
         let lanes = frame.width;
         // With bent normals, one invocation fills a point's four slots.
         let slots = if bent_normals { points.len() as u64 } else { lanes as u64 * points.len() as u64 };
-        let limits = dev.ctx.device.limits();
-        let max_slots = limits.max_compute_workgroups_per_dimension as u64 * PROBE_WORKGROUP_SIZE as u64;
+        // Workgroups in x and y (rows of x): the slot index must fit a u32.
+        let per_dimension = u64::from(dev.ctx.device.limits().max_compute_workgroups_per_dimension);
+        let max_slots = (per_dimension * per_dimension * u64::from(PROBE_WORKGROUP_SIZE)).min(u64::from(u32::MAX));
         if slots > max_slots {
             return Err(Error::Gpu(format!(
                 "{} probe points × {lanes} lanes need {slots} invocations per dispatch; the adapter allows {max_slots}",
@@ -361,8 +363,8 @@ impl GpuTarget {
             pass.set_pipeline(&self.pipeline);
             let (groups_x, groups_y) = match self.kernel {
                 Kernel::Image => (self.width.div_ceil(WORKGROUP_SIZE[0]), self.height.div_ceil(WORKGROUP_SIZE[1])),
-                Kernel::Probe => ((self.width * self.height).div_ceil(PROBE_WORKGROUP_SIZE), 1),
-                Kernel::BentProbe => (self.height.div_ceil(PROBE_WORKGROUP_SIZE), 1),
+                Kernel::Probe => probe_groups(&self.dev, self.width * self.height),
+                Kernel::BentProbe => probe_groups(&self.dev, self.height),
             };
             for k in 0..dispatches {
                 pass.set_bind_group(0, &self.bind_group, &[(DISPATCH_STRIDE * k as u64) as u32]);
@@ -445,5 +447,60 @@ impl GpuTarget {
             ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("clear film") });
         encoder.clear_buffer(&self.film, 0, None);
         ctx.submit([encoder.finish()])
+    }
+}
+
+/// Overrides the adapter's limit on probe workgroups per dimension in the dispatch's
+/// shape when not zero (a smaller one: tests cross into the second dimension with few
+/// points); the largest dispatch allowed stays the adapter's.
+static PROBE_GROUPS_PER_DIMENSION: AtomicU32 = AtomicU32::new(0);
+
+/// Caps the probe dispatch at `n` workgroups per dimension (0: the adapter's limit), for
+/// tests of the 2-D dispatch; results do not change.
+#[cfg(feature = "testing")]
+pub fn limit_probe_groups_per_dimension(n: u32) {
+    PROBE_GROUPS_PER_DIMENSION.store(n, Ordering::Relaxed);
+}
+
+/// Probe workgroups a dispatch may have per dimension.
+fn probe_groups_per_dimension(dev: &GpuDevice) -> u32 {
+    let adapter = dev.ctx.device.limits().max_compute_workgroups_per_dimension;
+    match PROBE_GROUPS_PER_DIMENSION.load(Ordering::Relaxed) {
+        0 => adapter,
+        n => n.min(adapter),
+    }
+}
+
+/// The probe dispatch of `slots` invocations: rows of at most the per-dimension limit of
+/// workgroups (the kernels number slots row by row).
+fn probe_groups(dev: &GpuDevice, slots: u32) -> (u32, u32) {
+    let groups = slots.div_ceil(PROBE_WORKGROUP_SIZE).max(1);
+    let x = groups.min(probe_groups_per_dimension(dev));
+    (x, groups.div_ceil(x))
+}
+
+/// Overrides how many probe points one target takes when not zero (fewer: tests split a
+/// request over several targets with few points).
+static PROBE_POINTS_PER_TARGET: AtomicU32 = AtomicU32::new(0);
+
+/// Caps the probe points of one target at `n` (0: as many as its storage bindings
+/// take), for tests of requests split over several targets; results do not change.
+#[cfg(feature = "testing")]
+pub fn limit_probe_points_per_target(n: u32) {
+    PROBE_POINTS_PER_TARGET.store(n, Ordering::Relaxed);
+}
+
+/// The most probe points one target binds with `slots_per_point` film slots each: its
+/// points' and its film's storage buffers must each fit one binding.
+pub(crate) fn probe_points_per_target(dev: &GpuDevice, slots_per_point: u32) -> usize {
+    let limits = dev.ctx.device.limits();
+    let binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
+    let point_bytes = std::mem::size_of::<GpuProbePoint>() as u64;
+    // A film slot is four f32 words (the sum, its compensation, the sum of squares, its).
+    let slot_bytes = 16 * u64::from(slots_per_point.max(1));
+    let n = (binding / point_bytes).min(binding / slot_bytes).min(u64::from(u32::MAX)) as usize;
+    match PROBE_POINTS_PER_TARGET.load(Ordering::Relaxed) {
+        0 => n,
+        k => n.min(k as usize),
     }
 }

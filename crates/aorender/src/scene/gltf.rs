@@ -116,6 +116,21 @@ pub(crate) fn read_gltf<T>(path: &Path, normals: bool, keep: impl FnOnce(GltfByt
     Ok((placed, kept))
 }
 
+/// Every buffer's bytes of a glTF or GLB file, gzipped or not, as [`read_gltf`] loads
+/// them: for rewriting its vertex data (`bake::gltf`).
+pub(crate) fn read_buffers(path: &Path) -> Result<Vec<Vec<u8>>> {
+    let bytes = Input::open(path)?.read_all(path)?;
+    let glb = split_glb(path, &bytes)?;
+    let json_bytes: &[u8] = glb.as_ref().map_or(&bytes, |g| &g.json);
+    let mut root: json::Root = json::deserialize::from_slice(json_bytes)
+        .map_err(|e| Error::scene(path, format!("invalid glTF JSON: {}", one_line(&e.to_string()))))?;
+    root.extensions_required.clear();
+    check_position_accessors_exist(path, &root)?;
+    let document = Document::from_json(root).map_err(|e| Error::scene(path, validation_message(&e)))?;
+    let bin = glb.as_ref().and_then(|g| g.bin.as_deref());
+    Ok(load_buffers(path, &document, bin)?.into_iter().map(Cow::into_owned).collect())
+}
+
 fn extension_supported(name: &str) -> bool {
     IMPLEMENTED_EXTENSIONS.contains(&name) || APPEARANCE_EXTENSION_PREFIXES.iter().any(|p| name.starts_with(p))
 }
