@@ -418,14 +418,7 @@ fn bad_input_is_refused_in_one_line_with_nothing_written() {
         (&["bad.ply", "-o", "out.ply"][..], "bad.ply"),
         (&["missing.ply", "-o", "out.ply"][..], "missing.ply"),
     ] {
-        let mut all = vec!["bake", "--device", "cpu"];
-        all.extend_from_slice(args);
-        let out = aorender(&all, d);
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
-        let lines: Vec<&str> = stderr.lines().collect();
-        assert_eq!(lines.len(), 1, "{args:?}: {stderr}");
-        assert!(lines[0].starts_with("aorender: ") && lines[0].contains(expect), "{args:?}: {stderr}");
+        bake_refused(args, d, expect);
     }
     assert_eq!(std::fs::read(d.join("m.ply")).unwrap(), before);
     let mut left: Vec<_> =

@@ -374,14 +374,7 @@ fn bad_input_is_refused_in_one_line_with_nothing_written() {
         (&["floor.ply", "-o", "f.png"][..], "--texture SIZE"),
         (&["floor.ply", "-o", "f.png", "--texture", "64", "--at", "faces"][..], "--at faces"),
     ] {
-        let mut all = vec!["bake", "--device", "cpu"];
-        all.extend_from_slice(args);
-        let out = aorender(&all, d);
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
-        let lines: Vec<&str> = stderr.lines().collect();
-        assert_eq!(lines.len(), 1, "{args:?}: {stderr}");
-        assert!(lines[0].starts_with("aorender: ") && lines[0].contains(expect), "{args:?}: {stderr}");
+        bake_refused(args, d, expect);
     }
     // A bit depth other than 8 or 16 is clap's to refuse (status 2).
     let out = aorender(&["bake", "floor.ply", "-o", "f.png", "--texture", "8", "--bit-depth", "12"], d);

@@ -20,63 +20,10 @@ fn devices() -> Vec<&'static str> {
 }
 
 /// An icosphere of radius `r` about `c`: the icosahedron's faces split `levels` times,
-/// every vertex pushed onto the sphere.
+/// every vertex pushed onto the sphere (the closed-form suite's).
 fn icosphere(c: DVec3, r: f64, levels: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut v: Vec<DVec3> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .map(|p| DVec3::from(p).normalize())
-    .to_vec();
-    let mut f: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut split = |a: u32, b: u32, v: &mut Vec<DVec3>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                v.push(((v[a as usize] + v[b as usize]) / 2.0).normalize());
-                v.len() as u32 - 1
-            })
-        };
-        let mut next = Vec::new();
-        for [a, b, c] in f {
-            let (ab, bc, ca) = (split(a, b, &mut v), split(b, c, &mut v), split(c, a, &mut v));
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        f = next;
-    }
-    (v.into_iter().map(|p| c + r * p).collect(), f)
+    let m = aorender::closed_form::unit_icosphere(levels);
+    (m.vertices.iter().map(|&p| c + r * p).collect(), m.triangles.iter().map(|t| t.map(|i| i as u32)).collect())
 }
 
 /// A triangle mesh without texture coordinates: positions, optional normals, triangles.
@@ -513,15 +460,8 @@ fn meshes_without_uvs_are_refused_when_generation_is_off() {
         (&["mapped.obj", "-o", "out.obj", "--texture", "64", "--generate-uvs", "always"][..], "hold one set"),
         (&["ball.obj", "-o", "out.obj", "--texture", "8", "--padding", "4"][..], "too small to unwrap"),
     ] {
-        let mut all = vec!["bake", "--device", "cpu", "--samples", "4"];
-        all.extend_from_slice(args);
-        let out = aorender(&all, d);
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
-        let lines: Vec<&str> = stderr.lines().collect();
-        assert_eq!(lines.len(), 1, "{args:?}: {stderr}");
-        assert!(lines[0].starts_with("aorender: ") && lines[0].contains(expect), "{args:?}: {stderr}");
-        assert!(lines[0].contains("ball.") || lines[0].contains("mapped.") || lines[0].contains("out."), "{stderr}");
+        let line = bake_refused(&[&["--samples", "4"][..], args].concat(), d, expect);
+        assert!(line.contains("ball.") || line.contains("mapped.") || line.contains("out."), "{line}");
     }
     let mut left: Vec<_> =
         std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();

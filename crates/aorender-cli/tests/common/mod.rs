@@ -73,6 +73,18 @@ pub fn aorender(args: &[&str], cwd: &std::path::Path) -> std::process::Output {
         .expect("aorender runs")
 }
 
+/// Runs `aorender bake` on the CPU reference with `args` in `cwd`, which must fail with
+/// exit status 1 and one line, `aorender: ...`, that contains `expect`; returns the line.
+pub fn bake_refused(args: &[&str], cwd: &std::path::Path, expect: &str) -> String {
+    let out = aorender(&[&["bake", "--device", "cpu"][..], args].concat(), cwd);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+    let lines: Vec<&str> = stderr.lines().collect();
+    assert_eq!(lines.len(), 1, "{args:?}: {stderr}");
+    assert!(lines[0].starts_with("aorender: ") && lines[0].contains(expect), "{args:?}: {stderr}");
+    lines[0].to_string()
+}
+
 /// `scenes/dragons.toml` written into `dir` with each of its nine dragons read through a
 /// file name of its own (links to the one file), so they are not instances of one mesh
 /// but 7.8M triangles in one BVH. Returns the scene file.
