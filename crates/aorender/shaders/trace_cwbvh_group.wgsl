@@ -16,8 +16,6 @@
 // Requires subgroup operations with subgroups of a multiple of eight lanes. Instances
 // are not handled (the host traces scenes with instances a ray per lane).
 
-const GROUP_LANES: u32 = 8u;
-
 // The lane's index in its group, and the subgroup invocation id of the group's lane 0.
 var<private> group_lane: u32;
 var<private> group_base: u32;

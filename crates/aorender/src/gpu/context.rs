@@ -3,7 +3,8 @@
 //! submissions and read-backs every pass uses.
 
 use super::fault::{Fault, Faults, catch_panic};
-use super::shaders::{GROUP_LANES, GeometryStorage, Traversal};
+use super::layout::GROUP_LANES;
+use super::shaders::{GeometryStorage, Traversal};
 use crate::error::{Error, Result};
 use std::sync::Arc;
 

@@ -22,6 +22,10 @@ pub const PROBE_WORKGROUP_SIZE: u32 = 64;
 /// Invocations in a workgroup of either kernel: the columns of the CWBVH traversal's
 /// stacks in workgroup memory.
 pub const TRAVERSAL_LANES: u32 = 64;
+/// Lanes of a cooperative traversal's group, which trace each of their rays together
+/// (`shaders/trace_cwbvh_group.wgsl`): a node's eight children, one a lane.
+pub const GROUP_LANES: u32 = 8;
+const _: () = assert!(TRAVERSAL_LANES % GROUP_LANES == 0);
 const _: () = assert!(WORKGROUP_SIZE[0] == 8 && WORKGROUP_SIZE[1] == 8);
 const _: () = assert!(WORKGROUP_SIZE[0] * WORKGROUP_SIZE[1] == TRAVERSAL_LANES);
 const _: () = assert!(PROBE_WORKGROUP_SIZE == TRAVERSAL_LANES);
@@ -218,6 +222,7 @@ pub fn constants() -> Vec<Constant> {
         U32("WORKGROUP_HEIGHT", WORKGROUP_SIZE[1]),
         U32("PROBE_WORKGROUP_SIZE", PROBE_WORKGROUP_SIZE),
         U32("TRAVERSAL_LANES", TRAVERSAL_LANES),
+        U32("GROUP_LANES", GROUP_LANES),
         U32("COUNTER_AO_RAYS", COUNTER_AO_RAYS),
         U32("COUNTER_TRUNCATED", COUNTER_TRUNCATED),
         U32("COUNTER_COUNT", COUNTER_COUNT),

@@ -3,7 +3,7 @@
 //! is written once, in Rust: [`super::layout`]), with the bindings and the geometry's
 //! accessors generated for the render at hand.
 
-use super::layout::{node_binding, primitive_binding, wgsl_bindings, wgsl_header};
+use super::layout::{GROUP_LANES, node_binding, primitive_binding, wgsl_bindings, wgsl_header};
 use crate::bvh::BvhLayout;
 use crate::error::{Error, Result};
 
@@ -52,9 +52,6 @@ impl Traversal {
         }
     }
 }
-
-/// Lanes of a cooperative traversal's group (`GROUP_LANES` in `trace_cwbvh_group.wgsl`).
-pub const GROUP_LANES: u32 = 8;
 
 /// The traversal file of a BVH layout and traversal; `ao.wgsl` imports `trace.wgsl`,
 /// which the composer replaces with this. The cooperative traversal exists for the
