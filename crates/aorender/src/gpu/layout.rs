@@ -25,7 +25,7 @@ pub const TRAVERSAL_LANES: u32 = 64;
 /// Lanes of a cooperative traversal's group, which trace each of their rays together
 /// (`shaders/trace_cwbvh_group.wgsl`): a node's eight children, one a lane.
 pub const GROUP_LANES: u32 = 8;
-const _: () = assert!(TRAVERSAL_LANES % GROUP_LANES == 0);
+const _: () = assert!(TRAVERSAL_LANES.is_multiple_of(GROUP_LANES));
 const _: () = assert!(WORKGROUP_SIZE[0] == 8 && WORKGROUP_SIZE[1] == 8);
 const _: () = assert!(WORKGROUP_SIZE[0] * WORKGROUP_SIZE[1] == TRAVERSAL_LANES);
 const _: () = assert!(PROBE_WORKGROUP_SIZE == TRAVERSAL_LANES);
