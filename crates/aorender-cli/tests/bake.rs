@@ -108,16 +108,6 @@ fn values(path: &Path, element: &str) -> (Vec<f32>, Vec<f32>) {
     (ao, se)
 }
 
-/// Runs `aorender bake` with `args` in `dir`; panics with its output unless it succeeds.
-fn bake(dir: &Path, args: &[&str]) -> String {
-    let mut all = vec!["bake"];
-    all.extend_from_slice(args);
-    let out = aorender(&all, dir);
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "bake {args:?}: {stderr}");
-    stderr
-}
-
 /// Nothing outside a convex body occludes it: every vertex and face of a closed convex
 /// mesh (an icosphere, a box of quads) bakes to exactly 1 with cosine-weighted sampling,
 /// and with uniform sampling (whose fully open estimate is not exactly 1) to the very
@@ -321,28 +311,14 @@ fn resumed_and_merged_bakes_are_bit_identical() {
     let positions: Vec<DVec3> = v.into_iter().chain(b).collect();
     std::fs::write(d.join("m.ply"), ply(&positions, &faces, None)).unwrap();
     for device in devices() {
-        let full = format!("{device}-full.ply");
         // Four slots a point: the AO and the bent normal's sums.
-        let common = ["--device", device, "--samples", "256", "--std-error", "--bent-normals"];
-        bake(d, &[&["m.ply", "-o", &full][..], &common].concat());
-        let ck = format!("{device}.ck");
-        let part = format!("{device}-part.ply");
-        let stopped =
-            bake(d, &[&["m.ply", "-o", &part, "--checkpoint", &ck, "--time-limit", "1e-9"][..], &common].concat());
-        assert!(stopped.contains("time limit reached"), "{stopped}");
-        let resumed = format!("{device}-resumed.ply");
-        bake(d, &[&["m.ply", "-o", &resumed, "--resume", &ck][..], &common].concat());
+        let common = ["--device", device, "--std-error", "--bent-normals"];
+        let [full, resumed, merged] = bake_whole_resumed_and_merged(d, "m.ply", "ply", device, 256, &common);
         assert_eq!(
             std::fs::read(d.join(&resumed)).unwrap(),
             std::fs::read(d.join(&full)).unwrap(),
             "{device}: resumed"
         );
-        let (a, b) = (format!("{device}-a.ck"), format!("{device}-b.ck"));
-        let shard = format!("{device}-shard.ply");
-        bake(d, &[&["m.ply", "-o", &shard, "--sample-range", "0..128", "--checkpoint", &a][..], &common].concat());
-        bake(d, &[&["m.ply", "-o", &shard, "--sample-range", "128..256", "--checkpoint", &b][..], &common].concat());
-        let merged = format!("{device}-merged.ply");
-        bake(d, &[&["m.ply", "-o", &merged, "--merge", &b, &a][..], &common].concat());
         assert_eq!(std::fs::read(d.join(&merged)).unwrap(), std::fs::read(d.join(&full)).unwrap(), "{device}: merged");
     }
 }

@@ -110,16 +110,6 @@ fn scene(file: &str, more: &str) -> String {
     )
 }
 
-/// Runs `aorender bake` with `args` in `dir`; panics with its output unless it succeeds.
-fn bake(dir: &Path, args: &[&str]) -> String {
-    let mut all = vec!["bake"];
-    all.extend_from_slice(args);
-    let out = aorender(&all, dir);
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "bake {args:?}: {stderr}");
-    stderr
-}
-
 /// An EXR map's texels: (AO, standard error, covered), row-major from the top.
 fn read_exr(path: &Path) -> (u32, u32, Vec<(f32, f32, bool)>) {
     let img = image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).to_rgba32f();
@@ -397,22 +387,8 @@ fn resumed_and_merged_texture_bakes_are_bit_identical() {
     let plane = "[[object]]\ntype = \"plane\"\npoint = [0, 0, 0]\nnormal = [0, 1, 0]\n";
     std::fs::write(d.join("scene.toml"), scene("sphere.ply", plane)).unwrap();
     for device in devices() {
-        let common = ["--device", device, "--texture", "48x24", "--samples", "64", "--bent-normals"];
-        let full = format!("{device}-full.exr");
-        bake(d, &[&["scene.toml", "-o", &full][..], &common].concat());
-        let ck = format!("{device}.ck");
-        let part = format!("{device}-part.exr");
-        let stopped =
-            bake(d, &[&["scene.toml", "-o", &part, "--checkpoint", &ck, "--time-limit", "1e-9"][..], &common].concat());
-        assert!(stopped.contains("time limit reached"), "{stopped}");
-        let resumed = format!("{device}-resumed.exr");
-        bake(d, &[&["scene.toml", "-o", &resumed, "--resume", &ck][..], &common].concat());
-        let (a, b) = (format!("{device}-a.ck"), format!("{device}-b.ck"));
-        let shard = format!("{device}-shard.exr");
-        bake(d, &[&["scene.toml", "-o", &shard, "--sample-range", "0..32", "--checkpoint", &a][..], &common].concat());
-        bake(d, &[&["scene.toml", "-o", &shard, "--sample-range", "32..64", "--checkpoint", &b][..], &common].concat());
-        let merged = format!("{device}-merged.exr");
-        bake(d, &[&["scene.toml", "-o", &merged, "--merge", &b, &a][..], &common].concat());
+        let common = ["--device", device, "--texture", "48x24", "--bent-normals"];
+        let [full, resumed, merged] = bake_whole_resumed_and_merged(d, "scene.toml", "exr", device, 64, &common);
         for other in [&resumed, &merged] {
             for suffix in [".exr", "_bent_normals.png"] {
                 let name = |n: &str| n.replace(".exr", suffix);

@@ -73,6 +73,45 @@ pub fn aorender(args: &[&str], cwd: &std::path::Path) -> std::process::Output {
         .expect("aorender runs")
 }
 
+/// Runs `aorender bake` with `args` in `dir`; panics with its output unless it succeeds.
+pub fn bake(dir: &std::path::Path, args: &[&str]) -> String {
+    let out = aorender(&[&["bake"][..], args].concat(), dir);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "bake {args:?}: {stderr}");
+    stderr
+}
+
+/// Bakes `input` with `common` options (`samples` samples a point) into `{tag}-NAME.ext`
+/// in `dir` four ways: at once (`full`); stopped at once by a time limit with a checkpoint
+/// and resumed (`resumed`); and in two shards of half the samples each, merged in the
+/// other order (`merged`). Returns the names of the full, resumed and merged outputs.
+pub fn bake_whole_resumed_and_merged(
+    dir: &std::path::Path,
+    input: &str,
+    ext: &str,
+    tag: &str,
+    samples: u32,
+    common: &[&str],
+) -> [String; 3] {
+    let file = |n: &str| format!("{tag}-{n}.{ext}");
+    let (full, part, resumed, shard, merged) =
+        (file("full"), file("part"), file("resumed"), file("shard"), file("merged"));
+    let samples_arg = samples.to_string();
+    let common = [common, &["--samples", &samples_arg]].concat();
+    bake(dir, &[&[input, "-o", &full][..], &common].concat());
+    let ck = format!("{tag}.ck");
+    let stopped =
+        bake(dir, &[&[input, "-o", &part, "--checkpoint", &ck, "--time-limit", "1e-9"][..], &common].concat());
+    assert!(stopped.contains("time limit reached"), "{stopped}");
+    bake(dir, &[&[input, "-o", &resumed, "--resume", &ck][..], &common].concat());
+    let (a, b) = (format!("{tag}-a.ck"), format!("{tag}-b.ck"));
+    let (first, second) = (format!("0..{}", samples / 2), format!("{}..{samples}", samples / 2));
+    bake(dir, &[&[input, "-o", &shard, "--sample-range", &first, "--checkpoint", &a][..], &common].concat());
+    bake(dir, &[&[input, "-o", &shard, "--sample-range", &second, "--checkpoint", &b][..], &common].concat());
+    bake(dir, &[&[input, "-o", &merged, "--merge", &b, &a][..], &common].concat());
+    [full, resumed, merged]
+}
+
 /// Runs `aorender bake` on the CPU reference with `args` in `cwd`, which must fail with
 /// exit status 1 and one line, `aorender: ...`, that contains `expect`; returns the line.
 pub fn bake_refused(args: &[&str], cwd: &std::path::Path, expect: &str) -> String {
