@@ -276,6 +276,8 @@ impl Prepared {
                         error: p.error,
                         normal: p.normal.to_array(),
                         _pad1: 0.0,
+                        surface_normal: p.surface_normal.to_array(),
+                        _pad2: 0.0,
                     })
                     .collect();
                 let slots_per_point = if bent_normals { 4 } else { lanes };
