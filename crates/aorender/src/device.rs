@@ -396,7 +396,7 @@ impl Passes for GpuTarget {
     }
 }
 
-/// Probe points past one target's storage bindings (lavapipe binds 128 MiB: 4,194,304
+/// Probe points past one target's storage bindings (lavapipe binds 128 MiB: 2,796,202
 /// points) over several targets, each a contiguous range of the points numbering its
 /// sample sequences from its first point's index, driven as one film: slot order and
 /// sums are those of a single target.

@@ -321,7 +321,7 @@ impl SurfaceIndex {
                 let (f, r) = (pd - s.center.as_dvec3(), s.radius as f64);
                 let l = f.length();
                 let distance = (l - r).abs();
-                if !(l > 0.0) || distance > allowed(s.center.abs().max_element() as f64 + r) {
+                if l <= 0.0 || distance > allowed(s.center.abs().max_element() as f64 + r) {
                     return;
                 }
                 let bound = distance + 4.0 * EPS64 * (l + r);
