@@ -31,6 +31,7 @@ def ambient_occlusion(
     max_distance: Optional[float] = None,
     seed: int = 0,
     replicate: Optional[int] = None,
+    surface_tolerance: Optional[float] = None,
     device: str = "auto",
 ) -> Values:
     """AO of the mesh (V, F) at the points P about the normals N: (ao, std_error).
@@ -44,6 +45,11 @@ def ambient_occlusion(
     std_error is valid for "independent" samples; for "sobol" and "stratified" pass
     replicate=N (samples per independently randomised replicate, e.g. 16), else it is the
     spread of single samples, an overestimate.
+
+    Each point is taken on the triangle it lies on within surface_tolerance (None: 2**-18
+    of the largest coordinate of the point and the triangle), and its rays start off the
+    triangle by its distance to it; points on no triangle are traced as given, and a
+    UserWarning counts them.
     """
 
 class Scene:
@@ -72,6 +78,7 @@ class Scene:
         max_distance: Optional[float] = None,
         seed: int = 0,
         replicate: Optional[int] = None,
+        surface_tolerance: Optional[float] = None,
         device: str = "auto",
     ) -> Values:
         """AO at the points P about the normals N: (ao, std_error), float64, k each."""

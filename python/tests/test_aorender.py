@@ -97,6 +97,34 @@ def test_floor_under_a_sphere_matches_the_closed_form(sphere_scene, hemisphere, 
     assert np.all(np.abs(ao - expected) <= 4 * err), (ao, expected, err)
 
 
+@pytest.mark.parametrize("device", ["cpu", "auto"])
+def test_points_sampled_on_a_tilted_square_are_exactly_one(device):
+    """Points computed on an open tilted square of small triangles away from the origin,
+    in float64 and rounded to float32, sit just above or just under it; found on it,
+    every one is fully open. Taken as exactly on a surface (surface_tolerance=0), those
+    under it read 0 and are counted."""
+    normal = np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2])
+    t1 = np.cross(normal, [0.0, 0.0, 1.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(normal, t1)
+    centre, n = np.full(3, 5.0), 40
+    a, b = np.meshgrid(np.linspace(-0.5, 0.5, n + 1), np.linspace(-0.5, 0.5, n + 1), indexing="ij")
+    V = centre + a.reshape(-1, 1) * t1 + b.reshape(-1, 1) * t2
+    k = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).reshape(-1)
+    F = np.vstack([np.stack([k, k + n + 1, k + n + 2], 1), np.stack([k, k + n + 2, k + 1], 1)])
+    rng = np.random.default_rng(3)
+    P = centre + rng.uniform(-0.45, 0.45, (200, 1)) * t1 + rng.uniform(-0.45, 0.45, (200, 1)) * t2
+    off = P[:2] + 0.5 * normal
+    N = np.tile(normal, (202, 1))
+    with pytest.warns(UserWarning, match=r"2 of 202 points \(the first is P\[200\]\) lie on no surface"):
+        ao, err = aorender.ambient_occlusion(V, F, np.vstack([P, off]), N, 64, device=device)
+    np.testing.assert_array_equal(ao, 1.0)
+    np.testing.assert_array_equal(err, 0.0)
+    with pytest.warns(UserWarning, match="lie on no surface"):
+        exact, _ = aorender.ambient_occlusion(V, F, P, N[:200], 64, surface_tolerance=0.0, device=device)
+    assert np.any(exact < 0.5), "no sampled point lies under the square: the control is void"
+
+
 def test_convex_mesh_bakes_to_exactly_one():
     scene = aorender.Scene.from_arrays(*cube())
     ao, err = scene.bake(64, device="cpu")
@@ -248,6 +276,9 @@ BAD = [
     (dict(hemisphere="cos"), ValueError, "unknown hemisphere 'cos': expected one of 'uniform', 'cosine'"),
     (dict(sampler="halton"), ValueError, "unknown sampler 'halton'"),
     (dict(max_distance=-1.0), ValueError, "max_distance must be zero or positive"),
+    (dict(surface_tolerance=-1.0), ValueError, "surface_tolerance must be a finite distance of at least 0, got -1"),
+    (dict(surface_tolerance=float("nan")), ValueError, "surface_tolerance must be a finite distance of at least 0"),
+    (dict(surface_tolerance=float("inf")), ValueError, "surface_tolerance must be a finite distance of at least 0"),
     (dict(device=""), ValueError, "device must be"),
     (dict(device="no-such-adapter-xyz"), RuntimeError, "no-such-adapter-xyz"),
     (dict(V=np.array([["a", "b", "c"]] * 4)), ValueError, "V must hold real numbers"),

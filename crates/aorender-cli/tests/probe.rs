@@ -35,3 +35,36 @@ fn command_writes_csv_and_rejects_bad_points() {
     let out = aorender(&["probe", "--points", "points.txt", "--samples", "0", "--device", "cpu"], d);
     assert!(!out.status.success());
 }
+
+#[test]
+fn points_on_no_surface_are_counted_and_the_tolerance_is_checked() {
+    let dir = temp_dir();
+    let d = dir.path();
+    // On aobench's floor, and 5 above it.
+    std::fs::write(d.join("points.txt"), "0 -0.5 -2 0 1 0\n# between\n0 4.5 -2 0 1 0\n").unwrap();
+    let run = |extra: &[&str]| {
+        let args = [&["probe", "--points", "points.txt", "-o", "ao.csv", "--samples", "64", "--device", "cpu"], extra];
+        let out = aorender(&args.concat(), d);
+        (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    let (code, err) = run(&[]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("2 probes × 64 samples") && err.contains("; 1 on no surface"), "{err}");
+    assert!(err.contains("note: 1 of 2 points (the first on line 3 of points.txt) lie on no surface"), "{err}");
+    // A tolerance past the second point's height takes it too.
+    let (code, err) = run(&["--surface-tolerance", "5.5"]);
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("; 0 on no surface") && !err.contains("note: "), "{err}");
+    std::fs::remove_file(d.join("ao.csv")).unwrap();
+    for bad in ["-1", "nan", "inf"] {
+        let (code, err) = run(&[&format!("--surface-tolerance={bad}")]);
+        assert_eq!(code, Some(1), "{bad}: {err}");
+        assert!(
+            err.starts_with(
+                "aorender: invalid option: --surface-tolerance: surface tolerance must be a finite distance"
+            ) && err.lines().count() == 1,
+            "{bad}: {err}"
+        );
+        assert!(!d.join("ao.csv").exists(), "{bad}: output written");
+    }
+}

@@ -12,7 +12,7 @@ use pyo3::prelude::*;
 use scene::PyScene;
 
 /// ambient_occlusion(V, F, P, N, samples=256, *, hemisphere="cosine", sampler="sobol",
-/// max_distance=None, seed=0, replicate=None, device="auto") -> (ao, std_error)
+/// max_distance=None, seed=0, replicate=None, surface_tolerance=None, device="auto") -> (ao, std_error)
 ///
 /// Ambient occlusion of the triangle mesh (V, F) at the points P about the normals N.
 ///
@@ -49,12 +49,22 @@ use scene::PyScene;
 /// samples and device give the same values as `aorender probe --seed`. device: "auto" (the
 /// best GPU adapter, else the CPU reference), "gpu", "cpu", or part of an adapter's name.
 ///
+/// Each point is taken on the surface it lies on: the nearest triangle within
+/// surface_tolerance (a distance; None, the default, is 2**-18 of the largest coordinate
+/// of the point and the triangle, about 32 float32 rounding steps) gives it its normal and
+/// a bound on its distance, and its rays start that far off the surface, so a point
+/// computed inside a triangle (a surface sample) reads the AO just above it, not the dark
+/// of just under it. A mesh vertex is taken as exactly on it. Points on no triangle within
+/// the tolerance are traced as given, their rays starting exactly at them, and a
+/// UserWarning says how many. Where N is not the triangle's normal (interpolated vertex
+/// normals), directions about N that would leave below the triangle are mirrored above it.
+///
 /// The BVH is built on every call: to ask one mesh several times, make a Scene with
 /// Scene.from_arrays(V, F) and call its ambient_occlusion. Ctrl-C stops the tracing after
 /// the current pass and raises KeyboardInterrupt. Bad input raises ValueError before any
 /// work; a device failure raises RuntimeError.
 #[pyfunction]
-#[pyo3(signature = (V, F, P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, replicate = None, device = "auto"))]
+#[pyo3(signature = (V, F, P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, replicate = None, surface_tolerance = None, device = "auto"))]
 #[allow(non_snake_case, clippy::too_many_arguments)]
 fn ambient_occlusion<'py>(
     py: Python<'py>,
@@ -68,6 +78,7 @@ fn ambient_occlusion<'py>(
     max_distance: Option<f64>,
     seed: u32,
     replicate: Option<u32>,
+    surface_tolerance: Option<f64>,
     device: &str,
 ) -> PyResult<scene::Values<'py>> {
     // Every argument checked before the BVH is built.
@@ -75,9 +86,10 @@ fn ambient_occlusion<'py>(
     let f = arrays::faces(py, F, "F", v.len())?;
     let probes = scene::probes(py, P, N, samples)?;
     let settings = engine::settings(hemisphere, sampler, seed, max_distance, replicate)?;
+    let tolerance = scene::tolerance(surface_tolerance)?;
     let scene = PyScene::of_arrays("arrays", v, f)
         .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("V, F: {}", e.value(py))))?;
-    scene.probe(py, &probes, samples, &settings, device)
+    scene.probe(py, &probes, samples, &settings, tolerance, device)
 }
 
 /// Ambient occlusion on the GPU (wgpu) or a CPU reference: AO at points of a triangle

@@ -7,7 +7,7 @@ use aorender::bake::{
     Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, check_output, output_path, read_asset,
 };
 use aorender::scene::{MeshObject, mesh_triangles};
-use aorender::{BvhOptions, Camera, ImageRequest, Probe, Projection, Scene, Session, Settings};
+use aorender::{BvhOptions, Camera, ImageRequest, Probe, Projection, Scene, Session, Settings, SurfaceTolerance};
 use glam::{Mat4, Vec3};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::{PyUserWarning, PyValueError};
@@ -72,19 +72,41 @@ impl PyScene {
         .map_err(to_py)
     }
 
-    /// AO at `probes` (checked by [`probes`]), `samples` rays each.
+    /// AO at `probes` (checked by [`probes`]), `samples` rays each, each point put on the
+    /// surface it lies on within `tolerance`; a warning counts the points on none.
     pub fn probe<'py>(
         &self,
         py: Python<'py>,
         probes: &[Probe],
         samples: u32,
         settings: &Settings,
+        tolerance: SurfaceTolerance,
         device_name: &str,
     ) -> PyResult<Values<'py>> {
         let session = self.session(py, device_name)?;
+        let located = py.allow_threads(|| session.locate(probes, tolerance)).map_err(to_py)?;
+        if let Some(first) = located.on_surface.iter().position(|&on| !on) {
+            let message = format!(
+                "{} of {} points (the first is P[{first}]) lie on no surface within the tolerance: their rays start exactly at them (surface_tolerance=D widens it)",
+                located.off_surface(),
+                probes.len()
+            );
+            PyErr::warn(py, &py.get_type::<PyUserWarning>(), &std::ffi::CString::new(message)?, 1)?;
+        }
+        let probes = &located.probes;
         let result = interruptible(py, |control| session.probe_with(probes, samples, settings, control))?;
         let (ao, se) = result.values.iter().map(|v| (v.mean, v.std_error)).unzip();
         Ok((out(py, ao), out(py, se)))
+    }
+}
+
+/// The `surface_tolerance` keyword: `None` for the default, else a distance, checked.
+pub fn tolerance(surface_tolerance: Option<f64>) -> PyResult<SurfaceTolerance> {
+    match surface_tolerance {
+        None => Ok(SurfaceTolerance::Relative),
+        Some(d) => SurfaceTolerance::distance(d as f32).map_err(|_| {
+            PyValueError::new_err(format!("surface_tolerance must be a finite distance of at least 0, got {d}"))
+        }),
     }
 }
 
@@ -221,12 +243,12 @@ impl PyScene {
     }
 
     /// s.ambient_occlusion(P, N, samples=256, *, hemisphere="cosine", sampler="sobol",
-    /// max_distance=None, seed=0, replicate=None, device="auto") -> (ao, std_error)
+    /// max_distance=None, seed=0, replicate=None, surface_tolerance=None, device="auto") -> (ao, std_error)
     ///
     /// AO at the points P (k, 3) about the normals N (k, 3) (any length but zero), with
     /// `samples` rays each: float64 arrays of k values, 1 fully open, and their standard
     /// errors. See `aorender.ambient_occlusion` for the estimator and its arguments.
-    #[pyo3(signature = (P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, replicate = None, device = "auto"))]
+    #[pyo3(signature = (P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, replicate = None, surface_tolerance = None, device = "auto"))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn ambient_occlusion<'py>(
         &self,
@@ -239,11 +261,13 @@ impl PyScene {
         max_distance: Option<f64>,
         seed: u32,
         replicate: Option<u32>,
+        surface_tolerance: Option<f64>,
         device: &str,
     ) -> PyResult<Values<'py>> {
         let probes = probes(py, P, N, samples)?;
         let settings = settings(hemisphere, sampler, seed, max_distance, replicate)?;
-        self.probe(py, &probes, samples, &settings, device)
+        let tolerance = tolerance(surface_tolerance)?;
+        self.probe(py, &probes, samples, &settings, tolerance, device)
     }
 
     /// s.render(width, height, spp, *, camera=None, hemisphere="cosine", sampler="sobol",

@@ -55,6 +55,18 @@ fn ao_ray(p: vec3f, n: vec3f, error: f32, u: vec2f) -> AoRay {
     return AoRay(offset_ray_origin(p, n, error), local_to_world(w_local, n), w_local);
 }
 
+// The AO ray of probe q for hemisphere numbers u: about its normal, from its position
+// pushed off its surface by its error bound along the surface's normal (its normal where
+// it has none), a direction below the surface mirrored above it. The twin of
+// CpuTracer::probe_ray.
+fn probe_ray(q: ProbePoint, u: vec2f) -> AoRay {
+    let w_local = sample_hemisphere(HEMISPHERE, u);
+    let g = q.surface_normal;
+    let off = select(g, q.normal, all(g == vec3f(0.0)));
+    let d = above_surface(local_to_world(w_local, q.normal), g);
+    return AoRay(offset_ray_origin(q.position, off, q.error), d, w_local);
+}
+
 // The first hit of an AO ray within the maximum distance, counted; nothing where the lane
 // is not live.
 fn trace_ao(ray: AoRay, live: bool) -> Hit {
@@ -68,13 +80,6 @@ fn ao_estimate(shadow: Hit, w_local: vec3f) -> f32 {
         return 0.0;
     }
     return hemisphere_weight(HEMISPHERE, w_local);
-}
-
-// The hemisphere estimate at p: one AO ray (none where the lane is not live). The twin of
-// CpuTracer::ao_at.
-fn ao_value(p: vec3f, n: vec3f, error: f32, u: vec2f, live: bool) -> f32 {
-    let ray = ao_ray(p, n, error, u);
-    return ao_estimate(trace_ao(ray, live), ray.w_local);
 }
 
 // Where a camera ray hit, and the albedo there.
@@ -237,8 +242,8 @@ fn probe_sample(
             break;
         }
         let u = sample_point_uniforms(SAMPLER, frame.first_point + point, 0u, index, frame.seed, frame.strata, frame.replicate);
-        // Pushed off its surface by its error bound (zero for a point exactly on it).
-        let value = ao_value(q.position, q.normal, q.error, u.zw, live);
+        let ray = probe_ray(q, u.zw);
+        let value = ao_estimate(trace_ao(ray, live), ray.w_local);
         if (live) {
             acc = accumulate(acc, value);
         }
@@ -280,7 +285,7 @@ fn probe_bent_sample(
             break;
         }
         let u = sample_point_uniforms(SAMPLER, frame.first_point + point, 0u, index, frame.seed, frame.strata, frame.replicate);
-        let ray = ao_ray(q.position, q.normal, q.error, u.zw);
+        let ray = probe_ray(q, u.zw);
         let shadow = trace_ao(ray, live);
         let open = select(vec3f(0.0), ray.d, shadow.kind == HIT_NONE);
         if (live && truncated) {

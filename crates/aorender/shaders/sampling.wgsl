@@ -197,6 +197,13 @@ fn offset_ray_origin(p: vec3f, n: vec3f, error: f32) -> vec3f {
     return select(select(moved, down, offset < vec3f(0.0)), up, offset > vec3f(0.0));
 }
 
+// w mirrored about the plane of the unit surface normal g when it points below it; g zero
+// leaves it. The twin of above_surface in src/sampling.rs.
+fn above_surface(w: vec3f, g: vec3f) -> vec3f {
+    let c = dot(w, g);
+    return select(w, w - 2.0 * c * g, c < 0.0);
+}
+
 // The next float above each (finite) component; -0 counts as +0.
 fn next_float_up(x: vec3f) -> vec3f {
     let v = select(x, vec3f(0.0), x == vec3f(0.0));

@@ -339,6 +339,12 @@ pub fn probes_hash(geometry: &[u8; 32], probes: &[Probe]) -> [u8; 32] {
         for c in p.position.to_array().into_iter().chain(p.normal.to_array()).chain([p.error]) {
             h.update(&c.to_le_bytes());
         }
+        // Only where there is one, so that a checkpoint of probes without one still matches.
+        if p.surface_normal != Vec3::ZERO {
+            for c in p.surface_normal.to_array() {
+                h.update(&c.to_le_bytes());
+            }
+        }
     }
     *h.finalize().as_bytes()
 }

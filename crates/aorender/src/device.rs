@@ -276,6 +276,8 @@ impl Prepared {
                         error: p.error,
                         normal: p.normal.to_array(),
                         _pad1: 0.0,
+                        surface_normal: p.surface_normal.to_array(),
+                        _pad2: 0.0,
                     })
                     .collect();
                 let slots_per_point = if bent_normals { 4 } else { lanes };
@@ -394,7 +396,7 @@ impl Passes for GpuTarget {
     }
 }
 
-/// Probe points past one target's storage bindings (lavapipe binds 128 MiB: 4,194,304
+/// Probe points past one target's storage bindings (lavapipe binds 128 MiB: 2,796,202
 /// points) over several targets, each a contiguous range of the points numbering its
 /// sample sequences from its first point's index, driven as one film: slot order and
 /// sums are those of a single target.

@@ -336,6 +336,17 @@ pub fn instance_point(
     SurfacePoint { p, n, error: n.abs().dot(forward + back) * (1.0 + gamma(16)) }
 }
 
+/// What entering an instance's mesh can cost a world point `p` near its surface: an AO
+/// ray from `p`, pushed off along the unit world normal `n` by at most `slack`, is
+/// carried into the mesh's space by `to_object`, whose origin lands within
+/// γ(5)|L⁻¹||o − t| of the exact preimage ([`instance_hit_point`]'s way back); carried to
+/// the world by `L`, that is at most this far along `n`.
+pub fn instance_entry_error(to_world: &AffineRows, to_object: &InverseAffine, p: Vec3, slack: f32, n: Vec3) -> f32 {
+    let q = (p - to_world.translation()).abs() + Vec3::splat(2.0 * slack);
+    let back = to_world.abs_apply(gamma(5) * to_object.0.abs_apply(q, 0.0), 0.0);
+    n.abs().dot(back) * (1.0 + gamma(16))
+}
+
 /// The hit point of a ray on a sphere, projected back onto the surface (pbrt-v4 §6.8.5):
 /// within γ(8)·|p − c| of it, plus the rounding of adding the centre.
 pub fn sphere_hit_point(o: Vec3, d: Vec3, t: f32, center: Vec3, radius: f32) -> SurfacePoint {

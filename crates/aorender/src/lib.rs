@@ -102,6 +102,10 @@ mod sampling;
 pub mod session;
 #[cfg(not(feature = "testing"))]
 mod session;
+#[cfg(feature = "testing")]
+pub mod surface;
+#[cfg(not(feature = "testing"))]
+mod surface;
 
 pub mod bake;
 pub mod closed_form;
@@ -123,3 +127,4 @@ pub use sampler::Sampler;
 pub use sampling::Hemisphere;
 pub use scene::{Camera, Projection, Scene, Settings};
 pub use session::{ImageRequest, ProbeOutput, Session};
+pub use surface::{Located, RELATIVE_TOLERANCE, SurfaceTolerance};

@@ -1,11 +1,15 @@
 //! AO at given points and normals: the hemisphere integral without a camera, for closed
-//! forms at exact locations and for baking AO into vertices.
+//! forms at exact locations and for baking AO into vertices and textures.
 //!
 //! A probe is a position and a normal; its value is 1/π ∫ V(x, ω) cos θ dω over the
 //! hemisphere around the normal (albedo 1), estimated with a request's hemisphere
 //! distribution, sampler, seed and maximum distance. The AO rays start at the position,
-//! pushed off along the normal by the probe's error bound (zero for a point given exactly
-//! on its surface: a ray that starts on a triangle never hits it). Sample `i` of probe `k` uses the
+//! pushed off its surface by the probe's error bound (zero for a point given exactly on
+//! its surface: a ray that starts on a triangle never hits it), along the surface's own
+//! normal where the probe knows it. A probe whose normal is not its surface's (an
+//! interpolated vertex normal) samples the hemisphere about its normal, and a direction
+//! that leaves below the surface is mirrored above it, so the surface the point lies on
+//! never occludes it. Sample `i` of probe `k` uses the
 //! sampler's numbers for pixel `(k, 0)` and index `i`, on the GPU and on the CPU reference
 //! alike; on either device a probe's samples are spread over several slots (lanes), and
 //! slot sums are added exactly.
@@ -19,11 +23,17 @@ use glam::Vec3;
 pub struct Probe {
     /// Position.
     pub position: Vec3,
-    /// Unit normal.
+    /// Unit normal: the hemisphere sampled.
     pub normal: Vec3,
-    /// Bound on the distance, along the normal, between `position` and the surface the
-    /// probe lies on (zero when it is exactly on it): the AO rays start that far off.
+    /// Bound on the distance between `position` and the surface the probe lies on, along
+    /// `surface_normal` (along `normal` where that is zero); zero when it is exactly on
+    /// it: the AO rays start that far off.
     pub error: f32,
+    /// Unit normal of the surface the probe lies on, on the side of `normal`, where it
+    /// differs from `normal` (an interpolated normal, a normal given with a point found
+    /// on a surface); zero where it is unknown or is `normal` itself. Rays start off the
+    /// surface along it, and a direction below the surface is mirrored above it.
+    pub surface_normal: Vec3,
 }
 
 impl Probe {
@@ -38,7 +48,7 @@ impl Probe {
         if !(len > 0.0 && len.is_finite()) {
             return Err(bad("zero normal"));
         }
-        Ok(Probe { position, normal: normal / len, error: 0.0 })
+        Ok(Probe { position, normal: normal / len, error: 0.0, surface_normal: Vec3::ZERO })
     }
 
     /// [`Probe::new`] for a position within `error` of its surface along the normal (a
@@ -53,6 +63,23 @@ impl Probe {
         }
         Ok(Probe { error, ..Probe::new(position, normal)? })
     }
+
+    /// [`Probe::with_error`] for a point on a surface whose unit normal is
+    /// `surface_normal` (turned to the side of `normal` here), `error` bounding the
+    /// distance along it. A surface normal that is not finite or not of unit length
+    /// (within 10⁻⁴) is refused.
+    pub fn on_surface(position: Vec3, normal: Vec3, surface_normal: Vec3, error: f32) -> Result<Probe> {
+        let probe = Probe::with_error(position, normal, error)?;
+        let len = surface_normal.length();
+        if !(surface_normal.is_finite() && (len - 1.0).abs() <= 1e-4) {
+            return Err(Error::Probe {
+                index: 0,
+                message: format!("surface normal must be a unit vector, got {surface_normal}"),
+            });
+        }
+        let g = if surface_normal.dot(probe.normal) < 0.0 { -surface_normal } else { surface_normal };
+        Ok(Probe { surface_normal: if g == probe.normal { Vec3::ZERO } else { g }, ..probe })
+    }
 }
 
 /// The probes checked, with unit normals however they were given (what a request traces):
@@ -62,7 +89,11 @@ pub fn checked(probes: &[Probe]) -> Result<Vec<Probe>> {
         .iter()
         .enumerate()
         .map(|(index, p)| {
-            Probe::with_error(p.position, p.normal, p.error).map_err(|e| Error::Probe { index, message: e.message() })
+            let checked = match p.surface_normal {
+                Vec3::ZERO => Probe::with_error(p.position, p.normal, p.error),
+                g => Probe::on_surface(p.position, p.normal, g, p.error),
+            };
+            checked.map_err(|e| Error::Probe { index, message: e.message() })
         })
         .collect()
 }
@@ -151,5 +182,20 @@ mod tests {
         assert!(Probe::new(Vec3::ZERO, Vec3::ZERO).unwrap_err().to_string().contains("zero normal"));
         assert!(Probe::new(Vec3::NAN, Vec3::Z).unwrap_err().to_string().contains("non-finite"));
         assert_eq!(Probe::new(Vec3::ONE, Vec3::new(0.0, 0.0, 2.0)).unwrap().normal, Vec3::Z);
+        let tilted = Vec3::new(0.0, 0.6, 0.8);
+        assert!(Probe::on_surface(Vec3::ONE, Vec3::Z, Vec3::new(0.0, 0.0, 2.0), 0.0).is_err());
+        assert!(Probe::on_surface(Vec3::ONE, Vec3::Z, Vec3::NAN, 0.0).is_err());
+        assert!(Probe::on_surface(Vec3::ONE, Vec3::Z, tilted, -1.0).is_err());
+    }
+
+    #[test]
+    fn surface_normals_face_the_probes_side() {
+        let g = Vec3::new(0.0, 0.6, -0.8);
+        assert_eq!(Probe::on_surface(Vec3::ONE, Vec3::Z, g, 1e-6).unwrap().surface_normal, -g);
+        assert_eq!(Probe::on_surface(Vec3::ONE, -Vec3::Z, g, 1e-6).unwrap().surface_normal, g);
+        // The probe's own normal: nothing to mirror about, the offset along the normal.
+        assert_eq!(Probe::on_surface(Vec3::ONE, Vec3::Z, -Vec3::Z, 1e-6).unwrap().surface_normal, Vec3::ZERO);
+        let p = Probe::on_surface(Vec3::ONE, Vec3::Z, g, 1e-6).unwrap();
+        assert_eq!(checked(&[p]).unwrap()[0], p);
     }
 }

@@ -255,6 +255,16 @@ pub fn offset_ray_origin(p: Vec3, n: Vec3, error: f32) -> Vec3 {
     Vec3::new(step(moved.x, offset.x), step(moved.y, offset.y), step(moved.z, offset.z))
 }
 
+/// Direction `w` mirrored about the plane of the unit surface normal `g` when it points
+/// below the surface (`w·g < 0`), else `w`: a direction sampled about a shading normal
+/// that would leave into the surface is traced as its mirror image above it, so the
+/// surface a probe lies on never occludes it (`g` zero leaves every direction as it is).
+/// The twin of `above_surface` in `shaders/sampling.wgsl`.
+pub fn above_surface(w: Vec3, g: Vec3) -> Vec3 {
+    let c = w.dot(g);
+    if c < 0.0 { w - 2.0 * c * g } else { w }
+}
+
 /// The next float above `x` (−0 is treated as +0); +∞ stays.
 pub fn next_float_up(x: f32) -> f32 {
     if x == f32::INFINITY {

@@ -17,6 +17,7 @@ use crate::error::{Error, Result};
 use crate::probe::{Probe, ProbeValue, checked, lanes_for};
 use crate::render::{Control, Render, RenderInfo};
 use crate::scene::{Camera, LocalFrame, Scene, Settings, round_up};
+use crate::surface::{Located, SurfaceIndex, SurfaceTolerance};
 use glam::DVec3;
 use std::ops::Range;
 use std::sync::{Arc, Mutex, OnceLock};
@@ -62,6 +63,8 @@ pub struct Session {
     camera_hash: Mutex<Option<(Camera, [u8; 32])>>,
     /// The geometry's hash, for probe requests.
     geometry_hash: OnceLock<[u8; 32]>,
+    /// The surfaces' search structure, made by the first [`Session::locate`].
+    surfaces: OnceLock<SurfaceIndex>,
 }
 
 impl Session {
@@ -90,6 +93,7 @@ impl Session {
                 setup,
                 camera_hash: Mutex::new(None),
                 geometry_hash: OnceLock::new(),
+                surfaces: OnceLock::new(),
             })
             .collect())
     }
@@ -117,6 +121,24 @@ impl Session {
                 Probe { position, error, ..*p }
             })
             .collect()
+    }
+
+    /// `probes` put on the surfaces they lie on: for each point, the nearest surface of
+    /// the scene within `tolerance` gives the probe its normal and a bound on the point's
+    /// distance to it, by which the AO rays start off it, as a camera hit's do (a point
+    /// computed inside a triangle in floating point is rarely exactly on it, and one just
+    /// under it reads dark). A triangle's corner (a vertex) is taken as exactly on it and
+    /// left as it is; a point on no surface is left as it is and counted
+    /// ([`Located::off_surface`]). What `aorender probe` and the Python module do with the
+    /// points they are given; the search structure is built by the first call.
+    pub fn locate(&self, probes: &[Probe], tolerance: SurfaceTolerance) -> Result<Located> {
+        if let SurfaceTolerance::Distance(d) = tolerance {
+            SurfaceTolerance::distance(d)?;
+        }
+        // Checked, but handed on as given: a request normalises a normal once more.
+        checked(probes)?;
+        let index = self.surfaces.get_or_init(|| SurfaceIndex::new(&self.scene));
+        Ok(index.locate(&self.scene, probes, tolerance))
     }
 
     /// The device.

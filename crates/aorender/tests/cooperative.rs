@@ -111,7 +111,12 @@ fn cooperative_probes_are_the_per_lane_values() {
         .map(|i| {
             let f = |k: u32| ((i * k + 3) % 37) as f32 / 36.0;
             let position = lo + (hi - lo) * Vec3::new(f(7), f(11), f(13));
-            Probe { position, normal: Vec3::new(f(5) - 0.5, 1.0, f(3) - 0.5).normalize(), error: 0.0 }
+            Probe {
+                position,
+                normal: Vec3::new(f(5) - 0.5, 1.0, f(3) - 0.5).normalize(),
+                error: 0.0,
+                surface_normal: Vec3::ZERO,
+            }
         })
         .collect();
     let settings = Settings { hemisphere: Hemisphere::Uniform, max_distance: Some(0.05), ..scene.settings.clone() };

@@ -121,7 +121,8 @@ fn invalid_requests_name_the_setting() {
     let mut r = session.default_request();
     r.camera.look_at = r.camera.eye;
     assert!(session.render(&r).err().expect("a degenerate camera").to_string().contains("the same point"));
-    let bad = Probe { position: glam::Vec3::ZERO, normal: glam::Vec3::ZERO, error: 0.0 };
+    let bad =
+        Probe { position: glam::Vec3::ZERO, normal: glam::Vec3::ZERO, error: 0.0, surface_normal: glam::Vec3::ZERO };
     let e = session.probe(&[Probe::new(glam::Vec3::ONE, glam::Vec3::Z).unwrap(), bad], 16, &r.settings).unwrap_err();
     assert_eq!(e.to_string(), "probe 1: zero normal");
     // A normal of any length is the direction it gives.

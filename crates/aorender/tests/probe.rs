@@ -198,7 +198,14 @@ fn rounds_per_invocation_leave_the_sums_unchanged() {
     s.settings.hemisphere = Hemisphere::Uniform;
     let points: Vec<GpuProbePoint> = [[0.0, 0.0, 0.0], [1.0, 0.0, -0.5], [-2.0, 0.0, 3.0]]
         .iter()
-        .map(|&p| GpuProbePoint { position: p, error: 0.0, normal: [0.0, 1.0, 0.0], _pad1: 0.0 })
+        .map(|&p| GpuProbePoint {
+            position: p,
+            error: 0.0,
+            normal: [0.0, 1.0, 0.0],
+            _pad1: 0.0,
+            surface_normal: [0.0; 3],
+            _pad2: 0.0,
+        })
         .collect();
     let (lanes, samples) = (4u32, 1001u32);
     let rounds = samples.div_ceil(lanes);

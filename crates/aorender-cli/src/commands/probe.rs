@@ -3,7 +3,7 @@
 use crate::args::{SamplingArgs, SceneArgs, check_output_extension};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::output::write_atomically;
-use aorender::{Control, ErrorTarget, Probe, ProbeValue, Sampler, Session};
+use aorender::{Control, ErrorTarget, Probe, ProbeValue, Sampler, Session, SurfaceTolerance};
 use glam::Vec3;
 use std::path::{Path, PathBuf};
 
@@ -24,6 +24,10 @@ pub struct ProbeArgs {
     /// replicate, from eight replicates on).
     #[arg(long, value_name = "E")]
     target_error: Option<f64>,
+    /// How far from a surface a point may be and still be taken as on it (scene units);
+    /// default: 2^-18 of the largest coordinate of the point and the surface.
+    #[arg(long, value_name = "D")]
+    surface_tolerance: Option<f32>,
     #[command(flatten)]
     sampling: SamplingArgs,
 }
@@ -38,7 +42,12 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     if !to_stdout {
         check_output_extension(&args.output, &["csv"])?;
     }
-    let probes = read_probes(&args.points)?;
+    let tolerance = match args.surface_tolerance {
+        None => SurfaceTolerance::Relative,
+        Some(d) => SurfaceTolerance::distance(d)
+            .map_err(|e| anyhow!("invalid option: --surface-tolerance: {}", e.message()))?,
+    };
+    let (probes, lines) = read_probes(&args.points)?;
     let target = args.target_error.map(ErrorTarget::PointStdError);
     if target.is_some() && args.sampling.replicate.is_none() {
         scene.settings.replicate = Some(scene.settings.sampler.replicate_for(args.samples.min(256), 16));
@@ -46,7 +55,8 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     let settings = scene.settings.clone();
     let session = Session::new(&args.scene.device()?, scene, &args.scene.bvh())?;
     let mut control = Control { target, ..Control::default() };
-    let out = session.probe_with(&probes, args.samples, &settings, &mut control).map_err(|e| match e {
+    let located = session.locate(&probes, tolerance)?;
+    let out = session.probe_with(&located.probes, args.samples, &settings, &mut control).map_err(|e| match e {
         aorender::Error::Settings { .. } => anyhow!("invalid option: {}", e.message()),
         e => e.into(),
     })?;
@@ -58,12 +68,23 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     }
     let samples = out.values.first().map_or(0, |v| v.samples);
     eprintln!(
-        "{} probes × {samples} samples in {:.2} s ({:.1} M AO rays/s) on {}",
+        "{} probes × {samples} samples in {:.2} s ({:.1} M AO rays/s) on {}; {} on no surface",
         probes.len(),
         out.seconds,
         out.rays as f64 / out.seconds.max(1e-9) / 1e6,
-        out.adapter
+        out.adapter,
+        located.off_surface()
     );
+    if let Some(first) = located.on_surface.iter().position(|&on| !on) {
+        eprintln!(
+            "note: {} of {} points (the first on line {} of {}) lie on no surface within the tolerance: \
+             their rays start exactly at them (--surface-tolerance D to widen it)",
+            located.off_surface(),
+            probes.len(),
+            lines[first],
+            args.points.display()
+        );
+    }
     if matches!(settings.sampler, Sampler::Sobol | Sampler::Stratified)
         && settings.sampler.replicate_samples(settings.replicate) == 0
     {
@@ -82,15 +103,15 @@ pub fn run(args: ProbeArgs) -> Result<()> {
 }
 
 /// Reads probes from a text file: one per line, `x y z nx ny nz` (whitespace or commas),
-/// `#` starts a comment. Errors name the file and line.
-pub fn read_probes(path: &Path) -> Result<Vec<Probe>> {
+/// `#` starts a comment. Errors name the file and line. With each probe's line number.
+pub fn read_probes(path: &Path) -> Result<(Vec<Probe>, Vec<usize>)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
     parse_probes(&text).map_err(|m| anyhow!("{}: {m}", path.display()))
 }
 
-/// Parses the text of a probe file.
-pub fn parse_probes(text: &str) -> std::result::Result<Vec<Probe>, String> {
-    let mut probes = Vec::new();
+/// Parses the text of a probe file: the probes and their line numbers.
+pub fn parse_probes(text: &str) -> std::result::Result<(Vec<Probe>, Vec<usize>), String> {
+    let (mut probes, mut lines) = (Vec::new(), Vec::new());
     for (i, line) in text.lines().enumerate() {
         let line = line.split('#').next().unwrap_or("");
         let fields: Vec<&str> = line.split(|c: char| c.is_whitespace() || c == ',').filter(|f| !f.is_empty()).collect();
@@ -108,11 +129,12 @@ pub fn parse_probes(text: &str) -> std::result::Result<Vec<Probe>, String> {
         let probe =
             Probe::new(Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5])).map_err(|e| at(e.message()))?;
         probes.push(probe);
+        lines.push(i + 1);
     }
     if probes.is_empty() {
         return Err("no probes".into());
     }
-    Ok(probes)
+    Ok((probes, lines))
 }
 
 /// The probe values as CSV: `x,y,z,nx,ny,nz,ao,std_error,samples`.
@@ -131,7 +153,8 @@ mod tests {
 
     #[test]
     fn parses_probe_lines() {
-        let p = parse_probes("# header\n1 2 3 0 0 2\n\n4,5,6, 0,-1,0 # trailing\n").unwrap();
+        let (p, lines) = parse_probes("# header\n1 2 3 0 0 2\n\n4,5,6, 0,-1,0 # trailing\n").unwrap();
+        assert_eq!(lines, [2, 4]);
         assert_eq!(p.len(), 2);
         assert_eq!(p[0].position, Vec3::new(1.0, 2.0, 3.0));
         assert_eq!(p[0].normal, Vec3::Z);

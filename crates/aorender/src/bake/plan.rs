@@ -154,7 +154,7 @@ impl BakePlan {
                     return self.push(placement, c, Vec3::splat(distance), normal);
                 }
                 let n = normal.normalize();
-                self.probes.push(Probe { position: c, normal: n, error: distance });
+                self.probes.push(Probe { position: c, normal: n, error: distance, surface_normal: Vec3::ZERO });
                 self.probes.len() as u32 - 1
             })
             .collect()
@@ -169,13 +169,13 @@ fn place(placement: &Placement, p: Vec3, e: Vec3, n: Vec3) -> Probe {
         let rows = AffineRows::from_mat4(&placement.to_world);
         let back = InverseAffine::of(&placement.to_world);
         let point = instance_point(&rows, &back, p, e, n);
-        Probe { position: point.p, normal: n, error: point.error }
+        Probe { position: point.p, normal: n, error: point.error, surface_normal: Vec3::ZERO }
     } else {
         // A vertex, as the loader placed it: exactly on the world's triangles. (Points
         // inside triangles placed into the world never come here: their bound is found
         // in the world, from the corners as the scene holds them.)
         debug_assert_eq!(e, Vec3::ZERO);
-        Probe { position: placement.to_world.transform_point3(p), normal: n, error: 0.0 }
+        Probe { position: placement.to_world.transform_point3(p), normal: n, error: 0.0, surface_normal: Vec3::ZERO }
     }
 }
 
@@ -214,9 +214,12 @@ pub(super) fn vertex_normals(mesh: &AssetMesh, placement: &Placement) -> (Vec<Op
 
 /// A probe at the barycentric coordinates `b` (of corners 1 and 2) of the triangle `tri`
 /// (vertex indices) of `mesh` under `placement`, with the world normal `n` (usable): the
-/// point rounded to f32, and its largest distance to the triangle's plane as the offset
-/// bound, found where the rays meet the triangle (the world for triangles placed into
-/// it, the mesh's space for an instance).
+/// point rounded to f32, the triangle's normal as its surface normal, and its largest
+/// distance to the triangle's plane as the offset bound along it, found where the rays
+/// meet the triangle (the world for triangles placed into it, the mesh's space for an
+/// instance). Rays leave along the triangle's normal, not `n`: a step along an
+/// interpolated normal whose coordinates' signs differ from the triangle's can round the
+/// origin under the triangle, where every ray hits it.
 pub(super) fn triangle_probe(mesh: &AssetMesh, placement: &Placement, tri: [u32; 3], b: [f64; 2], n: Vec3) -> Probe {
     let corner = |i: u32| {
         let p = mesh.positions[i as usize];
@@ -225,15 +228,21 @@ pub(super) fn triangle_probe(mesh: &AssetMesh, placement: &Placement, tri: [u32;
     let [a, p1, p2] = tri.map(corner);
     let point = (a + b[0] * (p1 - a) + b[1] * (p2 - a)).as_vec3();
     let distance = plane_bound(point, &[a, p1, p2]);
-    if placement.instanced {
-        return place(placement, point, Vec3::splat(distance), n);
-    }
-    // The ray starts `error` along the (interpolated) normal: that far clears the plane
-    // by `distance` however far the normal leans from the triangle's.
     let n = n.normalize();
-    let g = (p1 - a).cross(p2 - a).normalize_or_zero();
-    let lean = n.as_dvec3().dot(g).abs().max(1e-3) as f32;
-    Probe { position: point, normal: n, error: distance / lean * (1.0 + gamma(1)) }
+    let face = (p1 - a).cross(p2 - a);
+    let (position, g, error) = if placement.instanced {
+        let rows = AffineRows::from_mat4(&placement.to_world);
+        let back = InverseAffine::of(&placement.to_world);
+        let to_world_normal = glam::DMat3::from_mat4(placement.to_world.as_dmat4()).inverse().transpose();
+        let g = (to_world_normal * face).normalize_or_zero().as_vec3();
+        let world = instance_point(&rows, &back, point, Vec3::splat(distance), g);
+        (world.p, g, world.error * (1.0 + gamma(4)))
+    } else {
+        // The offset and each coordinate's step along g reach at least (1 − 4ε)·error.
+        (point, face.normalize_or_zero().as_vec3(), distance * (1.0 + gamma(4)))
+    };
+    let g = if g.dot(n) < 0.0 { -g } else { g };
+    Probe { position, normal: n, error, surface_normal: if g == n { Vec3::ZERO } else { g } }
 }
 
 /// The area-weighted centroid of a polygon's fan triangles, rounded to f32, and a bound on

@@ -11,7 +11,7 @@ use crate::geometry::{
 };
 use crate::probe::Probe;
 use crate::sampler::PointSampler;
-use crate::sampling::{local_to_world, offset_ray_origin};
+use crate::sampling::{above_surface, local_to_world, offset_ray_origin};
 use crate::scene::{Camera, RayGen, Scene, Settings};
 use glam::{Vec3, Vec3A};
 use obvhs::cwbvh::CwBvh;
@@ -254,21 +254,35 @@ impl CpuTracer {
     }
 
     /// AO value at a surface point `p` with normal `n`, within `error` of its surface along
-    /// `n`, for hemisphere numbers `u`; the twin of the shader's `ao_value`.
+    /// `n`, for hemisphere numbers `u`: a camera hit's, in `shaders/ao.wgsl`'s `shade_sample`.
     pub fn ao_at(&self, p: Vec3, n: Vec3, error: f32, u: glam::Vec2, settings: &Settings) -> f32 {
-        self.ao_ray_at(p, n, error, u, settings).0
+        let w_local = settings.hemisphere.sample(u);
+        self.estimate(offset_ray_origin(p, n, error), local_to_world(w_local, n), w_local, settings).0
     }
 
-    /// [`CpuTracer::ao_at`]'s value and, when the ray escaped, its world direction.
-    pub fn ao_ray_at(&self, p: Vec3, n: Vec3, error: f32, u: glam::Vec2, settings: &Settings) -> (f32, Option<Vec3>) {
+    /// The AO ray of `probe` for hemisphere numbers `u` (origin, direction, local
+    /// direction): about its normal, from its position pushed off its surface along the
+    /// surface's normal (its normal where it has none), a direction below the surface
+    /// mirrored above it. The twin of `probe_ray` in `shaders/ao.wgsl`.
+    pub fn probe_ray(probe: &Probe, u: glam::Vec2, settings: &Settings) -> (Vec3, Vec3, Vec3) {
         let w_local = settings.hemisphere.sample(u);
-        let w = local_to_world(w_local, n);
+        let g = probe.surface_normal;
+        let off = if g == Vec3::ZERO { probe.normal } else { g };
+        let w = above_surface(local_to_world(w_local, probe.normal), g);
+        (offset_ray_origin(probe.position, off, probe.error), w, w_local)
+    }
+
+    /// The estimate of one sample of `probe` and, when its ray escaped, its world direction.
+    pub fn probe_sample(&self, probe: &Probe, u: glam::Vec2, settings: &Settings) -> (f32, Option<Vec3>) {
+        let (o, w, w_local) = Self::probe_ray(probe, u, settings);
+        self.estimate(o, w, w_local, settings)
+    }
+
+    /// The hemisphere estimate of the AO ray from `o` along `w` (local direction `w_local`)
+    /// and, when it escaped, `w`.
+    fn estimate(&self, o: Vec3, w: Vec3, w_local: Vec3, settings: &Settings) -> (f32, Option<Vec3>) {
         let t_max = settings.max_distance.unwrap_or(f32::MAX);
-        if self.occluded(offset_ray_origin(p, n, error), w, t_max) {
-            (0.0, None)
-        } else {
-            (settings.hemisphere.weight(w_local), Some(w))
-        }
+        if self.occluded(o, w, t_max) { (0.0, None) } else { (settings.hemisphere.weight(w_local), Some(w)) }
     }
 
     /// Adds samples `first .. first + count` (of `samples`) of every probe to `film`,
@@ -296,8 +310,7 @@ impl CpuTracer {
                 let mut rays = 0;
                 for index in first..(first + count).min(samples) {
                     let u = sampler.uniforms(k as u32, 0, index);
-                    let (v, open) =
-                        self.ao_ray_at(p.position, p.normal, p.error, glam::Vec2::new(u[2], u[3]), settings);
+                    let (v, open) = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), settings);
                     let d = open.unwrap_or(Vec3::ZERO);
                     for (c, x) in [v, d.x, d.y, d.z].into_iter().enumerate() {
                         sum[c] += x as f64;
@@ -364,8 +377,7 @@ impl CpuTracer {
                         break;
                     }
                     let u = sampler.uniforms(k as u32, 0, index as u32);
-                    // Pushed off its surface by its error bound (zero for a point exactly on it).
-                    let v = self.ao_at(p.position, p.normal, p.error, glam::Vec2::new(u[2], u[3]), settings) as f64;
+                    let v = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), settings).0 as f64;
                     *sum += v;
                     *sum_sq += v * v;
                     rays += 1;

@@ -103,12 +103,16 @@ gpu_struct! {
     pub struct GpuProbePoint as "ProbePoint" {
         /// Position.
         pub position: [f32; 3] = "vec3f",
-        /// Bound on the distance to its surface along the normal: the AO ray's offset.
+        /// Bound on the distance to its surface along the surface normal: the ray's offset.
         pub error: f32 = "f32",
         /// Unit normal of the hemisphere.
         pub normal: [f32; 3] = "vec3f",
         /// Padding.
         pub _pad1: f32 = "f32",
+        /// Unit normal of its surface where it is not `normal`, else zero (the offset's).
+        pub surface_normal: [f32; 3] = "vec3f",
+        /// Padding.
+        pub _pad2: f32 = "f32",
     }
 }
 
