@@ -317,6 +317,32 @@ def test_bake_writes_the_file_like_the_command(repo, tmp_path):
         aorender.Scene.from_arrays(*cube()).bake(4, device="cpu", output=out)
 
 
+def test_bake_never_writes_over_a_file_it_reads_or_another_output(tmp_path):
+    quad = "v 0 0 0\nv 1 0 0\nv 1 0 -1\nv 0 0 -1\nf 1 2 3\nf 1 3 4\n"
+    for sub in ["a", "b"]:
+        (tmp_path / sub).mkdir()
+        (tmp_path / sub / "x.obj").write_text(quad)
+    scene = tmp_path / "two.toml"
+    scene.write_text(
+        '[camera]\ntype = "perspective"\neye = [0.0, 4.0, 8.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 45.0\n'
+        '[[object]]\ntype = "mesh"\nfile = "a/x.obj"\n[[object]]\ntype = "mesh"\nfile = "b/x.obj"\n'
+    )
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    loaded = aorender.Scene.load(scene)
+    with pytest.raises(ValueError, match="the bake of object 2 \\(output\\) and the bake of object 1 \\(output\\) name the same file"):
+        loaded.bake(4, device="cpu", output=tmp_path / "out")
+    # A mesh of the scene, reached through a symbolic link to its directory.
+    (tmp_path / "link").symlink_to(tmp_path / "a")
+    single = tmp_path / "one.toml"
+    single.write_text(scene.read_text().split("[[object]]")[0] + '[[object]]\ntype = "mesh"\nfile = "a/x.obj"\n')
+    with pytest.raises(ValueError, match="would replace the input"):
+        aorender.Scene.load(single).bake(4, device="cpu", output=tmp_path / "link")
+    assert (tmp_path / "a" / "x.obj").read_text() == quad
+    assert not (tmp_path / "out").exists()
+    after = (p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    assert sorted(p for p in after if p.parts[0] not in ("link", "one.toml")) == before
+
+
 def test_ctrl_c_stops_a_render_with_keyboard_interrupt(repo):
     scene = aorender.Scene.load(repo / "scenes" / "bunny.obj")
     scene.render(8, 8, 1, device="cpu")  # the BVH built before the clock starts

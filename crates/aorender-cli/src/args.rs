@@ -1,7 +1,7 @@
 //! Command-line values shared by the `aorender` commands: the scene and device options,
 //! the image size, the value parsers and output checks.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use aorender::{
     BuildQuality, BvhLayout, BvhOptions, Device, DeviceKind, GeometryStorage, Hemisphere, Sampler, Scene, Traversal,
 };
@@ -201,26 +201,9 @@ pub fn check_output_extension(path: &Path, allowed: &[&str]) -> Result<()> {
     bail!("{}: unsupported output format: expected {expected}", path.display());
 }
 
-/// Fails when no file can be created beside `path` (before any time is spent rendering).
-pub fn check_writable(path: &Path) -> Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let name = path.file_name().with_context(|| format!("{}: not a file path", path.display()))?;
-    let probe = dir.join(format!(".{}.{}.probe", name.to_string_lossy(), std::process::id()));
-    std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&probe)
-        .with_context(|| format!("{}: cannot write beside it", path.display()))?;
-    let _ = std::fs::remove_file(&probe);
-    Ok(())
-}
-
-/// Writes `json` and a newline to `path`, atomically.
+/// Writes `json` and a newline to `path` (under the library's output policy).
 pub fn write_json(path: &Path, json: &str) -> Result<()> {
-    aorender::output::write_atomically(path, format!("{json}\n").as_bytes())?;
+    aorender::output::write_output(path, format!("{json}\n").as_bytes())?;
     Ok(())
 }
 
@@ -323,9 +306,10 @@ impl RunArgs {
         if self.sample_range.is_some() && checkpoint.is_none() {
             bail!("invalid option: --sample-range needs --checkpoint FILE, the shard's accumulation to combine");
         }
+        // A FIFO or a device is written into, not continued: only a file is a checkpoint.
         if let Some(path) = &self.checkpoint
-            && self.resume.as_ref() != Some(path)
-            && path.exists()
+            && !self.resume.as_ref().is_some_and(|r| aorender::output::same_file(r, path))
+            && std::fs::metadata(path).is_ok_and(|m| m.is_file())
         {
             bail!(
                 "{}: a checkpoint already exists: continue it with --resume {}, or remove it",

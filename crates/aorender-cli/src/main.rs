@@ -4,7 +4,7 @@
 
 use anyhow::{Result, bail};
 use aorender_cli::commands::{accuracy, bake, compare, merge, probe, render};
-use aorender_cli::{bench, memory};
+use aorender_cli::{bench, memory, output};
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -78,10 +78,11 @@ fn run() -> Result<()> {
             if adapters.is_empty() {
                 bail!("no adapters found: install a Vulkan driver (mesa-vulkan-drivers on Debian/Ubuntu)");
             }
-            for a in adapters {
-                println!("{}\t{}\t{}\t{}", a.name, a.backend, a.device_type, a.driver);
-            }
-            Ok(())
+            let lines: String = adapters
+                .iter()
+                .map(|a| format!("{}\t{}\t{}\t{}\n", a.name, a.backend, a.device_type, a.driver))
+                .collect();
+            output::print(&lines)
         }
         Command::Render(args) => render::run(args),
         Command::Compare(args) => compare::command(args),

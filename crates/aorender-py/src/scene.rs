@@ -4,8 +4,10 @@
 use crate::arrays::{faces, out, vec3s};
 use crate::engine::{device, interruptible, settings, to_py};
 use aorender::bake::{
-    Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, check_output, output_path, read_asset,
+    Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, check_output, output_path, plan_companions,
+    plan_output, read_asset,
 };
+use aorender::output::FilePlan;
 use aorender::scene::{MeshObject, mesh_triangles};
 use aorender::{BvhOptions, Camera, ImageRequest, Probe, Projection, Scene, Session, Settings, SurfaceTolerance};
 use glam::{Mat4, Vec3};
@@ -393,9 +395,16 @@ impl PyScene {
                 let is_scene = source.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
                 let objects = &self.scene.mesh_objects;
                 let mut outputs = Vec::new();
-                for (object, _) in &targets {
+                // No output onto a file the scene reads or onto another output.
+                let mut files = FilePlan::new();
+                files.scene(source);
+                let value_error = |e: aorender::Error| PyValueError::new_err(e.to_string());
+                for (object, asset) in &targets {
                     let path = output_path(objects, object, is_scene, output);
-                    check_output(&object.path, &path, overwrite).map_err(|e| PyValueError::new_err(e.to_string()))?;
+                    check_output(&object.path, &path, overwrite).map_err(value_error)?;
+                    plan_output(&mut files, object, &path, is_scene, overwrite, "output").map_err(value_error)?;
+                    plan_companions(&mut files, object, &**asset, (&path, "output"), is_scene, None)
+                        .map_err(value_error)?;
                     outputs.push(path);
                 }
                 outputs

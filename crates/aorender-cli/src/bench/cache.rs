@@ -132,7 +132,7 @@ pub fn save(path: &Path, stored: &Stored) -> Result<()> {
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the directory", dir.display()))?;
     }
-    aorender::output::write_atomically(path, &encode(stored))?;
+    aorender::output::write_output(path, &encode(stored))?;
     Ok(())
 }
 

@@ -4,6 +4,7 @@
 use super::{Plan, Progress, Results, ScenePlan, plot, report};
 use crate::args::{hemisphere_parser, sampler_parser};
 use anyhow::{Context, Result, bail};
+use aorender::output::{FilePlan, OutputRules};
 use aorender::{Hemisphere, Sampler, Scene};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -200,26 +201,48 @@ fn scene_label(path: &Path) -> String {
     }
 }
 
-/// Writes the results and plots into `dir`.
+/// The files [`write_outputs`] writes into its directory.
+const OUTPUT_FILES: [&str; 8] = [
+    "results.json",
+    "results.csv",
+    "bvh_presets.csv",
+    "scaling.csv",
+    "convergence_spp.png",
+    "convergence_seconds.png",
+    "rays_vs_triangles.png",
+    "scaling.png",
+];
+
+/// Writes the results and plots into `dir` ([`OUTPUT_FILES`]).
 pub fn write_outputs(results: &Results, dir: &Path) -> Result<()> {
-    let write = |name: &str, text: String| -> Result<()> {
-        aorender::output::write_atomically(&dir.join(name), text.as_bytes())?;
+    let [json, csv, presets, scaling, spp, seconds, rays, scaling_plot] = OUTPUT_FILES.map(|name| dir.join(name));
+    let write = |path: &Path, text: String| -> Result<()> {
+        aorender::output::write_output(path, text.as_bytes())?;
         Ok(())
     };
-    write("results.json", format!("{}\n", serde_json::to_string_pretty(results)?))?;
-    write("results.csv", report::convergence_csv(results))?;
-    write("bvh_presets.csv", report::presets_csv(results))?;
-    write("scaling.csv", report::scaling_csv(results))?;
-    plot::convergence(results, plot::Axis::Spp, &dir.join("convergence_spp.png"))?;
-    plot::convergence(results, plot::Axis::Seconds, &dir.join("convergence_seconds.png"))?;
-    plot::rays_vs_triangles(results, &dir.join("rays_vs_triangles.png"))?;
-    plot::scaling(results, &dir.join("scaling.png"))?;
+    write(&json, format!("{}\n", serde_json::to_string_pretty(results)?))?;
+    write(&csv, report::convergence_csv(results))?;
+    write(&presets, report::presets_csv(results))?;
+    write(&scaling, report::scaling_csv(results))?;
+    plot::convergence(results, plot::Axis::Spp, &spp)?;
+    plot::convergence(results, plot::Axis::Seconds, &seconds)?;
+    plot::rays_vs_triangles(results, &rays)?;
+    plot::scaling(results, &scaling_plot)?;
     Ok(())
 }
 
 /// Runs `aorender bench`.
 pub fn command(args: BenchArgs) -> Result<()> {
     let words: Vec<String> = std::env::args().skip(1).collect();
+    // Before any work: no result file onto a scene given, nor onto a directory or a block device.
+    let mut files = FilePlan::new();
+    for path in &args.scenes {
+        files.scene(path);
+    }
+    for name in OUTPUT_FILES {
+        let rules = OutputRules { new_directories: true, ..OutputRules::default() };
+        files.output_with(&args.out.join(name), "-o", rules)?;
+    }
     let plan = plan(&args, format!("aorender {}", words.join(" ")))?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("{}: cannot create the directory", args.out.display()))?;
@@ -253,7 +276,7 @@ pub fn command(args: BenchArgs) -> Result<()> {
         bar.finish_and_clear();
     }
     write_outputs(&results, &args.out)?;
-    print!("{}", report::table(&results));
+    crate::output::print(&report::table(&results))?;
     eprintln!("results and plots in {}", args.out.display());
     if !results.failures.is_empty() {
         let names: Vec<&str> = results.failures.iter().map(|f| f.scene.as_str()).collect();

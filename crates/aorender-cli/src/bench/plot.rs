@@ -58,7 +58,7 @@ fn draw_png(path: &Path, width: u32, height: u32, draw: &mut dyn FnMut(&Area) ->
     image::DynamicImage::ImageRgb8(img)
         .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
         .map_err(|e| anyhow!("{}: {e}", path.display()))?;
-    aorender::output::write_atomically(path, &bytes)?;
+    aorender::output::write_output(path, &bytes)?;
     Ok(())
 }
 

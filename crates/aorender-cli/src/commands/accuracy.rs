@@ -4,7 +4,7 @@
 use crate::args::check_output_extension;
 use anyhow::{Result, bail};
 use aorender::closed_form::{Variant, agrees, cases, configurations};
-use aorender::output::write_atomically;
+use aorender::output::{FilePlan, write_output};
 use aorender::{Device, DeviceKind, Hemisphere, ProbeValue, Sampler};
 use std::path::PathBuf;
 
@@ -32,6 +32,7 @@ pub fn run(args: AccuracyArgs) -> Result<()> {
         bail!("--samples: every count must be at least 1");
     }
     check_output_extension(&args.output, &["md"])?;
+    FilePlan::new().output(&args.output, "-o")?;
     let mut devices = Vec::new();
     if !args.no_cpu {
         devices.push(Device::cpu());
@@ -56,7 +57,7 @@ pub fn run(args: AccuracyArgs) -> Result<()> {
     let counts = args.samples.iter().map(u32::to_string).collect::<Vec<_>>().join(",");
     let command = format!("aorender accuracy --samples {counts}");
     let md = markdown(&reports, &args.samples, &command);
-    write_atomically(&args.output, md.as_bytes())?;
+    write_output(&args.output, md.as_bytes())?;
     for r in &reports {
         let pass = r.rows.iter().filter(|row| row.pass()).count();
         eprintln!("{}: {pass} of {} points pass", r.adapter, r.rows.len());

@@ -2,20 +2,20 @@
 //! their files, with the progress, time limit, checkpoints, resuming, sample-range shards
 //! and signal handling of `render`.
 
-use crate::args::{RunArgs, SamplingArgs, SceneArgs, check_writable, write_json};
-use crate::{memory, signals};
+use crate::args::{RunArgs, SamplingArgs, SceneArgs, write_json};
+use crate::{memory, output, signals};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::bake::{
-    Asset, AssetMesh, BakeAt, BakePlan, GeneratedUvs, Placement, TextureMap, TextureOptions, TexturePlan, TextureStats,
-    UNUSABLE_VALUE, UvWrap, WriteOptions, check_output, format_of, generate_uvs, map_path, output_path, read_asset,
+    Asset, AssetMesh, BakeAt, BakePlan, GeneratedUvs, Placement, TextureFiles, TextureMap, TextureOptions, TexturePlan,
+    TextureStats, UNUSABLE_VALUE, UvWrap, WriteOptions, check_output, format_of, generate_uvs, map_path, output_path,
+    plan_companions, plan_output, read_asset,
 };
-use aorender::output::write_atomically;
+use aorender::output::{FilePlan, OutputRules, write_output};
 use aorender::scene::MeshObject;
 use aorender::{
     Accumulation, Control, Device, Probe, Progress, Session, merge, probe_film_bent_normals, probe_film_values,
 };
 use clap::ValueEnum;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -191,6 +191,29 @@ pub fn run(args: BakeArgs) -> Result<()> {
     if !is_scene && (texture.is_none() || !is_map(&args.output)) {
         check_output(&input, &args.output, args.overwrite)?;
     }
+    // Before any work: no output onto an input or another output. A scene's outputs are
+    // known once its objects are, and the files written beside a mesh once it is read.
+    let mut files = FilePlan::new();
+    files.scene(&input);
+    for path in &args.merge {
+        files.input(path, "a checkpoint --merge adds");
+    }
+    output::plan_resume(&mut files, &args.run);
+    let new_directories = OutputRules { new_directories: true, ..OutputRules::default() };
+    if texture.is_some() && is_map(&args.output) {
+        files.output_with(&args.output, "-o", new_directories)?;
+        if args.bent_normals {
+            files.output_with(
+                &sibling(&args.output, "_bent_normals.png"),
+                "the bent normals map beside -o",
+                new_directories,
+            )?;
+        }
+    } else if !is_scene {
+        let replacing = args.overwrite.then_some(input.as_path());
+        files.output_with(&args.output, "-o", OutputRules { replacing, ..new_directories })?;
+    }
+    output::plan_run(&mut files, &args.run)?;
     if args.samples == 0 {
         bail!("invalid option: --samples must be at least 1");
     }
@@ -213,7 +236,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         options.seed = scene.settings.seed;
     }
     let targets = match texture {
-        None => targets(&scene.mesh_objects, is_scene, &args.output, args.overwrite)?,
+        None => targets(&mut files, &scene.mesh_objects, is_scene, &args.output, args.overwrite)?,
         Some(_) => {
             if scene.mesh_objects.len() > 1 {
                 bail!(
@@ -285,14 +308,14 @@ pub fn run(args: BakeArgs) -> Result<()> {
             None => bail!("{}: no {} has a usable normal: nothing to bake", input.display(), singular(at)),
         }
     }
-    for t in &targets {
-        // The directory of a scene's outputs is made when they are written: until then the
-        // nearest existing one must be writable.
-        let mut probe = t.output.clone();
-        while let Some(parent) = probe.parent().filter(|p| !p.as_os_str().is_empty() && !p.exists()) {
-            probe = parent.to_path_buf();
-        }
-        check_writable(&probe)?;
+    if let Some(tp) = texture_plan.as_ref().filter(|_| !is_map(&args.output)) {
+        let written = TextureFiles {
+            maps: tp.targets.len(),
+            bent_normals: args.bent_normals,
+            generated_uvs: generated.is_some(),
+        };
+        let t = &targets[0];
+        plan_companions(&mut files, &t.object, &*t.asset, (&t.output, "-o"), is_scene, Some(&written))?;
     }
     let settings = scene.settings.clone();
     let bvh = args.scene.bvh();
@@ -341,9 +364,6 @@ pub fn run(args: BakeArgs) -> Result<()> {
             }
             None => None,
         };
-        if let Some(path) = &checkpoint_path {
-            check_writable(path)?;
-        }
         let acc = trace(&args, scene, probes, resume, checkpoint_path.as_deref(), &stop, &mut stats)?;
         acc.film()?
     } else {
@@ -406,10 +426,10 @@ pub fn run(args: BakeArgs) -> Result<()> {
             let bent = map.bent_png(args.bit_depth).transpose()?;
             if let Some(png) = bent {
                 let path = sibling(&args.output, "_bent_normals.png");
-                write_atomically(&path, &png)?;
+                write_output(&path, &png)?;
                 written.push(path);
             }
-            write_atomically(&args.output, &bytes)?;
+            write_output(&args.output, &bytes)?;
         } else {
             let mut encoded = Vec::with_capacity(maps.len());
             for (map, t) in maps.iter().zip(&tp.targets) {
@@ -472,7 +492,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         if let Some(path) = &args.run.stats {
             write_json(path, &json)?;
         }
-        println!("{json}");
+        output::print(&format!("{json}\n"))?;
         return finish(&stats, &written, checkpoint_path.as_deref());
     }
     let baked = plan.values(&values, bent.as_deref());
@@ -513,7 +533,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
             plural(at)
         );
     }
-    println!("{json}");
+    output::print(&format!("{json}\n"))?;
     finish(&stats, &written, checkpoint_path.as_deref())
 }
 
@@ -533,7 +553,7 @@ fn finish(stats: &BakeStats, written: &[String], checkpoint_path: Option<&Path>)
             message += &format!("; continue with --resume {}", path.display());
         }
         eprintln!("aorender: {message}");
-        std::io::stdout().flush()?;
+        output::flush()?;
         std::process::exit(128 + signal);
     }
     if stats.samples_per_point < stats.samples_requested {
@@ -620,8 +640,15 @@ fn trace(
 
 /// The files to bake: for a mesh input, its one object into `output`; for a scene file,
 /// each mesh object into the directory `output`, under its file's name (with the object's
-/// number added when the file is placed by several objects). Each file is read once.
-fn targets(objects: &[MeshObject], is_scene: bool, output: &Path, overwrite: bool) -> Result<Vec<Target>> {
+/// number added when the file is placed by several objects). Each file is read once;
+/// the outputs are entered in `plan`.
+fn targets(
+    plan: &mut FilePlan,
+    objects: &[MeshObject],
+    is_scene: bool,
+    output: &Path,
+    overwrite: bool,
+) -> Result<Vec<Target>> {
     let mut assets: Vec<(PathBuf, Arc<dyn Asset>)> = Vec::new();
     let mut targets = Vec::with_capacity(objects.len());
     for object in objects {
@@ -635,6 +662,10 @@ fn targets(objects: &[MeshObject], is_scene: bool, output: &Path, overwrite: boo
         };
         let out = output_path(objects, object, is_scene, output);
         check_output(&object.path, &out, overwrite)?;
+        if is_scene {
+            plan_output(plan, object, &out, is_scene, overwrite, "-o")?;
+        }
+        plan_companions(plan, object, &*asset, (&out, "-o"), is_scene, None)?;
         targets.push(Target { object: object.clone(), asset, output: out });
     }
     Ok(targets)

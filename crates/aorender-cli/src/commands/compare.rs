@@ -11,8 +11,9 @@
 use crate::args::{
     SceneArgs, SizeArgs, check_output_extension, hemisphere_parser, invalid_option, sampler_parser, write_json,
 };
+use crate::output;
 use anyhow::{Result, anyhow};
-use aorender::output::{linear_to_srgb8, write_atomically};
+use aorender::output::{FilePlan, linear_to_srgb8, write_output};
 use aorender::{Control, Hemisphere, ImageRequest, Progress, Sampler, Session};
 use image::{GrayImage, Luma};
 use std::path::{Path, PathBuf};
@@ -42,6 +43,12 @@ pub struct CompareArgs {
 }
 
 pub fn command(args: CompareArgs) -> Result<()> {
+    let mut plan = FilePlan::new();
+    output::plan_scene(&mut plan, args.scene.scene.as_deref());
+    plan.output(&args.output, "-o")?;
+    if let Some(path) = &args.stats {
+        plan.output(path, "--stats")?;
+    }
     let mut scene = args.scene.load()?;
     args.size.apply(&mut scene);
     validate(&args.spp, &args.hemisphere, &args.sampler).map_err(|m| anyhow!("invalid option: {m}"))?;
@@ -68,10 +75,10 @@ pub fn command(args: CompareArgs) -> Result<()> {
     if let Some(path) = &args.stats {
         write_json(path, &serde_json::to_string_pretty(&grid)?)?;
     }
-    println!("{:<12} {:<12} {:>6} {:>8} {:>8}", "sampler", "hemisphere", "spp", "mean", "seconds");
+    let mut table = format!("{:<12} {:<12} {:>6} {:>8} {:>8}\n", "sampler", "hemisphere", "spp", "mean", "seconds");
     for c in &grid.cells {
-        println!(
-            "{:<12} {:<12} {:>6} {:>8.4} {:>8.2}",
+        table += &format!(
+            "{:<12} {:<12} {:>6} {:>8.4} {:>8.2}\n",
             c.sampler.name(),
             c.hemisphere.name(),
             c.spp,
@@ -79,6 +86,7 @@ pub fn command(args: CompareArgs) -> Result<()> {
             c.render_seconds
         );
     }
+    output::print(&table)?;
     eprintln!(
         "{}: {} cells of {}x{} in {:.1} s on {} ({})",
         args.output.display(),
@@ -298,7 +306,7 @@ impl Comparison {
     pub fn write_png(&self, path: &Path) -> Result<()> {
         let mut buf = std::io::Cursor::new(Vec::new());
         self.image().write_to(&mut buf, image::ImageFormat::Png).map_err(|e| anyhow!("{}: {e}", path.display()))?;
-        write_atomically(path, buf.get_ref())?;
+        write_output(path, buf.get_ref())?;
         Ok(())
     }
 }

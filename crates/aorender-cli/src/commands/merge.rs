@@ -2,8 +2,9 @@
 //! checkpoints of its shards) combined into its image.
 
 use crate::args::{check_output_extension, write_json};
+use crate::output;
 use anyhow::Result;
-use aorender::output::{IMAGE_EXTENSIONS, write_image};
+use aorender::output::{FilePlan, IMAGE_EXTENSIONS, write_image};
 use aorender::{Accumulation, BLOCK_SAMPLES, MergedShard, merge};
 use std::path::PathBuf;
 
@@ -34,6 +35,14 @@ struct MergeStats {
 
 pub fn run(args: MergeArgs) -> Result<()> {
     check_output_extension(&args.output, &IMAGE_EXTENSIONS)?;
+    let mut plan = FilePlan::new();
+    for path in &args.inputs {
+        plan.input(path, "a checkpoint to merge");
+    }
+    plan.output(&args.output, "-o")?;
+    if let Some(path) = &args.stats {
+        plan.output(path, "--stats")?;
+    }
     let mut shards = Vec::with_capacity(args.inputs.len());
     for path in &args.inputs {
         shards.push((path.clone(), Accumulation::read(path)?));
@@ -70,6 +79,6 @@ pub fn run(args: MergeArgs) -> Result<()> {
              float rounding, not bit for bit"
         );
     }
-    println!("{json}");
+    output::print(&format!("{json}\n"))?;
     Ok(())
 }

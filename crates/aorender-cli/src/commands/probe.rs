@@ -1,8 +1,9 @@
 //! `aorender probe`: AO at points and normals read from a text file, written as CSV.
 
 use crate::args::{SamplingArgs, SceneArgs, check_output_extension};
+use crate::output;
 use anyhow::{Context, Result, anyhow, bail};
-use aorender::output::write_atomically;
+use aorender::output::{Destination, FilePlan, write_output};
 use aorender::{Control, ErrorTarget, Probe, ProbeValue, Sampler, Session, SurfaceTolerance};
 use glam::Vec3;
 use std::path::{Path, PathBuf};
@@ -14,7 +15,8 @@ pub struct ProbeArgs {
     /// Probe points: one `x y z nx ny nz` per line (spaces or commas; `#` comments).
     #[arg(long)]
     points: PathBuf,
-    /// Output CSV (x,y,z,nx,ny,nz,ao,std_error,samples); `-` for standard output.
+    /// Output CSV (x,y,z,nx,ny,nz,ao,std_error,samples); `-` for standard output. A FIFO
+    /// or a character device (`/dev/stdout`) is written into whatever its name.
     #[arg(short, long, default_value = "-")]
     output: PathBuf,
     /// Samples per probe; with --target-error, the most to take.
@@ -33,13 +35,18 @@ pub struct ProbeArgs {
 }
 
 pub fn run(args: ProbeArgs) -> Result<()> {
+    let to_stdout = args.output.as_os_str() == "-";
+    let mut plan = FilePlan::new();
+    output::plan_scene(&mut plan, args.scene.scene.as_deref());
+    plan.input(&args.points, "the --points file");
+    // A FIFO or a device (`-o /dev/stdout`) takes the CSV whatever its name.
+    let stream = !to_stdout && matches!(plan.output(&args.output, "-o")?, Destination::Stream(_));
     let mut scene = args.scene.load()?;
     args.sampling.apply(&mut scene)?;
     if args.samples == 0 {
         bail!("invalid option: --samples must be at least 1");
     }
-    let to_stdout = args.output.as_os_str() == "-";
-    if !to_stdout {
+    if !to_stdout && !stream {
         check_output_extension(&args.output, &["csv"])?;
     }
     let tolerance = match args.surface_tolerance {
@@ -62,9 +69,9 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     })?;
     let csv = to_csv(&probes, &out.values);
     if to_stdout {
-        print!("{csv}");
+        output::print(&csv)?;
     } else {
-        write_atomically(&args.output, csv.as_bytes())?;
+        write_output(&args.output, csv.as_bytes())?;
     }
     let samples = out.values.first().map_or(0, |v| v.samples);
     eprintln!(

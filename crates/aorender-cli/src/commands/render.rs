@@ -1,12 +1,10 @@
 //! `aorender render`: one image, with progress, a time limit, checkpoints, resuming,
 //! sample-range shards and signal handling.
 
-use crate::args::{
-    RunArgs, SamplingArgs, SceneArgs, SizeArgs, check_output_extension, check_writable, invalid_option, write_json,
-};
-use crate::{memory, signals};
+use crate::args::{RunArgs, SamplingArgs, SceneArgs, SizeArgs, check_output_extension, invalid_option, write_json};
+use crate::{memory, output, signals};
 use anyhow::{Result, bail};
-use aorender::output::{FLOAT_IMAGE_EXTENSIONS, IMAGE_EXTENSIONS, write_error_image, write_image};
+use aorender::output::{FLOAT_IMAGE_EXTENSIONS, FilePlan, IMAGE_EXTENSIONS, write_error_image, write_image};
 use aorender::{Accumulation, Control, Device, ErrorTarget, ImageRequest, Progress, Sampler, Session};
 
 /// Samples per pixel a render with an error target takes at most, unless --spp says.
@@ -15,7 +13,6 @@ const TARGET_SPP_CAP: u32 = 65536;
 /// fewer, to make 16 replicates of the samples asked for): the target is checked after
 /// every replicate.
 const TARGET_REPLICATE: u32 = 16;
-use std::io::Write;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -57,6 +54,15 @@ pub fn run(args: RenderArgs) -> Result<()> {
     // Before loading: a signal while a large scene loads or its BVH builds ends the process.
     let stop = Arc::new(AtomicBool::new(false));
     signals::install(stop.clone())?;
+    // Before any work: no output onto an input or another output, nor onto a directory.
+    let mut plan = FilePlan::new();
+    output::plan_scene(&mut plan, args.scene.scene.as_deref());
+    output::plan_resume(&mut plan, &args.run);
+    plan.output(&args.output, "-o")?;
+    if let Some(path) = &args.error_image {
+        plan.output(path, "--error-image")?;
+    }
+    output::plan_run(&mut plan, &args.run)?;
     let load_start = std::time::Instant::now();
     let mut scene = args.scene.load()?;
     let load_seconds = load_start.elapsed().as_secs_f64();
@@ -123,9 +129,6 @@ pub fn run(args: RenderArgs) -> Result<()> {
              add --replicate N",
             s.sampler.name()
         );
-    }
-    if let Some(path) = &checkpoint_path {
-        check_writable(path)?;
     }
     let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
 
@@ -214,7 +217,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             st.adapter
         );
     }
-    println!("{json}");
+    output::print(&format!("{json}\n"))?;
     if st.interrupted {
         let mut written = vec![args.output.display().to_string()];
         written.extend(args.run.stats.as_ref().map(|p| p.display().to_string()));
@@ -229,7 +232,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             message += &format!("; continue with --resume {}", path.display());
         }
         eprintln!("aorender: {message}");
-        std::io::stdout().flush()?;
+        output::flush()?;
         std::process::exit(128 + signal);
     }
     if st.ended_by == "target" {

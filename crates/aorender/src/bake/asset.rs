@@ -180,6 +180,39 @@ pub trait Asset: Send + Sync {
     /// coordinate set. glTF embeds or references the maps; OBJ and PLY write them beside
     /// the mesh ([`map_path`]). Every other part of the file is kept.
     fn write_textures(&self, path: &Path, maps: &[TextureMap], uvs: Option<&GeneratedUvs>) -> Result<Vec<String>>;
+
+    /// The files other than `path` that writing to `path` also writes, each with what it
+    /// holds in words ("the AO map"): for [`Asset::write`] when `texture` is `None`, for
+    /// [`Asset::write_textures`] of those maps otherwise. For the output policy's checks
+    /// before any work ([`crate::output::FilePlan`]).
+    fn companion_files(&self, path: &Path, texture: Option<&TextureFiles>) -> Vec<(PathBuf, &'static str)> {
+        match texture {
+            Some(t) => maps_beside(path, t),
+            None => Vec::new(),
+        }
+    }
+}
+
+/// What a texture bake writes, as [`Asset::companion_files`] needs it: the number of
+/// maps and whether each has a bent normals map, and whether texture coordinates were
+/// generated.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TextureFiles {
+    /// Maps baked (one per material).
+    pub maps: usize,
+    /// Whether each map has a bent normals map too.
+    pub bent_normals: bool,
+    /// Whether generated texture coordinates are written.
+    pub generated_uvs: bool,
+}
+
+/// The maps [`write_maps_beside`] writes beside an OBJ or PLY file written to `path`.
+fn maps_beside(path: &Path, texture: &TextureFiles) -> Vec<(PathBuf, &'static str)> {
+    let mut files = vec![(map_path(path, "ao"), "the AO map")];
+    if texture.bent_normals {
+        files.push((map_path(path, "bent_normals"), "the bent normals map"));
+    }
+    files
 }
 
 /// The file beside a mesh written to `path` that holds its map `name` (`ao`,
@@ -195,9 +228,9 @@ pub(crate) fn write_maps_beside(path: &Path, maps: &[TextureMap]) -> Result<()> 
     let [map] = maps else {
         return Err(crate::error::Error::output(path, format!("{} textures for a file of one mesh", maps.len())));
     };
-    crate::output::write_atomically(&map_path(path, "ao"), &map.png)?;
+    crate::output::write_output(&map_path(path, "ao"), &map.png)?;
     if let Some(png) = &map.bent_png {
-        crate::output::write_atomically(&map_path(path, "bent_normals"), png)?;
+        crate::output::write_output(&map_path(path, "bent_normals"), png)?;
     }
     Ok(())
 }

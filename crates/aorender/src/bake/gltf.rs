@@ -9,10 +9,13 @@
 //! A mesh placed by several nodes is occluded differently at each placement: every node
 //! after the first gets its own copy of the mesh, sharing its accessors and material.
 
-use super::asset::{Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureMap, UvSet, WriteOptions};
+use super::asset::{
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureFiles, TextureMap, UvSet, WriteOptions,
+};
 use crate::error::{Error, Result};
-use crate::output::{write_atomically, write_atomically_with};
+use crate::output::{write_output, write_output_with};
 use crate::scene::extension;
+use crate::scene::files::relative_file;
 use crate::scene::gltf::{GltfBytes, read_buffers, read_gltf};
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::one_line;
@@ -20,7 +23,7 @@ use crate::scene::meshes::stem;
 use ::gltf::json::{Value, deserialize, serialize};
 use flate2::Compression;
 use flate2::write::GzEncoder;
-use percent_encoding::{AsciiSet, CONTROLS, percent_decode_str, utf8_percent_encode};
+use percent_encoding::{AsciiSet, CONTROLS, utf8_percent_encode};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::io::Write;
 use std::path::{Component, Path, PathBuf};
@@ -297,11 +300,37 @@ impl Asset for GltfAsset {
             // Everything is encoded before the first file is written, so that what can fail
             // between the two writes is the disk alone.
             let json = if is_gzip_name(path) { gzip(&json).map_err(|e| fail(e.to_string()))? } else { json };
-            write_atomically(&bin_path, &data)?;
-            write_atomically(path, &json)?;
+            write_output(&bin_path, &data)?;
+            write_output(path, &json)?;
         }
         Ok(notes)
     }
+    fn companion_files(&self, path: &Path, texture: Option<&TextureFiles>) -> Vec<(PathBuf, &'static str)> {
+        if extension(path) != "gltf" {
+            return Vec::new();
+        }
+        let (input_dir, output_dir) = (directory(&self.path), directory(path));
+        let mut files = Vec::new();
+        if texture.is_none_or(|t| t.generated_uvs) {
+            files.push((self.bin_file(path, &input_dir, &output_dir, &mut Vec::new()).0, "the glTF buffer"));
+        }
+        if let Some(t) = texture {
+            // In the order write_textures names them.
+            let (used, stem) = (self.used_files(&input_dir), stem(path));
+            let mut images: Vec<PathBuf> = Vec::new();
+            for _ in 0..t.maps {
+                let names: &[&'static str] = if t.bent_normals { &["ao", "bent_normals"] } else { &["ao"] };
+                for &name in names {
+                    let file = image_file(&output_dir, &stem, name, &used, images.iter());
+                    let role = if name == "ao" { "the AO map" } else { "the bent normals map" };
+                    images.push(file.clone());
+                    files.push((file, role));
+                }
+            }
+        }
+        files
+    }
+
     fn write_textures(&self, path: &Path, maps: &[TextureMap], uvs: Option<&GeneratedUvs>) -> Result<Vec<String>> {
         let fail = |message: String| Error::output(path, message);
         let (glb, mut doc, input_dir, output_dir) = self.output_document(path)?;
@@ -353,18 +382,7 @@ impl Asset for GltfAsset {
                 ]));
                 object([("bufferView", (views.len() - 1).into()), ("mimeType", "image/png".into())])
             } else {
-                let mut k = 0;
-                let file = loop {
-                    let file = output_dir.join(if k == 0 {
-                        format!("{stem}_{name}.png")
-                    } else {
-                        format!("{stem}_{name}{k}.png")
-                    });
-                    if !used.contains(&comparable(&file)) && !files.iter().any(|(f, _)| *f == file) {
-                        break file;
-                    }
-                    k += 1;
-                };
+                let file = image_file(&output_dir, &stem, name, &used, files.iter().map(|(f, _)| f));
                 let uri = file.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
                 files.push((file, png.to_vec()));
                 object([("uri", utf8_percent_encode(&uri, URI_PATH).to_string().into())])
@@ -459,9 +477,9 @@ impl Asset for GltfAsset {
                 serialize::to_vec_pretty(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
             let json = if is_gzip_name(path) { gzip(&json).map_err(|e| fail(e.to_string()))? } else { json };
             for (file, png) in &files {
-                write_atomically(file, png)?;
+                write_output(file, png)?;
             }
-            write_atomically(path, &json)?;
+            write_output(path, &json)?;
         }
         Ok(notes)
     }
@@ -563,11 +581,17 @@ impl GltfAsset {
         Ok((glb, doc, input_dir, output_dir))
     }
 
+    /// The files a `.gltf` output's external buffers and images resolve to, as
+    /// [`comparable`] gives them.
+    fn used_files(&self, input_dir: &Path) -> BTreeSet<PathBuf> {
+        self.external_files().map(|f| comparable(&input_dir.join(f))).collect()
+    }
+
     /// The file beside a `.gltf` output that holds its new buffer, and the URI naming it:
     /// `<stem>.bin`, or `<stem>_ao.bin`, `<stem>_ao2.bin`… when the input uses a file of
     /// that name (baking a file over itself must not overwrite its own buffers).
     fn bin_file(&self, path: &Path, input_dir: &Path, output_dir: &Path, notes: &mut Vec<String>) -> (PathBuf, String) {
-        let used: BTreeSet<PathBuf> = self.external_files().map(|f| comparable(&input_dir.join(f))).collect();
+        let used = self.used_files(input_dir);
         let stem = stem(path);
         for k in 0.. {
             let name = match k {
@@ -889,12 +913,31 @@ fn gzip(bytes: &[u8]) -> std::io::Result<Vec<u8>> {
     encoder.finish()
 }
 
-/// Writes `bytes` to `path` atomically, gzipped when its name ends in `.gz`.
+/// The PNG file beside a `.gltf` output that holds its image `name` (`ao`,
+/// `bent_normals`): `<stem>_<name>.png`, or `<stem>_<name>1.png`… when the input uses
+/// that file or an earlier image of this output (`taken`) has it.
+fn image_file<'a>(
+    output_dir: &Path,
+    stem: &str,
+    name: &str,
+    used: &BTreeSet<PathBuf>,
+    taken: impl Iterator<Item = &'a PathBuf> + Clone,
+) -> PathBuf {
+    for k in 0.. {
+        let file = output_dir.join(if k == 0 { format!("{stem}_{name}.png") } else { format!("{stem}_{name}{k}.png") });
+        if !used.contains(&comparable(&file)) && !taken.clone().any(|f| *f == file) {
+            return file;
+        }
+    }
+    unreachable!("the input and the output name finitely many files")
+}
+
+/// Writes `bytes` to `path` under the output policy, gzipped when its name ends in `.gz`.
 fn write_maybe_gzipped(path: &Path, bytes: &[u8]) -> Result<()> {
     if !is_gzip_name(path) {
-        return write_atomically(path, bytes);
+        return write_output(path, bytes);
     }
-    write_atomically_with(path, &mut |w| {
+    write_output_with(path, &mut |w| {
         let mut encoder = GzEncoder::new(w, Compression::default());
         encoder.write_all(bytes)?;
         encoder.finish().map(|_| ())
@@ -931,17 +974,6 @@ fn normalise(path: &Path) -> PathBuf {
         }
     }
     out
-}
-
-/// The relative file name a URI gives, percent-decoded; `None` for `data:` and other
-/// URIs with a scheme, and for absolute paths.
-fn relative_file(uri: &str) -> Option<PathBuf> {
-    if uri.contains(':') {
-        return None;
-    }
-    let name = percent_decode_str(uri).decode_utf8().ok()?;
-    let path = PathBuf::from(&*name);
-    (!name.starts_with('/') && path.is_relative()).then_some(path)
 }
 
 /// Rewrites the relative URIs of buffers and images so that from `to` they name the
@@ -992,6 +1024,7 @@ mod tests {
     use ::gltf::mesh::Semantic;
     use base64::Engine;
     use glam::Vec3;
+    use percent_encoding::percent_decode_str;
     use serde_json::json;
     use std::io::Read;
 
@@ -1403,5 +1436,64 @@ mod tests {
         let json: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
         let ao = &json["meshes"][0]["primitives"][0]["attributes"][AO];
         assert!(ao.as_u64().unwrap() as usize >= accessors, "{ao}");
+    }
+
+    /// The files a directory holds.
+    fn listing(dir: &Path) -> BTreeSet<PathBuf> {
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().path()).collect()
+    }
+
+    #[test]
+    fn companion_files_are_the_files_written_beside_the_output() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let (path, _) = write_fixture(d, "geom.gltf");
+        let asset = GltfAsset::read(&path).unwrap();
+        for (output, bin) in [("baked.gltf", "baked.bin"), ("geom.gltf", "geom_ao.bin")] {
+            let output = d.join(output);
+            let companions = asset.companion_files(&output, None);
+            assert_eq!(companions, [(d.join(bin), "the glTF buffer")]);
+            let before = listing(d);
+            asset.write(&output, &values(&asset, false), &WriteOptions::default()).unwrap();
+            let made: BTreeSet<PathBuf> = listing(d).difference(&before).cloned().collect();
+            let expected: BTreeSet<PathBuf> = companions
+                .into_iter()
+                .map(|(f, _)| f)
+                .chain([output.clone()])
+                .filter(|f| !before.contains(f))
+                .collect();
+            assert_eq!(made, expected);
+        }
+        // Two materials' maps with bent normals (the second's names numbered): each map
+        // where the listing says, the input's own image untouched.
+        std::fs::write(d.join("tex ture.png"), b"kept").unwrap();
+        let map = |material: Option<usize>, meshes: Vec<usize>| TextureMap {
+            material,
+            meshes,
+            uv_set: 0,
+            png: b"ao".to_vec(),
+            bent_png: Some(b"bent".to_vec()),
+            repeat: false,
+        };
+        let maps = [map(Some(0), vec![0]), map(None, vec![1])];
+        for output in ["tex ture.gltf", "textured.glb"] {
+            let output = d.join(output);
+            let files = TextureFiles { maps: 2, bent_normals: true, generated_uvs: false };
+            let companions = asset.companion_files(&output, Some(&files));
+            let before = listing(d);
+            asset.write_textures(&output, &maps, None).unwrap();
+            let made: BTreeSet<PathBuf> = listing(d).difference(&before).cloned().collect();
+            let expected: BTreeSet<PathBuf> =
+                companions.iter().map(|(f, _)| f.clone()).chain([output.clone()]).collect();
+            assert_eq!(made, expected, "{}", output.display());
+            if output.extension().is_some_and(|e| e == "gltf") {
+                let names: Vec<&str> = companions.iter().map(|(_, what)| *what).collect();
+                assert_eq!(names, ["the AO map", "the bent normals map", "the AO map", "the bent normals map"]);
+                assert!(companions[2].0.ends_with("tex ture_ao1.png"), "{companions:?}");
+            } else {
+                assert!(companions.is_empty(), "a GLB holds its maps");
+            }
+        }
+        assert_eq!(std::fs::read(d.join("tex ture.png")).unwrap(), b"kept");
     }
 }

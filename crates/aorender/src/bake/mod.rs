@@ -16,7 +16,8 @@ mod texture;
 mod unwrap;
 
 pub use asset::{
-    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, map_path,
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureFiles, TextureMap, UvSet, WriteOptions,
+    map_path,
 };
 pub use plan::{BakePlan, Placement, UNUSABLE_VALUE};
 pub use texture::{
@@ -26,6 +27,7 @@ pub use texture::{
 pub use unwrap::generate_uvs;
 
 use crate::error::{Error, Result};
+use crate::output::{FilePlan, OutputRules};
 use crate::scene::MeshObject;
 use std::path::{Path, PathBuf};
 
@@ -69,6 +71,47 @@ pub fn output_path(objects: &[MeshObject], object: &MeshObject, is_scene: bool, 
     }
 }
 
+/// Enters in `plan` the file a bake of `object` writes, `output`, given by `option` (`-o`
+/// on the command line): its role is `option` for a mesh file's bake, `the bake of
+/// object N (option)` for a scene's; it may replace the object's own mesh file only when
+/// `overwrite`. A file in directories still to be made
+/// is allowed: the bake makes them. The files written beside it follow with
+/// [`plan_companions`].
+pub fn plan_output(
+    plan: &mut FilePlan,
+    object: &MeshObject,
+    output: &Path,
+    is_scene: bool,
+    overwrite: bool,
+    option: &str,
+) -> Result<()> {
+    let replacing = overwrite.then_some(object.path.as_path());
+    plan.output_with(output, &output_role(object, is_scene, option), OutputRules { replacing, new_directories: true })?;
+    Ok(())
+}
+
+/// Enters in `plan` the files a bake of `object` (read into `asset`) writes beside
+/// `output` ([`Asset::companion_files`], `texture` as there), named as in [`plan_output`].
+pub fn plan_companions(
+    plan: &mut FilePlan,
+    object: &MeshObject,
+    asset: &dyn Asset,
+    (output, option): (&Path, &str),
+    is_scene: bool,
+    texture: Option<&TextureFiles>,
+) -> Result<()> {
+    let role = output_role(object, is_scene, option);
+    for (file, what) in asset.companion_files(output, texture) {
+        let rules = OutputRules { new_directories: true, ..OutputRules::default() };
+        plan.output_with(&file, &format!("{what} beside {role}"), rules)?;
+    }
+    Ok(())
+}
+
+fn output_role(object: &MeshObject, is_scene: bool, option: &str) -> String {
+    if is_scene { format!("the bake of object {} ({option})", object.number) } else { option.to_string() }
+}
+
 /// Checks, before any work, that `output` can take the bake of the mesh file `input`: a
 /// file of its format (glTF and GLB are one), and not the input itself unless
 /// `overwrite`.
@@ -86,8 +129,7 @@ pub fn check_output(input: &Path, output: &Path, overwrite: bool) -> Result<()> 
         );
         return Err(Error::output(output, message));
     }
-    let same = std::fs::canonicalize(input).ok().zip(std::fs::canonicalize(output).ok());
-    if !overwrite && same.is_some_and(|(a, b)| a == b) {
+    if !overwrite && crate::output::same_file(input, output) {
         return Err(Error::output(
             output,
             "the output would replace the input; choose another path, or allow writing over it (--overwrite)",

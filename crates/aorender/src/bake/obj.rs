@@ -477,7 +477,7 @@ impl Asset for ObjAsset {
 
         let gzip = is_gzip(path);
         let mut changes = VertexChanges::default();
-        crate::output::write_atomically_with(path, &mut |w| {
+        crate::output::write_output_with(path, &mut |w| {
             changes = if gzip {
                 let mut encoder = GzEncoder::new(w, Compression::default());
                 let changes = self.write_lines(&mut encoder, &values.ao)?;
@@ -523,7 +523,7 @@ impl Asset for ObjAsset {
             Some(uvs) => self.write_uv_lines(out, uvs),
             None => out.write_all(&self.text),
         };
-        crate::output::write_atomically_with(path, &mut |w| {
+        crate::output::write_output_with(path, &mut |w| {
             if gzip {
                 let mut encoder = GzEncoder::new(w, Compression::default());
                 body(&mut encoder)?;

@@ -17,7 +17,7 @@ use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
 };
 use crate::error::{Error, Result};
-use crate::output::write_atomically_with;
+use crate::output::write_output_with;
 use crate::scene::input::Input;
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
@@ -804,7 +804,7 @@ impl PlyAsset {
             }
             out.write_all(&chunk)
         };
-        write_atomically_with(path, &mut |w| {
+        write_output_with(path, &mut |w| {
             if gzip {
                 let mut encoder = flate2::write::GzEncoder::new(w, flate2::Compression::default());
                 body(&mut encoder)?;

@@ -1,33 +1,32 @@
-//! Files written atomically: to a temporary file beside the target, synced, then renamed
-//! over it, so that a reader sees the old file or the whole new one, never a part. A
-//! process about to exit in the middle of a write can remove its temporary files.
+//! Regular files replaced atomically: written to a temporary file beside the target,
+//! synced, then renamed over it, so that a reader sees the old file or the whole new one,
+//! never a part. A process about to exit in the middle of a write can remove its
+//! temporary files.
 
 use crate::error::{Error, Result};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
-/// Writes `bytes` to a temporary file in the target's directory, then renames it over
-/// the target, so a reader never sees a half-written file.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    write_atomically_with(path, &mut |w| w.write_all(bytes))
-}
-
-/// Temporary files being written by [`write_atomically_with`], for
+/// Temporary files being written by [`replace_atomically`], for
 /// [`remove_temporary_files`].
 static TEMPORARY_FILES: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 
-/// Streams `write`'s output to a temporary file in the target's directory (buffered),
-/// syncs it, then renames it over the target: a reader sees the old file or the whole
-/// new one, never a part. On failure the temporary file is removed and the target is
+/// Streams `write`'s output to a temporary file in `file`'s directory (buffered), syncs
+/// it, then renames it over `file`; errors name `path`, the output as the user gave it
+/// (`file` is where it leads). On failure the temporary file is removed and `file` is
 /// left as it was.
-pub fn write_atomically_with(path: &Path, write: &mut dyn FnMut(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
+pub(super) fn replace_atomically(
+    path: &Path,
+    file: &Path,
+    write: &mut dyn FnMut(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<()> {
     let err = |m: String| Error::output(path, m);
-    let dir = match path.parent() {
+    let dir = match file.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
-    let name = path.file_name().ok_or_else(|| err("not a file path".into()))?.to_string_lossy();
+    let name = file.file_name().ok_or_else(|| err("not a file path".into()))?.to_string_lossy();
     let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
     lock_temporary_files().push(tmp.clone());
     let result = (|| -> std::io::Result<()> {
@@ -35,7 +34,7 @@ pub fn write_atomically_with(path: &Path, write: &mut dyn FnMut(&mut dyn Write) 
         write(&mut f)?;
         let f = f.into_inner().map_err(|e| e.into_error())?;
         f.sync_all()?;
-        std::fs::rename(&tmp, path)
+        std::fs::rename(&tmp, file)
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);

@@ -51,7 +51,7 @@
 //! A version 1 file has none of the replicate fields: it is an image whose samples are
 //! one replicate (independent ones: replicates of one sample each).
 
-use super::atomic::write_atomically_with;
+use super::policy::write_output_with;
 use crate::accumulation::{Accumulation, FilmLayout, SampleSettings};
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::DeviceKind;
@@ -171,9 +171,10 @@ impl From<&str> for Invalid {
 }
 
 impl Accumulation {
-    /// Writes the checkpoint file atomically (to a temporary file beside it, then renamed).
+    /// Writes the checkpoint file under the output policy: a regular file atomically (to
+    /// a temporary file beside it, then renamed), a FIFO or a device written into.
     pub fn write(&self, path: &Path) -> Result<()> {
-        write_atomically_with(path, &mut |w| {
+        write_output_with(path, &mut |w| {
             let mut w = HashingWriter { inner: w, hasher: blake3::Hasher::new() };
             self.write_body(&mut w)?;
             let hash = *w.hasher.finalize().as_bytes();

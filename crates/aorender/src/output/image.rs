@@ -2,7 +2,7 @@
 //! (32-bit float, linear), and of their standard errors (`.exr`, `.pfm`), written
 //! atomically.
 
-use super::atomic::write_atomically;
+use super::policy::write_output;
 use crate::error::{Error, Result};
 use crate::film::{ErrorEstimator, Film};
 use std::path::Path;
@@ -56,7 +56,7 @@ fn write_values(values: &[f32], w: u32, h: u32, path: &Path) -> Result<()> {
         "" => return Err(out_err("no file extension: expected .png, .exr or .pfm".into())),
         e => return Err(out_err(format!("unsupported image format '.{e}': expected .png, .exr or .pfm"))),
     };
-    write_atomically(path, &bytes)
+    write_output(path, &bytes)
 }
 
 /// A linear value as the 8-bit sRGB code `.png` images store.

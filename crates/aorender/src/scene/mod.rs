@@ -5,6 +5,7 @@
 
 mod camera;
 mod file;
+pub(crate) mod files;
 mod frame;
 pub(crate) mod gltf;
 pub(crate) mod input;
@@ -18,6 +19,7 @@ mod types;
 pub use crate::geometry::Plane;
 pub use camera::{Camera, Projection, RayGen};
 pub use file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME};
+pub use files::input_files;
 pub use frame::LocalFrame;
 pub(crate) use frame::round_up;
 pub(crate) use meshes::extension;
