@@ -121,5 +121,5 @@ pub use render::{
 };
 pub use sampler::Sampler;
 pub use sampling::Hemisphere;
-pub use scene::{Camera, Projection, Scene, Settings};
+pub use scene::{Camera, LoadOptions, Projection, ReadLimits, Scene, Settings};
 pub use session::{ImageRequest, ProbeOutput, Session};

@@ -1,9 +1,10 @@
 //! `aorender probe`: AO at points and normals read from a text file, written as CSV.
 
 use crate::args::{SamplingArgs, SceneArgs, check_output_extension};
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Result, anyhow, bail};
 use aorender::output::write_atomically;
-use aorender::{Control, ErrorTarget, Probe, ProbeValue, Sampler, Session};
+use aorender::scene::read_text;
+use aorender::{Control, ErrorTarget, Probe, ProbeValue, ReadLimits, Sampler, Session};
 use glam::Vec3;
 use std::path::{Path, PathBuf};
 
@@ -38,7 +39,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     if !to_stdout {
         check_output_extension(&args.output, &["csv"])?;
     }
-    let probes = read_probes(&args.points)?;
+    let probes = read_probes(&args.points, &args.scene.load_options()?.limits)?;
     let target = args.target_error.map(ErrorTarget::PointStdError);
     if target.is_some() && args.sampling.replicate.is_none() {
         scene.settings.replicate = Some(scene.settings.sampler.replicate_for(args.samples.min(256), 16));
@@ -81,10 +82,14 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     Ok(())
 }
 
-/// Reads probes from a text file: one per line, `x y z nx ny nz` (whitespace or commas),
-/// `#` starts a comment. Errors name the file and line.
-pub fn read_probes(path: &Path) -> Result<Vec<Probe>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+/// Bytes of memory a probe file takes per byte of its text, with its probes: a line of
+/// 12 bytes (`0 0 0 0 0 1`) becomes a 28-byte probe, in a vector that grows by doubling.
+const PROBE_TEXT_BYTES_PER_BYTE: u64 = 8;
+
+/// Reads probes from a text file within `limits`: one per line, `x y z nx ny nz`
+/// (whitespace or commas), `#` starts a comment. Errors name the file and line.
+pub fn read_probes(path: &Path, limits: &ReadLimits) -> Result<Vec<Probe>> {
+    let text = read_text(path, limits, PROBE_TEXT_BYTES_PER_BYTE, "the probe file")?;
     parse_probes(&text).map_err(|m| anyhow!("{}: {m}", path.display()))
 }
 
