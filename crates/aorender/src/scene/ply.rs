@@ -233,6 +233,38 @@ fn read_elements<E: PropertyAccess>(
     Ok(())
 }
 
+/// Skips the elements of `def` without parsing them when they are binary scalars (a fixed
+/// number of bytes each), a buffer at a time; `false` (nothing read) for other elements.
+fn skip_elements(path: &Path, input: &mut Input, encoding: Encoding, def: &ElementDef) -> Result<bool> {
+    let mut size = 0;
+    for p in def.properties.values() {
+        match &p.data_type {
+            PropertyType::Scalar(t) if encoding != Encoding::Ascii => size += scalar_bytes(t),
+            _ => return Ok(false),
+        }
+    }
+    let total = (def.count as u64).saturating_mul(size);
+    let mut skipped = 0;
+    while skipped < total {
+        let available = match input.fill_buf() {
+            Ok(buf) => buf.len() as u64,
+            Err(e) => {
+                let what = format!("{} {} of {}", def.name, skipped / size.max(1), def.count);
+                let stream = input.stream_error().map_or_else(|| e.to_string(), str::to_string);
+                return Err(Error::scene(path, format!("{what}: {stream}")));
+            }
+        };
+        if available == 0 {
+            let what = format!("{} {} of {}", def.name, skipped / size.max(1), def.count);
+            return Err(Error::scene(path, format!("unexpected end of file in {what}")));
+        }
+        let n = available.min(total - skipped);
+        input.consume(n as usize);
+        skipped += n;
+    }
+    Ok(true)
+}
+
 /// One line of a PLY header, in the file's order (for writing the header back).
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) enum HeaderLine {
@@ -552,6 +584,7 @@ pub(crate) fn load_ply(path: &Path, meter: &mut Meter) -> Result<IndexedMesh> {
                     Ok(())
                 })?;
             }
+            _ if skip_elements(path, &mut input, encoding, def)? => {}
             _ => read_elements(path, &mut input, encoding, def, meter, |_, _: Skipped, _| Ok(()))?,
         }
     }
