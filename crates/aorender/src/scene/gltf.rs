@@ -1010,4 +1010,42 @@ mod tests {
             mesh.triangles.iter().filter(|t| p(t[0]) == p(t[1]) || p(t[1]) == p(t[2]) || p(t[0]) == p(t[2]));
         assert_eq!((repeated, coincident.count() - repeated), (11_154, 6));
     }
+
+    #[test]
+    fn uris_must_stay_in_the_files_folder_once_links_are_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path().canonicalize().unwrap();
+        std::fs::create_dir_all(d.join("model/sub")).unwrap();
+        std::fs::write(d.join("model/sub/a.bin"), b"a").unwrap();
+        std::fs::write(d.join("secret.bin"), b"s").unwrap();
+        std::os::unix::fs::symlink("sub/a.bin", d.join("model/inside.bin")).unwrap();
+        std::os::unix::fs::symlink("../secret.bin", d.join("model/outside.bin")).unwrap();
+        std::os::unix::fs::symlink("..", d.join("model/up")).unwrap();
+        let gltf = d.join("model/m.gltf");
+        for uri in ["sub/a.bin", "./sub/../sub/a.bin", "sub%2Fa.bin", "inside.bin"] {
+            assert_eq!(uri_file(&gltf, uri, false, true), Ok(d.join("model/sub/a.bin")), "{uri}");
+        }
+        for (uri, how) in [
+            ("../secret.bin", ""),
+            ("sub/../../secret.bin", ""),
+            ("/etc/passwd", ""),
+            ("%2Fetc%2Fpasswd", ""),
+            ("outside.bin", " through a symbolic link"),
+            ("up/secret.bin", " through a symbolic link"),
+        ] {
+            let e = uri_file(&gltf, uri, false, true).unwrap_err();
+            assert!(e.contains(&format!("leads outside the glTF file's folder{how};")), "{uri}: {e}");
+        }
+        // Outside but allowed: resolved against the folder, not checked.
+        assert_eq!(uri_file(&gltf, "../secret.bin", true, true), Ok(d.join("model/../secret.bin")));
+        // A missing file in the folder: an error for a buffer, accepted for an image.
+        assert!(uri_file(&gltf, "missing.png", false, true).unwrap_err().contains("No such file"));
+        assert_eq!(uri_file(&gltf, "missing.png", false, false), Ok(d.join("model/missing.png")));
+        assert!(uri_file(&gltf, "http://example.com/a.bin", false, true).unwrap_err().contains("unsupported URI"));
+    }
+
+    #[test]
+    fn json_objects_are_counted_outside_strings() {
+        assert_eq!(json_objects(br#"{"a": [{}, {"b": "{\"}"}], "c": "\\"} {"#), 4);
+    }
 }

@@ -675,4 +675,87 @@ mod tests {
         let short = one_line(&long);
         assert!(short.ends_with('…') && short.chars().count() <= 202, "{short}");
     }
+
+    #[test]
+    fn sizes_parse_in_powers_of_1024_and_print_back() {
+        for (text, bytes) in [
+            ("4096", 4096),
+            ("64M", 64 << 20),
+            ("64MiB", 64 << 20),
+            (" 1.5g ", 3 << 29),
+            ("2 GB", 2 << 30),
+            ("1T", 1 << 40),
+        ] {
+            assert_eq!(parse_size(text), Some(bytes), "{text}");
+        }
+        for text in ["", "0", "0.1", "-1", "12Q", "M", "1e9", "1.2.3"] {
+            assert_eq!(parse_size(text), None, "{text}");
+        }
+        for (bytes, text) in [(1000, "1000 bytes"), (64 << 20, "64 MiB"), (3 << 29, "1.5 GiB"), (1536, "1.5 KiB")] {
+            assert_eq!(size_text(bytes), text);
+        }
+    }
+
+    #[test]
+    fn messages_name_the_budget_and_where_it_came_from() {
+        let available = ReadLimits { memory: 10 << 30, origin: Origin::Available(20 << 30), ..ReadLimits::base() };
+        assert_eq!(
+            available.exceeded_message("the mesh"),
+            "the mesh needs more than 10 GiB, the read budget (half of the 20 GiB available); \
+             AORENDER_READ_BUDGET=SIZE sets it"
+        );
+        let set = ReadLimits { memory: 64 << 20, origin: Origin::Environment("64M".into()), ..ReadLimits::base() };
+        assert_eq!(
+            set.after(16 << 20).exceeded_message("the checkpoint"),
+            "the checkpoint needs more than 48 MiB, what is left of the read budget (AORENDER_READ_BUDGET=64M)"
+        );
+        assert_eq!(set.input_bytes(), 256 << 20);
+        assert_eq!(set.idle_bytes(), 4 << 20);
+    }
+
+    #[test]
+    fn a_meter_refuses_the_charge_past_its_budget_and_growth_stays_within_it() {
+        let path = Path::new("m.obj");
+        let mut meter = Meter::new(&ReadLimits::with_memory(1000), "the mesh");
+        meter.charge(path, 600).unwrap();
+        meter.release(100);
+        meter.charge(path, 500).unwrap();
+        let e = meter.charge(path, 1).unwrap_err().to_string();
+        assert_eq!(e, "m.obj: the mesh needs more than 1000 bytes, the read budget (as set by the caller)");
+        // Growth doubles within what is left, and fails when nothing is.
+        let mut meter = Meter::new(&ReadLimits::with_memory(4 * 5000), "the mesh");
+        let mut v: Vec<u32> = Vec::new();
+        let mut pushed = 0;
+        while make_room(&mut v, &mut meter, path).is_ok() {
+            v.push(0);
+            pushed += 1;
+        }
+        assert_eq!(pushed, 5000);
+        assert_eq!(meter.used(), 4 * 5000 + 4);
+        assert!(vec_bytes(&v) <= 4 * 5000);
+    }
+
+    #[test]
+    fn a_stream_stops_at_the_input_cap_and_a_line_at_the_line_length() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("f.obj");
+        std::fs::write(&path, [b"v 1 2 3\n".repeat(4).as_slice(), &[b'x'; 100]].concat()).unwrap();
+        // A budget of 16 bytes lets the file deliver 64.
+        let mut input = Input::open(&path, &ReadLimits::with_memory(16)).unwrap();
+        let mut all = Vec::new();
+        assert!(input.read_to_end(&mut all).is_err());
+        assert_eq!(all.len(), 64);
+        let message = input.stream_error().unwrap();
+        assert!(message.starts_with("the file holds more than 64 bytes, 4 times the read budget"), "{message}");
+        // Lines of at most 50 bytes: the fifth is longer.
+        let limits = ReadLimits::with_memory(1 << 20).with_line_bytes(50);
+        let mut input = Input::open(&path, &limits).unwrap();
+        let mut line = Vec::new();
+        for _ in 0..4 {
+            line.clear();
+            assert_eq!(input.read_line(&mut line).unwrap(), 8);
+        }
+        assert!(input.read_line(&mut line).is_err());
+        assert_eq!(input.stream_error(), Some("line 5 is longer than 50 bytes, the longest line a text file may have"));
+    }
 }
