@@ -597,11 +597,20 @@ impl Input {
 
 impl Read for Input {
     fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        let available = self.fill_buf()?;
-        let n = available.len().min(buf.len());
-        buf[..n].copy_from_slice(&available[..n]);
-        self.consume(n);
-        Ok(n)
+        let end = self.limit.min(self.cap);
+        let allowed = usize::try_from(end.saturating_sub(self.consumed)).unwrap_or(usize::MAX);
+        if allowed == 0 {
+            // The end for the reader, or the cap: an error when more data follows it.
+            return self.fill_buf().map(|_| 0);
+        }
+        let want = buf.len().min(allowed);
+        match self.inner.read(&mut buf[..want]) {
+            Ok(n) => {
+                self.consumed += n as u64;
+                Ok(n)
+            }
+            Err(e) => Err(self.record(e)),
+        }
     }
 }
 
