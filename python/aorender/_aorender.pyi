@@ -59,8 +59,15 @@ class Scene:
     def from_arrays(V: npt.ArrayLike, F: npt.ArrayLike, name: str = "arrays") -> "Scene":
         """One triangle mesh: V (n, 3) positions, F (m, 3) vertex indices."""
     @staticmethod
-    def load(path: Union[str, "os.PathLike[str]"]) -> "Scene":
-        """A scene file (.toml) or a mesh file (.obj, .ply, .gltf, .glb, optionally .gz)."""
+    def load(
+        path: Union[str, "os.PathLike[str]"],
+        *,
+        allow_external_uris: bool = False,
+        read_budget: Optional[int] = None,
+    ) -> "Scene":
+        """A scene file (.toml) or a mesh file (.obj, .ply, .gltf, .glb, optionally .gz),
+        read within read_budget bytes (default: AORENDER_READ_BUDGET, else half of the
+        available memory); glTF URIs outside the file's folder only when allowed."""
     @property
     def name(self) -> str: ...
     @property

@@ -305,6 +305,40 @@ def test_unreadable_files_raise_os_error(tmp_path):
         aorender.Scene.load(bad)
 
 
+def test_read_budget_refuses_a_mesh_larger_than_it(repo):
+    bunny = repo / "scenes" / "bunny.obj"
+    with pytest.raises(OSError, match=r"bunny.obj: the mesh needs more than 1 MiB, the read budget \(as set"):
+        aorender.Scene.load(bunny, read_budget=1 << 20)
+    with pytest.raises(ValueError, match="read_budget"):
+        aorender.Scene.load(bunny, read_budget=0)
+    assert aorender.Scene.load(bunny, read_budget=1 << 30).triangles > 60000
+
+
+def test_gltf_buffers_outside_the_folder_need_allow_external_uris(tmp_path):
+    # A triangle whose buffer lies in the folder above the glTF file's.
+    (tmp_path / "outside.bin").write_bytes(np.array([0, 0, 0, 1, 0, 0, 0, 1, 0], "<f4").tobytes())
+    inner = tmp_path / "inner"
+    inner.mkdir()
+    doc = {
+        "asset": {"version": "2.0"},
+        "nodes": [{"mesh": 0}],
+        "buffers": [{"uri": "../outside.bin", "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+    }
+    (inner / "tri.gltf").write_text(json.dumps(doc))
+    with pytest.raises(OSError, match=r'tri.gltf: buffer 0: the URI "../outside.bin" leads outside'):
+        aorender.Scene.load(inner / "tri.gltf")
+    scene = aorender.Scene.load(inner / "tri.gltf", allow_external_uris=True)
+    assert scene.triangles == 1
+    # Its bake reads the file again as it was allowed.
+    ao, _ = scene.bake(4, device="cpu")
+    assert len(ao) == 3
+
+
 def test_bake_writes_the_file_like_the_command(repo, tmp_path):
     scene = aorender.Scene.load(repo / "scenes" / "bunny.obj")
     out = tmp_path / "bunny-ao.obj"

@@ -3,7 +3,8 @@
 
 use anyhow::{Result, bail};
 use aorender::{
-    BuildQuality, BvhLayout, BvhOptions, Device, DeviceKind, GeometryStorage, Hemisphere, Sampler, Scene, Traversal,
+    Accumulation, BuildQuality, BvhLayout, BvhOptions, Device, DeviceKind, GeometryStorage, Hemisphere, LoadOptions,
+    ReadLimits, Sampler, Scene, Traversal,
 };
 use clap::ValueEnum;
 use clap::builder::TypedValueParser as _;
@@ -128,6 +129,10 @@ pub struct SceneArgs {
     /// How the GPU kernel's lanes share the rays.
     #[arg(long, value_enum, default_value = "auto")]
     pub traversal: TraversalArg,
+    /// Read glTF buffers and images whose URIs lead outside the glTF file's folder
+    /// (absolute paths, `..`, symbolic links); refused by default.
+    #[arg(long)]
+    pub allow_external_uris: bool,
 }
 
 impl SceneArgs {
@@ -135,7 +140,7 @@ impl SceneArgs {
     /// loaders' warnings are printed.
     pub fn load(&self) -> Result<Scene> {
         let mut scene = match &self.scene {
-            Some(path) => Scene::load(path)?,
+            Some(path) => Scene::load_with(path, &self.load_options()?)?,
             None => Scene::default_scene(),
         };
         for w in &scene.warnings {
@@ -149,6 +154,12 @@ impl SceneArgs {
             s.seed = seed;
         }
         Ok(scene)
+    }
+
+    /// How input files are read: the read budget ([`ReadLimits::from_env`]) and the URI
+    /// option.
+    pub fn load_options(&self) -> Result<LoadOptions> {
+        Ok(LoadOptions { limits: ReadLimits::from_env()?, allow_external_uris: self.allow_external_uris })
     }
 
     /// Opens the device the options name.
@@ -205,6 +216,19 @@ pub fn check_output_extension(path: &Path, allowed: &[&str]) -> Result<()> {
 pub fn write_json(path: &Path, json: &str) -> Result<()> {
     aorender::output::write_output(path, format!("{json}\n").as_bytes())?;
     Ok(())
+}
+
+/// Reads the checkpoints of shards one after the other, their sums (held together for
+/// the merge) within `limits`: each is read within what the ones before it left.
+pub fn read_shards(paths: &[PathBuf], limits: &ReadLimits) -> Result<Vec<(PathBuf, Accumulation)>> {
+    let mut shards = Vec::with_capacity(paths.len());
+    let mut held = 0;
+    for path in paths {
+        let shard = Accumulation::read_with(path, &limits.after(held))?;
+        held += shard.memory_bytes();
+        shards.push((path.clone(), shard));
+    }
+    Ok(shards)
 }
 
 /// `--sample-range START..END`: a non-empty range of sample indices.

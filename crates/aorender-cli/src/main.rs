@@ -49,7 +49,9 @@ fn main() {
             default_hook(info);
         }
     }));
-    if let Err(e) = run() {
+    let result = run();
+    memory::write_test_heap_peak();
+    if let Err(e) = result {
         eprintln!("aorender: {e:#}");
         std::process::exit(1);
     }

@@ -78,6 +78,18 @@ pub fn heap_peak_bytes() -> Option<u64> {
     INSTALLED.load(Ordering::Relaxed).then(|| PEAK.load(Ordering::Relaxed) as u64)
 }
 
+/// With this environment variable set to a path, the binary writes its heap peak there (in
+/// bytes, one line) when it exits, whether it succeeded or not: the tests bound the memory
+/// of refused reads with it, which write no statistics.
+pub const TEST_HEAP_PEAK_FILE_ENV: &str = "AORENDER_TEST_HEAP_PEAK_FILE";
+
+/// Writes [`heap_peak_bytes`] to the file [`TEST_HEAP_PEAK_FILE_ENV`] names, if it is set.
+pub fn write_test_heap_peak() {
+    if let (Some(path), Some(peak)) = (std::env::var_os(TEST_HEAP_PEAK_FILE_ENV), heap_peak_bytes()) {
+        let _ = std::fs::write(path, format!("{peak}\n"));
+    }
+}
+
 /// The memory the system says is available to a new allocation (`MemAvailable` of
 /// `/proc/meminfo`), in bytes; `None` where it cannot be read.
 pub fn available_bytes() -> Option<u64> {

@@ -5,11 +5,14 @@ use crate::arrays::{faces, out, vec3s};
 use crate::engine::{device, interruptible, settings, to_py};
 use aorender::bake::{
     Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, check_output, output_path, plan_companions,
-    plan_output, read_asset,
+    plan_output, read_object,
 };
 use aorender::output::FilePlan;
 use aorender::scene::{MeshObject, mesh_triangles};
-use aorender::{BvhOptions, Camera, ImageRequest, Probe, Projection, Scene, Session, Settings, SurfaceTolerance};
+use aorender::{
+    BvhOptions, Camera, ImageRequest, LoadOptions, Probe, Projection, ReadLimits, Scene, Session, Settings,
+    SurfaceTolerance,
+};
 use glam::{Mat4, Vec3};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::{PyUserWarning, PyValueError};
@@ -32,6 +35,8 @@ pub struct PyScene {
     arrays: Option<AssetMesh>,
     /// The file a loaded scene came from.
     source: Option<PathBuf>,
+    /// The read budget it was loaded within, for the bake's reads of its files.
+    limits: ReadLimits,
     /// One session per device, by kind and adapter name.
     sessions: Mutex<Vec<(String, Arc<Session>)>>,
 }
@@ -51,7 +56,8 @@ impl PyScene {
             to_file: glam::Mat3::IDENTITY,
             ..AssetMesh::default()
         };
-        Ok(PyScene { scene, arrays: Some(mesh), source: None, sessions: Mutex::new(Vec::new()) })
+        let limits = ReadLimits::with_memory(u64::MAX);
+        Ok(PyScene { scene, arrays: Some(mesh), source: None, limits, sessions: Mutex::new(Vec::new()) })
     }
 
     /// The session on the device `name` names, made the first time (BVH built and
@@ -211,15 +217,25 @@ impl PyScene {
         })
     }
 
-    /// Scene.load(path)
+    /// Scene.load(path, *, allow_external_uris=False, read_budget=None)
     ///
     /// A scene file (.toml: meshes, spheres, planes, a camera) or a mesh file (.obj, .ply,
     /// .gltf, .glb, optionally gzipped), read as `aorender render` reads it. Unreadable or
-    /// invalid files raise OSError naming the file.
+    /// invalid files raise OSError naming the file, and so does a file that needs more
+    /// memory than the read budget: `read_budget` bytes, else AORENDER_READ_BUDGET, else
+    /// half of the available memory. A glTF file's buffers and images must lie in its
+    /// folder unless `allow_external_uris`.
     #[staticmethod]
-    fn load(py: Python<'_>, path: PathBuf) -> PyResult<PyScene> {
-        let scene = py.allow_threads(|| Scene::load(&path)).map_err(to_py)?;
-        Ok(PyScene { scene, arrays: None, source: Some(path), sessions: Mutex::new(Vec::new()) })
+    #[pyo3(signature = (path, *, allow_external_uris = false, read_budget = None))]
+    fn load(py: Python<'_>, path: PathBuf, allow_external_uris: bool, read_budget: Option<u64>) -> PyResult<PyScene> {
+        let limits = match read_budget {
+            Some(0) => return Err(PyValueError::new_err("read_budget must be at least 1 byte")),
+            Some(bytes) => ReadLimits::with_memory(bytes),
+            None => ReadLimits::from_env().map_err(to_py)?,
+        };
+        let options = LoadOptions { limits: limits.clone(), allow_external_uris };
+        let scene = py.allow_threads(|| Scene::load_with(&path, &options)).map_err(to_py)?;
+        Ok(PyScene { scene, arrays: None, source: Some(path), limits, sessions: Mutex::new(Vec::new()) })
     }
 
     /// The scene's name (the file's stem, or the name given to from_arrays).
@@ -371,7 +387,7 @@ impl PyScene {
             for object in &self.scene.mesh_objects {
                 let asset = match targets.iter().find(|(o, _)| o.path == object.path) {
                     Some((_, a)) => a.clone(),
-                    None => Arc::from(py.allow_threads(|| read_asset(&object.path)).map_err(to_py)?),
+                    None => Arc::from(py.allow_threads(|| read_object(object, &self.limits)).map_err(to_py)?),
                 };
                 targets.push((object.clone(), asset));
             }

@@ -125,6 +125,6 @@ pub use render::{
 };
 pub use sampler::Sampler;
 pub use sampling::Hemisphere;
-pub use scene::{Camera, Projection, Scene, Settings};
+pub use scene::{Camera, LoadOptions, Projection, ReadLimits, Scene, Settings};
 pub use session::{ImageRequest, ProbeOutput, Session};
 pub use surface::{Located, RELATIVE_TOLERANCE, SurfaceTolerance};

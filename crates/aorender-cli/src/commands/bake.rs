@@ -2,18 +2,19 @@
 //! their files, with the progress, time limit, checkpoints, resuming, sample-range shards
 //! and signal handling of `render`.
 
-use crate::args::{RunArgs, SamplingArgs, SceneArgs, write_json};
+use crate::args::{RunArgs, SamplingArgs, SceneArgs, read_shards, write_json};
 use crate::{memory, output, signals};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::bake::{
     Asset, AssetMesh, BakeAt, BakePlan, GeneratedUvs, Placement, TextureFiles, TextureMap, TextureOptions, TexturePlan,
     TextureStats, UNUSABLE_VALUE, UvWrap, WriteOptions, check_output, format_of, generate_uvs, map_path, output_path,
-    plan_companions, plan_output, read_asset,
+    plan_companions, plan_output, read_object,
 };
 use aorender::output::{FilePlan, OutputRules, write_output};
 use aorender::scene::MeshObject;
 use aorender::{
-    Accumulation, Control, Device, Probe, Progress, Session, merge, probe_film_bent_normals, probe_film_values,
+    Accumulation, Control, Device, Probe, Progress, ReadLimits, Session, merge, probe_film_bent_normals,
+    probe_film_values,
 };
 use clap::ValueEnum;
 use std::path::{Path, PathBuf};
@@ -227,6 +228,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
     }
 
     let load_start = std::time::Instant::now();
+    let limits = ReadLimits::from_env()?;
     let mut scene = args.scene.load()?;
     args.sampling.apply(&mut scene)?;
     if scene.mesh_objects.is_empty() {
@@ -236,7 +238,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         options.seed = scene.settings.seed;
     }
     let targets = match texture {
-        None => targets(&mut files, &scene.mesh_objects, is_scene, &args.output, args.overwrite)?,
+        None => targets(&mut files, &scene.mesh_objects, is_scene, &args.output, args.overwrite, &limits)?,
         Some(_) => {
             if scene.mesh_objects.len() > 1 {
                 bail!(
@@ -246,7 +248,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
                 );
             }
             let object = scene.mesh_objects[0].clone();
-            let asset: Arc<dyn Asset> = Arc::from(read_asset(&object.path)?);
+            let asset: Arc<dyn Asset> = Arc::from(read_object(&object, &limits)?);
             vec![Target { object, asset, output: args.output.clone() }]
         }
     };
@@ -358,7 +360,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let film = if args.merge.is_empty() {
         let resume = match &args.run.resume {
             Some(path) => {
-                let saved = Accumulation::read(path)?;
+                let saved = Accumulation::read_with(path, &limits)?;
                 saved.check_resume(&expected()?)?;
                 Some(saved)
             }
@@ -367,10 +369,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         let acc = trace(&args, scene, probes, resume, checkpoint_path.as_deref(), &stop, &mut stats)?;
         acc.film()?
     } else {
-        let mut shards = Vec::with_capacity(args.merge.len());
-        for path in &args.merge {
-            shards.push((path.clone(), Accumulation::read(path)?));
-        }
+        let shards = read_shards(&args.merge, &limits)?;
         let this = expected()?;
         let diff = shards[0].1.settings.differences(&this.settings);
         if !diff.is_empty() {
@@ -648,6 +647,7 @@ fn targets(
     is_scene: bool,
     output: &Path,
     overwrite: bool,
+    limits: &ReadLimits,
 ) -> Result<Vec<Target>> {
     let mut assets: Vec<(PathBuf, Arc<dyn Asset>)> = Vec::new();
     let mut targets = Vec::with_capacity(objects.len());
@@ -655,7 +655,7 @@ fn targets(
         let asset = match assets.iter().find(|(p, _)| *p == object.path) {
             Some((_, a)) => a.clone(),
             None => {
-                let a: Arc<dyn Asset> = Arc::from(read_asset(&object.path)?);
+                let a: Arc<dyn Asset> = Arc::from(read_object(object, limits)?);
                 assets.push((object.path.clone(), a.clone()));
                 a
             }

@@ -1,11 +1,11 @@
 //! `aorender merge`: the accumulations of disjoint sample ranges of one render (the
 //! checkpoints of its shards) combined into its image.
 
-use crate::args::{check_output_extension, write_json};
+use crate::args::{check_output_extension, read_shards, write_json};
 use crate::output;
 use anyhow::Result;
 use aorender::output::{FilePlan, IMAGE_EXTENSIONS, write_image};
-use aorender::{Accumulation, BLOCK_SAMPLES, MergedShard, merge};
+use aorender::{BLOCK_SAMPLES, MergedShard, ReadLimits, merge};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -43,10 +43,7 @@ pub fn run(args: MergeArgs) -> Result<()> {
     if let Some(path) = &args.stats {
         plan.output(path, "--stats")?;
     }
-    let mut shards = Vec::with_capacity(args.inputs.len());
-    for path in &args.inputs {
-        shards.push((path.clone(), Accumulation::read(path)?));
-    }
+    let shards = read_shards(&args.inputs, &ReadLimits::from_env()?)?;
     let merged = merge(&shards)?;
     write_image(&merged.film, &args.output)?;
     let stats = MergeStats {

@@ -2,9 +2,10 @@
 
 use crate::args::{SamplingArgs, SceneArgs, check_output_extension};
 use crate::output;
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Result, anyhow, bail};
 use aorender::output::{Destination, FilePlan, write_output};
-use aorender::{Control, ErrorTarget, Probe, ProbeValue, Sampler, Session, SurfaceTolerance};
+use aorender::scene::read_text;
+use aorender::{Control, ErrorTarget, Probe, ProbeValue, ReadLimits, Sampler, Session, SurfaceTolerance};
 use glam::Vec3;
 use std::path::{Path, PathBuf};
 
@@ -54,7 +55,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         Some(d) => SurfaceTolerance::distance(d)
             .map_err(|e| anyhow!("invalid option: --surface-tolerance: {}", e.message()))?,
     };
-    let (probes, lines) = read_probes(&args.points)?;
+    let (probes, lines) = read_probes(&args.points, &args.scene.load_options()?.limits)?;
     let target = args.target_error.map(ErrorTarget::PointStdError);
     if target.is_some() && args.sampling.replicate.is_none() {
         scene.settings.replicate = Some(scene.settings.sampler.replicate_for(args.samples.min(256), 16));
@@ -109,10 +110,16 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     Ok(())
 }
 
-/// Reads probes from a text file: one per line, `x y z nx ny nz` (whitespace or commas),
-/// `#` starts a comment. Errors name the file and line. With each probe's line number.
-pub fn read_probes(path: &Path) -> Result<(Vec<Probe>, Vec<usize>)> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+/// Bytes of memory a probe file takes per byte of its text, with its probes: a line of
+/// 12 bytes (`0 0 0 0 0 1`) becomes a 40-byte probe and its line number, in vectors that
+/// grow by doubling, and the probe's copy found on its surface.
+const PROBE_TEXT_BYTES_PER_BYTE: u64 = 12;
+
+/// Reads probes from a text file within `limits`: one per line, `x y z nx ny nz`
+/// (whitespace or commas), `#` starts a comment. Errors name the file and line. With
+/// each probe's line number.
+pub fn read_probes(path: &Path, limits: &ReadLimits) -> Result<(Vec<Probe>, Vec<usize>)> {
+    let text = read_text(path, limits, PROBE_TEXT_BYTES_PER_BYTE, "the probe file")?;
     parse_probes(&text).map_err(|m| anyhow!("{}: {m}", path.display()))
 }
 

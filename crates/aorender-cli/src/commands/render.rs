@@ -97,7 +97,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     let resume = match &args.run.resume {
         Some(path) => {
-            let saved = Accumulation::read(path)?;
+            let saved = Accumulation::read_with(path, &args.scene.load_options()?.limits)?;
             if args.sampling.replicate.is_none() {
                 scene.settings.replicate = Some(saved.settings.replicate);
             }

@@ -16,9 +16,10 @@ use crate::error::{Error, Result};
 use crate::output::{write_output, write_output_with};
 use crate::scene::extension;
 use crate::scene::files::relative_file;
-use crate::scene::gltf::{GltfBytes, read_buffers, read_gltf};
+use crate::scene::gltf::{GltfBytes, json_memory, read_buffers, read_gltf, uri_file};
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::one_line;
+use crate::scene::input::{LoadOptions, Meter};
 use crate::scene::meshes::stem;
 use ::gltf::json::{Value, deserialize, serialize};
 use flate2::Compression;
@@ -59,6 +60,8 @@ const URI_PATH: &AsciiSet = &CONTROLS
 pub struct GltfAsset {
     /// The file read, to resolve its relative URIs.
     path: PathBuf,
+    /// How it was read, to read its buffers again.
+    options: LoadOptions,
     meshes: Vec<AssetMesh>,
     /// Where each mesh is in the file.
     targets: Vec<Target>,
@@ -78,16 +81,42 @@ struct Target {
 }
 
 impl GltfAsset {
-    /// Reads `path` for baking: one mesh per triangle primitive under each node of the
-    /// default scene, in the order the scene loader places them.
+    /// [`GltfAsset::read_with`] within the read budget of [`LoadOptions::from_env`],
+    /// external URIs refused.
+    #[cfg(test)]
     pub fn read(path: &Path) -> Result<GltfAsset> {
-        let (placed, (json, bin)) = read_gltf(path, true, |bytes: GltfBytes| {
-            (deserialize::from_slice::<Value>(bytes.json), bytes.bin.filter(|_| bytes.glb).map(<[u8]>::to_vec))
-        })?;
+        GltfAsset::read_with(path, &LoadOptions::from_env()?)
+    }
+
+    /// Reads `path` for baking: one mesh per triangle primitive under each node of the
+    /// default scene, in the order the scene loader places them, within the read budget
+    /// of `options`. Its buffer URIs are followed, and its image URIs (which the output
+    /// refers to) accepted, as `options` allow.
+    pub fn read_with(path: &Path, options: &LoadOptions) -> Result<GltfAsset> {
+        let mut meter = Meter::new(&options.limits, "the glTF file's data");
+        let (placed, (json, bin)) = read_gltf(path, true, options, &mut meter, |bytes: GltfBytes| {
+            // The JSON as a value, and the binary chunk's copy, are held with the rest.
+            let held = json_memory(bytes.json) + bytes.bin.filter(|_| bytes.glb).map_or(0, |b| b.len() as u64);
+            (held, deserialize::from_slice::<Value>(bytes.json), bytes.bin.filter(|_| bytes.glb).map(<[u8]>::to_vec))
+        })
+        .and_then(|(placed, (held, json, bin))| meter.charge(path, held).map(|()| (placed, (json, bin))))?;
         let json = json.map_err(|e| Error::scene(path, format!("invalid glTF JSON: {}", one_line(&e.to_string()))))?;
         if !json.is_object() {
             return Err(Error::scene(path, "invalid glTF JSON: not an object"));
         }
+        // Images are not read, but the output refers to them: they must be where a
+        // buffer could be.
+        for (i, image) in json.get("images").and_then(Value::as_array).into_iter().flatten().enumerate() {
+            if let Some(uri) = image.get("uri").and_then(Value::as_str).filter(|u| !u.starts_with("data:")) {
+                uri_file(path, uri, options.allow_external_uris, false)
+                    .map_err(|e| Error::scene(path, format!("image {i}: {e}")))?;
+            }
+        }
+        // The meshes' copies of the positions, their corners and coordinates.
+        let corners = 3 * placed.mesh.triangles.len() as u64;
+        let uv_corners: u64 =
+            placed.placements.iter().map(|p| p.texcoords.len() as u64 * 3 * p.triangles.len() as u64).sum();
+        meter.charge(path, 12 * placed.mesh.positions.len() as u64 + 8 * corners + 8 * uv_corners)?;
         // The binary chunk is buffer 0's when that buffer has no URI (glTF 2.0, 4.4.3.3).
         let bin_is_buffer_0 = json.get("buffers").and_then(|b| b.get(0)).is_some_and(|b| b.get("uri").is_none());
         let bin = bin.filter(|_| bin_is_buffer_0);
@@ -127,7 +156,8 @@ impl GltfAsset {
         for mesh in &mut meshes {
             mesh.repeating_sets = repeating_sets(&json, mesh.material);
         }
-        Ok(GltfAsset { path: path.to_path_buf(), meshes, targets, json, bin, warnings: placed.mesh.warnings })
+        let options = options.clone();
+        Ok(GltfAsset { path: path.to_path_buf(), options, meshes, targets, json, bin, warnings: placed.mesh.warnings })
     }
 
     /// Checks there is one set of values per mesh, one value per vertex.
@@ -498,7 +528,7 @@ impl GltfAsset {
         fill: &[usize],
         uvs: &GeneratedUvs,
     ) -> std::result::Result<(), String> {
-        let buffers = read_buffers(&self.path).map_err(|e| e.to_string())?;
+        let buffers = read_buffers(&self.path, &self.options).map_err(|e| e.to_string())?;
         for (i, (t, mesh)) in self.targets.iter().zip(&self.meshes).enumerate() {
             let Some(generated) = uvs.meshes.get(i).filter(|u| !u.xref.is_empty()) else { continue };
             let primitive = &self.json["meshes"][t.mesh]["primitives"][t.primitive];
@@ -1130,7 +1160,9 @@ mod tests {
 
     /// The loader's triangles, their corners' positions as bits.
     fn loaded_triangles(path: &Path) -> Vec<[[u32; 3]; 3]> {
-        let mesh = read_mesh(path).unwrap_or_else(|e| panic!("{e}"));
+        // An output in another folder refers to the input's files there (`../geom.bin`).
+        let options = LoadOptions { allow_external_uris: true, ..LoadOptions::from_env().unwrap() };
+        let mesh = read_mesh(path, &options, &mut Meter::unlimited()).unwrap_or_else(|e| panic!("{e}"));
         mesh.triangles.iter().map(|t| t.map(|i| mesh.positions[i as usize].to_array().map(f32::to_bits))).collect()
     }
 
@@ -1298,7 +1330,8 @@ mod tests {
 
             // The project's loader finds the same triangles, and the same meshes to bake.
             assert!(loaded_triangles(&output_path) == loaded_triangles(&input_path), "{what}: triangles differ");
-            let again = GltfAsset::read(&output_path).unwrap_or_else(|e| panic!("{what}: {e}"));
+            let allowed = LoadOptions { allow_external_uris: true, ..LoadOptions::from_env().unwrap() };
+            let again = GltfAsset::read_with(&output_path, &allowed).unwrap_or_else(|e| panic!("{what}: {e}"));
             assert!(asset_triangles(&again) == asset_triangles(&asset), "{what}: meshes differ");
 
             // The gltf crate validates the file and finds the values on each node's primitive.

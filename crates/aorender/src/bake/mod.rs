@@ -28,17 +28,30 @@ pub use unwrap::generate_uvs;
 
 use crate::error::{Error, Result};
 use crate::output::{FilePlan, OutputRules};
-use crate::scene::MeshObject;
+use crate::scene::{LoadOptions, MeshObject, ReadLimits};
 use std::path::{Path, PathBuf};
 
-/// Reads a mesh file (`.ply`, `.obj`, `.gltf`, `.glb`, each optionally gzipped) for baking.
+/// Reads a mesh file (`.ply`, `.obj`, `.gltf`, `.glb`, each optionally gzipped) for baking,
+/// within the read budget of [`LoadOptions::from_env`], external glTF URIs refused.
 pub fn read_asset(path: &Path) -> Result<Box<dyn Asset>> {
+    read_asset_with(path, &LoadOptions::from_env()?)
+}
+
+/// [`read_asset`] within the read budget of `options`, following glTF URIs as it allows.
+pub fn read_asset_with(path: &Path, options: &LoadOptions) -> Result<Box<dyn Asset>> {
     match crate::scene::extension(path).as_str() {
-        "ply" => Ok(Box::new(ply::PlyAsset::read(path)?)),
-        "obj" => Ok(Box::new(obj::ObjAsset::read(path)?)),
-        "gltf" | "glb" => Ok(Box::new(gltf::GltfAsset::read(path)?)),
+        "ply" => Ok(Box::new(ply::PlyAsset::read_with(path, options)?)),
+        "obj" => Ok(Box::new(obj::ObjAsset::read_with(path, options)?)),
+        "gltf" | "glb" => Ok(Box::new(gltf::GltfAsset::read_with(path, options)?)),
         ext => Err(Error::scene(path, format!("cannot bake into '.{ext}' files: expected .ply, .obj, .gltf or .glb"))),
     }
+}
+
+/// The mesh file of a scene's mesh object read for baking as the scene read it (its glTF
+/// URIs followed where the scene allowed them), within `limits`.
+pub fn read_object(object: &MeshObject, limits: &ReadLimits) -> Result<Box<dyn Asset>> {
+    let options = LoadOptions { limits: limits.clone(), allow_external_uris: object.allow_external_uris };
+    read_asset_with(&object.path, &options)
 }
 
 /// The format a file name says, with or without `.gz`: `PLY`, `OBJ` or `glTF` (`.gltf`

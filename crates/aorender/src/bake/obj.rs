@@ -14,7 +14,7 @@ use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
 };
 use crate::error::{Error, Result};
-use crate::scene::input::{Input, is_gzip};
+use crate::scene::input::{Input, LoadOptions, Meter, is_gzip, size_text, vec_bytes};
 use crate::scene::obj::{non_finite_coordinate, parse_vertex_line};
 use flate2::Compression;
 use flate2::write::GzEncoder;
@@ -31,14 +31,22 @@ pub struct ObjAsset {
 }
 
 impl ObjAsset {
+    /// [`ObjAsset::read_with`] within the read budget of [`LoadOptions::from_env`].
+    #[cfg(test)]
+    pub fn read(path: &Path) -> Result<ObjAsset> {
+        ObjAsset::read_with(path, &LoadOptions::from_env()?)
+    }
+
     /// Reads `path` (`.obj` or `.obj.gz`) for baking: positions as the scene loader reads
     /// them, the faces of `f` lines (polygons kept; `l` and `p` lines and faces of fewer than
     /// three corners ignored, as the scene loader ignores them), and per-vertex normals from
-    /// the `vn` the faces reference (see [`vertex_normals`]).
-    pub fn read(path: &Path) -> Result<ObjAsset> {
-        let text = Input::open(path)?.read_all(path)?;
+    /// the `vn` the faces reference (see [`vertex_normals`]). The file and what is read from
+    /// it must fit in the read budget of `options`.
+    pub fn read_with(path: &Path, options: &LoadOptions) -> Result<ObjAsset> {
+        let mut meter = Meter::new(&options.limits, "the mesh");
+        let text = Input::open(path, &options.limits)?.read_all(path, &mut meter)?;
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
-        let mesh = parse(&text, label).map_err(|e| Error::scene(path, e))?;
+        let mesh = parse(&text, label, &mut meter).map_err(|e| Error::scene(path, e))?;
         Ok(ObjAsset { text, meshes: vec![mesh] })
     }
 }
@@ -109,6 +117,17 @@ struct Parser {
 }
 
 impl Parser {
+    /// The bytes its vectors hold.
+    fn bytes(&self) -> u64 {
+        vec_bytes(&self.positions)
+            + vec_bytes(&self.uvs)
+            + vec_bytes(&self.corner_uvs)
+            + vec_bytes(&self.normals)
+            + vec_bytes(&self.face_starts)
+            + vec_bytes(&self.face_indices)
+            + vec_bytes(&self.corner_normals)
+    }
+
     fn count(&self, element: Element) -> usize {
         match element {
             Element::Vertex => self.positions.len(),
@@ -247,11 +266,20 @@ impl Parser {
     }
 }
 
-/// The mesh of an OBJ file's text; an error names the line and the problem.
-fn parse(text: &[u8], label: String) -> std::result::Result<AssetMesh, String> {
+/// The mesh of an OBJ file's text, what it holds charged to `meter` as it grows (the text
+/// is charged already); an error names the line and the problem.
+fn parse(text: &[u8], label: String, meter: &mut Meter) -> std::result::Result<AssetMesh, String> {
     let mut parser = Parser::default();
+    let base = meter.used();
+    let budget = |meter: &mut Meter, bytes: u64| meter.hold(Path::new(""), base + bytes).map_err(|e| e.message());
+    let longest = meter.limits().line_bytes();
     for (i, bytes) in lines(text).enumerate() {
         let line = i + 1;
+        if bytes.len() > longest {
+            let longest = size_text(longest as u64);
+            return Err(format!("line {line} is longer than {longest}, the longest line a text file may have"));
+        }
+        budget(meter, parser.bytes())?;
         let text = String::from_utf8_lossy(bytes);
         match keyword(&text) {
             Some("v") => parser.vertex(&text, line)?,
@@ -277,6 +305,10 @@ fn parse(text: &[u8], label: String) -> std::result::Result<AssetMesh, String> {
     if parser.face_starts.is_empty() {
         parser.face_starts.push(0);
     }
+    // The per-vertex normals and per-corner coordinates made from them.
+    let normals_bytes = if parser.normals.is_empty() { 0 } else { 12 * parser.positions.len() as u64 };
+    let uv_bytes = if parser.uvs.is_empty() { 0 } else { 8 * parser.corner_uvs.len() as u64 };
+    budget(meter, parser.bytes() + normals_bytes + uv_bytes)?;
     let normals = (!parser.normals.is_empty())
         .then(|| vertex_normals(parser.positions.len(), &parser.normals, parser.corner_normals));
     let uv_sets = if parser.uvs.is_empty() {
@@ -539,6 +571,7 @@ impl Asset for ObjAsset {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::ReadLimits;
     use std::io::Read;
     use std::path::PathBuf;
 
@@ -571,7 +604,7 @@ mod tests {
     /// The file at `path`, decompressed when it is gzipped.
     fn read_back(path: &Path) -> Vec<u8> {
         let mut bytes = Vec::new();
-        Input::open(path).unwrap().read_to_end(&mut bytes).unwrap();
+        Input::open(path, &ReadLimits::with_memory(1 << 30)).unwrap().read_to_end(&mut bytes).unwrap();
         bytes
     }
 
@@ -590,7 +623,7 @@ mod tests {
 
     /// The triangles of the scene loader for `path`, as bit patterns, sorted.
     fn loader_triangles(path: &Path) -> Vec<[[u32; 3]; 3]> {
-        let m = crate::scene::obj::load_obj(path).unwrap();
+        let m = crate::scene::obj::load_obj(path, &mut Meter::unlimited()).unwrap();
         let bits = |i: u32| m.positions[i as usize].to_array().map(f32::to_bits);
         let mut out: Vec<_> = m.triangles.iter().map(|t| t.map(bits)).collect();
         out.sort_unstable();

@@ -18,8 +18,8 @@ use super::asset::{
 };
 use crate::error::{Error, Result};
 use crate::output::write_output_with;
-use crate::scene::input::Input;
 use crate::scene::input::is_gzip as is_gzip_name;
+use crate::scene::input::{Input, LoadOptions, Meter, vec_bytes};
 use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
 use glam::Vec3;
 use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
@@ -171,6 +171,11 @@ impl Values {
         with_values!(self, v => v.len())
     }
 
+    /// The bytes its vector holds.
+    fn bytes(&self) -> u64 {
+        with_values!(self, v => vec_bytes(v))
+    }
+
     /// Appends the binary value at `data[*pos..]`; `None` when too few bytes are left.
     fn push_binary(&mut self, data: &[u8], pos: &mut usize, big_endian: bool) -> Option<()> {
         with_values!(self, v => v.push(Scalar::read(data, pos, big_endian)?));
@@ -228,6 +233,11 @@ impl Column {
     /// A scalar `float` property.
     fn float(name: &str, values: Vec<f32>) -> Column {
         Column { name: name.to_string(), list: None, values: Values::Float(values) }
+    }
+
+    /// The bytes it holds.
+    fn bytes(&self) -> u64 {
+        self.values.bytes() + self.list.as_ref().map_or(0, |(_, starts)| vec_bytes(starts))
     }
 
     /// The items of element `i`'s list (all of `values` for a scalar property).
@@ -288,15 +298,23 @@ pub struct PlyAsset {
 }
 
 impl PlyAsset {
-    /// Reads `path` (`.ply` or `.ply.gz`, any of the three encodings) for baking.
+    /// [`PlyAsset::read_with`] within the read budget of [`LoadOptions::from_env`].
+    #[cfg(test)]
     pub fn read(path: &Path) -> Result<PlyAsset> {
-        let mut input = Input::open(path)?;
+        PlyAsset::read_with(path, &LoadOptions::from_env()?)
+    }
+
+    /// Reads `path` (`.ply` or `.ply.gz`, any of the three encodings) for baking: the
+    /// file's data and its columns must fit in the read budget of `options`.
+    pub fn read_with(path: &Path, options: &LoadOptions) -> Result<PlyAsset> {
+        let mut meter = Meter::new(&options.limits, "the mesh");
+        let mut input = Input::open(path, &options.limits)?;
         let header = read_header(path, &mut input)?;
         check_header(path, &header)?;
-        let data = input.read_all(path)?;
+        let data = input.read_all(path, &mut meter)?;
         let elements = match header.encoding {
-            Encoding::Ascii => read_ascii(path, &header.elements, &data)?,
-            encoding => read_binary(path, &header.elements, &data, encoding == Encoding::BinaryBigEndian)?,
+            Encoding::Ascii => read_ascii(path, &header.elements, &data, &mut meter)?,
+            encoding => read_binary(path, &header.elements, &data, encoding == Encoding::BinaryBigEndian, &mut meter)?,
         };
         drop(data);
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
@@ -358,8 +376,21 @@ fn end_of_file(path: &Path, def: &ElementDef, i: usize) -> Error {
     Error::scene(path, format!("unexpected end of file in {} {i} of {}", def.name, def.count))
 }
 
-/// Reads the data of a binary file.
-fn read_binary(path: &Path, defs: &[ElementDef], data: &[u8], big_endian: bool) -> Result<Vec<Element>> {
+/// The bytes the columns of `elements` (read) and `columns` (being read) hold.
+fn columns_bytes(elements: &[Element], columns: &[Column]) -> u64 {
+    elements.iter().flat_map(|e| &e.columns).chain(columns).map(Column::bytes).sum()
+}
+
+/// Reads the data of a binary file; the columns, as they grow, are charged to `meter` (on
+/// top of what it holds already: the data).
+fn read_binary(
+    path: &Path,
+    defs: &[ElementDef],
+    data: &[u8],
+    big_endian: bool,
+    meter: &mut Meter,
+) -> Result<Vec<Element>> {
+    let base = meter.used();
     let mut pos = 0;
     let mut elements = Vec::with_capacity(defs.len());
     for def in defs {
@@ -374,6 +405,7 @@ fn read_binary(path: &Path, defs: &[ElementDef], data: &[u8], big_endian: bool) 
         // Elements without properties take no bytes.
         let count = if columns.is_empty() { 0 } else { def.count };
         for i in 0..count {
+            meter.hold(path, base + columns_bytes(&elements, &columns))?;
             for column in &mut columns {
                 let Some((count_type, starts)) = &mut column.list else {
                     column.values.push_binary(data, &mut pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
@@ -449,7 +481,9 @@ fn is_number(token: &[u8]) -> bool {
 
 /// Reads the data of an ascii file: one line per element, as ply-rs reads it (values
 /// beyond the element's properties are ignored, as it ignores them).
-fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8]) -> Result<Vec<Element>> {
+fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8], meter: &mut Meter) -> Result<Vec<Element>> {
+    let base = meter.used();
+    let longest = meter.limits().line_bytes();
     let mut rest = data;
     let mut tokens: Vec<&str> = Vec::new();
     let mut elements = Vec::with_capacity(defs.len());
@@ -461,12 +495,17 @@ fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8]) -> Result<Vec<Eleme
             if rest.is_empty() {
                 return Err(end_of_file(path, def, i));
             }
-            let end = rest.iter().position(|&b| b == b'\n').map_or(rest.len(), |e| e + 1);
+            meter.hold(path, base + columns_bytes(&elements, &columns))?;
+            let end = memchr::memchr(b'\n', rest).map_or(rest.len(), |e| e + 1);
             let (line, next) = rest.split_at(end);
             rest = next;
             let line = line.strip_suffix(b"\n").unwrap_or(line);
             let line = line.strip_suffix(b"\r").unwrap_or(line);
             let at = |message: String| Error::scene(path, format!("{} {i} of {}: {message}", def.name, def.count));
+            if line.len() > longest {
+                let longest = crate::scene::input::size_text(longest as u64);
+                return Err(at(format!("its line is longer than {longest}, the longest line a text file may have")));
+            }
             tokens.clear();
             for token in line.split(|&b| b == b' ' || b == b'\t').filter(|t| !t.is_empty()) {
                 if !is_number(token) {
@@ -1333,7 +1372,7 @@ mod tests {
             let start = std::time::Instant::now();
             let asset = PlyAsset::read(&path).unwrap_or_else(|e| panic!("{e}"));
             let read = start.elapsed();
-            let loaded = crate::scene::ply::load_ply(&path).unwrap();
+            let loaded = crate::scene::ply::load_ply(&path, &mut Meter::unlimited()).unwrap();
             let mesh = &asset.meshes()[0];
             let as_bits = |p: &[Vec3]| p.iter().map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
             assert!(as_bits(&mesh.positions) == as_bits(&loaded.positions), "{}", path.display());

@@ -59,6 +59,8 @@ use crate::error::{Error, Result};
 use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
+use crate::scene::ReadLimits;
+use crate::scene::input::vec_bytes;
 use std::io::{Read, Write};
 use std::path::Path;
 
@@ -261,12 +263,20 @@ impl Accumulation {
         flush(w, &mut buf, true)
     }
 
-    /// Reads a checkpoint file, checking it whole before use.
+    /// Reads a checkpoint file, checking it whole before use, within the read budget of
+    /// [`ReadLimits::from_env`].
     pub fn read(path: &Path) -> Result<Accumulation> {
+        Accumulation::read_with(path, &ReadLimits::from_env()?)
+    }
+
+    /// [`Accumulation::read`] within `limits`: the sums the header describes must fit in
+    /// the budget, or the file is refused before they are read.
+    pub fn read_with(path: &Path, limits: &ReadLimits) -> Result<Accumulation> {
         let err = |m: String| Error::checkpoint(path, m);
         let file = std::fs::File::open(path).map_err(|e| err(e.to_string()))?;
         let len = file.metadata().map_err(|e| err(e.to_string()))?.len();
-        let mut acc = Accumulation::from_stream(&mut std::io::BufReader::new(file), len).map_err(|e| err(e.0))?;
+        let mut acc =
+            Accumulation::from_stream(&mut std::io::BufReader::new(file), len, limits).map_err(|e| err(e.0))?;
         acc.source = Some(path.to_path_buf());
         Ok(acc)
     }
@@ -274,13 +284,31 @@ impl Accumulation {
     /// Parses the bytes of a checkpoint file; the error says what is wrong in one line.
     pub fn from_bytes(mut bytes: &[u8]) -> Result<Accumulation> {
         let len = bytes.len() as u64;
-        Accumulation::from_stream(&mut bytes, len).map_err(|e| Error::checkpoint("checkpoint", e.0))
+        let limits = ReadLimits::with_memory(u64::MAX);
+        Accumulation::from_stream(&mut bytes, len, &limits).map_err(|e| Error::checkpoint("checkpoint", e.0))
+    }
+
+    /// The bytes of memory the sums of a read checkpoint hold.
+    pub fn memory_bytes(&self) -> u64 {
+        let e = &self.exact;
+        let partial = match &self.partial {
+            Some(BlockSums::Gpu(v)) => vec_bytes(v),
+            Some(BlockSums::Cpu { sum, sum_sq }) => vec_bytes(sum) + vec_bytes(sum_sq),
+            None => 0,
+        };
+        vec_bytes(&e.sum)
+            + vec_bytes(&e.sum_sq)
+            + vec_bytes(&e.replicate_sq)
+            + vec_bytes(&e.pixel_samples)
+            + vec_bytes(&e.pixel_replicates)
+            + vec_bytes(&e.stopped)
+            + partial
     }
 
     /// Parses a checkpoint of `len` bytes from `stream`. Memory is taken only after the
-    /// header's figures agree with `len`, so a damaged or hostile header cannot ask for
-    /// more than the file holds.
-    fn from_stream(stream: &mut dyn Read, len: u64) -> Result<Accumulation, Invalid> {
+    /// header's figures agree with `len` and fit in `limits`, so a damaged or hostile
+    /// header cannot ask for more than the file holds or the budget allows.
+    fn from_stream(stream: &mut dyn Read, len: u64, limits: &ReadLimits) -> Result<Accumulation, Invalid> {
         // The fixed fields (through the adapter name's length), the name at most, and the
         // replicate fields after it.
         const FIXED_HEADER: usize = 8 + 4 + 32 + 16 + 8 + 12 + 12 + 16 + 20 + 4 + 20;
@@ -384,6 +412,12 @@ impl Accumulation {
             + 32;
         if len != expected {
             return Err(format!("truncated or corrupt: {len} bytes, but its header describes {expected}").into());
+        }
+        // What the sums take in memory: their bytes in the file, but the flags (a byte
+        // each in both) and the hashes.
+        let memory = expected - r.at as u64 - 32;
+        if memory > limits.memory() {
+            return Err(limits.exceeded_message("the checkpoint").into());
         }
         let mut hasher = blake3::Hasher::new();
         hasher.update(&bytes[..r.at]);

@@ -1,8 +1,9 @@
 //! The TOML scene format (documented in the README). Unknown fields are errors.
 
 use super::camera::{Camera, Projection};
+use super::input::{LoadOptions, Meter, vec_bytes};
 use super::mesh::IndexedMesh;
-use super::meshes::{mesh_triangles, place_mesh, read_mesh, vertex_name};
+use super::meshes::{mesh_bytes, mesh_triangles_within, place_mesh, read_mesh, vertex_name};
 use super::types::{
     Instance, InstancedMesh, MeshObject as PlacedMesh, Scene, Settings, Sphere, Triangle, Warning,
     non_finite_coordinate,
@@ -108,6 +109,9 @@ struct MeshObject {
     #[serde(default = "default_albedo")]
     albedo: f32,
     transform: Option<Transform>,
+    /// Follow the glTF file's URIs outside its folder.
+    #[serde(default)]
+    allow_external_uris: bool,
 }
 
 #[derive(Deserialize)]
@@ -216,8 +220,24 @@ fn toml_error(text: &str, e: &toml::de::Error) -> String {
 /// its vertices once read.
 type MeshUse = (PathBuf, usize, Option<(u32, IndexedMesh)>);
 
+/// The bytes a scene being loaded holds: its triangles, its instanced meshes, and the
+/// meshes kept for the checks of their later instances.
+fn retained_bytes(triangles: &Vec<Triangle>, meshes: &[InstancedMesh], mesh_uses: &[MeshUse]) -> u64 {
+    vec_bytes(triangles)
+        + meshes.iter().map(|m| vec_bytes(&m.triangles)).sum::<u64>()
+        + mesh_uses.iter().filter_map(|(_, _, read)| read.as_ref()).map(|(_, m)| mesh_bytes(m)).sum::<u64>()
+}
+
 /// Parses the text of a scene file read from `path`; mesh paths resolve against `base_dir`.
-pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Scene> {
+/// The meshes are read as `options` say, everything the scene holds at once charged to
+/// `meter` (which holds the text's charge already).
+pub(super) fn parse_scene(
+    text: &str,
+    path: &Path,
+    base_dir: &Path,
+    options: &LoadOptions,
+    meter: &mut Meter,
+) -> Result<Scene> {
     let file: SceneFile = toml::from_str(text).map_err(|e| Error::scene(path, toml_error(text, &e)))?;
     let err = |m: String| Error::scene(path, m);
 
@@ -304,24 +324,39 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
                     Error::Scene { message, .. } => fail(message),
                     e => e,
                 };
+                let allow_external_uris = options.allow_external_uris || mesh.allow_external_uris;
+                let options = LoadOptions { allow_external_uris, ..options.clone() };
+                let base = meter.used().saturating_sub(retained_bytes(&triangles, &meshes, &mesh_uses));
                 let entry = mesh_uses.iter_mut().find(|(p, _, _)| *p == path).expect("every mesh path was counted");
                 if entry.1 == 1 && entry.2.is_none() {
-                    let mut read = read_mesh(&path).map_err(in_scene_error)?;
+                    let mut read = read_mesh(&path, &options, meter).map_err(in_scene_error)?;
                     warnings.extend(read.warnings.drain(..).map(|message| Warning { path: path.clone(), message }));
                     let positions = std::mem::take(&mut read.positions);
-                    let placed = place_mesh(&path, positions, &read, albedo, &m).map_err(in_scene_error)?;
+                    let placed = place_mesh(&path, positions, &read, albedo, &m, meter).map_err(in_scene_error)?;
                     // Exact growth: the scene never reserves room it will not fill (a large
                     // array grows by remapping its pages, not by copying them).
+                    meter.charge(&path, vec_bytes(&placed)).map_err(in_scene_error)?;
                     triangles.reserve_exact(placed.len());
                     triangles.extend(placed);
-                    mesh_objects.push(PlacedMesh { number: i + 1, path, to_world: m, instance: None });
+                    drop(read);
+                    meter.set_used(base + retained_bytes(&triangles, &meshes, &mesh_uses));
+                    let to_world = m;
+                    mesh_objects.push(PlacedMesh {
+                        number: i + 1,
+                        path,
+                        to_world,
+                        instance: None,
+                        allow_external_uris,
+                    });
                     continue;
                 }
                 if entry.2.is_none() {
-                    let mut read = read_mesh(&path).map_err(in_scene_error)?;
+                    let mut read = read_mesh(&path, &options, meter).map_err(in_scene_error)?;
                     warnings.extend(read.warnings.drain(..).map(|message| Warning { path: path.clone(), message }));
                     let tris = read.triangles.iter().map(|t| t.map(|k| read.positions[k as usize]));
-                    let tris = mesh_triangles(&path, tris, albedo).map_err(in_scene_error)?;
+                    let tris = mesh_triangles_within(&path, tris, albedo, meter).map_err(in_scene_error)?;
+                    let kept = tris.len() * std::mem::size_of::<[Vec3; 3]>();
+                    meter.charge(&path, kept as u64).map_err(in_scene_error)?;
                     meshes.push(InstancedMesh {
                         name: path.display().to_string(),
                         triangles: tris.into_iter().map(|t| t.v).collect(),
@@ -332,12 +367,14 @@ pub(super) fn parse_scene(text: &str, path: &Path, base_dir: &Path) -> Result<Sc
                 check_placement(&path, read, &m).map_err(in_scene_error)?;
                 instances.push(Instance { mesh: *index, to_world: m, albedo });
                 let instance = Some(instances.len() as u32 - 1);
-                mesh_objects.push(PlacedMesh { number: i + 1, path: path.clone(), to_world: m, instance });
+                let (number, to_world) = (i + 1, m);
+                mesh_objects.push(PlacedMesh { number, path: path.clone(), to_world, instance, allow_external_uris });
                 // The file's vertices are kept for the checks of its later instances only.
                 entry.1 -= 1;
                 if entry.1 == 0 {
                     entry.2 = None;
                 }
+                meter.set_used(base + retained_bytes(&triangles, &meshes, &mesh_uses));
             }
             Object::Sphere(s) => {
                 let (center, radius) = (Vec3::from(s.center), s.radius);

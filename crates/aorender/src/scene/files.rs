@@ -1,7 +1,7 @@
 //! The files loading a scene reads, listed without loading it: what a command must not
 //! write over ([`crate::output::FilePlan`]).
 
-use super::input::Input;
+use super::input::{Input, Meter, ReadLimits};
 use super::meshes::extension;
 use ::gltf::json::{Value, deserialize};
 use percent_encoding::percent_decode_str;
@@ -11,7 +11,8 @@ use std::path::{Path, PathBuf};
 /// mesh"), or a scene file ("the scene file") and every mesh file it names ("the mesh
 /// that S names"); and for every `.gltf` among them, the buffer and image files it names
 /// ("a file that M names"). Only the scene file's TOML and the `.gltf` files' JSON are
-/// read; what cannot be read or parsed is left out, for loading to report.
+/// read, and only when they are regular files, within the read budget; what cannot be
+/// read or parsed is left out, for loading to report.
 pub fn input_files(path: &Path) -> Vec<(PathBuf, String)> {
     let mut files = Vec::new();
     let meshes = if extension(path) == "toml" {
@@ -25,16 +26,26 @@ pub fn input_files(path: &Path) -> Vec<(PathBuf, String)> {
     for (mesh, role) in meshes {
         let named = if extension(&mesh) == "gltf" { gltf_files(&mesh) } else { Vec::new() };
         files.push((mesh.clone(), role));
-        let base = mesh.parent().unwrap_or(Path::new("."));
         let role = format!("a file that {} names", mesh.display());
-        files.extend(named.into_iter().map(|f| (base.join(f), role.clone())));
+        files.extend(named.into_iter().map(|f| (f, role.clone())));
     }
     files
 }
 
+/// The bytes of a regular file (decompressed when gzipped), within the read budget; `None`
+/// for anything else: a FIFO or a device is read once, by the loader.
+fn read_listed(path: &Path) -> Option<Vec<u8>> {
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return None;
+    }
+    let limits = ReadLimits::from_env().ok()?;
+    let mut meter = Meter::new(&limits, "the file");
+    Input::open(path, &limits).ok()?.read_all(path, &mut meter).ok()
+}
+
 /// The `file` of every mesh object of a scene file, as written.
 fn mesh_files(path: &Path) -> Vec<String> {
-    let Ok(text) = std::fs::read_to_string(path) else { return Vec::new() };
+    let Some(text) = read_listed(path).and_then(|b| String::from_utf8(b).ok()) else { return Vec::new() };
     let Ok(table) = text.parse::<toml::Table>() else { return Vec::new() };
     let objects = table.get("object").and_then(toml::Value::as_array).map_or(&[][..], Vec::as_slice);
     objects
@@ -44,16 +55,17 @@ fn mesh_files(path: &Path) -> Vec<String> {
         .collect()
 }
 
-/// The relative files a `.gltf` (or `.gltf.gz`) names as buffers and images.
+/// The files a `.gltf` (or `.gltf.gz`) names as buffers and images, wherever they are
+/// (an external URI the user allows is read too).
 fn gltf_files(path: &Path) -> Vec<PathBuf> {
-    let Some(bytes) = Input::open(path).and_then(|input| input.read_all(path)).ok() else { return Vec::new() };
+    let Some(bytes) = read_listed(path) else { return Vec::new() };
     let Ok(json) = deserialize::from_slice::<Value>(&bytes) else { return Vec::new() };
     ["buffers", "images"]
         .into_iter()
         .filter_map(|key| json.get(key).and_then(Value::as_array))
         .flatten()
         .filter_map(|item| item.get("uri").and_then(Value::as_str))
-        .filter_map(relative_file)
+        .filter_map(|uri| super::gltf::uri_file(path, uri, true, false).ok())
         .collect()
 }
 

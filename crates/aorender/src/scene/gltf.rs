@@ -13,9 +13,8 @@
 //! [`read_gltf`] also says where each placed primitive went in the mesh (and reads its
 //! normals), for baking values back into the file (`bake::gltf`).
 
-use super::input::{Input, one_line};
+use super::input::{Input, LoadOptions, Meter, is_gzip, one_line};
 use super::mesh::{IndexedMesh, VertexNames, vertex_index};
-use super::types::non_finite_coordinate;
 use crate::error::{Error, Result};
 use ::gltf::accessor::{DataType, Dimensions};
 use ::gltf::binary::{self, ChunkType, Glb};
@@ -28,7 +27,7 @@ use glam::{DMat3, DMat4, DQuat, DVec3, Vec2, Vec3};
 use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
 use std::ops::Range;
-use std::path::Path;
+use std::path::{Component, Path, PathBuf};
 
 /// Required extensions this loader implements.
 const IMPLEMENTED_EXTENSIONS: &[&str] = &["KHR_mesh_quantization"];
@@ -40,8 +39,8 @@ const APPEARANCE_EXTENSION_PREFIXES: &[&str] =
     &["KHR_materials_", "KHR_texture_", "EXT_texture_", "MSFT_texture_", "KHR_lights_"];
 
 /// Reads a glTF or GLB file, gzipped or not, into one mesh in the scene's space.
-pub(super) fn load_gltf(path: &Path) -> Result<IndexedMesh> {
-    read_gltf(path, false, |_| ()).map(|(loaded, ())| loaded.mesh)
+pub(super) fn load_gltf(path: &Path, options: &LoadOptions, meter: &mut Meter) -> Result<IndexedMesh> {
+    read_gltf(path, false, options, meter, |_| ()).map(|(loaded, ())| loaded.mesh)
 }
 
 /// A triangle primitive placed by a node, as [`read_gltf`] put it into its mesh.
@@ -93,13 +92,19 @@ pub(crate) struct GltfBytes<'a> {
 
 /// Reads a glTF or GLB file, gzipped or not, into one mesh in the scene's space, with the
 /// placement of every primitive (their normals too when `normals` is set), and `keep`'s
-/// result: it sees the file's bytes once the file has loaded.
-pub(crate) fn read_gltf<T>(path: &Path, normals: bool, keep: impl FnOnce(GltfBytes) -> T) -> Result<(PlacedGltf, T)> {
-    let bytes = Input::open(path)?.read_all(path)?;
+/// result: it sees the file's bytes once the file has loaded. What it holds is charged to
+/// `meter`; buffer URIs are followed as `options` allow.
+pub(crate) fn read_gltf<T>(
+    path: &Path,
+    normals: bool,
+    options: &LoadOptions,
+    meter: &mut Meter,
+    keep: impl FnOnce(GltfBytes) -> T,
+) -> Result<(PlacedGltf, T)> {
+    let bytes = read_file(path, meter)?;
     let glb = split_glb(path, &bytes)?;
     let json_bytes: &[u8] = glb.as_ref().map_or(&bytes, |g| &g.json);
-    let mut root: json::Root = json::deserialize::from_slice(json_bytes)
-        .map_err(|e| Error::scene(path, format!("invalid glTF JSON: {}", one_line(&e.to_string()))))?;
+    let mut root = parse_json(path, json_bytes, meter)?;
     if let Some(ext) = root.extensions_required.iter().find(|e| !extension_supported(e)) {
         return Err(Error::scene(path, format!("the file requires the glTF extension {ext}, which is not supported")));
     }
@@ -109,26 +114,96 @@ pub(crate) fn read_gltf<T>(path: &Path, normals: bool, keep: impl FnOnce(GltfByt
     check_position_accessors_exist(path, &root)?;
     let document = Document::from_json(root).map_err(|e| Error::scene(path, validation_message(&e)))?;
     let bin = glb.as_ref().and_then(|g| g.bin.as_deref());
-    let buffers = load_buffers(path, &document, bin)?;
+    let buffers = load_buffers(path, &document, bin, options, meter)?;
     let total_bytes = bytes.len() + buffers.iter().map(|b| b.len()).sum::<usize>();
-    let placed = Loader { path, buffers: &buffers, total_bytes, normals }.load(&document)?;
+    let placed = Loader { path, buffers: &buffers, total_bytes, normals }.load(&document, meter)?;
     let kept = keep(GltfBytes { json: json_bytes, glb: glb.is_some(), bin });
     Ok((placed, kept))
 }
 
 /// Every buffer's bytes of a glTF or GLB file, gzipped or not, as [`read_gltf`] loads
 /// them: for rewriting its vertex data (`bake::gltf`).
-pub(crate) fn read_buffers(path: &Path) -> Result<Vec<Vec<u8>>> {
-    let bytes = Input::open(path)?.read_all(path)?;
+pub(crate) fn read_buffers(path: &Path, options: &LoadOptions) -> Result<Vec<Vec<u8>>> {
+    let mut meter = Meter::new(&options.limits, "the glTF file's data");
+    let bytes = read_file(path, &mut meter)?;
     let glb = split_glb(path, &bytes)?;
     let json_bytes: &[u8] = glb.as_ref().map_or(&bytes, |g| &g.json);
-    let mut root: json::Root = json::deserialize::from_slice(json_bytes)
-        .map_err(|e| Error::scene(path, format!("invalid glTF JSON: {}", one_line(&e.to_string()))))?;
+    let mut root = parse_json(path, json_bytes, &mut meter)?;
     root.extensions_required.clear();
     check_position_accessors_exist(path, &root)?;
     let document = Document::from_json(root).map_err(|e| Error::scene(path, validation_message(&e)))?;
     let bin = glb.as_ref().and_then(|g| g.bin.as_deref());
-    Ok(load_buffers(path, &document, bin)?.into_iter().map(Cow::into_owned).collect())
+    // The borrowed binary chunk is copied: count it again.
+    meter.charge(path, bin.map_or(0, |b| b.len() as u64))?;
+    Ok(load_buffers(path, &document, bin, options, &mut meter)?.into_iter().map(Cow::into_owned).collect())
+}
+
+/// Bytes of memory a glTF document's JSON takes once parsed, per byte of its text and
+/// per object in it, at most: its numbers, strings and arrays take a few times their
+/// text; an object (`{}`, three bytes of text, is a valid node) takes a struct of the
+/// crate's, a few hundred bytes at most.
+pub(crate) const JSON_BYTES_PER_BYTE: u64 = 8;
+/// See [`JSON_BYTES_PER_BYTE`].
+pub(crate) const JSON_BYTES_PER_OBJECT: u64 = 512;
+
+/// The JSON objects in `json` (each `{` outside a string).
+pub(crate) fn json_objects(json: &[u8]) -> u64 {
+    let (mut objects, mut in_string, mut escaped) = (0, false, false);
+    for &b in json {
+        if in_string {
+            match b {
+                _ if escaped => escaped = false,
+                b'\\' => escaped = true,
+                b'"' => in_string = false,
+                _ => {}
+            }
+        } else {
+            match b {
+                b'"' => in_string = true,
+                b'{' => objects += 1,
+                _ => {}
+            }
+        }
+    }
+    objects
+}
+
+/// The memory the parsed form of `json` may take (see [`JSON_BYTES_PER_BYTE`]).
+pub(crate) fn json_memory(json: &[u8]) -> u64 {
+    (json.len() as u64).saturating_mul(JSON_BYTES_PER_BYTE).saturating_add(json_objects(json) * JSON_BYTES_PER_OBJECT)
+}
+
+/// The glTF document of `json`, its parsed form charged to `meter` first.
+fn parse_json(path: &Path, json: &[u8], meter: &mut Meter) -> Result<json::Root> {
+    meter.charge(path, json_memory(json))?;
+    json::deserialize::from_slice(json)
+        .map_err(|e| Error::scene(path, format!("invalid glTF JSON: {}", one_line(&e.to_string()))))
+}
+
+/// The bytes of a glTF file (the JSON) or a GLB file (as many as its header declares),
+/// gzipped or not, charged to `meter` as they are read.
+fn read_file(path: &Path, meter: &mut Meter) -> Result<Vec<u8>> {
+    let mut input = Input::open(path, meter.limits())?;
+    let mut bytes = Vec::new();
+    input.read_into(path, &mut bytes, meter, 1, 12)?;
+    if !(bytes.starts_with(b"glTF") && bytes.len() == 12) {
+        // JSON text starts with an object: anything else is refused at its first byte
+        // (as the parser would refuse it) rather than read to the end.
+        if bytes.iter().find(|b| !b.is_ascii_whitespace()).is_some_and(|&b| b != b'{') {
+            parse_json(path, &bytes, meter)?;
+        }
+        input.read_into(path, &mut bytes, meter, 1, u64::MAX)?;
+        return Ok(bytes);
+    }
+    let length = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+    input.read_into(path, &mut bytes, meter, 1, u64::from(length).saturating_sub(12))?;
+    if is_gzip(path) {
+        // The rest is read (and dropped) to check the stream's trailer.
+        if let Err(e) = std::io::copy(&mut input, &mut std::io::sink()) {
+            return Err(Error::scene(path, input.stream_error().map_or_else(|| e.to_string(), str::to_string)));
+        }
+    }
+    Ok(bytes)
 }
 
 fn extension_supported(name: &str) -> bool {
@@ -220,9 +295,16 @@ fn validation_message(e: &::gltf::Error) -> String {
     }
 }
 
-/// Every buffer's bytes: the GLB binary chunk borrowed, the others read from files beside
-/// `path` or decoded from `data:` URIs.
-fn load_buffers<'a>(path: &Path, document: &Document, bin: Option<&'a [u8]>) -> Result<Vec<Cow<'a, [u8]>>> {
+/// Every buffer's bytes: the GLB binary chunk borrowed, the others read from files in
+/// `path`'s folder (or outside it, as `options` allow) or decoded from `data:` URIs, each
+/// charged to `meter` before it is read.
+fn load_buffers<'a>(
+    path: &Path,
+    document: &Document,
+    bin: Option<&'a [u8]>,
+    options: &LoadOptions,
+    meter: &mut Meter,
+) -> Result<Vec<Cow<'a, [u8]>>> {
     let mut out = Vec::new();
     for buffer in document.buffers() {
         let i = buffer.index();
@@ -230,7 +312,7 @@ fn load_buffers<'a>(path: &Path, document: &Document, bin: Option<&'a [u8]>) -> 
             Source::Bin => Cow::Borrowed(bin.ok_or_else(|| {
                 Error::scene(path, format!("buffer {i} refers to the GLB binary chunk, which the file lacks"))
             })?),
-            Source::Uri(uri) => Cow::Owned(read_uri(path, i, uri)?),
+            Source::Uri(uri) => Cow::Owned(read_uri(path, i, uri, buffer.length(), options, meter)?),
         };
         if data.len() < buffer.length() {
             return Err(Error::scene(
@@ -243,24 +325,88 @@ fn load_buffers<'a>(path: &Path, document: &Document, bin: Option<&'a [u8]>) -> 
     Ok(out)
 }
 
-/// The bytes of buffer `index`'s URI: base64 `data:`, or a file name relative to `path`.
-fn read_uri(path: &Path, index: usize, uri: &str) -> Result<Vec<u8>> {
+/// The bytes of buffer `index`'s URI, `length` of them (its byteLength; fewer when the
+/// file has fewer): base64 `data:`, or a file name relative to `path`'s folder.
+fn read_uri(
+    path: &Path,
+    index: usize,
+    uri: &str,
+    length: usize,
+    options: &LoadOptions,
+    meter: &mut Meter,
+) -> Result<Vec<u8>> {
     let fail = |message: String| Error::scene(path, format!("buffer {index}: {message}"));
     if let Some(data) = uri.strip_prefix("data:") {
         let (_, payload) =
             data.split_once(";base64,").ok_or_else(|| fail("only base64 data URIs are supported".into()))?;
+        meter.charge(path, payload.len() as u64 / 4 * 3 + 3)?;
         return base64::engine::general_purpose::STANDARD
             .decode(payload)
             .map_err(|e| fail(format!("invalid base64 data URI: {e}")));
     }
+    let file = uri_file(path, uri, options.allow_external_uris, true).map_err(fail)?;
+    // Only byteLength bytes are read: a longer file (or a device) gives no more.
+    let mut input = Input::open_plain(&file, meter.limits()).map_err(|e| fail(e.to_string()))?;
+    let mut bytes = Vec::new();
+    input.read_into(&file, &mut bytes, meter, 1, length as u64).map_err(|e| match e {
+        Error::Scene { message, .. } => fail(format!("{}: {message}", file.display())),
+        e => e,
+    })?;
+    Ok(bytes)
+}
+
+/// The file a relative URI of the glTF file `path` names: percent-decoded and resolved
+/// against the file's folder. Unless `allow_external`, the file must lie in that folder
+/// or below it once symbolic links are followed: a URI that is absolute or climbs out
+/// with `..` is refused without touching the file system, one that leads out through a
+/// link once it is resolved. A file that does not exist is an error when `must_exist`
+/// (a buffer, to be read), else accepted (an image the output refers to, as the input
+/// did). `Err` says why, in words.
+pub(crate) fn uri_file(
+    path: &Path,
+    uri: &str,
+    allow_external: bool,
+    must_exist: bool,
+) -> std::result::Result<PathBuf, String> {
     if uri.contains(':') {
-        return Err(fail(format!("unsupported URI {:?}: expected a relative file name or a data: URI", one_line(uri))));
+        return Err(format!("unsupported URI {:?}: expected a relative file name or a data: URI", one_line(uri)));
     }
     let name = percent_encoding::percent_decode_str(uri)
         .decode_utf8()
-        .map_err(|_| fail(format!("URI {:?} is not UTF-8 once decoded", one_line(uri))))?;
-    let file = path.parent().unwrap_or(Path::new("")).join(&*name);
-    std::fs::read(&file).map_err(|e| fail(format!("{}: {e}", file.display())))
+        .map_err(|_| format!("URI {:?} is not UTF-8 once decoded", one_line(uri)))?;
+    let folder = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let file = folder.join(&*name);
+    if allow_external {
+        return Ok(file);
+    }
+    let outside = |how: &str| {
+        format!(
+            "the URI {:?} leads outside the glTF file's folder{how}; files there are read only when external URIs are allowed (--allow-external-uris)",
+            one_line(uri)
+        )
+    };
+    let mut depth = 0usize;
+    for c in Path::new(&*name).components() {
+        match c {
+            Component::Normal(_) => depth += 1,
+            Component::CurDir => {}
+            Component::ParentDir => depth = depth.checked_sub(1).ok_or_else(|| outside(""))?,
+            Component::RootDir | Component::Prefix(_) => return Err(outside("")),
+        }
+    }
+    let real_folder = folder.canonicalize().map_err(|e| format!("{}: {e}", folder.display()))?;
+    let real = match file.canonicalize() {
+        Ok(real) => real,
+        Err(e) if !must_exist && e.kind() == std::io::ErrorKind::NotFound => return Ok(file),
+        Err(e) => return Err(format!("{}: {e}", file.display())),
+    };
+    if !real.starts_with(&real_folder) {
+        return Err(outside(" through a symbolic link"));
+    }
+    Ok(real)
 }
 
 /// Element `i`, component `c` of an accessor lives at `data[i * stride + c * size]`.
@@ -363,7 +509,7 @@ impl Loader<'_, '_> {
         Error::scene(self.path, message)
     }
 
-    fn load(&self, document: &Document) -> Result<PlacedGltf> {
+    fn load(&self, document: &Document, meter: &mut Meter) -> Result<PlacedGltf> {
         let instances = self.instances(document)?;
 
         // Sizes first, so the mesh is allocated once at its final size.
@@ -407,6 +553,8 @@ impl Loader<'_, '_> {
         if u32::try_from(vertices).is_err() || u32::try_from(triangles).is_err() {
             return Err(too_many());
         }
+        let mesh_bytes = 12 * (vertices as u64 + triangles as u64);
+        meter.charge(self.path, mesh_bytes)?;
         let mut mesh = IndexedMesh::default();
         mesh.positions.try_reserve_exact(vertices).map_err(|_| too_many())?;
         mesh.triangles.try_reserve_exact(triangles).map_err(|_| too_many())?;
@@ -440,11 +588,24 @@ impl Loader<'_, '_> {
                 };
                 let count = positions.count();
                 let normals = match primitive.get(&Semantic::Normals) {
-                    Some(a) if self.normals => Some(self.read_normals(&a, count, instance.world, &what)?),
+                    Some(a) if self.normals => {
+                        meter.charge(self.path, 12 * count as u64)?;
+                        Some(self.read_normals(&a, count, instance.world, &what)?)
+                    }
                     _ => None,
                 };
-                let texcoords = if self.normals { self.read_texcoords(&primitive, count, &what)? } else { Vec::new() };
+                let texcoords = if self.normals {
+                    let sets = primitive.attributes().filter(|(s, _)| matches!(s, Semantic::TexCoords(_))).count();
+                    meter.charge(self.path, 8 * (sets * count) as u64)?;
+                    self.read_texcoords(&primitive, count, &what)?
+                } else {
+                    Vec::new()
+                };
                 let first_triangle = mesh.triangles.len();
+                // Gathered (sparse) indices are held while the primitive is read.
+                let gathered = primitive.indices().filter(|a| a.sparse().is_some() || a.view().is_none());
+                let gathered = gathered.map_or(0, |a| 4 * a.count() as u64);
+                meter.charge(self.path, gathered)?;
                 let indices = match primitive.indices() {
                     Some(a) => Some(self.read_indices(&a, &what)?),
                     None => None,
@@ -453,8 +614,9 @@ impl Loader<'_, '_> {
                 let vertex = |j: usize| -> Result<u32> {
                     let v = indices.as_ref().map_or(j as u64, |ix| u64::from(ix.get(j)));
                     if v >= count as u64 {
+                        // The value is the file's data (or another file's): never shown.
                         return Err(self.error(format!(
-                            "{what}: index {j} is {v}, out of range for the {count} vertices of accessor {}",
+                            "{what}: index {j} is out of range for the {count} vertices of accessor {}",
                             positions.index()
                         )));
                     }
@@ -479,6 +641,8 @@ impl Loader<'_, '_> {
                         }
                     }
                 }
+                drop(indices);
+                meter.release(gathered);
                 placements.push(Placement {
                     node: n,
                     mesh: m,
@@ -636,9 +800,8 @@ impl Loader<'_, '_> {
         for j in 0..n {
             if index.index(j) as usize >= a.count() {
                 return Err(self.error(format!(
-                    "{what}: sparse index {j} of accessor {} is {}, out of range for its {} elements",
+                    "{what}: sparse index {j} of accessor {} is out of range for its {} elements",
                     a.index(),
-                    index.index(j),
                     a.count()
                 )));
             }
@@ -661,14 +824,15 @@ impl Loader<'_, '_> {
         self.read_vec3(a, label, out)?;
         let identity = world == DMat4::IDENTITY;
         for (k, p) in out[base..].iter_mut().enumerate() {
-            if let Some(c) = non_finite_coordinate(*p) {
-                return Err(self.error(format!("{label} vertex {k} has a non-finite coordinate ({c})")));
+            // Which axis, not the value: the buffer's bytes are never shown.
+            if let Some(axis) = non_finite_axis(*p) {
+                return Err(self.error(format!("{label} vertex {k} has a non-finite {axis} coordinate")));
             }
             if !identity {
                 *p = world.transform_point3(p.as_dvec3()).as_vec3();
-                if let Some(c) = non_finite_coordinate(*p) {
+                if let Some(axis) = non_finite_axis(*p) {
                     return Err(self.error(format!(
-                        "{label} vertex {k} has a non-finite coordinate after the node transforms ({c})"
+                        "{label} vertex {k} has a non-finite {axis} coordinate after the node transforms"
                     )));
                 }
             }
@@ -792,6 +956,11 @@ impl Loader<'_, '_> {
     }
 }
 
+/// The first axis (`x`, `y` or `z`) on which `p` is not finite.
+fn non_finite_axis(p: Vec3) -> Option<&'static str> {
+    p.to_array().iter().zip(["x", "y", "z"]).find(|(c, _)| !c.is_finite()).map(|(_, axis)| axis)
+}
+
 /// A node's local transform in f64: its matrix (column-major), or translation × rotation
 /// × scale with the rotation normalised (a zero rotation gives NaN, refused by the caller).
 fn local_matrix(node: &Node) -> DMat4 {
@@ -829,7 +998,8 @@ mod tests {
     #[test]
     fn the_engine_has_121496_triangles_through_its_node_hierarchy() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/2CylinderEngine.glb");
-        let mesh = load_gltf(&path).unwrap_or_else(|e| panic!("{e}"));
+        let options = LoadOptions::from_env().unwrap();
+        let mesh = load_gltf(&path, &options, &mut Meter::unlimited()).unwrap_or_else(|e| panic!("{e}"));
         // 75,730 triangles in its 29 meshes, placed by 67 nodes.
         assert_eq!(mesh.triangles.len(), 121_496);
         // The scene drops the degenerate ones: 11,154 repeat a vertex index (leaving the
@@ -839,5 +1009,43 @@ mod tests {
         let coincident =
             mesh.triangles.iter().filter(|t| p(t[0]) == p(t[1]) || p(t[1]) == p(t[2]) || p(t[0]) == p(t[2]));
         assert_eq!((repeated, coincident.count() - repeated), (11_154, 6));
+    }
+
+    #[test]
+    fn uris_must_stay_in_the_files_folder_once_links_are_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path().canonicalize().unwrap();
+        std::fs::create_dir_all(d.join("model/sub")).unwrap();
+        std::fs::write(d.join("model/sub/a.bin"), b"a").unwrap();
+        std::fs::write(d.join("secret.bin"), b"s").unwrap();
+        std::os::unix::fs::symlink("sub/a.bin", d.join("model/inside.bin")).unwrap();
+        std::os::unix::fs::symlink("../secret.bin", d.join("model/outside.bin")).unwrap();
+        std::os::unix::fs::symlink("..", d.join("model/up")).unwrap();
+        let gltf = d.join("model/m.gltf");
+        for uri in ["sub/a.bin", "./sub/../sub/a.bin", "sub%2Fa.bin", "inside.bin"] {
+            assert_eq!(uri_file(&gltf, uri, false, true), Ok(d.join("model/sub/a.bin")), "{uri}");
+        }
+        for (uri, how) in [
+            ("../secret.bin", ""),
+            ("sub/../../secret.bin", ""),
+            ("/etc/passwd", ""),
+            ("%2Fetc%2Fpasswd", ""),
+            ("outside.bin", " through a symbolic link"),
+            ("up/secret.bin", " through a symbolic link"),
+        ] {
+            let e = uri_file(&gltf, uri, false, true).unwrap_err();
+            assert!(e.contains(&format!("leads outside the glTF file's folder{how};")), "{uri}: {e}");
+        }
+        // Outside but allowed: resolved against the folder, not checked.
+        assert_eq!(uri_file(&gltf, "../secret.bin", true, true), Ok(d.join("model/../secret.bin")));
+        // A missing file in the folder: an error for a buffer, accepted for an image.
+        assert!(uri_file(&gltf, "missing.png", false, true).unwrap_err().contains("No such file"));
+        assert_eq!(uri_file(&gltf, "missing.png", false, false), Ok(d.join("model/missing.png")));
+        assert!(uri_file(&gltf, "http://example.com/a.bin", false, true).unwrap_err().contains("unsupported URI"));
+    }
+
+    #[test]
+    fn json_objects_are_counted_outside_strings() {
+        assert_eq!(json_objects(br#"{"a": [{}, {"b": "{\"}"}], "c": "\\"} {"#), 4);
     }
 }

@@ -3,27 +3,39 @@
 
 use super::camera::{Camera, Projection};
 use super::file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, parse_scene};
-use super::input;
+use super::input::{self, LoadOptions, Meter};
 use super::meshes::{MESH_EXTENSIONS, MESH_FORMATS, extension, place_mesh, read_mesh, stem};
 use super::types::{MeshObject, Scene, Settings, Triangle, Warning};
 use crate::error::{Error, Result};
 use glam::Vec3;
 use std::path::Path;
 
+/// Bytes of memory a scene file's text may take per byte, with its parsed form (the TOML
+/// parser's tables and the objects made of them).
+const SCENE_TEXT_BYTES_PER_BYTE: u64 = 16;
+
 impl Scene {
     /// Loads a scene file (`.toml`) or a bare mesh (`.obj`, `.ply`, `.gltf`, `.glb`, each
-    /// also gzipped as `.gz`), framed automatically. What the loaders skipped is in
-    /// [`Scene::warnings`].
+    /// also gzipped as `.gz`), framed automatically, within the read budget of
+    /// [`LoadOptions::from_env`]. What the loaders skipped is in [`Scene::warnings`].
     pub fn load(path: &Path) -> Result<Scene> {
+        Scene::load_with(path, &LoadOptions::from_env()?)
+    }
+
+    /// [`Scene::load`] with the read budget and URI policy of `options`. The scene and
+    /// everything its meshes' readers hold at once must fit in the budget.
+    pub fn load_with(path: &Path, options: &LoadOptions) -> Result<Scene> {
         #[cfg(feature = "testing")]
         crate::phase::enter("load");
         match extension(path).as_str() {
             "toml" if input::is_gzip(path) => Err(Error::scene(path, "a scene file cannot be gzipped")),
             "toml" => {
-                let text = std::fs::read_to_string(path).map_err(|e| Error::scene(path, e))?;
-                parse_scene(&text, path, path.parent().unwrap_or(Path::new(".")))
+                let text = input::read_text(path, &options.limits, SCENE_TEXT_BYTES_PER_BYTE, "the scene")?;
+                let mut meter = Meter::new(&options.limits, "the scene");
+                meter.charge(path, text.len() as u64 * SCENE_TEXT_BYTES_PER_BYTE)?;
+                parse_scene(&text, path, path.parent().unwrap_or(Path::new(".")), options, &mut meter)
             }
-            ext if MESH_EXTENSIONS.contains(&ext) => Scene::from_mesh_file(path),
+            ext if MESH_EXTENSIONS.contains(&ext) => Scene::from_mesh_file_with(path, options),
             "" => Err(Error::scene(path, format!("no file extension: expected .toml or {MESH_FORMATS}"))),
             ext => Err(Error::scene(path, format!("unsupported file type '.{ext}': expected .toml or {MESH_FORMATS}"))),
         }
@@ -31,20 +43,33 @@ impl Scene {
 
     /// The built-in default scene (`scenes/aobench.toml`).
     pub fn default_scene() -> Scene {
-        parse_scene(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME), Path::new(".")).expect("the built-in scene is valid")
+        let options = LoadOptions { limits: input::ReadLimits::with_memory(u64::MAX), allow_external_uris: false };
+        let mut meter = Meter::new(&options.limits, "the scene");
+        parse_scene(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME), Path::new("."), &options, &mut meter)
+            .expect("the built-in scene is valid")
     }
 
-    /// Parses a scene from TOML text; mesh paths resolve against `base_dir`.
+    /// Parses a scene from TOML text; mesh paths resolve against `base_dir`, and are read
+    /// within the read budget of [`LoadOptions::from_env`].
     pub fn from_toml_str(text: &str, path: &Path, base_dir: &Path) -> Result<Scene> {
-        parse_scene(text, path, base_dir)
+        let options = LoadOptions::from_env()?;
+        let mut meter = Meter::new(&options.limits, "the scene");
+        parse_scene(text, path, base_dir, &options, &mut meter)
     }
 
     /// A bare mesh, albedo 1, looked at from eye = centre + normalize(0.6, 0.45, 1.0) ×
-    /// 1.2 × diagonal with up +Y and a 45° vertical field of view; no distance limit.
+    /// 1.2 × diagonal with up +Y and a 45° vertical field of view; no distance limit. Read
+    /// within the read budget of [`LoadOptions::from_env`].
     pub fn from_mesh_file(path: &Path) -> Result<Scene> {
-        let mut mesh = read_mesh(path)?;
+        Scene::from_mesh_file_with(path, &LoadOptions::from_env()?)
+    }
+
+    /// [`Scene::from_mesh_file`] with the read budget and URI policy of `options`.
+    pub fn from_mesh_file_with(path: &Path, options: &LoadOptions) -> Result<Scene> {
+        let mut meter = Meter::new(&options.limits, "the mesh");
+        let mut mesh = read_mesh(path, options, &mut meter)?;
         let positions = std::mem::take(&mut mesh.positions);
-        let triangles = place_mesh(path, positions, &mesh, 1.0, &glam::Mat4::IDENTITY)?;
+        let triangles = place_mesh(path, positions, &mesh, 1.0, &glam::Mat4::IDENTITY, &mut meter)?;
         let warnings = mesh.warnings.into_iter().map(|message| Warning { path: path.to_path_buf(), message });
         Ok(Scene {
             warnings: warnings.collect(),
@@ -53,6 +78,7 @@ impl Scene {
                 path: path.to_path_buf(),
                 to_world: glam::Mat4::IDENTITY,
                 instance: None,
+                allow_external_uris: options.allow_external_uris,
             }],
             ..Scene::from_triangles(&stem(path), triangles)
         })

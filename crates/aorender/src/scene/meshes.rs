@@ -1,7 +1,7 @@
 //! Mesh files as triangles: read by format ([`read_mesh`]), checked, placed in the world
 //! and stripped of triangles no ray can hit.
 
-use super::input;
+use super::input::{self, LoadOptions, Meter, vec_bytes};
 use super::mesh::{IndexedMesh, VertexNames};
 use super::types::{MAX_NORMAL_LENGTH_SQUARED, MIN_NORMAL_LENGTH_SQUARED, Triangle, non_finite_coordinate};
 use super::{gltf, obj, ply};
@@ -16,17 +16,22 @@ use std::path::Path;
 /// whose normal is undefined. Errors name the vertex or triangle; warnings are dropped.
 #[cfg(feature = "testing")]
 pub fn load_mesh(path: &Path, albedo: f32, transform: &glam::Mat4) -> Result<Vec<Triangle>> {
-    let mut mesh = read_mesh(path)?;
+    let options = LoadOptions::from_env()?;
+    let mut meter = Meter::new(&options.limits, "the mesh");
+    let mut mesh = read_mesh(path, &options, &mut meter)?;
     let positions = std::mem::take(&mut mesh.positions);
-    place_mesh(path, positions, &mesh, albedo, transform)
+    place_mesh(path, positions, &mesh, albedo, transform, &mut meter)
 }
 
 /// Reads a mesh file as it is stored: its vertices and triangles, checked to index them.
-pub(crate) fn read_mesh(path: &Path) -> Result<IndexedMesh> {
+/// The readers charge what they hold to `meter`; once the file is read, the mesh alone
+/// stays charged.
+pub(crate) fn read_mesh(path: &Path, options: &LoadOptions, meter: &mut Meter) -> Result<IndexedMesh> {
+    let held = meter.used();
     let mesh = match extension(path).as_str() {
-        "obj" => obj::load_obj(path)?,
-        "ply" => ply::load_ply(path)?,
-        "gltf" | "glb" => gltf::load_gltf(path)?,
+        "obj" => obj::load_obj(path, meter)?,
+        "ply" => ply::load_ply(path, meter)?,
+        "gltf" | "glb" => gltf::load_gltf(path, options, meter)?,
         ext => {
             return Err(Error::scene(path, format!("unsupported mesh format '.{ext}': expected {MESH_FORMATS}")));
         }
@@ -38,17 +43,25 @@ pub(crate) fn read_mesh(path: &Path) -> Result<IndexedMesh> {
     if let Some(i) = mesh.triangles.iter().flatten().find(|&&i| i as usize >= n) {
         return Err(Error::scene(path, format!("vertex index {i} is out of range ({n} vertices)")));
     }
+    meter.set_used(held + mesh_bytes(&mesh));
     Ok(mesh)
+}
+
+/// The bytes a read mesh holds.
+pub(crate) fn mesh_bytes(mesh: &IndexedMesh) -> u64 {
+    vec_bytes(&mesh.positions) + vec_bytes(&mesh.triangles)
 }
 
 /// The triangles of `mesh` (read from `path`) placed in the world by `transform`;
 /// `positions` are the mesh's vertices (its own, taken out, or a copy), transformed in place.
+/// The triangles are charged to `meter` before they are made.
 pub(crate) fn place_mesh(
     path: &Path,
     mut positions: Vec<Vec3>,
     mesh: &IndexedMesh,
     albedo: f32,
     transform: &glam::Mat4,
+    meter: &mut Meter,
 ) -> Result<Vec<Triangle>> {
     // Each distinct vertex goes through the transform once, and every triangle below takes
     // its corners from the result, so shared vertices stay bit-identical.
@@ -60,7 +73,7 @@ pub(crate) fn place_mesh(
         }
         *p = q;
     }
-    mesh_triangles(path, mesh.triangles.iter().map(|t| t.map(|i| positions[i as usize])), albedo)
+    mesh_triangles_within(path, mesh.triangles.iter().map(|t| t.map(|i| positions[i as usize])), albedo, meter)
 }
 
 /// The triangles of a mesh in world space, as the scene keeps them: rejects a non-finite
@@ -72,9 +85,21 @@ pub fn mesh_triangles(
     triangles: impl IntoIterator<Item = [Vec3; 3]>,
     albedo: f32,
 ) -> Result<Vec<Triangle>> {
+    mesh_triangles_within(path, triangles, albedo, &mut Meter::unlimited())
+}
+
+/// [`mesh_triangles`], the triangles charged to `meter` before they are made.
+pub(crate) fn mesh_triangles_within(
+    path: &Path,
+    triangles: impl IntoIterator<Item = [Vec3; 3]>,
+    albedo: f32,
+    meter: &mut Meter,
+) -> Result<Vec<Triangle>> {
     let triangles = triangles.into_iter();
     // One allocation of the final size when the count is known: no copy while growing.
-    let mut out = Vec::with_capacity(triangles.size_hint().0);
+    let count = triangles.size_hint().0;
+    meter.charge(path, (count * std::mem::size_of::<Triangle>()) as u64)?;
+    let mut out = Vec::with_capacity(count);
     for (i, v) in triangles.enumerate() {
         if let Some(c) = v.iter().find_map(|&p| non_finite_coordinate(p)) {
             return Err(Error::scene(path, format!("triangle {} has a non-finite coordinate ({c})", i + 1)));

@@ -10,7 +10,7 @@
 //! size an allocation beyond what the rest of the file could hold (see
 //! [`Input::remaining_bound`]).
 
-use super::input::{Input, one_line};
+use super::input::{Input, Meter, make_room, one_line};
 use super::mesh::{IndexedMesh, VertexNames};
 pub(crate) use super::types::non_finite_coordinate;
 use crate::error::{Error, Result};
@@ -142,9 +142,17 @@ fn min_element_bytes(def: &ElementDef, encoding: Encoding, index_list: Option<&s
 }
 
 /// How many elements of `def` to reserve room for: the header's count, but no more than
-/// the rest of the input could hold.
-fn capacity(def: &ElementDef, input: &Input, encoding: Encoding, index_list: Option<&str>) -> usize {
-    let fit = input.remaining_bound() / min_element_bytes(def, encoding, index_list);
+/// the rest of the input is known to hold (nothing for a pipe or a device, whose data
+/// must arrive first) and the budget leaves for elements of `size` bytes.
+fn capacity(
+    def: &ElementDef,
+    input: &Input,
+    encoding: Encoding,
+    index_list: Option<&str>,
+    meter: &Meter,
+    size: u64,
+) -> usize {
+    let fit = (input.known_remaining() / min_element_bytes(def, encoding, index_list)).min(meter.left() / size);
     def.count.min(usize::try_from(fit).unwrap_or(usize::MAX))
 }
 
@@ -152,37 +160,67 @@ fn out_of_memory(path: &Path, n: usize, what: &str) -> Error {
     Error::scene(path, format!("not enough memory for {n} {what}"))
 }
 
-/// Reads the `def.count` elements of `def`, passing each with its number to `each`.
+/// Reserves room for `n` more elements in `v`, charged to `meter` first.
+fn reserve<T>(path: &Path, v: &mut Vec<T>, n: usize, meter: &mut Meter, what: &str) -> Result<()> {
+    meter.charge(path, (n * std::mem::size_of::<T>()) as u64)?;
+    v.try_reserve_exact(n).map_err(|_| out_of_memory(path, n, what))
+}
+
+/// Bytes of memory a list item may take while its element is read: the crate's own vector
+/// of the file's type, then this loader's of `i64`.
+const LIST_ITEM_BYTES: u64 = 8 + 8;
+
+/// Reads the `def.count` elements of `def`, passing each with its number to `each`. An
+/// element's lists may take at most what is left of `meter`'s budget: a binary element is
+/// cut off there (an ASCII one is a line, at most the longest line).
 fn read_elements<E: PropertyAccess>(
     path: &Path,
     input: &mut Input,
     encoding: Encoding,
     def: &ElementDef,
-    mut each: impl FnMut(usize, E) -> Result<()>,
+    meter: &mut Meter,
+    mut each: impl FnMut(usize, E, &mut Meter) -> Result<()>,
 ) -> Result<()> {
     if encoding != Encoding::Ascii && def.properties.is_empty() {
         // Elements without properties take no bytes: nothing to read.
         return Ok(());
     }
     let parser = Parser::<E>::new();
-    let mut line = String::new();
+    let has_list = def.properties.values().any(|p| matches!(p.data_type, PropertyType::List(..)));
+    let mut line = Vec::new();
     for i in 0..def.count {
+        let cut = has_list && encoding != Encoding::Ascii;
+        if cut {
+            input.set_limit(Some(input.consumed().saturating_add(meter.left() / LIST_ITEM_BYTES + 16)));
+        }
         let element = match encoding {
             Encoding::Ascii => {
                 line.clear();
                 match input.read_line(&mut line) {
                     Ok(0) => Err(ParseError::from(std::io::Error::from(ErrorKind::UnexpectedEof))),
-                    Ok(_) => parser.read_ascii_element(&line, def),
+                    Ok(_) => match std::str::from_utf8(&line) {
+                        Ok(text) => parser.read_ascii_element(text, def),
+                        Err(_) => Err(ParseError::from(std::io::Error::new(
+                            ErrorKind::InvalidData,
+                            "stream did not contain valid UTF-8",
+                        ))),
+                    },
                     Err(e) => Err(ParseError::from(e)),
                 }
             }
             Encoding::BinaryLittleEndian => parser.read_little_endian_element(input, def),
             Encoding::BinaryBigEndian => parser.read_big_endian_element(input, def),
         };
+        let cut_off = cut && input.at_limit();
+        if cut {
+            input.set_limit(None);
+        }
         let element = element.map_err(|e| {
             let what = format!("{} {i} of {}", def.name, def.count);
             let message = if let Some(stream) = input.stream_error() {
                 format!("{what}: {stream}")
+            } else if cut_off && e.kind() == ErrorKind::UnexpectedEof {
+                format!("{what}: its lists: {}", meter.exceeded_message())
             } else if e.kind() == ErrorKind::UnexpectedEof {
                 format!("unexpected end of file in {what}")
             } else {
@@ -190,9 +228,41 @@ fn read_elements<E: PropertyAccess>(
             };
             Error::scene(path, message)
         })?;
-        each(i, element)?;
+        each(i, element, meter)?;
     }
     Ok(())
+}
+
+/// Skips the elements of `def` without parsing them when they are binary scalars (a fixed
+/// number of bytes each), a buffer at a time; `false` (nothing read) for other elements.
+fn skip_elements(path: &Path, input: &mut Input, encoding: Encoding, def: &ElementDef) -> Result<bool> {
+    let mut size = 0;
+    for p in def.properties.values() {
+        match &p.data_type {
+            PropertyType::Scalar(t) if encoding != Encoding::Ascii => size += scalar_bytes(t),
+            _ => return Ok(false),
+        }
+    }
+    let total = (def.count as u64).saturating_mul(size);
+    let mut skipped = 0;
+    while skipped < total {
+        let available = match input.fill_buf() {
+            Ok(buf) => buf.len() as u64,
+            Err(e) => {
+                let what = format!("{} {} of {}", def.name, skipped / size.max(1), def.count);
+                let stream = input.stream_error().map_or_else(|| e.to_string(), str::to_string);
+                return Err(Error::scene(path, format!("{what}: {stream}")));
+            }
+        };
+        if available == 0 {
+            let what = format!("{} {} of {}", def.name, skipped / size.max(1), def.count);
+            return Err(Error::scene(path, format!("unexpected end of file in {what}")));
+        }
+        let n = available.min(total - skipped);
+        input.consume(n as usize);
+        skipped += n;
+    }
+    Ok(true)
 }
 
 /// One line of a PLY header, in the file's order (for writing the header back).
@@ -427,10 +497,10 @@ pub(crate) fn index_list_name(path: &Path, face: &ElementDef) -> Result<String> 
     }
 }
 
-/// Reads a PLY file (`.ply` or `.ply.gz`). Vertices and faces are numbered from 0, as the
-/// faces' indices count them.
-pub(crate) fn load_ply(path: &Path) -> Result<IndexedMesh> {
-    let mut input = Input::open(path)?;
+/// Reads a PLY file (`.ply` or `.ply.gz`) within `meter`'s budget. Vertices and faces are
+/// numbered from 0, as the faces' indices count them.
+pub(crate) fn load_ply(path: &Path, meter: &mut Meter) -> Result<IndexedMesh> {
+    let mut input = Input::open(path, meter.limits())?;
     let header = read_header(path, &mut input)?;
     let encoding = header.encoding;
 
@@ -445,27 +515,46 @@ pub(crate) fn load_ply(path: &Path) -> Result<IndexedMesh> {
     let vertex_count = vertex_def.count;
     let face_def = header.element("face").ok_or_else(|| Error::scene(path, "no face element"))?;
     let index_list = index_list_name(path, face_def)?;
+    // Every vertex and every face (a triangle at least) is held: a header that declares
+    // more than the budget holds, in data the input could deliver, is refused before its
+    // data is read (a file too short for its counts is reported where it ends).
+    let declared = (vertex_count as u64).saturating_add(face_def.count as u64).saturating_mul(12);
+    let data = (vertex_count as u64).saturating_mul(min_element_bytes(vertex_def, encoding, None)).saturating_add(
+        (face_def.count as u64).saturating_mul(min_element_bytes(face_def, encoding, Some(&index_list))),
+    );
+    if declared > meter.left() && input.could_hold(data) {
+        let (v, f) = (vertex_count, face_def.count);
+        let plural = |n: usize| if n == 1 { "" } else { "s" };
+        let message = format!(
+            "the header declares {v} vert{} and {f} face{}: {}",
+            if v == 1 { "ex" } else { "ices" },
+            plural(f),
+            meter.exceeded_message()
+        );
+        return Err(Error::scene(path, message));
+    }
 
     let mut mesh =
         IndexedMesh { names: VertexNames::FromZero, warnings: header.warnings.clone(), ..Default::default() };
     for def in &header.elements {
         match def.name.as_str() {
             "vertex" => {
-                let n = capacity(def, &input, encoding, None);
-                mesh.positions.try_reserve_exact(n).map_err(|_| out_of_memory(path, n, "vertices"))?;
-                read_elements(path, &mut input, encoding, def, |i, v: PlyVertex| {
+                let n = capacity(def, &input, encoding, None, meter, 12);
+                reserve(path, &mut mesh.positions, n, meter, "vertices")?;
+                read_elements(path, &mut input, encoding, def, meter, |i, v: PlyVertex, meter| {
                     let p = Vec3::from(v.p);
                     if let Some(c) = non_finite_coordinate(p) {
                         return Err(Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})")));
                     }
+                    make_room(&mut mesh.positions, meter, path)?;
                     mesh.positions.push(p);
                     Ok(())
                 })?;
             }
             "face" => {
-                let n = capacity(def, &input, encoding, Some(&index_list));
-                mesh.triangles.try_reserve_exact(n).map_err(|_| out_of_memory(path, n, "triangles"))?;
-                read_elements(path, &mut input, encoding, def, |i, f: PlyFace| {
+                let n = capacity(def, &input, encoding, Some(&index_list), meter, 12);
+                reserve(path, &mut mesh.triangles, n, meter, "triangles")?;
+                read_elements(path, &mut input, encoding, def, meter, |i, f: PlyFace, meter| {
                     let n = f.indices.len();
                     if n < 3 {
                         return Err(Error::scene(path, format!("face {i} has {n} vertices; a face needs at least 3")));
@@ -486,6 +575,7 @@ pub(crate) fn load_ply(path: &Path) -> Result<IndexedMesh> {
                             0 | 1 => index[slot] = v,
                             _ => {
                                 index[2] = v;
+                                make_room(&mut mesh.triangles, meter, path)?;
                                 mesh.triangles.push(index);
                                 index[1] = v;
                             }
@@ -494,7 +584,8 @@ pub(crate) fn load_ply(path: &Path) -> Result<IndexedMesh> {
                     Ok(())
                 })?;
             }
-            _ => read_elements(path, &mut input, encoding, def, |_, _: Skipped| Ok(()))?,
+            _ if skip_elements(path, &mut input, encoding, def)? => {}
+            _ => read_elements(path, &mut input, encoding, def, meter, |_, _: Skipped, _| Ok(()))?,
         }
     }
     check_end(path, &mut input, encoding)?;
@@ -541,7 +632,7 @@ mod tests {
     #[test]
     fn the_full_dragon_has_871414_faces_108_of_them_with_coincident_corners() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/dragon_vrip.ply.gz");
-        let mesh = load_ply(&path).unwrap_or_else(|e| panic!("{e}"));
+        let mesh = load_ply(&path, &mut Meter::unlimited()).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!((mesh.positions.len(), mesh.triangles.len()), (437_645, 871_414));
         let p = |i: u32| mesh.positions[i as usize];
         let repeated = mesh.triangles.iter().filter(|t| t[0] == t[1] || t[1] == t[2] || t[0] == t[2]).count();
@@ -564,7 +655,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("blender.ply");
         std::fs::write(&path, ply_with_header_line("Created by Blender3D 247 - www.blender.org")).unwrap();
-        let mesh = load_ply(&path).unwrap_or_else(|e| panic!("{e}"));
+        let mesh = load_ply(&path, &mut Meter::unlimited()).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(mesh.triangles, [[0, 1, 2]]);
         assert_eq!(
             mesh.warnings,
@@ -588,13 +679,13 @@ mod tests {
         ] {
             let path = dir.path().join("bad.ply");
             std::fs::write(&path, ply_with_header_line(line)).unwrap();
-            let message = load_ply(&path).map(|_| ()).unwrap_err().to_string();
+            let message = load_ply(&path, &mut Meter::unlimited()).map(|_| ()).unwrap_err().to_string();
             assert!(message.contains("bad.ply: invalid PLY header") && message.contains(expect), "{line}: {message}");
         }
         let path = dir.path().join("bad.ply");
         let text = ply_with_header_line("comment fine").replace("property float y", "property float32 x");
         std::fs::write(&path, text).unwrap();
-        let message = load_ply(&path).map(|_| ()).unwrap_err().to_string();
+        let message = load_ply(&path, &mut Meter::unlimited()).map(|_| ()).unwrap_err().to_string();
         assert!(message.contains("a second property named 'x' in element 'vertex'"), "{message}");
     }
 

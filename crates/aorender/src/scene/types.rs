@@ -78,6 +78,8 @@ pub struct MeshObject {
     /// objects; `None` when its triangles went into `Scene::triangles`, each distinct
     /// vertex through `Mat4::transform_point3` once.
     pub instance: Option<u32>,
+    /// Whether the file's glTF URIs may lead outside its folder (as it was loaded).
+    pub allow_external_uris: bool,
 }
 
 /// Largest image width and height.
