@@ -142,6 +142,9 @@ pub struct Setup {
     pub bvh_convert_seconds: f64,
     /// Nodes of the BVH as traversed.
     pub bvh_nodes: usize,
+    /// Primitives the BVH leaves out as copies of others (a triangle or sphere with the
+    /// same bits and albedo, 16 times or more): rays meet them as they meet the first.
+    pub bvh_duplicates: usize,
     /// Seconds to upload the geometry (GPU) or to lay out the tracer's records (CPU).
     pub upload_seconds: f64,
     /// Bytes of the BVH as traversed: nodes and primitive records, as uploaded (GPU) or
@@ -205,6 +208,7 @@ impl Prepared {
                         bvh_build_seconds,
                         bvh_convert_seconds,
                         bvh_nodes: bvh.node_count as usize,
+                        bvh_duplicates: bvh.duplicates,
                         upload_seconds: upload.elapsed().as_secs_f64(),
                         bvh_bytes: gpu_scene.bvh_bytes,
                         device_bytes: gpu_scene.device_bytes(),
@@ -219,6 +223,7 @@ impl Prepared {
                     let last = !devices[i + 1..].iter().any(uses_cwbvh);
                     let cwbvh = if last { cwbvh.take() } else { cwbvh.clone() }.expect("built for the CPU");
                     let bvh_nodes = cwbvh.top.iter().chain(&cwbvh.meshes).map(|b| b.nodes.len()).sum();
+                    let bvh_duplicates = cwbvh.duplicates;
                     let upload = Instant::now();
                     let tracer = CpuTracer::new(scene, cwbvh);
                     let setup = Setup {
@@ -227,6 +232,7 @@ impl Prepared {
                         bvh_build_seconds: cwbvh_seconds,
                         bvh_convert_seconds: 0.0,
                         bvh_nodes,
+                        bvh_duplicates,
                         upload_seconds: upload.elapsed().as_secs_f64(),
                         bvh_bytes: tracer.bytes(),
                         device_bytes: 0,

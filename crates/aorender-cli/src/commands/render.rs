@@ -191,8 +191,13 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if let Some(path) = &args.run.stats {
         write_json(path, &json)?;
     }
+    // Copies the BVH left out cost nothing and change nothing, but the user may want to know.
+    let copies = match st.duplicates_dropped {
+        0 => String::new(),
+        n => format!("; {n} copies of triangles or spheres left out of the BVH"),
+    };
     eprintln!(
-        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s, load {:.2} s, BVH {:.2} s) on {} ({}); mean {:.4}",
+        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s, load {:.2} s, BVH {:.2} s) on {} ({}); mean {:.4}{copies}",
         args.output.display(),
         st.width,
         st.height,
