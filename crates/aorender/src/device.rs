@@ -252,7 +252,22 @@ impl Prepared {
         match self {
             Prepared::Gpu { dev, scene } => {
                 let frame = FrameUniforms::image(camera, settings, scene.node_count, scene.plane_count);
-                Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?))
+                let rows = crate::gpu::target::image_rows_per_target(dev, settings.width);
+                if rows >= settings.height {
+                    return Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?));
+                }
+                // Bands of rows, each a target with a film of one binding at most, read
+                // through one shared buffer: driven as one film, in row order.
+                let mut targets: Vec<(GpuTarget, usize)> = Vec::new();
+                for first_row in (0..settings.height).step_by(rows as usize) {
+                    let band = rows.min(settings.height - first_row);
+                    let readback = targets.first().map(|(t, _)| t.readback());
+                    let frame = FrameUniforms { first_row, ..frame };
+                    let (sampler, hemisphere) = (settings.sampler, settings.hemisphere);
+                    let target = GpuTarget::image_band(dev, scene, frame, band, sampler, hemisphere, readback)?;
+                    targets.push((target, band as usize * settings.width as usize));
+                }
+                Ok(Box::new(GpuChunks { targets }))
             }
             Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
                 inactive: Vec::new(),
@@ -400,10 +415,11 @@ impl Passes for GpuTarget {
     }
 }
 
-/// Probe points past one target's storage bindings (lavapipe binds 128 MiB: 4,194,304
-/// points) over several targets, each a contiguous range of the points numbering its
-/// sample sequences from its first point's index, driven as one film: slot order and
-/// sums are those of a single target.
+/// A film past one target's storage bindings (lavapipe binds 128 MiB: an image of
+/// 8,388,608 pixels, 4,194,304 probe points) over several targets, driven as one film:
+/// slot order and sums are those of a single target. An image's targets are bands of
+/// rows, a probe request's contiguous ranges of the points, each numbering its sample
+/// sequences from its first point's index.
 struct GpuChunks {
     /// Each target, and its film's slots.
     targets: Vec<(GpuTarget, usize)>,
@@ -424,7 +440,8 @@ impl GpuChunks {
     }
 
     fn join(blocks: Vec<BlockSums>) -> Result<BlockSums> {
-        let mut out = Vec::new();
+        let slots = blocks.iter().map(|b| if let BlockSums::Gpu(w) = b { w.len() } else { 0 }).sum();
+        let mut out = Vec::with_capacity(slots);
         for block in blocks {
             match block {
                 BlockSums::Gpu(words) => out.extend(words),

@@ -59,6 +59,8 @@ pub struct GpuContext {
     faults: Arc<Faults>,
     /// Largest chunk of nodes or primitives in one binding, in bytes.
     max_chunk_bytes: u64,
+    /// Largest film of one target, in bytes: one binding, or less for tests.
+    max_film_bytes: u64,
     /// Largest width and height of a geometry texture (the adapter's limit, or less for tests).
     max_texture_size: [u32; 2],
     /// The kernel's `CPU_LANES`: the adapter is a CPU (or a test asks for its formulations).
@@ -138,6 +140,7 @@ impl GpuContext {
             description,
             faults,
             max_chunk_bytes,
+            max_film_bytes: max_chunk_bytes,
             max_texture_size,
             cpu_lanes,
             // Per lane on every adapter: it measured faster on lavapipe (docs/performance.md,
@@ -182,6 +185,19 @@ impl GpuContext {
     /// Largest bytes of nodes or primitives in one binding.
     pub(crate) fn max_chunk_bytes(&self) -> u64 {
         self.max_chunk_bytes
+    }
+
+    /// Largest film of one target, in bytes.
+    pub(crate) fn max_film_bytes(&self) -> u64 {
+        self.max_film_bytes
+    }
+
+    /// Caps the bytes of one target's film below a binding, so that small images are
+    /// rendered in bands of rows as large ones are (for testing the split; the image
+    /// does not change).
+    #[cfg(feature = "testing")]
+    pub fn limit_film_bytes(&mut self, bytes: u64) {
+        self.max_film_bytes = self.max_film_bytes.min(bytes);
     }
 
     /// Largest width and height of a geometry texture.
