@@ -5,8 +5,14 @@
 use super::fault::{Fault, Faults, catch_panic};
 use super::layout::GROUP_LANES;
 use super::shaders::{GeometryStorage, Traversal};
+use crate::bvh::BvhLayout;
 use crate::error::{Error, Result};
 use std::sync::Arc;
+
+/// Test hook: with this environment variable set to N, the kernel's traversal stack is
+/// taken to hold N entries, so that a small scene's BVH is refused as too deep.
+#[cfg(feature = "testing")]
+pub const TEST_STACK_ENTRIES_ENV: &str = "AORENDER_TEST_STACK_ENTRIES";
 
 /// An adapter's name, backend, type and driver (the CPU reference has one too).
 #[derive(Clone, Debug, serde::Serialize)]
@@ -67,6 +73,8 @@ pub struct GpuContext {
     cpu_lanes: bool,
     /// The traversal a scene gets where none is asked for and it can run cooperatively.
     preferred_traversal: Traversal,
+    /// Fewer traversal stack entries than the kernel has, for tests of a BVH too deep.
+    stack_limit: Option<u32>,
 }
 
 impl GpuContext {
@@ -146,7 +154,24 @@ impl GpuContext {
             // Per lane on every adapter: it measured faster on lavapipe (docs/performance.md,
             // "Eight lanes per ray"), and no GPU has measured the cooperative one yet.
             preferred_traversal: Traversal::PerLane,
+            #[cfg(feature = "testing")]
+            stack_limit: std::env::var(TEST_STACK_ENTRIES_ENV).ok().and_then(|v| v.trim().parse().ok()),
+            #[cfg(not(feature = "testing"))]
+            stack_limit: None,
         })
+    }
+
+    /// The deepest BVH in `layout` the kernel traverses: its stack's entries.
+    pub(crate) fn stack_entries(&self, layout: BvhLayout) -> u32 {
+        self.stack_limit.map_or(layout.stack_size(), |n| n.min(layout.stack_size()))
+    }
+
+    /// Takes the kernel's traversal stack as holding at most `entries` entries, so that
+    /// a small scene is refused as one too deep for the stack is (for testing the
+    /// refusal).
+    #[cfg(feature = "testing")]
+    pub fn limit_stack_entries(&mut self, entries: u32) {
+        self.stack_limit = Some(entries);
     }
 
     /// Where the kernel should read the BVH nodes and primitives from on this adapter:

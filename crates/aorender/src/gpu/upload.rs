@@ -56,13 +56,21 @@ impl GpuScene {
         storage: GeometryStorage,
         traversal: Option<Traversal>,
     ) -> Result<GpuScene> {
-        if bvh.depth > bvh.layout.stack_size() {
-            return Err(Error::Gpu(format!(
-                "the {} BVH is {} levels deep; the shader's traversal stack holds {}",
-                bvh.layout.name(),
-                bvh.depth,
-                bvh.layout.stack_size()
-            )));
+        let stack = ctx.stack_entries(bvh.layout);
+        if bvh.depth > stack {
+            let other = match bvh.layout {
+                BvhLayout::Bvh2 => " or in the cwbvh layout (`--bvh-layout cwbvh`)",
+                BvhLayout::Cwbvh => "",
+            };
+            return Err(Error::scene(
+                scene.source(),
+                format!(
+                    "its {} BVH is {} levels deep, past the {stack} the GPU kernel's traversal stack holds; \
+                     the CPU reference (`--device cpu`){other} renders it",
+                    bvh.layout.name(),
+                    bvh.depth,
+                ),
+            ));
         }
         // The BVH2 layout flattens instances.
         let has_instances = bvh.layout == BvhLayout::Cwbvh && !scene.instances.is_empty();

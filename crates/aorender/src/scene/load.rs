@@ -31,7 +31,8 @@ impl Scene {
 
     /// The built-in default scene (`scenes/aobench.toml`).
     pub fn default_scene() -> Scene {
-        parse_scene(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME), Path::new(".")).expect("the built-in scene is valid")
+        let scene = parse_scene(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME), Path::new("."));
+        Scene { path: None, ..scene.expect("the built-in scene is valid") }
     }
 
     /// Parses a scene from TOML text; mesh paths resolve against `base_dir`.
@@ -47,6 +48,7 @@ impl Scene {
         let triangles = place_mesh(path, positions, &mesh, 1.0, &glam::Mat4::IDENTITY)?;
         let warnings = mesh.warnings.into_iter().map(|message| Warning { path: path.to_path_buf(), message });
         Ok(Scene {
+            path: Some(path.to_path_buf()),
             warnings: warnings.collect(),
             mesh_objects: vec![MeshObject {
                 number: 1,
@@ -63,6 +65,7 @@ impl Scene {
     pub fn from_triangles(name: &str, triangles: Vec<Triangle>) -> Scene {
         let mut scene = Scene {
             name: name.into(),
+            path: None,
             camera: Camera {
                 eye: Vec3::ZERO,
                 look_at: Vec3::NEG_Z,
