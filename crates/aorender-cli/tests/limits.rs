@@ -1,8 +1,11 @@
-//! What a scene cannot have, refused in one line before the work: a BVH deeper than the
-//! GPU's traversal stack. And what it can: copies of a triangle, counted.
+//! What a scene cannot have, refused in one line before the work: a film past the host
+//! memory budget (a 16384² image from a 200-byte scene), a BVH deeper than the GPU's
+//! traversal stack. And what it can: copies of a triangle, counted.
 
 mod common;
 use aorender::gpu::context::TEST_STACK_ENTRIES_ENV;
+use aorender::host_memory::FILM_BUDGET_ENV;
+use aorender::{Device, DeviceKind};
 use common::*;
 use std::io::Read;
 use std::path::Path;
@@ -49,6 +52,81 @@ fn one_line(run: &Run, what: &str) -> String {
 /// The devices to check: the CPU reference, and the adapter where there is one.
 fn devices() -> Vec<&'static str> {
     if gpu_available() { vec!["cpu", "gpu"] } else { vec!["cpu"] }
+}
+
+/// A 16384² image of a small mesh with the film budget set to 100 MB: refused in one line
+/// naming the file, the bytes the film needs (the library's estimate) and the budget,
+/// exit 1, nothing written, and the process never near the film's size (its peak resident
+/// memory under 512 MiB, where the film alone would take 34 GiB).
+#[test]
+fn a_film_past_the_budget_is_refused_before_any_work() {
+    let dir = temp_dir();
+    let d = dir.path();
+    std::fs::copy(repo().join("scenes/teapot.obj"), d.join("teapot.obj")).unwrap();
+    for device in devices() {
+        let args = ["render", "teapot.obj", "--width", "16384", "--height", "16384", "--device", device];
+        let args = [&args[..], &["-o", "out.png", "--stats", "stats.json"]].concat();
+        let out = run(&args, d, &[(FILM_BUDGET_ENV, "100000000")]);
+        let line = one_line(&out, device);
+        assert_eq!(out.code, Some(1), "{device}: {line}");
+        let kind = if device == "cpu" { DeviceKind::Cpu } else { DeviceKind::Gpu };
+        let needed = Device::open(kind, None).unwrap().film_bytes(16384 * 16384, false);
+        let expect = format!(
+            "aorender: teapot.obj: a 16384x16384 image needs {needed} bytes of host memory, past the film budget of \
+             100000000 bytes (set by {FILM_BUDGET_ENV})"
+        );
+        assert_eq!(line, expect, "{device}");
+        assert!(!d.join("out.png").exists() && !d.join("stats.json").exists(), "{device}: wrote an output");
+        eprintln!("{device}: refused with a peak of {} MiB", out.max_rss >> 20);
+        assert!(out.max_rss < 512 << 20, "{device}: peak resident memory {} bytes", out.max_rss);
+    }
+    // A budget that is not a number.
+    let out = run(&["render", "teapot.obj", "--device", "cpu", "-o", "out.png"], d, &[(FILM_BUDGET_ENV, "lots")]);
+    let line = one_line(&out, "bad budget");
+    assert_eq!(out.code, Some(1));
+    assert!(line.contains(&format!("{FILM_BUDGET_ENV} must be a number of bytes, not 'lots'")), "{line}");
+    assert!(!d.join("out.png").exists());
+}
+
+/// The estimate holds what a render holds: a 1024² image's heap peak (the binary's count
+/// of its own allocations) over that of an 8² image of the same scene is within the
+/// library's estimate of its film, on the CPU reference and the adapter, with samples
+/// alone and in replicates; on a CPU adapter (lavapipe), whose device memory is host
+/// memory, so is the process's resident peak.
+#[test]
+fn the_film_estimate_bounds_what_a_render_holds() {
+    let dir = temp_dir();
+    let d = dir.path();
+    for device in devices() {
+        for replicated in [false, true] {
+            let peaks = [8u32, 1024].map(|side| {
+                let side = side.to_string();
+                let mut args = vec!["render", "--width", &side, "--height", &side, "--device", device];
+                args.extend(["-o", "out.exr", "--stats", "stats.json"]);
+                if replicated {
+                    args.extend(["--sampler", "sobol", "--replicate", "8", "--spp", "16"]);
+                } else {
+                    args.extend(["--spp", "1"]);
+                }
+                let out = run(&args, d, &[]);
+                assert_eq!(out.code, Some(0), "{device}: {}", out.stderr);
+                let json: serde_json::Value =
+                    serde_json::from_slice(&std::fs::read(d.join("stats.json")).unwrap()).unwrap();
+                (json["heap_peak_bytes"].as_u64().unwrap(), out.max_rss)
+            });
+            let kind = if device == "cpu" { DeviceKind::Cpu } else { DeviceKind::Gpu };
+            let dev = Device::open(kind, None).unwrap();
+            let estimate = dev.film_bytes(1024 * 1024 - 64, replicated);
+            let heap = peaks[1].0 - peaks[0].0;
+            let rss = peaks[1].1.saturating_sub(peaks[0].1);
+            let what = format!("{device}, replicated {replicated}");
+            eprintln!("{what}: heap {heap} bytes, resident {rss} bytes, estimate {estimate} bytes");
+            assert!(heap <= estimate, "{what}: the heap grew by {heap} bytes, past the estimate {estimate}");
+            if dev.info().device_type == "Cpu" {
+                assert!(rss <= estimate, "{what}: the resident peak grew by {rss} bytes, past the estimate {estimate}");
+            }
+        }
+    }
 }
 
 /// A BVH deeper than the GPU kernel's traversal stack (the stack taken as two entries

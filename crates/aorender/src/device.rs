@@ -10,6 +10,7 @@ use crate::film::{BlockSums, Film, INACTIVE_SLOT_BITS};
 use crate::gpu::{
     AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal,
 };
+use crate::host_memory;
 use crate::probe::Probe;
 use crate::scene::{Camera, Scene, Settings};
 use std::sync::Arc;
@@ -100,6 +101,40 @@ impl Device {
             Opened::Gpu(g) => g.ctx.has_timestamps(),
             Opened::Cpu(_) => false,
         }
+    }
+
+    /// Host bytes a film of `slots` slots (pixels, or probe lanes) takes at a render's
+    /// peak on this device, with samples in replicates or not ([`host_memory::film_bytes`]).
+    pub fn film_bytes(&self, slots: u64, replicated: bool) -> u64 {
+        // A GPU on a CPU adapter (lavapipe) keeps its device memory on the host.
+        let cpu_adapter = self.kind() == DeviceKind::Gpu && self.info().device_type == "Cpu";
+        host_memory::film_bytes(slots, replicated, cpu_adapter)
+    }
+
+    /// Checks an image of `settings` of `scene` against the film budget before anything
+    /// is built or made: [`Error::FilmBudget`] naming the scene's file, the bytes needed
+    /// and the budget ([`host_memory::film_budget`]).
+    pub fn check_image_budget(&self, scene: &Scene, settings: &Settings) -> Result<()> {
+        let what = format!("a {}x{} image", settings.width, settings.height);
+        let slots = settings.width as u64 * settings.height as u64;
+        self.check_film_budget(&scene.source(), what, slots, settings.replicate_samples() >= 2, None)
+    }
+
+    /// Fails with [`Error::FilmBudget`] naming `scene` when a film of `slots` slots
+    /// (`what`, in words) is past `budget` bytes (`None`: [`host_memory::film_budget`]).
+    pub(crate) fn check_film_budget(
+        &self,
+        scene: &std::path::Path,
+        what: String,
+        slots: u64,
+        replicated: bool,
+        budget: Option<u64>,
+    ) -> Result<()> {
+        let budget = match budget {
+            Some(bytes) => host_memory::FilmBudget { bytes, basis: "set for the session".into() },
+            None => host_memory::film_budget()?,
+        };
+        host_memory::check_film(scene, what, self.film_bytes(slots, replicated), &budget)
     }
 
     /// The GPU adapter, if this is one.

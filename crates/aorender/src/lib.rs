@@ -106,6 +106,7 @@ mod session;
 pub mod bake;
 pub mod closed_form;
 pub mod error;
+pub mod host_memory;
 pub mod output;
 pub mod scene;
 

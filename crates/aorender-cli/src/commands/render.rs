@@ -149,6 +149,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     };
     let rendered = (|| {
         let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
+        // The film's memory is known before the BVH is built: a film past the budget is
+        // refused before that work.
+        device.check_image_budget(&scene, &scene.settings)?;
         let session = Session::new(&device, scene, &bvh)?;
         let request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
         let mut render = session.render(&request)?;
