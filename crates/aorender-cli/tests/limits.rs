@@ -20,6 +20,9 @@ struct Run {
 }
 
 /// Runs the binary with `args` in `cwd` and `env` set, measuring its peak memory.
+// The child is reaped by `wait4`, which `Child::wait` cannot replace: it gives the
+// child's own resource use.
+#[allow(clippy::zombie_processes)]
 fn run(args: &[&str], cwd: &Path, env: &[(&str, &str)]) -> Run {
     let mut child = Command::new(env!("CARGO_BIN_EXE_aorender"))
         .args(args)

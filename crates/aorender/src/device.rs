@@ -3,6 +3,7 @@
 //! ([`Prepared`]: BVH build and upload) and making a request's film on that ([`Passes`])
 //! is all the rest of the engine asks of a device.
 
+use crate::bvh::ploc::cwbvh_depth;
 use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::{Error, Result};
@@ -177,6 +178,9 @@ pub struct Setup {
     pub bvh_convert_seconds: f64,
     /// Nodes of the BVH as traversed.
     pub bvh_nodes: usize,
+    /// Levels of the BVH as traversed: its deepest inner node's, the root 1 (with
+    /// instances, the top level's and the deepest mesh's added).
+    pub bvh_depth: u32,
     /// Primitives the BVH leaves out as copies of others (a triangle or sphere with the
     /// same bits and albedo, 16 times or more): rays meet them as they meet the first.
     pub bvh_duplicates: usize,
@@ -243,6 +247,7 @@ impl Prepared {
                         bvh_build_seconds,
                         bvh_convert_seconds,
                         bvh_nodes: bvh.node_count as usize,
+                        bvh_depth: bvh.depth,
                         bvh_duplicates: bvh.duplicates,
                         upload_seconds: upload.elapsed().as_secs_f64(),
                         bvh_bytes: gpu_scene.bvh_bytes,
@@ -259,6 +264,8 @@ impl Prepared {
                     let cwbvh = if last { cwbvh.take() } else { cwbvh.clone() }.expect("built for the CPU");
                     let bvh_nodes = cwbvh.top.iter().chain(&cwbvh.meshes).map(|b| b.nodes.len()).sum();
                     let bvh_duplicates = cwbvh.duplicates;
+                    let bvh_depth = cwbvh.top.as_ref().map_or(0, cwbvh_depth)
+                        + cwbvh.meshes.iter().map(cwbvh_depth).max().unwrap_or(0);
                     let upload = Instant::now();
                     let tracer = CpuTracer::new(scene, cwbvh);
                     let setup = Setup {
@@ -267,6 +274,7 @@ impl Prepared {
                         bvh_build_seconds: cwbvh_seconds,
                         bvh_convert_seconds: 0.0,
                         bvh_nodes,
+                        bvh_depth,
                         bvh_duplicates,
                         upload_seconds: upload.elapsed().as_secs_f64(),
                         bvh_bytes: tracer.bytes(),

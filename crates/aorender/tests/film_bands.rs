@@ -68,12 +68,12 @@ fn an_image_in_bands_renders_the_unsplit_film() {
     let (whole, banded) = sessions(&scene);
     let cpu = Session::new(&Device::cpu(), scene.clone(), &Default::default()).unwrap();
     for (sampler, replicate) in [(Sampler::Independent, None), (Sampler::Sobol, Some(8))] {
-        let what = format!("{}", sampler.name());
+        let what = sampler.name();
         let mut request = whole.default_request();
         (request.settings.sampler, request.settings.replicate) = (sampler, replicate);
         let a = render(&whole, &request, &mut Control::default()).film().unwrap();
         let b = render(&banded, &request, &mut Control::default()).film().unwrap();
-        assert_same_film(&a, &b, &what);
+        assert_same_film(&a, &b, what);
         // As the unsplit film, the CPU reference's within float rounding.
         let c = render(&cpu, &request, &mut Control::default()).film().unwrap();
         let worst = b.mean().iter().zip(c.mean()).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);

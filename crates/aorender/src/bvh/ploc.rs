@@ -256,15 +256,17 @@ fn split_into(leaves: &[Bvh2Node], params: &BvhBuildParams, slot: usize, nodes: 
 fn attach(part: &[Bvh2Node], slot: usize, nodes: &mut Vec<Bvh2Node>) {
     // Node j > 0 of the part goes to base + j.
     let base = nodes.len() as u32 - 1;
-    let moved = |n: &Bvh2Node| {
-        let mut n = *n;
-        if n.prim_count == 0 {
-            n.first_index += base;
-        }
-        n
-    };
-    nodes[slot] = moved(&part[0]);
-    nodes.extend(part[1..].iter().map(moved));
+    nodes[slot] = moved(&part[0], base);
+    nodes.extend(part[1..].iter().map(|n| moved(n, base)));
+}
+
+/// `n` with its children `base` further on (a leaf, whose index is its primitive's, as it is).
+fn moved(n: &Bvh2Node, base: u32) -> Bvh2Node {
+    let mut n = *n;
+    if n.prim_count == 0 {
+        n.first_index += base;
+    }
+    n
 }
 
 /// Levels of the tree of `nodes` (root first): 1 for a single leaf, 0 for none.
