@@ -59,14 +59,14 @@ impl GpuScene {
         let stack = ctx.stack_entries(bvh.layout);
         if bvh.depth > stack {
             let other = match bvh.layout {
-                BvhLayout::Bvh2 => " or in the cwbvh layout (`--bvh-layout cwbvh`)",
+                BvhLayout::Bvh2 => ", and so does the cwbvh layout (`--bvh-layout cwbvh`)",
                 BvhLayout::Cwbvh => "",
             };
             return Err(Error::scene(
                 scene.source(),
                 format!(
                     "its {} BVH is {} levels deep, past the {stack} the GPU kernel's traversal stack holds; \
-                     the CPU reference (`--device cpu`){other} renders it",
+                     the CPU reference (`--device cpu`) renders it{other}",
                     bvh.layout.name(),
                     bvh.depth,
                 ),
