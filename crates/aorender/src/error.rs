@@ -87,10 +87,14 @@ pub enum Error {
     },
     /// A shader invocation hit its traversal budget; its result would have been wrong.
     #[error(
-        "{count} rays exceeded the per-invocation traversal budget of {budget} steps \
-         (lavapipe silently stops a shader after 65,535 loop iterations); the pass was discarded"
+        "{}: {count} rays exceeded the per-invocation traversal budget of {budget} steps \
+         (lavapipe silently stops a shader after 65,535 loop iterations); the pass was discarded; \
+         the CPU reference (`--device cpu`) has no such limit",
+        path.display()
     )]
     TraversalBudget {
+        /// The scene's file (or its name).
+        path: PathBuf,
         /// Rays that ran out of budget in the failed pass.
         count: u64,
         /// The budget in loop iterations.

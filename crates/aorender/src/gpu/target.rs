@@ -74,6 +74,8 @@ pub struct GpuTarget {
     lose_device_after: Option<u32>,
     /// Pixels an adaptive render no longer samples (empty: none).
     pub(crate) inactive: Vec<bool>,
+    /// The scene's file, for messages.
+    source: std::path::PathBuf,
 }
 
 impl GpuTarget {
@@ -319,6 +321,7 @@ impl GpuTarget {
             passes_run: 0,
             lose_device_after,
             inactive: Vec::new(),
+            source: scene.source.clone(),
         })
     }
 
@@ -359,7 +362,7 @@ impl GpuTarget {
             return Ok(counters);
         }
         let budget = self.dispatch_budget(self.samples_per_invocation.min(count));
-        Err(Error::TraversalBudget { count: truncated, budget })
+        Err(Error::TraversalBudget { path: self.source.clone(), count: truncated, budget })
     }
 
     /// The traversal budget of a dispatch of `samples` samples per invocation.

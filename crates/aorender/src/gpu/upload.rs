@@ -42,6 +42,8 @@ pub struct GpuScene {
     pub has_planes: bool,
     /// Bytes of the BVH as uploaded: its nodes and primitive records.
     pub bvh_bytes: u64,
+    /// What messages about the scene name: its file, or its name.
+    pub source: std::path::PathBuf,
 }
 
 impl GpuScene {
@@ -131,6 +133,7 @@ impl GpuScene {
             has_triangles: !scene.triangles.is_empty() || !scene.instances.is_empty(),
             has_planes: !scene.planes.is_empty(),
             bvh_bytes: bvh.bytes(),
+            source: scene.source(),
         })
     }
 
