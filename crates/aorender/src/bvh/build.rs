@@ -215,10 +215,30 @@ fn triangle_key(v: &[Vec3; 3], albedo: f32) -> Key {
 /// and a stack of copies costs a ray one intersection instead of one each, which
 /// lavapipe's loop cap (65,535 iterations) could not afford past about 30,000.
 pub fn distinct(count: usize, key: &(dyn Fn(usize) -> Option<Key> + Sync)) -> Option<Vec<u32>> {
-    // A 32-bit hash of each key above its id, sorted: copies are in runs of equal
-    // hashes, each run in id order. 8 bytes a primitive while it runs.
-    let mut keys: Vec<u64> =
-        (0..count).into_par_iter().filter_map(|id| key(id).map(|k| (key_hash(&k) as u64) << 32 | id as u64)).collect();
+    // Each key's 32-bit hash (none: never a copy), and how many keys fall in each of
+    // about `count` buckets of them (saturating). Copies share a bucket, so without a
+    // bucket of MIN_COPIES there are none; an ordinary mesh's fullest bucket holds a few.
+    let hashes: Vec<Option<u32>> = (0..count).into_par_iter().map(|id| key(id).map(|k| key_hash(&k))).collect();
+    let buckets = count.next_power_of_two().max(1024);
+    let bucket = |h: u32| (h as usize) & (buckets - 1);
+    let mut fill = vec![0u8; buckets];
+    for h in hashes.iter().flatten() {
+        let c = &mut fill[bucket(*h)];
+        *c = c.saturating_add(1);
+    }
+    if !fill.iter().any(|&c| c as usize >= MIN_COPIES) {
+        return None;
+    }
+    // The keys of the full buckets: a hash above its id, sorted, so that copies are in
+    // runs of equal hashes, each run in id order.
+    let mut keys: Vec<u64> = hashes
+        .iter()
+        .enumerate()
+        .filter_map(|(id, h)| {
+            h.filter(|&h| fill[bucket(h)] as usize >= MIN_COPIES).map(|h| (h as u64) << 32 | id as u64)
+        })
+        .collect();
+    drop((hashes, fill));
     keys.par_sort_unstable();
     let mut dropped = vec![false; count];
     let mut any = false;

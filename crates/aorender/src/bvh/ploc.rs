@@ -116,14 +116,18 @@ pub fn build_ploc(leaves: Vec<Bvh2Node>, params: &BvhBuildParams) -> Option<Vec<
         let cost = |a: usize, b: usize| current[a].aabb().union(current[b].aabb()).half_area();
         if distance == 1 || passes < params.search_depth_threshold {
             // Each node against the next only: towards the cheaper of its two pairs.
-            let pick = |(i, m): (usize, &mut i8)| {
-                let last = if i == 0 { f32::INFINITY } else { cost(i - 1, i) };
-                *m = if last < cost(i, i + 1) { -1 } else { 1 };
-            };
             if count < PARALLEL_FROM {
-                merge[..count - 1].iter_mut().enumerate().for_each(pick);
+                let mut last = f32::INFINITY;
+                for (i, m) in merge[..count - 1].iter_mut().enumerate() {
+                    let next = cost(i, i + 1);
+                    *m = if last < next { -1 } else { 1 };
+                    last = next;
+                }
             } else {
-                merge[..count - 1].par_iter_mut().enumerate().for_each(pick);
+                merge[..count - 1].par_iter_mut().enumerate().for_each(|(i, m)| {
+                    let last = if i == 0 { f32::INFINITY } else { cost(i - 1, i) };
+                    *m = if last < cost(i, i + 1) { -1 } else { 1 };
+                });
             }
             merge[count - 1] = -1;
         } else {
