@@ -3,20 +3,21 @@
 //! KeyboardInterrupt stops after the current pass.
 
 use aorender::{Control, Device, DeviceKind, Hemisphere, Progress, Sampler, Settings};
-use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyMemoryError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 /// The engine's error as a Python exception with its one-line message: bad settings and
-/// points are ValueError, unreadable or unwritable files OSError, the device's failures
-/// RuntimeError.
+/// points are ValueError, unreadable or unwritable files OSError, a film past the memory
+/// budget MemoryError, the device's failures RuntimeError.
 pub fn to_py(e: aorender::Error) -> PyErr {
     use aorender::Error as E;
     let message = e.to_string();
     match e {
         E::Settings { .. } | E::Probe { .. } => PyValueError::new_err(message),
         E::Scene { .. } | E::Output { .. } => PyOSError::new_err(message),
+        E::FilmBudget { .. } => PyMemoryError::new_err(message),
         _ => PyRuntimeError::new_err(message),
     }
 }

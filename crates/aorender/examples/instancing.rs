@@ -374,7 +374,7 @@ fn main() -> Result<()> {
     }
     let (flat, two) = built.context("no build")?;
     let flat = Flat { blas: Blas::new(flat.context("no triangles")?, &scene.triangles), planes: scene.planes.clone() };
-    let flat_bvh = SceneCwbvh { top: Some(flat.blas.bvh.clone()), meshes: Vec::new() };
+    let flat_bvh = SceneCwbvh { top: Some(flat.blas.bvh.clone()), meshes: Vec::new(), duplicates: 0 };
     let renderer = Renderer(CpuTracer::new(&scene, flat_bvh), &flat.blas.bvh.primitive_indices);
     let tracers: [&dyn Tracer; 3] = [&flat, &two, &renderer];
 

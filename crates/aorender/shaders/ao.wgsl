@@ -188,9 +188,10 @@ fn tile_pixel(tile: vec2u, lid: u32) -> vec2u {
 fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_index) lid: u32) {
     load_constants();
     begin_traversal(lid);
-    let pixel = tile_pixel(tile.xy, lid);
+    // The target's film holds the rows of its band, from frame.first_row.
+    let pixel = tile_pixel(tile.xy, lid) + vec2u(0u, frame.first_row);
     let inside = pixel.x < frame.width && pixel.y < frame.height;
-    let i = select(0u, pixel.y * frame.width + pixel.x, inside);
+    let i = select(0u, (pixel.y - frame.first_row) * frame.width + pixel.x, inside);
     var acc = film[i];
     // A pixel an adaptive render no longer samples is marked in its slot's last word.
     let live = inside && bitcast<u32>(acc.w) != INACTIVE_SLOT;

@@ -3,6 +3,7 @@
 //! ([`Prepared`]: BVH build and upload) and making a request's film on that ([`Passes`])
 //! is all the rest of the engine asks of a device.
 
+use crate::bvh::ploc::cwbvh_depth;
 use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::{Error, Result};
@@ -10,6 +11,7 @@ use crate::film::{BlockSums, Film, INACTIVE_SLOT_BITS};
 use crate::gpu::{
     AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal,
 };
+use crate::host_memory;
 use crate::probe::Probe;
 use crate::scene::{Camera, Scene, Settings};
 use std::sync::Arc;
@@ -102,6 +104,40 @@ impl Device {
         }
     }
 
+    /// Host bytes a film of `slots` slots (pixels, or probe lanes) takes at a render's
+    /// peak on this device, with samples in replicates or not ([`host_memory::film_bytes`]).
+    pub fn film_bytes(&self, slots: u64, replicated: bool) -> u64 {
+        // A GPU on a CPU adapter (lavapipe) keeps its device memory on the host.
+        let cpu_adapter = self.kind() == DeviceKind::Gpu && self.info().device_type == "Cpu";
+        host_memory::film_bytes(slots, replicated, cpu_adapter)
+    }
+
+    /// Checks an image of `settings` of `scene` against the film budget before anything
+    /// is built or made: [`Error::FilmBudget`] naming the scene's file, the bytes needed
+    /// and the budget ([`host_memory::film_budget`]).
+    pub fn check_image_budget(&self, scene: &Scene, settings: &Settings) -> Result<()> {
+        let what = format!("a {}x{} image", settings.width, settings.height);
+        let slots = settings.width as u64 * settings.height as u64;
+        self.check_film_budget(&scene.source(), what, slots, settings.replicate_samples() >= 2, None)
+    }
+
+    /// Fails with [`Error::FilmBudget`] naming `scene` when a film of `slots` slots
+    /// (`what`, in words) is past `budget` bytes (`None`: [`host_memory::film_budget`]).
+    pub(crate) fn check_film_budget(
+        &self,
+        scene: &std::path::Path,
+        what: String,
+        slots: u64,
+        replicated: bool,
+        budget: Option<u64>,
+    ) -> Result<()> {
+        let budget = match budget {
+            Some(bytes) => host_memory::FilmBudget { bytes, basis: "set for the session".into() },
+            None => host_memory::film_budget()?,
+        };
+        host_memory::check_film(scene, what, self.film_bytes(slots, replicated), &budget)
+    }
+
     /// The GPU adapter, if this is one.
     #[cfg(feature = "testing")]
     pub fn as_gpu(&self) -> Option<&Arc<GpuDevice>> {
@@ -142,6 +178,12 @@ pub struct Setup {
     pub bvh_convert_seconds: f64,
     /// Nodes of the BVH as traversed.
     pub bvh_nodes: usize,
+    /// Levels of the BVH as traversed: its deepest inner node's, the root 1 (with
+    /// instances, the top level's and the deepest mesh's added).
+    pub bvh_depth: u32,
+    /// Primitives the BVH leaves out as copies of others (a triangle or sphere with the
+    /// same bits and albedo, 16 times or more): rays meet them as they meet the first.
+    pub bvh_duplicates: usize,
     /// Seconds to upload the geometry (GPU) or to lay out the tracer's records (CPU).
     pub upload_seconds: f64,
     /// Bytes of the BVH as traversed: nodes and primitive records, as uploaded (GPU) or
@@ -205,6 +247,8 @@ impl Prepared {
                         bvh_build_seconds,
                         bvh_convert_seconds,
                         bvh_nodes: bvh.node_count as usize,
+                        bvh_depth: bvh.depth,
+                        bvh_duplicates: bvh.duplicates,
                         upload_seconds: upload.elapsed().as_secs_f64(),
                         bvh_bytes: gpu_scene.bvh_bytes,
                         device_bytes: gpu_scene.device_bytes(),
@@ -219,6 +263,9 @@ impl Prepared {
                     let last = !devices[i + 1..].iter().any(uses_cwbvh);
                     let cwbvh = if last { cwbvh.take() } else { cwbvh.clone() }.expect("built for the CPU");
                     let bvh_nodes = cwbvh.top.iter().chain(&cwbvh.meshes).map(|b| b.nodes.len()).sum();
+                    let bvh_duplicates = cwbvh.duplicates;
+                    let bvh_depth = cwbvh.top.as_ref().map_or(0, cwbvh_depth)
+                        + cwbvh.meshes.iter().map(cwbvh_depth).max().unwrap_or(0);
                     let upload = Instant::now();
                     let tracer = CpuTracer::new(scene, cwbvh);
                     let setup = Setup {
@@ -227,6 +274,8 @@ impl Prepared {
                         bvh_build_seconds: cwbvh_seconds,
                         bvh_convert_seconds: 0.0,
                         bvh_nodes,
+                        bvh_depth,
+                        bvh_duplicates,
                         upload_seconds: upload.elapsed().as_secs_f64(),
                         bvh_bytes: tracer.bytes(),
                         device_bytes: 0,
@@ -246,7 +295,22 @@ impl Prepared {
         match self {
             Prepared::Gpu { dev, scene } => {
                 let frame = FrameUniforms::image(camera, settings, scene.node_count, scene.plane_count);
-                Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?))
+                let rows = crate::gpu::target::image_rows_per_target(dev, settings.width);
+                if rows >= settings.height {
+                    return Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?));
+                }
+                // Bands of rows, each a target with a film of one binding at most, read
+                // through one shared buffer: driven as one film, in row order.
+                let mut targets: Vec<(GpuTarget, usize)> = Vec::new();
+                for first_row in (0..settings.height).step_by(rows as usize) {
+                    let band = rows.min(settings.height - first_row);
+                    let readback = targets.first().map(|(t, _)| t.readback());
+                    let frame = FrameUniforms { first_row, ..frame };
+                    let (sampler, hemisphere) = (settings.sampler, settings.hemisphere);
+                    let target = GpuTarget::image_band(dev, scene, frame, band, sampler, hemisphere, readback)?;
+                    targets.push((target, band as usize * settings.width as usize));
+                }
+                Ok(Box::new(GpuChunks { targets }))
             }
             Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
                 inactive: Vec::new(),
@@ -396,10 +460,11 @@ impl Passes for GpuTarget {
     }
 }
 
-/// Probe points past one target's storage bindings (lavapipe binds 128 MiB: 2,796,202
-/// points) over several targets, each a contiguous range of the points numbering its
-/// sample sequences from its first point's index, driven as one film: slot order and
-/// sums are those of a single target.
+/// A film past one target's storage bindings (lavapipe binds 128 MiB: an image of
+/// 8,388,608 pixels, 2,796,202 probe points) over several targets, driven as one film:
+/// slot order and sums are those of a single target. An image's targets are bands of
+/// rows, a probe request's contiguous ranges of the points, each numbering its sample
+/// sequences from its first point's index.
 struct GpuChunks {
     /// Each target, and its film's slots.
     targets: Vec<(GpuTarget, usize)>,
@@ -420,7 +485,8 @@ impl GpuChunks {
     }
 
     fn join(blocks: Vec<BlockSums>) -> Result<BlockSums> {
-        let mut out = Vec::new();
+        let slots = blocks.iter().map(|b| if let BlockSums::Gpu(w) = b { w.len() } else { 0 }).sum();
+        let mut out = Vec::with_capacity(slots);
         for block in blocks {
             match block {
                 BlockSums::Gpu(words) => out.extend(words),

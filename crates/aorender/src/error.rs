@@ -70,12 +70,31 @@ pub enum Error {
         /// The wgpu limit's name.
         limit_name: &'static str,
     },
+    /// A request whose film would take more host memory than the film budget
+    /// (`host_memory::film_budget`): refused before any of it is made.
+    #[error("{}: {what} needs {needed} bytes of host memory, past the film budget of {budget} bytes ({basis})", path.display())]
+    FilmBudget {
+        /// The scene's file (or its name).
+        path: PathBuf,
+        /// The film, in words ("a 16384x16384 image").
+        what: String,
+        /// Bytes it needs at its peak.
+        needed: u64,
+        /// Bytes the budget allows.
+        budget: u64,
+        /// How the budget was set.
+        basis: String,
+    },
     /// A shader invocation hit its traversal budget; its result would have been wrong.
     #[error(
-        "{count} rays exceeded the per-invocation traversal budget of {budget} steps \
-         (lavapipe silently stops a shader after 65,535 loop iterations); the pass was discarded"
+        "{}: {count} rays exceeded the per-invocation traversal budget of {budget} steps \
+         (lavapipe silently stops a shader after 65,535 loop iterations); the pass was discarded; \
+         the CPU reference (`--device cpu`) has no such limit",
+        path.display()
     )]
     TraversalBudget {
+        /// The scene's file (or its name).
+        path: PathBuf,
         /// Rays that ran out of budget in the failed pass.
         count: u64,
         /// The budget in loop iterations.

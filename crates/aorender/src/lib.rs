@@ -110,6 +110,7 @@ mod surface;
 pub mod bake;
 pub mod closed_form;
 pub mod error;
+pub mod host_memory;
 pub mod output;
 pub mod scene;
 

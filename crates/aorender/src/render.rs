@@ -154,6 +154,13 @@ pub struct RenderStats {
     pub spheres: usize,
     /// Planes in the scene.
     pub planes: usize,
+    /// Levels of the BVH as traversed (its deepest inner node's, the root 1; with
+    /// instances, the top level's and the deepest mesh's added).
+    pub bvh_depth: u32,
+    /// Triangles and spheres the BVH leaves out as copies of others (the same vertices,
+    /// or centre and radius, and albedo, to the bit, 16 times or more): every ray meets
+    /// them as it meets the first, so the image is the same.
+    pub duplicates_dropped: usize,
     /// Adapter name ("cpu" for the reference).
     pub adapter: String,
     /// wgpu backend, or "cpu".
@@ -557,6 +564,8 @@ impl Render {
             instances: info.instances,
             spheres: info.spheres,
             planes: info.planes,
+            bvh_depth: setup.bvh_depth,
+            duplicates_dropped: setup.bvh_duplicates,
             adapter: setup.adapter.name.clone(),
             backend: setup.adapter.backend.clone(),
             device_type: setup.adapter.device_type.clone(),

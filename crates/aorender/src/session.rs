@@ -65,6 +65,8 @@ pub struct Session {
     geometry_hash: OnceLock<[u8; 32]>,
     /// The surfaces' search structure, made by the first [`Session::locate`].
     surfaces: OnceLock<SurfaceIndex>,
+    /// The film budget in bytes, when set for the session; else `host_memory::film_budget`.
+    film_budget: Mutex<Option<u64>>,
 }
 
 impl Session {
@@ -94,6 +96,7 @@ impl Session {
                 camera_hash: Mutex::new(None),
                 geometry_hash: OnceLock::new(),
                 surfaces: OnceLock::new(),
+                film_budget: Mutex::new(None),
             })
             .collect())
     }
@@ -139,6 +142,28 @@ impl Session {
         checked(probes)?;
         let index = self.surfaces.get_or_init(|| SurfaceIndex::new(&self.scene));
         Ok(index.locate(&self.scene, probes, tolerance))
+    }
+
+    /// Sets the most host memory, in bytes, a request's film may take (`None`: the
+    /// default, `host_memory::film_budget`: three quarters of the memory available, or
+    /// what `AORENDER_FILM_BUDGET` says). A request past it is refused with
+    /// [`Error::FilmBudget`] before anything is made.
+    pub fn set_film_budget(&self, bytes: Option<u64>) {
+        *self.film_budget.lock().unwrap_or_else(|e| e.into_inner()) = bytes;
+    }
+
+    /// Host bytes the film of an image of `settings` takes at its peak on this session's
+    /// device ([`Device::film_bytes`]).
+    pub fn image_film_bytes(&self, settings: &Settings) -> u64 {
+        let slots = settings.width as u64 * settings.height as u64;
+        self.device.film_bytes(slots, settings.replicate_samples() >= 2)
+    }
+
+    /// Fails with [`Error::FilmBudget`] when a film of `slots` slots (`what`, in words)
+    /// is past the session's film budget.
+    fn check_film_budget(&self, what: String, slots: u64, replicated: bool) -> Result<()> {
+        let set = *self.film_budget.lock().unwrap_or_else(|e| e.into_inner());
+        self.device.check_film_budget(&self.scene.source(), what, slots, replicated, set)
     }
 
     /// The device.
@@ -200,6 +225,8 @@ impl Session {
         }
         let camera = self.frame.camera(&request.camera);
         camera.validate()?;
+        let what = format!("a {}x{} image", s.width, s.height);
+        self.check_film_budget(what, s.width as u64 * s.height as u64, s.replicate_samples() >= 2)?;
         let start = Instant::now();
         let passes = self.prepared.image(&camera, s)?;
         let target_seconds = start.elapsed().as_secs_f64();
@@ -247,8 +274,10 @@ impl Session {
             return Err(Error::settings("no points to estimate AO at"));
         }
         let probes = checked(probes)?;
-        let start = Instant::now();
         let slots = if bent_normals { 4 } else { 1 };
+        let what = format!("the film of {} probe points", probes.len());
+        self.check_film_budget(what, probes.len() as u64 * slots as u64, settings.replicate_samples() >= 2)?;
+        let start = Instant::now();
         let passes = self.prepared.probes(&self.local_probes(&probes), slots, spp, settings, bent_normals)?;
         let target_seconds = start.elapsed().as_secs_f64();
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
@@ -297,6 +326,8 @@ impl Session {
             return Ok(ProbeOutput { values: Vec::new(), rays: 0, seconds: 0.0, adapter });
         }
         let lanes = lanes_for(probes.len(), samples);
+        let what = format!("the film of {} probe points", probes.len());
+        self.check_film_budget(what, probes.len() as u64 * lanes as u64, settings.replicate_samples() >= 2)?;
         let rounds = samples.div_ceil(lanes);
         let passes = self.prepared.probes(&self.local_probes(probes), lanes, samples, settings, false)?;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));

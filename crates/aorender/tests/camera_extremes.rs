@@ -15,6 +15,7 @@ use glam::{DVec3, Vec3};
 fn scene(camera: Camera, planes: Vec<Plane>, spheres: Vec<Sphere>, width: u32, spp: u32) -> Scene {
     Scene {
         name: "extreme".into(),
+        path: None,
         camera,
         settings: Settings { width, height: width, spp, ..Default::default() },
         triangles: Vec::new(),

@@ -76,7 +76,13 @@ fn a_traversal_over_budget_is_reported_not_truncated() {
         let rendered = Session::new(&device(options.device), scene.clone(), &options.bvh)
             .and_then(|session| session.render(&session.default_request())?.complete(&mut Control::default()));
         match rendered {
-            Err(Error::TraversalBudget { count, .. }) => assert!(count > 0),
+            Err(e @ Error::TraversalBudget { count, .. }) => {
+                assert!(count > 0);
+                // One line that names the scene's file and the way out.
+                let line = e.to_string();
+                assert!(line.starts_with(&format!("{}: ", dir.path().join("test.toml").display())), "{line}");
+                assert!(line.ends_with("the CPU reference (`--device cpu`) has no such limit"), "{line}");
+            }
             Err(e) => panic!("{}: expected a traversal-budget error, got: {e}", label(&options)),
             Ok(out) => {
                 panic!("{}: 80,000 slivers rendered without an error (mean {})", label(&options), out.film.image_mean())

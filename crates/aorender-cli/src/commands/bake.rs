@@ -162,6 +162,7 @@ struct BakeStats {
     rays_per_second: f64,
     load_seconds: f64,
     bvh_build_seconds: f64,
+    duplicates_dropped: usize,
     setup_seconds: f64,
     adapter: String,
     hemisphere: &'static str,
@@ -347,6 +348,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         rays_per_second: 0.0,
         load_seconds,
         bvh_build_seconds: 0.0,
+        duplicates_dropped: 0,
         setup_seconds: 0.0,
         adapter: String::new(),
         hemisphere: settings.hemisphere.name(),
@@ -632,6 +634,7 @@ fn trace(
     stats.render_seconds = acc.render_seconds;
     stats.rays_per_second = acc.ao_rays as f64 / acc.render_seconds.max(1e-9);
     stats.bvh_build_seconds = out.stats.bvh_build_seconds;
+    stats.duplicates_dropped = out.stats.duplicates_dropped;
     stats.setup_seconds = out.stats.setup_seconds;
     stats.adapter = out.stats.adapter.clone();
     Ok(acc)

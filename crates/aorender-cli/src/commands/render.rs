@@ -152,6 +152,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     };
     let rendered = (|| {
         let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
+        // The film's memory is known before the BVH is built: a film past the budget is
+        // refused before that work.
+        device.check_image_budget(&scene, &scene.settings)?;
         let session = Session::new(&device, scene, &bvh)?;
         let request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
         let mut render = session.render(&request)?;
@@ -194,8 +197,13 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if let Some(path) = &args.run.stats {
         write_json(path, &json)?;
     }
+    // Copies the BVH left out cost nothing and change nothing, but the user may want to know.
+    let copies = match st.duplicates_dropped {
+        0 => String::new(),
+        n => format!("; {n} copies of triangles or spheres left out of the BVH"),
+    };
     eprintln!(
-        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s, load {:.2} s, BVH {:.2} s) on {} ({}); mean {:.4}",
+        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s, load {:.2} s, BVH {:.2} s) on {} ({}); mean {:.4}{copies}",
         args.output.display(),
         st.width,
         st.height,

@@ -12,6 +12,7 @@
 //! being built, with no more cells at once than threads, nor than one per 16 cells' worth of
 //! primitives.
 
+use super::ploc::cwbvh_over;
 use super::quality::BuildQuality;
 use glam::{UVec3, Vec3A};
 use obvhs::aabb::Aabb;
@@ -80,10 +81,11 @@ pub fn build_cwbvh_in_cells(
     Some(out)
 }
 
-/// obvhs's CWBVH over primitives `ids`, its primitive indices mapped back to those ids.
+/// obvhs's CWBVH over primitives `ids` ([`cwbvh_over`]: O(log n) deep whatever the
+/// boxes), its primitive indices mapped back to those ids.
 fn build_cell(ids: &[u32], aabb: &(dyn Fn(usize) -> Aabb + Sync), quality: BuildQuality) -> CwBvh {
     let boxes: Vec<Aabb> = ids.iter().map(|&i| aabb(i as usize)).collect();
-    let mut bvh = obvhs::cwbvh::builder::build_cwbvh(&boxes, quality.params(), &mut Default::default());
+    let mut bvh = cwbvh_over(&boxes, &quality.params());
     for p in &mut bvh.primitive_indices {
         *p = ids[*p as usize];
     }

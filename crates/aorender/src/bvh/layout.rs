@@ -2,13 +2,14 @@
 //! children's boxes, and the primitive records in leaf order that both read.
 
 use super::build::{SceneCwbvh, build_bvh2, build_cwbvh};
+use super::ploc::cwbvh_depth;
 use super::quality::BuildQuality;
 use crate::geometry::AffineRows;
 use crate::mirror::gpu_struct;
 use crate::scene::Scene;
 use glam::Vec3;
 use obvhs::bvh2::Bvh2;
-use obvhs::cwbvh::{CwBvh, node::CwBvhNode};
+use obvhs::cwbvh::node::CwBvhNode;
 
 /// Marks an absent child (only when the root itself is a leaf).
 pub const INVALID_INDEX: u32 = u32::MAX;
@@ -173,21 +174,6 @@ fn rows_record(rows: &AffineRows) -> GpuPrimitive {
     GpuPrimitive { a: rows.0[0], b: rows.0[1], c: rows.0[2] }
 }
 
-/// Depth of the deepest inner node of a CWBVH (root = 1).
-fn cwbvh_depth(bvh: &CwBvh) -> u32 {
-    // Inner children of a node are stored contiguously from child_base_idx.
-    let mut depth = 0;
-    let mut stack = vec![(0usize, 1u32)];
-    while let Some((i, d)) = stack.pop() {
-        depth = depth.max(d);
-        let n = &bvh.nodes[i];
-        for k in 0..n.imask.count_ones() as usize {
-            stack.push((n.child_base_idx as usize + k, d + 1));
-        }
-    }
-    depth
-}
-
 /// The GPU form of a scene's BVH.
 #[derive(Clone, Debug, Default)]
 pub struct GpuBvh {
@@ -202,6 +188,8 @@ pub struct GpuBvh {
     pub records: GpuRecords,
     /// Depth of the deepest inner node (root = 1): a bound on the traversal stack.
     pub depth: u32,
+    /// Primitives left out as copies of others (`build::distinct`).
+    pub duplicates: usize,
 }
 
 /// The primitive records of a [`GpuBvh`], in the order the device holds them.
@@ -324,10 +312,14 @@ impl GpuBvh {
     /// Builds the BVH of `scene` in `layout`.
     pub fn build(scene: &Scene, layout: BvhLayout, quality: BuildQuality) -> GpuBvh {
         match layout {
-            BvhLayout::Bvh2 if scene.instances.is_empty() => GpuBvh::from_bvh2(scene, &build_bvh2(scene, quality)),
+            BvhLayout::Bvh2 if scene.instances.is_empty() => {
+                let (bvh, duplicates) = build_bvh2(scene, quality);
+                GpuBvh { duplicates, ..GpuBvh::from_bvh2(scene, &bvh) }
+            }
             BvhLayout::Bvh2 => {
                 let flat = scene.flattened();
-                GpuBvh::from_bvh2(&flat, &build_bvh2(&flat, quality))
+                let (bvh, duplicates) = build_bvh2(&flat, quality);
+                GpuBvh { duplicates, ..GpuBvh::from_bvh2(&flat, &bvh) }
             }
             BvhLayout::Cwbvh => GpuBvh::from_cwbvh(scene, &build_cwbvh(scene, quality)),
         }
@@ -371,7 +363,14 @@ impl GpuBvh {
         };
         // A ray inside an instance stacks its mesh's nodes on top of the top level's.
         let depth = cwbvh_depth(top) + bvh.meshes.iter().map(cwbvh_depth).max().unwrap_or(0);
-        GpuBvh { layout: BvhLayout::Cwbvh, node_count: node_count as u32, node_bytes, records, depth }
+        GpuBvh {
+            layout: BvhLayout::Cwbvh,
+            node_count: node_count as u32,
+            node_bytes,
+            records,
+            depth,
+            duplicates: bvh.duplicates,
+        }
     }
 
     /// Converts obvhs's BVH2 to the two-boxes-per-node layout.
@@ -433,6 +432,7 @@ impl GpuBvh {
             node_count: nodes.len() as u32,
             records,
             depth,
+            duplicates: 0,
         }
     }
 }

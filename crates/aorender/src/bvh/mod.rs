@@ -14,6 +14,7 @@
 pub mod build;
 pub mod chunked;
 pub mod layout;
+pub mod ploc;
 pub mod quality;
 
 pub use build::{SceneCwbvh, build_cwbvh};

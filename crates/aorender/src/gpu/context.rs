@@ -5,8 +5,14 @@
 use super::fault::{Fault, Faults, catch_panic};
 use super::layout::GROUP_LANES;
 use super::shaders::{GeometryStorage, Traversal};
+use crate::bvh::BvhLayout;
 use crate::error::{Error, Result};
 use std::sync::Arc;
+
+/// Test hook: with this environment variable set to N, the kernel's traversal stack is
+/// taken to hold N entries, so that a small scene's BVH is refused as too deep.
+#[cfg(feature = "testing")]
+pub const TEST_STACK_ENTRIES_ENV: &str = "AORENDER_TEST_STACK_ENTRIES";
 
 /// An adapter's name, backend, type and driver (the CPU reference has one too).
 #[derive(Clone, Debug, serde::Serialize)]
@@ -59,12 +65,16 @@ pub struct GpuContext {
     faults: Arc<Faults>,
     /// Largest chunk of nodes or primitives in one binding, in bytes.
     max_chunk_bytes: u64,
+    /// Largest film of one target, in bytes: one binding, or less for tests.
+    max_film_bytes: u64,
     /// Largest width and height of a geometry texture (the adapter's limit, or less for tests).
     max_texture_size: [u32; 2],
     /// The kernel's `CPU_LANES`: the adapter is a CPU (or a test asks for its formulations).
     cpu_lanes: bool,
     /// The traversal a scene gets where none is asked for and it can run cooperatively.
     preferred_traversal: Traversal,
+    /// Fewer traversal stack entries than the kernel has, for tests of a BVH too deep.
+    stack_limit: Option<u32>,
 }
 
 impl GpuContext {
@@ -138,12 +148,30 @@ impl GpuContext {
             description,
             faults,
             max_chunk_bytes,
+            max_film_bytes: max_chunk_bytes,
             max_texture_size,
             cpu_lanes,
             // Per lane on every adapter: it measured faster on lavapipe (docs/performance.md,
             // "Eight lanes per ray"), and no GPU has measured the cooperative one yet.
             preferred_traversal: Traversal::PerLane,
+            #[cfg(feature = "testing")]
+            stack_limit: std::env::var(TEST_STACK_ENTRIES_ENV).ok().and_then(|v| v.trim().parse().ok()),
+            #[cfg(not(feature = "testing"))]
+            stack_limit: None,
         })
+    }
+
+    /// The deepest BVH in `layout` the kernel traverses: its stack's entries.
+    pub(crate) fn stack_entries(&self, layout: BvhLayout) -> u32 {
+        self.stack_limit.map_or(layout.stack_size(), |n| n.min(layout.stack_size()))
+    }
+
+    /// Takes the kernel's traversal stack as holding at most `entries` entries, so that
+    /// a small scene is refused as one too deep for the stack is (for testing the
+    /// refusal).
+    #[cfg(feature = "testing")]
+    pub fn limit_stack_entries(&mut self, entries: u32) {
+        self.stack_limit = Some(entries);
     }
 
     /// Where the kernel should read the BVH nodes and primitives from on this adapter:
@@ -182,6 +210,19 @@ impl GpuContext {
     /// Largest bytes of nodes or primitives in one binding.
     pub(crate) fn max_chunk_bytes(&self) -> u64 {
         self.max_chunk_bytes
+    }
+
+    /// Largest film of one target, in bytes.
+    pub(crate) fn max_film_bytes(&self) -> u64 {
+        self.max_film_bytes
+    }
+
+    /// Caps the bytes of one target's film below a binding, so that small images are
+    /// rendered in bands of rows as large ones are (for testing the split; the image
+    /// does not change).
+    #[cfg(feature = "testing")]
+    pub fn limit_film_bytes(&mut self, bytes: u64) {
+        self.max_film_bytes = self.max_film_bytes.min(bytes);
     }
 
     /// Largest width and height of a geometry texture.

@@ -81,6 +81,10 @@ gpu_struct! {
         pub replicate: u32 = "u32",
         /// Index of the target's first probe point in the request; 0 for images.
         pub first_point: u32 = "u32",
+        /// Image row of the target's first film row (images split in bands); 0 for probes.
+        pub first_row: u32 = "u32",
+        /// Padding to 16 bytes.
+        pub _pad: [u32; 3] = "array<u32, 3>",
     }
 }
 
@@ -159,6 +163,8 @@ impl FrameUniforms {
             probe_samples: 0,
             replicate: s.replicate_samples(),
             first_point: 0,
+            first_row: 0,
+            _pad: [0; 3],
         }
     }
 
@@ -189,6 +195,8 @@ impl FrameUniforms {
             probe_samples: samples,
             replicate: settings.replicate_samples(),
             first_point: 0,
+            first_row: 0,
+            _pad: [0; 3],
         }
     }
 }

@@ -43,14 +43,19 @@ pub struct GpuTarget {
     pipeline: wgpu::ComputePipeline,
     bind_group: wgpu::BindGroup,
     film: wgpu::Buffer,
-    film_readback: wgpu::Buffer,
+    /// Where the film is copied to be read, or kept during a guarded pass: shared by the
+    /// bands of an image split over several targets (they use it one after another), at
+    /// least as large as this target's film.
+    film_readback: Arc<wgpu::Buffer>,
     dispatch: wgpu::Buffer,
     counters: wgpu::Buffer,
     counters_readback: wgpu::Buffer,
     /// Start and end timestamps of a pass, resolved into a buffer, where the adapter has
     /// timestamp queries.
     timestamps: Option<(wgpu::QuerySet, wgpu::Buffer)>,
+    /// Film slots per row: image width, or probe lanes.
     width: u32,
+    /// Film rows: the image rows of this target's band, or probe points.
     height: u32,
     kernel: Kernel,
     /// Samples (or probe rounds) each invocation renders in turn.
@@ -69,6 +74,8 @@ pub struct GpuTarget {
     lose_device_after: Option<u32>,
     /// Pixels an adaptive render no longer samples (empty: none).
     pub(crate) inactive: Vec<bool>,
+    /// The scene's file, for messages.
+    source: std::path::PathBuf,
 }
 
 impl GpuTarget {
@@ -81,7 +88,32 @@ impl GpuTarget {
         sampler: Sampler,
         hemisphere: Hemisphere,
     ) -> Result<GpuTarget> {
-        GpuTarget::build(dev, scene, Kernel::Image, frame, sampler, hemisphere, &[])
+        let rows = frame.height;
+        GpuTarget::build(dev, scene, Kernel::Image, frame, rows, sampler, hemisphere, &[], None)
+    }
+
+    /// A target rendering the band of `rows` image rows from `frame.first_row` (a
+    /// multiple of the workgroup's height, so that its workgroups are those of the whole
+    /// image), its film read through `readback` (at least as large, and shared with the
+    /// image's other bands: `None` makes one).
+    // A target's constants and the band's: grouping them would only rename them.
+    #[allow(clippy::too_many_arguments)]
+    pub fn image_band(
+        dev: &Arc<GpuDevice>,
+        scene: &GpuScene,
+        frame: FrameUniforms,
+        rows: u32,
+        sampler: Sampler,
+        hemisphere: Hemisphere,
+        readback: Option<Arc<wgpu::Buffer>>,
+    ) -> Result<GpuTarget> {
+        assert!(frame.first_row.is_multiple_of(WORKGROUP_SIZE[1]) && frame.first_row + rows <= frame.height);
+        GpuTarget::build(dev, scene, Kernel::Image, frame, rows, sampler, hemisphere, &[], readback)
+    }
+
+    /// The buffer this target reads its film through, to share with other bands.
+    pub(crate) fn readback(&self) -> Arc<wgpu::Buffer> {
+        self.film_readback.clone()
     }
 
     /// A target estimating AO at `points`: `frame.width` film slots (lanes) per point
@@ -109,21 +141,28 @@ impl GpuTarget {
             )));
         }
         let kernel = if bent_normals { Kernel::BentProbe } else { Kernel::Probe };
-        GpuTarget::build(dev, scene, kernel, frame, sampler, hemisphere, points)
+        let rows = frame.height;
+        GpuTarget::build(dev, scene, kernel, frame, rows, sampler, hemisphere, points, None)
     }
 
+    /// The target of `kernel` whose film has `frame.width` slots in each of `rows` rows,
+    /// read through `readback` (a new buffer for `None`).
+    // The pieces of a target: grouping them would only rename them.
+    #[allow(clippy::too_many_arguments)]
     fn build(
         dev: &Arc<GpuDevice>,
         scene: &GpuScene,
         kernel: Kernel,
         frame: FrameUniforms,
+        rows: u32,
         sampler: Sampler,
         hemisphere: Hemisphere,
         points: &[GpuProbePoint],
+        readback: Option<Arc<wgpu::Buffer>>,
     ) -> Result<GpuTarget> {
         let ctx = &dev.ctx;
         let device = &ctx.device;
-        let (width, height) = (frame.width, frame.height);
+        let (width, height) = (frame.width, rows);
         let frame = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("frame"),
             contents: bytemuck::bytes_of(&frame),
@@ -145,12 +184,17 @@ impl GpuTarget {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let film_readback = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("film readback"),
-            size: film_bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let owns_readback = readback.is_none();
+        let film_readback = match readback {
+            Some(shared) if shared.size() >= film_bytes => shared,
+            Some(_) => return Err(Error::Gpu("a band's film is larger than the readback it shares".into())),
+            None => Arc::new(device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("film readback"),
+                size: film_bytes,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })),
+        };
         let timestamps = ctx.has_timestamps().then(|| {
             let set = device.create_query_set(&wgpu::QuerySetDescriptor {
                 label: Some("pass timestamps"),
@@ -234,10 +278,13 @@ impl GpuTarget {
             ctx.wait()?;
         }
         ctx.take_error()?;
-        let device_bytes = [&frame, &dispatch, &probe_points, &film, &film_readback, &counters, &counters_readback]
+        // A shared readback counts once, with the band that made it.
+        let readback_bytes = if owns_readback { film_readback.size() } else { 0 };
+        let device_bytes = [&frame, &dispatch, &probe_points, &film, &counters, &counters_readback]
             .into_iter()
             .map(|b| b.size())
-            .sum();
+            .sum::<u64>()
+            + readback_bytes;
         // A cooperative traversal traces the rays of its group's lanes in turn, each a
         // step of the loop over them more: for the loop cap, an invocation's samples have
         // that many rays, each a step longer.
@@ -274,6 +321,7 @@ impl GpuTarget {
             passes_run: 0,
             lose_device_after,
             inactive: Vec::new(),
+            source: scene.source.clone(),
         })
     }
 
@@ -305,7 +353,7 @@ impl GpuTarget {
         let guarded = per.min(count) > self.safe_samples_per_invocation;
         let (mut counters, mut truncated) = self.run_pass(first, count, guarded)?;
         if truncated > 0 && guarded {
-            let words: Vec<[f32; 4]> = self.dev.ctx.read(&self.film_readback)?;
+            let words = self.read_film_readback()?;
             self.set_film_words(&words)?;
             self.samples_per_invocation = self.safe_samples_per_invocation;
             (counters, truncated) = self.run_pass(first, count, false)?;
@@ -314,7 +362,7 @@ impl GpuTarget {
             return Ok(counters);
         }
         let budget = self.dispatch_budget(self.samples_per_invocation.min(count));
-        Err(Error::TraversalBudget { count: truncated, budget })
+        Err(Error::TraversalBudget { path: self.source.clone(), count: truncated, budget })
     }
 
     /// The traversal budget of a dispatch of `samples` samples per invocation.
@@ -350,7 +398,7 @@ impl GpuTarget {
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("pass") });
         encoder.clear_buffer(&self.counters, 0, None);
         if keep_film {
-            encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, None);
+            encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, self.film.size());
         }
         {
             let timestamp_writes = self.timestamps.as_ref().map(|(set, _)| wgpu::ComputePassTimestampWrites {
@@ -407,9 +455,16 @@ impl GpuTarget {
         let ctx = &self.dev.ctx;
         let mut encoder =
             ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("film words") });
-        encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, None);
+        encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, self.film.size());
         ctx.submit([encoder.finish()])?;
-        ctx.read(&self.film_readback)
+        self.read_film_readback()
+    }
+
+    /// This target's film as last copied to the readback buffer (which may be larger).
+    fn read_film_readback(&self) -> Result<Vec<[f32; 4]>> {
+        let mut words: Vec<[f32; 4]> = self.dev.ctx.read(&self.film_readback)?;
+        words.truncate(self.slots());
+        Ok(words)
     }
 
     /// Replaces the film with `words` (as [`GpuTarget::film_words`] returned them).
@@ -503,4 +558,15 @@ pub(crate) fn probe_points_per_target(dev: &GpuDevice, slots_per_point: u32) -> 
         0 => n,
         k => n.min(k as usize),
     }
+}
+
+/// Image rows one target's film holds: as many as fit one storage binding (or a test's
+/// smaller cap), in whole workgroup rows, so that every band's workgroups are those of the
+/// unsplit image and render its pixels bit for bit.
+pub fn image_rows_per_target(dev: &GpuDevice, width: u32) -> u32 {
+    // A film slot is four f32 words: the sum, its compensation, the sum of squares, its.
+    let row_bytes = 16 * u64::from(width.max(1));
+    let rows = dev.ctx.max_film_bytes() / row_bytes;
+    let rows = rows / u64::from(WORKGROUP_SIZE[1]) * u64::from(WORKGROUP_SIZE[1]);
+    rows.clamp(u64::from(WORKGROUP_SIZE[1]), u64::from(u32::MAX)) as u32
 }

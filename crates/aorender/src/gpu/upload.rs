@@ -42,6 +42,8 @@ pub struct GpuScene {
     pub has_planes: bool,
     /// Bytes of the BVH as uploaded: its nodes and primitive records.
     pub bvh_bytes: u64,
+    /// What messages about the scene name: its file, or its name.
+    pub source: std::path::PathBuf,
 }
 
 impl GpuScene {
@@ -56,13 +58,21 @@ impl GpuScene {
         storage: GeometryStorage,
         traversal: Option<Traversal>,
     ) -> Result<GpuScene> {
-        if bvh.depth > bvh.layout.stack_size() {
-            return Err(Error::Gpu(format!(
-                "the {} BVH is {} levels deep; the shader's traversal stack holds {}",
-                bvh.layout.name(),
-                bvh.depth,
-                bvh.layout.stack_size()
-            )));
+        let stack = ctx.stack_entries(bvh.layout);
+        if bvh.depth > stack {
+            let other = match bvh.layout {
+                BvhLayout::Bvh2 => ", and so does the cwbvh layout (`--bvh-layout cwbvh`)",
+                BvhLayout::Cwbvh => "",
+            };
+            return Err(Error::scene(
+                scene.source(),
+                format!(
+                    "its {} BVH is {} levels deep, past the {stack} the GPU kernel's traversal stack holds; \
+                     the CPU reference (`--device cpu`) renders it{other}",
+                    bvh.layout.name(),
+                    bvh.depth,
+                ),
+            ));
         }
         // The BVH2 layout flattens instances.
         let has_instances = bvh.layout == BvhLayout::Cwbvh && !scene.instances.is_empty();
@@ -123,6 +133,7 @@ impl GpuScene {
             has_triangles: !scene.triangles.is_empty() || !scene.instances.is_empty(),
             has_planes: !scene.planes.is_empty(),
             bvh_bytes: bvh.bytes(),
+            source: scene.source(),
         })
     }
 

@@ -421,5 +421,17 @@ pub(super) fn parse_scene(
         }
     }
     let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
-    Ok(Scene { name, camera, settings, triangles, meshes, instances, spheres, planes, warnings, mesh_objects })
+    Ok(Scene {
+        name,
+        path: Some(path.to_path_buf()),
+        camera,
+        settings,
+        triangles,
+        meshes,
+        instances,
+        spheres,
+        planes,
+        warnings,
+        mesh_objects,
+    })
 }

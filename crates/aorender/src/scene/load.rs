@@ -45,8 +45,8 @@ impl Scene {
     pub fn default_scene() -> Scene {
         let options = LoadOptions { limits: input::ReadLimits::with_memory(u64::MAX), allow_external_uris: false };
         let mut meter = Meter::new(&options.limits, "the scene");
-        parse_scene(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME), Path::new("."), &options, &mut meter)
-            .expect("the built-in scene is valid")
+        let scene = parse_scene(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME), Path::new("."), &options, &mut meter);
+        Scene { path: None, ..scene.expect("the built-in scene is valid") }
     }
 
     /// Parses a scene from TOML text; mesh paths resolve against `base_dir`, and are read
@@ -72,6 +72,7 @@ impl Scene {
         let triangles = place_mesh(path, positions, &mesh, 1.0, &glam::Mat4::IDENTITY, &mut meter)?;
         let warnings = mesh.warnings.into_iter().map(|message| Warning { path: path.to_path_buf(), message });
         Ok(Scene {
+            path: Some(path.to_path_buf()),
             warnings: warnings.collect(),
             mesh_objects: vec![MeshObject {
                 number: 1,
@@ -89,6 +90,7 @@ impl Scene {
     pub fn from_triangles(name: &str, triangles: Vec<Triangle>) -> Scene {
         let mut scene = Scene {
             name: name.into(),
+            path: None,
             camera: Camera {
                 eye: Vec3::ZERO,
                 look_at: Vec3::NEG_Z,

@@ -195,6 +195,9 @@ impl Settings {
 pub struct Scene {
     /// Human-readable name (file stem or "aobench").
     pub name: String,
+    /// The file it was read from (a scene file or a bare mesh); `None` for a scene made
+    /// in memory and for the built-in one.
+    pub path: Option<PathBuf>,
     /// The camera.
     pub camera: Camera,
     /// Render settings.
@@ -225,6 +228,11 @@ pub struct Bounds {
 }
 
 impl Scene {
+    /// What messages about the scene as a whole name: its file, or its name.
+    pub fn source(&self) -> PathBuf {
+        self.path.clone().unwrap_or_else(|| PathBuf::from(&self.name))
+    }
+
     /// The automatic framing used for bare meshes.
     pub fn auto_camera(&self) -> Camera {
         let b = self.bounds().unwrap_or(Bounds { min: Vec3::splat(-1.0), max: Vec3::splat(1.0) });
