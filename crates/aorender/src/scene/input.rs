@@ -87,11 +87,12 @@ impl ReadLimits {
         }
     }
 
-    /// Half of the memory the system says is available (`MemAvailable` of
-    /// `/proc/meminfo`), or [`FIXED_READ_BUDGET`] where that cannot be read: the other
-    /// half is left to what the load leads to (the BVH build, the renderer).
+    /// Half of the memory available to the process
+    /// ([`crate::host_memory::memory_available`]: `MemAvailable`, or the cgroup's limit), or
+    /// [`FIXED_READ_BUDGET`] where that cannot be read: the other half is left to what the
+    /// load leads to (the BVH build, the renderer).
     pub fn available() -> ReadLimits {
-        match available_memory() {
+        match crate::host_memory::memory_available() {
             Some(bytes) => ReadLimits { memory: (bytes / 2).max(1), origin: Origin::Available(bytes), ..Self::base() },
             None => ReadLimits { memory: FIXED_READ_BUDGET, origin: Origin::Fixed, ..Self::base() },
         }
@@ -233,15 +234,6 @@ pub(crate) fn size_text(bytes: u64) -> String {
     }
     let text = format!("{value:.1}");
     format!("{} {}", text.strip_suffix(".0").unwrap_or(&text), UNITS[unit])
-}
-
-/// The memory the system says is available to a new allocation (`MemAvailable` of
-/// `/proc/meminfo`), in bytes; `None` where it cannot be read.
-fn available_memory() -> Option<u64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib.saturating_mul(1024))
 }
 
 /// The memory a read has taken, against its budget. Readers charge what they hold (or are
