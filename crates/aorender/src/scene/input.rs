@@ -30,8 +30,14 @@ pub const READ_BUDGET_VARIABLE: &str = "AORENDER_READ_BUDGET";
 /// The read budget where the system's available memory cannot be read (no `/proc/meminfo`).
 pub const FIXED_READ_BUDGET: u64 = 4 << 30;
 
-/// Longest line of a text file (OBJ, ASCII PLY, probe points), by default.
+/// Longest line of a text file (OBJ, ASCII PLY, probe points), by default: this, or
+/// [`LINE_BUDGET_FRACTION`] of the budget where that is more (a polygon of millions of
+/// vertices is one line of an OBJ file).
 pub const DEFAULT_LINE_BYTES: usize = 1 << 20;
+
+/// A line may take this fraction of the budget by default, when that is more than
+/// [`DEFAULT_LINE_BYTES`].
+pub const LINE_BUDGET_FRACTION: u64 = 64;
 
 /// A file may deliver this many bytes (after decompression) per byte of the budget: more
 /// is data the loader discards (skipped elements, ignored properties), read for nothing.
@@ -61,7 +67,8 @@ enum Origin {
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReadLimits {
     memory: u64,
-    line_bytes: usize,
+    /// The longest line, when set; else the default of [`DEFAULT_LINE_BYTES`].
+    line_bytes: Option<usize>,
     origin: Origin,
     /// Bytes of the budget taken by earlier reads ([`ReadLimits::after`]).
     spent: u64,
@@ -105,7 +112,7 @@ impl ReadLimits {
 
     /// These limits with lines of text at most `bytes` long (at least 1).
     pub fn with_line_bytes(self, bytes: usize) -> ReadLimits {
-        ReadLimits { line_bytes: bytes.max(1), ..self }
+        ReadLimits { line_bytes: Some(bytes.max(1)), ..self }
     }
 
     /// These limits less `bytes` already taken by other reads: what is left for the next
@@ -115,7 +122,7 @@ impl ReadLimits {
     }
 
     fn base() -> ReadLimits {
-        ReadLimits { memory: FIXED_READ_BUDGET, line_bytes: DEFAULT_LINE_BYTES, origin: Origin::Caller, spent: 0 }
+        ReadLimits { memory: FIXED_READ_BUDGET, line_bytes: None, origin: Origin::Caller, spent: 0 }
     }
 
     /// Bytes of memory a read may take.
@@ -125,7 +132,8 @@ impl ReadLimits {
 
     /// The longest line of a text file, in bytes.
     pub fn line_bytes(&self) -> usize {
-        self.line_bytes
+        let share = usize::try_from(self.memory / LINE_BUDGET_FRACTION).unwrap_or(usize::MAX);
+        self.line_bytes.unwrap_or(DEFAULT_LINE_BYTES.max(share))
     }
 
     /// The most bytes a file may deliver (after decompression): four times the budget.
@@ -546,11 +554,11 @@ impl Input {
                     None => (available.len(), available.is_empty()),
                 }
             };
-            if line.len() - start + used > self.limits.line_bytes {
+            if line.len() - start + used > self.limits.line_bytes() {
                 let message = format!(
                     "line {} is longer than {}, the longest line a text file may have",
                     self.lines + 1,
-                    size_text(self.limits.line_bytes as u64)
+                    size_text(self.limits.line_bytes() as u64)
                 );
                 return Err(self.fail(message));
             }
