@@ -31,11 +31,11 @@ pub const READ_BUDGET_VARIABLE: &str = "AORENDER_READ_BUDGET";
 pub const FIXED_READ_BUDGET: u64 = 4 << 30;
 
 /// Longest line of a text file (OBJ, ASCII PLY, probe points), by default: this, or
-/// [`LINE_BUDGET_FRACTION`] of the budget where that is more (a polygon of millions of
+/// a 64th of the budget where that is more (a polygon of millions of
 /// vertices is one line of an OBJ file).
 pub const DEFAULT_LINE_BYTES: usize = 1 << 20;
 
-/// A line may take this fraction of the budget by default, when that is more than
+/// A line may take this fraction (1 / N) of the budget by default, when that is more than
 /// [`DEFAULT_LINE_BYTES`].
 pub const LINE_BUDGET_FRACTION: u64 = 64;
 
