@@ -9,6 +9,7 @@
 
 mod asset;
 pub(crate) mod gltf;
+mod gltf_tidy;
 pub(crate) mod obj;
 mod plan;
 pub(crate) mod ply;
