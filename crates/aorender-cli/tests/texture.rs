@@ -401,3 +401,192 @@ fn resumed_and_merged_texture_bakes_are_bit_identical() {
         }
     }
 }
+
+/// The JSON and the binary chunk of a GLB.
+fn glb_parts(path: &Path) -> (serde_json::Value, Vec<u8>) {
+    let bytes = std::fs::read(path).unwrap();
+    let glb = ::gltf::binary::Glb::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    (serde_json::from_slice(&glb.json).unwrap(), glb.bin.map(|b| b.into_owned()).unwrap_or_default())
+}
+
+/// A `.gltf` or `.glb` read by the `gltf` crate (which validates it), with its buffers.
+fn read_gltf(path: &Path) -> (::gltf::Gltf, Vec<Vec<u8>>) {
+    let gltf =
+        ::gltf::Gltf::from_slice(&std::fs::read(path).unwrap()).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let buffers = gltf
+        .buffers()
+        .map(|b| match b.source() {
+            ::gltf::buffer::Source::Bin => gltf.blob.clone().expect("a binary chunk"),
+            ::gltf::buffer::Source::Uri(uri) => std::fs::read(path.with_file_name(uri)).unwrap(),
+        })
+        .collect();
+    (gltf, buffers)
+}
+
+/// A 4 × 4 RGB PNG.
+fn png() -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    image::RgbImage::from_pixel(4, 4, image::Rgb([200, 100, 50])).write_to(&mut out, image::ImageFormat::Png).unwrap();
+    out.into_inner()
+}
+
+/// A GLB output holds everything: a `.gltf` whose buffer is a `data:` URI or a file
+/// beside it, with an image beside it and one in a `data:` URI, baked into a GLB (per
+/// vertex and into a texture) gives a GLB without a URI that, moved alone into another
+/// directory, passes the Khronos validator with no error or warning, loads, and renders
+/// as the input does.
+#[test]
+fn glb_outputs_are_self_contained() {
+    use base64::Engine;
+    let dir = temp_dir();
+    let d = dir.path();
+    std::fs::write(d.join("colour.png"), png()).unwrap();
+    let mut embedded = gltf_fixture(1.0, true);
+    let data = format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(png()));
+    embedded["images"].as_array_mut().unwrap().push(serde_json::json!({"uri": data}));
+    embedded["textures"].as_array_mut().unwrap().push(serde_json::json!({"source": 1}));
+    embedded["materials"][0]["emissiveTexture"] = serde_json::json!({"index": 1});
+    std::fs::write(d.join("embedded.gltf"), serde_json::to_vec(&embedded).unwrap()).unwrap();
+    let mut external = embedded.clone();
+    let uri = external["buffers"][0]["uri"].as_str().unwrap().to_string();
+    let bytes = base64::engine::general_purpose::STANDARD.decode(uri.split_once(',').unwrap().1).unwrap();
+    std::fs::write(d.join("geometry data.bin"), bytes).unwrap();
+    external["buffers"][0]["uri"] = "geometry%20data.bin".into();
+    std::fs::write(d.join("external.gltf"), serde_json::to_vec(&external).unwrap()).unwrap();
+    std::fs::create_dir(d.join("alone")).unwrap();
+    for input in ["embedded.gltf", "external.gltf"] {
+        for texture in [false, true] {
+            let out = format!("{}-{}.glb", input.trim_end_matches(".gltf"), if texture { "map" } else { "ao" });
+            let mut args = vec![input, "-o", &out, "--device", "cpu", "--samples", "4"];
+            if texture {
+                args.extend(["--texture", "16", "--bent-normals"]);
+            }
+            bake(d, &args);
+            let (json, bin) = glb_parts(&d.join(&out));
+            assert_eq!(json["buffers"].as_array().unwrap().len(), 1, "{out}");
+            assert!(!serde_json::to_string(&json).unwrap().contains("\"uri\""), "{out}: {json}");
+            // The two input images, as they were, and two materials' AO and bent normal maps.
+            let images = json["images"].as_array().unwrap();
+            assert_eq!(images.len(), 2 + 4 * usize::from(texture), "{out}");
+            for image in &images[..2] {
+                let view = &json["bufferViews"][image["bufferView"].as_u64().unwrap() as usize];
+                let start = view["byteOffset"].as_u64().unwrap_or(0) as usize;
+                assert_eq!(bin[start..start + view["byteLength"].as_u64().unwrap() as usize], png(), "{out}");
+                assert_eq!(image["mimeType"], "image/png");
+            }
+            let alone = d.join("alone").join(&out);
+            std::fs::rename(d.join(&out), &alone).unwrap();
+            if let Some(issues) = assert_valid_gltf(&alone, Some(&d.join(input))) {
+                assert!(issues.iter().all(|i| i.severity > 1), "{out}: {issues:?}");
+            }
+            let render = |mesh: &Path| {
+                let args = ["render", mesh.to_str().unwrap(), "--device", "cpu", "--width", "16", "--height", "16"];
+                let o = aorender(&[&args[..], &["--spp", "1", "-o", "r.pfm"]].concat(), d);
+                assert!(o.status.success(), "{}: {}", mesh.display(), String::from_utf8_lossy(&o.stderr));
+                std::fs::read(d.join("r.pfm")).unwrap()
+            };
+            assert!(render(&alone) == render(&d.join(input)), "{out}: renders differently");
+        }
+    }
+}
+
+/// A two-target morph cube (as the glTF sample model AnimatedMorphCube, generated): a
+/// texture bake splits its vertices along the generated charts and gathers its targets
+/// onto them, each target's POSITION with bounds (which glTF requires) equal to the
+/// displacements it holds, and keeping its name; the validator finds no error.
+#[test]
+fn morph_targets_keep_their_bounds_and_names() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, faces) = cube(DVec3::ZERO);
+    let n = v.len();
+    let mut bin: Vec<u8> = Vec::new();
+    let mut views = Vec::new();
+    let mut accessors = Vec::new();
+    let mut add = |data: Vec<f32>, name: &str, bounds: bool| {
+        let offset = bin.len();
+        bin.extend(data.iter().flat_map(|x| x.to_le_bytes()));
+        views.push(
+            serde_json::json!({"buffer": 0, "byteOffset": offset, "byteLength": bin.len() - offset, "target": 34962}),
+        );
+        let mut a = serde_json::json!({"bufferView": views.len() - 1, "componentType": 5126, "count": n, "type": "VEC3", "name": name});
+        if bounds {
+            let lo =
+                (0..3).map(|c| data.iter().skip(c).step_by(3).copied().fold(f32::MAX, f32::min)).collect::<Vec<_>>();
+            let hi =
+                (0..3).map(|c| data.iter().skip(c).step_by(3).copied().fold(f32::MIN, f32::max)).collect::<Vec<_>>();
+            (a["min"], a["max"]) = (lo.into(), hi.into());
+        }
+        accessors.push(a);
+        accessors.len() - 1
+    };
+    let positions = add(v.iter().flat_map(|v| v.p.as_vec3().to_array()).collect(), "positions", true);
+    let normals = add(v.iter().flat_map(|v| v.n.as_vec3().to_array()).collect(), "normals", false);
+    // Target 0 lifts the top face, target 1 pushes every vertex out along x.
+    let lift = add(v.iter().flat_map(|v| [0.0, if v.p.y > 0.0 { 0.5 } else { 0.0 }, 0.0]).collect(), "lift", true);
+    let push = add(v.iter().flat_map(|v| [(v.p.x * 0.25) as f32, 0.0, 0.0]).collect(), "push", true);
+    let indices: Vec<u8> = faces
+        .iter()
+        .flat_map(|f| [f[0], f[1], f[2], f[0], f[2], f[3]])
+        .flat_map(|i| (i as u16).to_le_bytes())
+        .collect();
+    let offset = bin.len();
+    bin.extend(&indices);
+    views.push(serde_json::json!({"buffer": 0, "byteOffset": offset, "byteLength": indices.len(), "target": 34963}));
+    accessors.push(serde_json::json!({"bufferView": views.len() - 1, "componentType": 5123, "count": indices.len() / 2, "type": "SCALAR"}));
+    while bin.len() % 4 != 0 {
+        bin.push(0);
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"name": "morph cube", "weights": [0.0, 0.5], "extras": {"targetNames": ["lift", "push"]}, "primitives": [{
+            "attributes": {"POSITION": positions, "NORMAL": normals},
+            "indices": accessors.len() - 1,
+            "targets": [{"POSITION": lift}, {"POSITION": push}]
+        }]}],
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": views,
+        "accessors": accessors
+    });
+    let mut json = serde_json::to_vec(&json).unwrap();
+    while json.len() % 4 != 0 {
+        json.push(b' ');
+    }
+    let mut glb = Vec::new();
+    glb.extend(b"glTF");
+    glb.extend(2u32.to_le_bytes());
+    glb.extend(((12 + 8 + json.len() + 8 + bin.len()) as u32).to_le_bytes());
+    glb.extend((json.len() as u32).to_le_bytes());
+    glb.extend(b"JSON");
+    glb.extend(&json);
+    glb.extend((bin.len() as u32).to_le_bytes());
+    glb.extend(b"BIN\0");
+    glb.extend(&bin);
+    std::fs::write(d.join("morph.glb"), glb).unwrap();
+    for out in ["morph-ao.glb", "morph-ao.gltf"] {
+        bake(d, &["morph.glb", "-o", out, "--texture", "64", "--device", "cpu", "--samples", "4"]);
+        let (gltf, buffers) = read_gltf(&d.join(out));
+        let mesh = gltf.meshes().next().unwrap();
+        assert!(mesh.extras().as_ref().is_some_and(|e| e.get().contains("targetNames")), "{out}");
+        let primitive = mesh.primitives().next().unwrap();
+        assert!(primitive.get(&::gltf::Semantic::TexCoords(0)).is_some(), "{out}: no generated coordinates");
+        let targets: Vec<_> = primitive.morph_targets().collect();
+        assert_eq!(targets.len(), 2, "{out}");
+        for (target, name) in targets.iter().zip(["lift", "push"]) {
+            let accessor = target.positions().unwrap();
+            assert_eq!(accessor.name(), Some(name), "{out}");
+            let reader = ::gltf::accessor::Iter::<[f32; 3]>::new(accessor.clone(), |b| Some(&buffers[b.index()]));
+            let values: Vec<[f32; 3]> = reader.unwrap().collect();
+            assert_eq!(values.len(), accessor.count());
+            for c in 0..3 {
+                let lo = values.iter().map(|p| p[c]).fold(f32::MAX, f32::min);
+                let hi = values.iter().map(|p| p[c]).fold(f32::MIN, f32::max);
+                let bound = |v: Option<::gltf::json::Value>| v.unwrap()[c].as_f64().unwrap() as f32;
+                assert_eq!((bound(accessor.min()), bound(accessor.max())), (lo, hi), "{out}: {name}, component {c}");
+            }
+        }
+    }
+}
