@@ -590,3 +590,95 @@ fn morph_targets_keep_their_bounds_and_names() {
         }
     }
 }
+
+/// A texture bake of a real model with generated coordinates (2CylinderEngine, from
+/// COLLADA2GLTF, 34 materials, meshes placed by several nodes) leaves no unused object
+/// (the validator says so), shares one sampler between its maps, and keeps no byte its
+/// views do not cover; with bent normals too, and as a `.gltf`.
+#[test]
+fn a_texture_bake_of_a_real_model_leaves_nothing_unused() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let engine = repo().join("scenes/2CylinderEngine.glb");
+    let input = engine.to_str().unwrap();
+    let common = ["--texture", "256", "--padding", "1", "--texel-points", "1", "--samples", "1", "--device", "cpu"];
+    for (out, bent) in [("engine.glb", false), ("engine-bent.glb", true), ("engine.gltf", false)] {
+        let mut args = [&[input, "-o", out][..], &common].concat();
+        if bent {
+            args.push("--bent-normals");
+        }
+        bake(d, &args);
+        let (json, bin) = if out.ends_with(".glb") {
+            glb_parts(&d.join(out))
+        } else {
+            let json: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join(out)).unwrap()).unwrap();
+            let uri = json["buffers"][0]["uri"].as_str().unwrap();
+            let bin = std::fs::read(d.join(uri)).unwrap();
+            (json, bin)
+        };
+        assert_eq!(json["samplers"].as_array().unwrap().len(), 1, "{out}");
+        assert_eq!(json["buffers"].as_array().unwrap().len(), 1, "{out}");
+        let mut covered = vec![false; bin.len()];
+        for view in json["bufferViews"].as_array().unwrap() {
+            let start = view["byteOffset"].as_u64().unwrap_or(0) as usize;
+            covered[start..start + view["byteLength"].as_u64().unwrap() as usize].fill(true);
+        }
+        // Only the padding that keeps each view on a 4-byte boundary is not viewed.
+        let gaps = covered.chunk_by(|a, b| a == b).filter(|run| !run[0]).map(<[bool]>::len).max().unwrap_or(0);
+        assert!(gaps < 4, "{out}: {gaps} bytes in a row that no view covers");
+    }
+}
+
+/// glTF 2.0's default wrap is REPEAT: the floor's coordinates run to 1.5 under a base
+/// colour texture without a sampler, and the bake takes them as `--uv-wrap repeat` does,
+/// to the same bytes. An OBJ whose MTL texture map does not say `-clamp on` repeats as
+/// well; one that does is refused.
+#[test]
+fn textures_without_a_sampler_and_mtl_maps_repeat() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let mut doc = gltf_fixture(1.5, true);
+    doc["textures"][0].as_object_mut().unwrap().remove("sampler");
+    doc.as_object_mut().unwrap().remove("samplers");
+    std::fs::write(d.join("colour.png"), png()).unwrap();
+    std::fs::write(d.join("nosampler.gltf"), serde_json::to_vec(&doc).unwrap()).unwrap();
+    let common = ["--texture", "32", "--device", "cpu", "--samples", "4"];
+    bake(d, &[&["nosampler.gltf", "-o", "file.glb"][..], &common].concat());
+    bake(d, &[&["nosampler.gltf", "-o", "repeat.glb", "--uv-wrap", "repeat"][..], &common].concat());
+    let (file, repeat) = (glb_parts(&d.join("file.glb")), glb_parts(&d.join("repeat.glb")));
+    assert!(file == repeat, "the file's wrap is not REPEAT");
+    let wrap = &file.0["samplers"][0];
+    assert_eq!((wrap["wrapS"].as_u64(), wrap["wrapT"].as_u64()), (Some(10497), Some(10497)));
+
+    // The floor's u runs over [0.25, 1.75] in an OBJ.
+    let (v, f) = floor(2, 1.0, (DVec2::new(0.25, 0.0), 1.5));
+    let mut obj = String::from("mtllib floor.mtl\n");
+    for p in &v {
+        obj += &format!("v {} {} {}\nvt {} {}\n", p.p.x, p.p.y, p.p.z, p.uv.x, p.uv.y);
+    }
+    obj += "usemtl tiles\n";
+    for face in &f {
+        obj += "f";
+        for i in face {
+            obj += &format!(" {}/{}", i + 1, i + 1);
+        }
+        obj += "\n";
+    }
+    std::fs::write(d.join("floor.obj"), &obj).unwrap();
+    let plane = "[[object]]\ntype = \"sphere\"\ncenter = [0, 0.6, 0]\nradius = 0.5\n";
+    std::fs::write(d.join("floor.toml"), scene("floor.obj", plane)).unwrap();
+    for (mtl, wraps) in [("map_Kd -s 1 1 1 tiles.png\n", true), ("map_Kd -clamp on tiles.png\n", false)] {
+        std::fs::write(d.join("floor.mtl"), format!("newmtl tiles\nKd 1 1 1\n{mtl}")).unwrap();
+        let _ = std::fs::remove_file(d.join("file.exr"));
+        if !wraps {
+            bake_refused(&["floor.toml", "-o", "file.exr", "--texture", "32"], d, "outside [0, 1]");
+            continue;
+        }
+        bake(d, &[&["floor.toml", "-o", "file.exr"][..], &common].concat());
+        bake(d, &[&["floor.toml", "-o", "repeat.exr", "--uv-wrap", "repeat"][..], &common].concat());
+        assert_eq!(std::fs::read(d.join("file.exr")).unwrap(), std::fs::read(d.join("repeat.exr")).unwrap());
+        // Every texel is on the floor: u over 1.5 copies of the texture covers it all.
+        let (_, _, texels) = read_exr(&d.join("file.exr"));
+        assert!(texels.iter().all(|t| t.2), "a texel is off the floor");
+    }
+}

@@ -457,8 +457,9 @@ fn barycentric(t: &UvTriangle, p: DVec2) -> Option<[f64; 3]> {
 /// copy of the texture it met the texel in) inside the texel `square` (its corner, in
 /// that copy): (triangle, barycentrics).
 fn nearest(candidates: impl Iterator<Item = (u32, DVec2, DVec2)>, triangles: &[UvTriangle]) -> (u32, [f64; 3]) {
+    let candidates: Vec<(u32, DVec2, DVec2)> = candidates.collect();
     let mut best = (u32::MAX, [1.0, 0.0, 0.0], f64::INFINITY);
-    for (i, p, square) in candidates {
+    for &(i, p, square) in &candidates {
         let t = &triangles[i as usize];
         let part = clip(t.uv, square);
         let c = (0..part.len())
@@ -470,6 +471,23 @@ fn nearest(candidates: impl Iterator<Item = (u32, DVec2, DVec2)>, triangles: &[U
             && let Some(b) = barycentric(t, c)
         {
             best = (i, b.map(|x| x.clamp(0.0, 1.0)), d);
+        }
+    }
+    if best.0 == u32::MAX {
+        // A triangle that only touches the texel along its border can clip to nothing
+        // by rounding: its nearest point then.
+        for &(i, p, _) in &candidates {
+            let t = &triangles[i as usize];
+            let c = (0..3)
+                .map(|k| closest_on_segment(t.uv[k], t.uv[(k + 1) % 3], p))
+                .min_by(|a, b| (*a - p).length_squared().total_cmp(&(*b - p).length_squared()))
+                .expect("three edges");
+            let d = (c - p).length_squared();
+            if d < best.2
+                && let Some(b) = barycentric(t, c)
+            {
+                best = (i, b.map(|x| x.clamp(0.0, 1.0)), d);
+            }
         }
     }
     let s: f64 = best.1.iter().sum();
@@ -820,6 +838,19 @@ mod tests {
         assert!(p.texels[0].iter().all(|&t| t < 64));
         // Texels of x 0..3 hold the part past u = 1.
         assert!(p.texels[0].iter().any(|&t| t % 8 < 3));
+    }
+
+    /// A wrapped triangle whose edge lies on a texel's border (u = 1.5 at 16 texels) still
+    /// gives that texel a point on the triangle (it once had none, and the plan failed).
+    #[test]
+    fn a_triangle_along_a_texels_border_gives_it_a_point() {
+        let mesh = flat(&[[[0.0, 0.0], [1.5, 1.0], [1.5, 0.0]]]);
+        let o = TextureOptions { wrap: UvWrap::Repeat, ..options(16, 4, 0) };
+        let p = plan(&mesh, &o).unwrap();
+        assert_eq!(p.starts[0].len(), p.texels[0].len() + 1);
+        for q in &p.probes {
+            assert!(q.position.x >= -1e-6 && q.position.x <= 1.5 + 1e-6 && q.position.y <= q.position.x / 1.5 + 1e-6);
+        }
     }
 
     #[test]
