@@ -682,3 +682,69 @@ fn textures_without_a_sampler_and_mtl_maps_repeat() {
         assert!(texels.iter().all(|t| t.2), "a texel is off the floor");
     }
 }
+
+/// `aorender bake` with `args` in `dir` under the memory budget `limit` (bytes, through
+/// `AORENDER_MEMORY_LIMIT`): its output.
+fn bake_within(dir: &Path, limit: Option<u64>, args: &[&str]) -> std::process::Output {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_aorender"));
+    command.arg("bake").args(args).current_dir(dir).env("XDG_RUNTIME_DIR", std::env::temp_dir());
+    if let Some(limit) = limit {
+        command.env("AORENDER_MEMORY_LIMIT", limit.to_string());
+    }
+    command.output().expect("aorender runs")
+}
+
+/// A texture bake larger than its memory budget is traced a block of texels at a time:
+/// with bent normals (four film slots a point, where a plain bake has one) its heap's
+/// peak stays within 1.5 times the plain bake's, both within the budget, and the maps are
+/// those of the bake traced whole, byte for byte. A budget the textures alone exceed is
+/// refused before any work, and so is a bake with a checkpoint (which needs every point
+/// in one film) past it.
+#[test]
+fn a_texture_bake_is_traced_in_blocks_within_its_memory_budget() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, f) = floor(8, 2.0, (DVec2::ZERO, 1.0));
+    std::fs::write(d.join("floor.ply"), ply(&v, &f)).unwrap();
+    let sphere = "[[object]]\ntype = \"sphere\"\ncenter = [0, 0.6, 0]\nradius = 0.5\n";
+    std::fs::write(d.join("scene.toml"), scene("floor.ply", sphere)).unwrap();
+    // 512² texels, 4 points each: a million points, 216 MB of them plain and 624 MB with
+    // bent normals traced whole.
+    const LIMIT: u64 = 64 << 20;
+    let common = ["--texture", "512", "--samples", "2", "--device", "cpu"];
+    let mut peaks = Vec::new();
+    for bent in [false, true] {
+        let mut heap = Vec::new();
+        for (limit, out) in [(None, "whole.exr"), (Some(LIMIT), "blocks.exr")] {
+            let mut args = [&["scene.toml", "-o", out][..], &common].concat();
+            if bent {
+                args.push("--bent-normals");
+            }
+            let o = bake_within(d, limit, &args);
+            assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+            let stats: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+            assert_eq!(stats["points_traced"], 1 << 20);
+            heap.push(stats["heap_peak_bytes"].as_u64().unwrap());
+        }
+        assert_eq!(std::fs::read(d.join("blocks.exr")).unwrap(), std::fs::read(d.join("whole.exr")).unwrap());
+        if bent {
+            let (a, b) = (d.join("blocks_bent_normals.png"), d.join("whole_bent_normals.png"));
+            assert_eq!(std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
+        }
+        assert!(heap[1] <= LIMIT, "bent normals {bent}: {} bytes past the budget of {LIMIT}", heap[1]);
+        assert!(heap[1] < heap[0] / 2, "bent normals {bent}: {heap:?}: the blocks took as much as the whole");
+        peaks.push(heap[1]);
+    }
+    assert!(peaks[1] as f64 <= 1.5 * peaks[0] as f64, "bent normals: {} bytes, plain {}", peaks[1], peaks[0]);
+
+    for (limit, extra, expect) in
+        [(1 << 20, &[][..], "for its texels"), (LIMIT, &["--checkpoint", "c.ck"][..], "every point is traced at once")]
+    {
+        let args = [&["scene.toml", "-o", "refused.exr"][..], &common, extra].concat();
+        let o = bake_within(d, Some(limit), &args);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{stderr}");
+        assert!(stderr.lines().count() == 1 && stderr.contains(expect) && stderr.contains("GiB"), "{stderr}");
+        assert!(!d.join("refused.exr").exists() && !d.join("c.ck").exists());
+    }
+}
