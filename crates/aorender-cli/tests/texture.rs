@@ -697,7 +697,7 @@ fn bake_within(dir: &Path, limit: Option<u64>, args: &[&str]) -> std::process::O
 /// A texture bake larger than its memory budget is traced a block of texels at a time:
 /// with bent normals (four film slots a point, where a plain bake has one) its heap's
 /// peak stays within 1.5 times the plain bake's, both within the budget, and the maps are
-/// those of the bake traced whole, byte for byte. A budget the textures alone exceed is
+/// those of the bake traced whole, byte for byte (on the CPU reference and the adapter). A budget the textures alone exceed is
 /// refused before any work, and so is a bake with a checkpoint (which needs every point
 /// in one film) past it.
 #[test]
@@ -736,6 +736,18 @@ fn a_texture_bake_is_traced_in_blocks_within_its_memory_budget() {
         peaks.push(heap[1]);
     }
     assert!(peaks[1] as f64 <= 1.5 * peaks[0] as f64, "bent normals: {} bytes, plain {}", peaks[1], peaks[0]);
+    // On the adapter too, the blocks give the whole bake's maps.
+    if gpu_available() {
+        let common = ["--texture", "512", "--samples", "2", "--device", "gpu", "--bent-normals"];
+        for (limit, out) in [(None, "gpu-whole.exr"), (Some(LIMIT), "gpu-blocks.exr")] {
+            let o = bake_within(d, limit, &[&["scene.toml", "-o", out][..], &common].concat());
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        }
+        for suffix in [".exr", "_bent_normals.png"] {
+            let read = |name: &str| std::fs::read(d.join(name.replace(".exr", suffix))).unwrap();
+            assert!(read("gpu-blocks.exr") == read("gpu-whole.exr"), "the adapter's blocks differ ({suffix})");
+        }
+    }
 
     for (limit, extra, expect) in
         [(1 << 20, &[][..], "for its texels"), (LIMIT, &["--checkpoint", "c.ck"][..], "every point is traced at once")]

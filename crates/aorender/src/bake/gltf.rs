@@ -12,7 +12,7 @@
 use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureFiles, TextureMap, UvSet, WriteOptions,
 };
-use super::gltf_tidy;
+use super::gltf_tidy::{self, array};
 use crate::error::{Error, Result};
 use crate::output::{write_output, write_output_with};
 use crate::scene::extension;
@@ -718,17 +718,6 @@ fn repeating_sets(json: &Value, material: Option<usize>) -> Vec<u32> {
         *sets.entry(set).or_insert(true) &= repeats;
     }
     sets.into_iter().filter(|(_, r)| *r).map(|(s, _)| s).collect()
-}
-
-/// `doc[key]` as an array, made one when missing.
-pub(crate) fn array<'v>(doc: &'v mut Value, key: &str) -> &'v mut Vec<Value> {
-    if !doc[key].is_array() {
-        doc[key] = Value::Array(Vec::new());
-    }
-    match &mut doc[key] {
-        Value::Array(a) => a,
-        _ => unreachable!("made an array above"),
-    }
 }
 
 /// A JSON object of `fields`.

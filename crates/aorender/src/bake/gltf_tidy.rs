@@ -306,13 +306,24 @@ pub(crate) fn image_mime(bytes: &[u8]) -> Option<&'static str> {
     }
 }
 
+/// `doc[key]` as an array, made one when missing.
+pub(crate) fn array<'v>(doc: &'v mut Value, key: &str) -> &'v mut Vec<Value> {
+    if !doc[key].is_array() {
+        doc[key] = Value::Array(Vec::new());
+    }
+    match &mut doc[key] {
+        Value::Array(a) => a,
+        _ => unreachable!("made an array above"),
+    }
+}
+
 /// Appends `bytes` to `data` (4-byte aligned) as a new buffer view of `buffer`; returns
 /// the view's index.
 pub(crate) fn add_view(doc: &mut Value, data: &mut Vec<u8>, buffer: usize, bytes: &[u8]) -> usize {
     data.resize(data.len().next_multiple_of(4), 0);
     let offset = data.len();
     data.extend_from_slice(bytes);
-    let views = super::gltf::array(doc, "bufferViews");
+    let views = array(doc, "bufferViews");
     let mut view = Value::Object(Default::default());
     view["buffer"] = buffer.into();
     if offset > 0 {
