@@ -534,7 +534,7 @@ fn morph_targets_keep_their_bounds_and_names() {
     bin.extend(&indices);
     views.push(serde_json::json!({"buffer": 0, "byteOffset": offset, "byteLength": indices.len(), "target": 34963}));
     accessors.push(serde_json::json!({"bufferView": views.len() - 1, "componentType": 5123, "count": indices.len() / 2, "type": "SCALAR"}));
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let json = serde_json::json!({
@@ -552,7 +552,7 @@ fn morph_targets_keep_their_bounds_and_names() {
         "accessors": accessors
     });
     let mut json = serde_json::to_vec(&json).unwrap();
-    while json.len() % 4 != 0 {
+    while !json.len().is_multiple_of(4) {
         json.push(b' ');
     }
     let mut glb = Vec::new();

@@ -676,7 +676,7 @@ fn texture_blocks(
                 gib(memory)
             );
         }
-        return Ok(vec![0..layout.covered_texels()]);
+        return Ok(std::iter::once(0..layout.covered_texels()).collect());
     }
     let block = room.min(BLOCK_BYTES) / per_point;
     if block < u64::from(options.points) {
