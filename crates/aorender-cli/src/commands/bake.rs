@@ -284,27 +284,23 @@ pub fn run(args: BakeArgs) -> Result<()> {
         }
         meshes
     });
-    let meshes = targets.iter().flat_map(|t| {
-        let meshes = with_uvs.as_deref().unwrap_or(t.asset.meshes());
-        meshes.iter().map(|m| (m, Placement::of(&t.object)))
-    });
-    let texture_meshes: Vec<(&AssetMesh, Placement)> = match texture {
-        Some(_) => meshes.collect(),
-        None => Vec::new(),
-    };
+    let meshes: Vec<(&AssetMesh, Placement)> = targets
+        .iter()
+        .flat_map(|t| {
+            let meshes = with_uvs.as_deref().unwrap_or(t.asset.meshes());
+            meshes.iter().map(|m| (m, Placement::of(&t.object)))
+        })
+        .collect();
     // A texture bake too large for one block of points is traced a block at a time.
     let mut blocked: Option<(TextureLayout, Vec<Range<usize>>)> = None;
     let (plan, texture_plan) = match &texture {
-        None => {
-            let meshes = targets.iter().flat_map(|t| t.asset.meshes().iter().map(|m| (m, Placement::of(&t.object))));
-            (BakePlan::new(meshes, at), None)
-        }
+        None => (BakePlan::new(meshes.iter().copied(), at), None),
         Some(options) => {
             let in_input = |e: aorender::Error| {
                 anyhow!("{}: {}", input.display(), e.to_string().trim_start_matches("invalid settings: "))
             };
             let memory = memory::budget_bytes()?;
-            let layout = TextureLayout::new(&texture_meshes, options, memory).map_err(in_input)?;
+            let layout = TextureLayout::new(&meshes, options, memory).map_err(in_input)?;
             if layout.targets.len() > 1 && is_map(&args.output) {
                 bail!(
                     "{}: its meshes use {} materials, each baked into its own texture: bake into a .glb or .gltf file",
@@ -314,7 +310,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
             }
             let blocks = texture_blocks(&args, &input, &layout, options, memory)?;
             if blocks.len() <= 1 {
-                (BakePlan::default(), Some(layout.plan(&texture_meshes, 0..layout.covered_texels(), 0)))
+                (BakePlan::default(), Some(layout.plan(&meshes, 0..layout.covered_texels(), 0)))
             } else {
                 blocked = Some((layout, blocks));
                 (BakePlan::default(), None)
@@ -385,7 +381,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         texture: None,
     };
     if let (Some((layout, blocks)), Some(options)) = (&blocked, &texture) {
-        let traced = trace_blocks(&args, scene, (layout, blocks), &texture_meshes, &stop, &mut stats)?;
+        let traced = trace_blocks(&args, scene, (layout, blocks), &meshes, &stop, &mut stats)?;
         let mut maps = traced.maps;
         for map in &mut maps {
             map.pad(options.padding);
