@@ -41,11 +41,12 @@ use scene::PyScene;
 /// fully open or fully closed).
 ///
 /// samples: rays per point. sampler: "independent" (the default, as on the command
-/// line), "sobol" (scrambled Sobol' points, lower error), "stratified" or "grid". replicate: samples per independently
-/// randomised replicate of "sobol" and "stratified" (a power of two up to 256, of four
-/// for stratified), from whose spread std_error is estimated; None (the default) keeps one
-/// replicate, the best points, and std_error is then the spread of single samples, which
-/// overestimates their error (valid as it stands for "independent"). seed: the random numbers' seed; the same seed,
+/// line), "sobol" (scrambled Sobol' points, lower error), "stratified" or "grid".
+/// replicate: samples per independently randomised replicate of "sobol" and
+/// "stratified" (a power of two up to 256, of four for stratified), from whose spread
+/// std_error is estimated; None (the default) keeps one replicate, the best points, and
+/// std_error is then the spread of single samples, which overestimates their error (valid
+/// as it stands for "independent"). seed: the random numbers' seed; the same seed,
 /// samples and device give the same values as `aorender probe --seed`. device: "auto" (the
 /// best GPU adapter, else the CPU reference), "gpu", "cpu", or part of an adapter's name.
 ///
