@@ -1588,6 +1588,9 @@ mod tests {
         assert!(notes.iter().any(|n| n.contains("geom_ao.bin")), "{notes:?}");
         assert!(dir.path().join("geom_ao.bin").exists());
         assert!(loaded_triangles(&path) == before);
+        std::fs::create_dir(dir.path().join("input")).unwrap();
+        let (input, _) = write_fixture(&dir.path().join("input"), "geom.gltf");
+        assert_valid(&path, &input);
         // Baking the result again replaces its values rather than piling them up: the
         // three _AO accessors of the first bake go, three new ones come last.
         let again = GltfAsset::read(&path).unwrap();
@@ -1598,6 +1601,7 @@ mod tests {
         assert_eq!(json["accessors"].as_array().unwrap().len(), accessors);
         let ao = &json["meshes"][0]["primitives"][0]["attributes"][AO];
         assert!(ao.as_u64().unwrap() as usize >= accessors - 3, "{ao}");
+        assert_valid(&path, &input);
     }
 
     /// The files a directory holds.
