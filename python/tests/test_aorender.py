@@ -413,6 +413,21 @@ def test_cosine_weighted_ao_is_not_libigls_unweighted_visibility():
         assert abs(ao[0] - (1 - math.cos(math.pi / 4))) > 20 * err[0]
 
 
+def test_bake_defaults_are_the_commands(cli, repo, tmp_path):
+    """Scene.bake and `aorender bake` with their defaults (sampler, hemisphere, seed) trace the same samples."""
+    out = tmp_path / "b.ply"
+    cmd = [str(cli), "bake", str(repo / "scenes" / "dragon_vrip_res4.ply.gz"), "-o", str(out), "--samples", "8",
+           "--device", "cpu"]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    stats = json.loads(done.stdout)
+    assert (stats["sampler"], stats["hemisphere"], stats["seed"]) == ("independent", "cosine", 0)
+    ao, _ = aorender.Scene.load(repo / "scenes" / "dragon_vrip_res4.ply.gz").bake(8, device="cpu")
+    assert len(ao) == stats["points"]
+    traced_sum = ao.sum() - stats["points_without_normal"] * stats["unusable_value"]
+    assert abs(traced_sum / stats["points_traced"] - stats["mean_ao"]) < 1e-6
+
+
 def test_bake_mean_equals_the_command(cli, repo, tmp_path):
     stats_path = tmp_path / "stats.json"
     cmd = [str(cli), "bake", str(repo / "scenes" / "bunny.obj"), "-o", str(tmp_path / "b.obj"), "--samples", "16",

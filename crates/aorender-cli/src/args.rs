@@ -103,7 +103,8 @@ impl SizeArgs {
 /// The scene and how to trace it: options shared by `render`, `compare` and `probe`.
 #[derive(clap::Args)]
 pub struct SceneArgs {
-    /// Scene file (.toml) or mesh (.obj). Default: the built-in aobench scene.
+    /// Scene file (.toml) or mesh (.obj, .ply, .gltf or .glb, each optionally gzipped: .gz).
+    /// Default: the built-in aobench scene.
     pub scene: Option<PathBuf>,
     /// AO rays longer than this are unoccluded (default: the scene's, else unlimited).
     #[arg(long, allow_negative_numbers = true)]

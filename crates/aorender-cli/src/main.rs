@@ -16,14 +16,15 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Render a scene file (.toml) or a bare mesh (.obj); the built-in aobench scene by default.
+    /// Render a scene file (.toml) or a bare mesh (.obj, .ply, .gltf, .glb, each optionally
+    /// .gz); the built-in aobench scene by default.
     Render(render::RenderArgs),
     /// Render a grid of sample counts (columns) by hemispheres and samplers (rows) into one labelled PNG.
     Compare(compare::CompareArgs),
     /// AO at points and normals read from a file (x y z nx ny nz per line), written as CSV.
     Probe(probe::ProbeArgs),
-    /// Bake AO into a mesh file's vertices or faces (PLY, OBJ, glTF/GLB), or into every mesh
-    /// object of a scene file.
+    /// Bake AO into a mesh file's vertices, faces or texture (PLY, OBJ, glTF/GLB), or into
+    /// every mesh object of a scene file.
     Bake(bake::BakeArgs),
     /// Run the closed-form accuracy suite on the CPU reference and the adapter and write its
     /// table as Markdown (docs/accuracy.md).
@@ -63,8 +64,14 @@ fn parse() -> Cli {
         Ok(cli) => cli,
         Err(e) if e.use_stderr() => {
             let text = e.to_string();
-            let first = text.lines().next().unwrap_or("invalid arguments");
-            let first = first.strip_prefix("error: ").unwrap_or(first);
+            let mut lines = text.lines();
+            let first = lines.next().unwrap_or("invalid arguments");
+            let mut first = first.strip_prefix("error: ").unwrap_or(first).to_string();
+            if first.ends_with(':') {
+                // A list follows (the missing arguments): on the same line.
+                let items: Vec<&str> = lines.take_while(|l| l.starts_with(' ')).map(str::trim).collect();
+                first = format!("{first} {}", items.join(", "));
+            }
             eprintln!("aorender: {first} (see aorender --help)");
             std::process::exit(2);
         }

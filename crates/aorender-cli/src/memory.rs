@@ -98,3 +98,19 @@ pub fn available_bytes() -> Option<u64> {
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
 }
+
+/// The bytes a command may take: the memory the system says is available
+/// ([`available_bytes`]), or less when the environment variable `AORENDER_MEMORY_LIMIT`
+/// says so (a number of bytes; empty is unset); unlimited where neither is known.
+pub fn budget_bytes() -> anyhow::Result<u64> {
+    let available = available_bytes().unwrap_or(u64::MAX);
+    match std::env::var("AORENDER_MEMORY_LIMIT") {
+        Ok(text) if text.trim().is_empty() => Ok(available),
+        Ok(text) => match text.trim().parse::<u64>() {
+            Ok(limit) => Ok(limit.min(available)),
+            Err(_) => anyhow::bail!("AORENDER_MEMORY_LIMIT={text}: expected a number of bytes"),
+        },
+        Err(std::env::VarError::NotPresent) => Ok(available),
+        Err(e) => anyhow::bail!("AORENDER_MEMORY_LIMIT: {e}"),
+    }
+}

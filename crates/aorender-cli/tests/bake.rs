@@ -345,6 +345,15 @@ fn vertices_without_a_usable_normal_get_one_and_are_counted() {
     let (ao, _) = values(&d.join("out.ply"), "vertex");
     assert!(ao.iter().all(|a| a.is_finite()));
     assert_eq!(&ao[n as usize..], &[1.0; 4]);
+    // Their bent normal is (0, 0, 0): no direction; every other one is a unit vector.
+    bake(d, &["m.ply", "-o", "bent.ply", "--device", "cpu", "--samples", "16", "--bent-normals"]);
+    let ply = read_ply(&d.join("bent.ply"));
+    let bent: Vec<[f32; 3]> =
+        ply.payload["vertex"].iter().map(|e| [float(e, "bnx"), float(e, "bny"), float(e, "bnz")]).collect();
+    assert_eq!(&bent[n as usize..], &[[0.0; 3]; 4]);
+    for b in &bent[..n as usize] {
+        assert!((b.iter().map(|c| c * c).sum::<f32>().sqrt() - 1.0).abs() < 1e-5, "{b:?}");
+    }
 }
 
 /// The file's normals are used where it has them: a floor whose normals lean 60° toward a
@@ -503,5 +512,23 @@ fn bent_normals_lean_away_from_occluders() {
             normals(&walled).into_iter().zip(&v).filter(|(_, p)| p.x > 2.9).map(|(b, _)| b).collect();
         assert_eq!(near.len(), 13);
         assert!(near.iter().all(|b| b.x < -0.2 && b.y > 0.0), "{device}: {near:?}");
+    }
+}
+
+/// INPUT is required: without it `bake` is a usage error (status 2, one line naming it),
+/// and its help names every format it reads, not a default scene.
+#[test]
+fn the_input_is_required_and_its_formats_are_listed() {
+    let dir = temp_dir();
+    let out = aorender(&["bake", "-o", "out.glb", "--device", "cpu"], dir.path());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.lines().count() == 1 && stderr.contains("<INPUT>"), "{stderr}");
+    assert!(!dir.path().join("out.glb").exists());
+    let help = aorender(&["bake", "--help"], dir.path());
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(help.contains("<INPUT>") && !help.contains("aobench"), "{help}");
+    for format in [".obj", ".ply", ".gltf", ".glb", ".gz", ".toml"] {
+        assert!(help.contains(format), "{format}: {help}");
     }
 }

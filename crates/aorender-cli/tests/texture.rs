@@ -401,3 +401,362 @@ fn resumed_and_merged_texture_bakes_are_bit_identical() {
         }
     }
 }
+
+/// The JSON and the binary chunk of a GLB.
+fn glb_parts(path: &Path) -> (serde_json::Value, Vec<u8>) {
+    let bytes = std::fs::read(path).unwrap();
+    let glb = ::gltf::binary::Glb::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    (serde_json::from_slice(&glb.json).unwrap(), glb.bin.map(|b| b.into_owned()).unwrap_or_default())
+}
+
+/// A `.gltf` or `.glb` read by the `gltf` crate (which validates it), with its buffers.
+fn read_gltf(path: &Path) -> (::gltf::Gltf, Vec<Vec<u8>>) {
+    let gltf =
+        ::gltf::Gltf::from_slice(&std::fs::read(path).unwrap()).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let buffers = gltf
+        .buffers()
+        .map(|b| match b.source() {
+            ::gltf::buffer::Source::Bin => gltf.blob.clone().expect("a binary chunk"),
+            ::gltf::buffer::Source::Uri(uri) => std::fs::read(path.with_file_name(uri)).unwrap(),
+        })
+        .collect();
+    (gltf, buffers)
+}
+
+/// A 4 × 4 RGB PNG.
+fn png() -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    image::RgbImage::from_pixel(4, 4, image::Rgb([200, 100, 50])).write_to(&mut out, image::ImageFormat::Png).unwrap();
+    out.into_inner()
+}
+
+/// A GLB output holds everything: a `.gltf` whose buffer is a `data:` URI or a file
+/// beside it, with an image beside it and one in a `data:` URI, baked into a GLB (per
+/// vertex and into a texture) gives a GLB without a URI that, moved alone into another
+/// directory, passes the Khronos validator with no error or warning, loads, and renders
+/// as the input does.
+#[test]
+fn glb_outputs_are_self_contained() {
+    use base64::Engine;
+    let dir = temp_dir();
+    let d = dir.path();
+    std::fs::write(d.join("colour.png"), png()).unwrap();
+    let mut embedded = gltf_fixture(1.0, true);
+    let data = format!("data:image/png;base64,{}", base64::engine::general_purpose::STANDARD.encode(png()));
+    embedded["images"].as_array_mut().unwrap().push(serde_json::json!({"uri": data}));
+    embedded["textures"].as_array_mut().unwrap().push(serde_json::json!({"source": 1}));
+    embedded["materials"][0]["emissiveTexture"] = serde_json::json!({"index": 1});
+    std::fs::write(d.join("embedded.gltf"), serde_json::to_vec(&embedded).unwrap()).unwrap();
+    let mut external = embedded.clone();
+    let uri = external["buffers"][0]["uri"].as_str().unwrap().to_string();
+    let bytes = base64::engine::general_purpose::STANDARD.decode(uri.split_once(',').unwrap().1).unwrap();
+    std::fs::write(d.join("geometry data.bin"), bytes).unwrap();
+    external["buffers"][0]["uri"] = "geometry%20data.bin".into();
+    std::fs::write(d.join("external.gltf"), serde_json::to_vec(&external).unwrap()).unwrap();
+    std::fs::create_dir(d.join("alone")).unwrap();
+    for input in ["embedded.gltf", "external.gltf"] {
+        for texture in [false, true] {
+            let out = format!("{}-{}.glb", input.trim_end_matches(".gltf"), if texture { "map" } else { "ao" });
+            let mut args = vec![input, "-o", &out, "--device", "cpu", "--samples", "4"];
+            if texture {
+                args.extend(["--texture", "16", "--bent-normals"]);
+            }
+            bake(d, &args);
+            let (json, bin) = glb_parts(&d.join(&out));
+            assert_eq!(json["buffers"].as_array().unwrap().len(), 1, "{out}");
+            assert!(!serde_json::to_string(&json).unwrap().contains("\"uri\""), "{out}: {json}");
+            // The two input images, as they were, and two materials' AO and bent normal maps.
+            let images = json["images"].as_array().unwrap();
+            assert_eq!(images.len(), 2 + 4 * usize::from(texture), "{out}");
+            for image in &images[..2] {
+                let view = &json["bufferViews"][image["bufferView"].as_u64().unwrap() as usize];
+                let start = view["byteOffset"].as_u64().unwrap_or(0) as usize;
+                assert_eq!(bin[start..start + view["byteLength"].as_u64().unwrap() as usize], png(), "{out}");
+                assert_eq!(image["mimeType"], "image/png");
+            }
+            let alone = d.join("alone").join(&out);
+            std::fs::rename(d.join(&out), &alone).unwrap();
+            if let Some(issues) = assert_valid_gltf(&alone, Some(&d.join(input))) {
+                assert!(issues.iter().all(|i| i.severity > 1), "{out}: {issues:?}");
+            }
+            let render = |mesh: &Path| {
+                let args = ["render", mesh.to_str().unwrap(), "--device", "cpu", "--width", "16", "--height", "16"];
+                let o = aorender(&[&args[..], &["--spp", "1", "-o", "r.pfm"]].concat(), d);
+                assert!(o.status.success(), "{}: {}", mesh.display(), String::from_utf8_lossy(&o.stderr));
+                std::fs::read(d.join("r.pfm")).unwrap()
+            };
+            assert!(render(&alone) == render(&d.join(input)), "{out}: renders differently");
+        }
+    }
+}
+
+/// A two-target morph cube (as the glTF sample model AnimatedMorphCube, generated): a
+/// texture bake splits its vertices along the generated charts and gathers its targets
+/// onto them, each target's POSITION with bounds (which glTF requires) equal to the
+/// displacements it holds, and keeping its name; the validator finds no error.
+#[test]
+fn morph_targets_keep_their_bounds_and_names() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, faces) = cube(DVec3::ZERO);
+    let n = v.len();
+    let mut bin: Vec<u8> = Vec::new();
+    let mut views = Vec::new();
+    let mut accessors = Vec::new();
+    let mut add = |data: Vec<f32>, name: &str, bounds: bool| {
+        let offset = bin.len();
+        bin.extend(data.iter().flat_map(|x| x.to_le_bytes()));
+        views.push(
+            serde_json::json!({"buffer": 0, "byteOffset": offset, "byteLength": bin.len() - offset, "target": 34962}),
+        );
+        let mut a = serde_json::json!({"bufferView": views.len() - 1, "componentType": 5126, "count": n, "type": "VEC3", "name": name});
+        if bounds {
+            let lo =
+                (0..3).map(|c| data.iter().skip(c).step_by(3).copied().fold(f32::MAX, f32::min)).collect::<Vec<_>>();
+            let hi =
+                (0..3).map(|c| data.iter().skip(c).step_by(3).copied().fold(f32::MIN, f32::max)).collect::<Vec<_>>();
+            (a["min"], a["max"]) = (lo.into(), hi.into());
+        }
+        accessors.push(a);
+        accessors.len() - 1
+    };
+    let positions = add(v.iter().flat_map(|v| v.p.as_vec3().to_array()).collect(), "positions", true);
+    let normals = add(v.iter().flat_map(|v| v.n.as_vec3().to_array()).collect(), "normals", false);
+    // Target 0 lifts the top face, target 1 pushes every vertex out along x.
+    let lift = add(v.iter().flat_map(|v| [0.0, if v.p.y > 0.0 { 0.5 } else { 0.0 }, 0.0]).collect(), "lift", true);
+    let push = add(v.iter().flat_map(|v| [(v.p.x * 0.25) as f32, 0.0, 0.0]).collect(), "push", true);
+    let indices: Vec<u8> = faces
+        .iter()
+        .flat_map(|f| [f[0], f[1], f[2], f[0], f[2], f[3]])
+        .flat_map(|i| (i as u16).to_le_bytes())
+        .collect();
+    let offset = bin.len();
+    bin.extend(&indices);
+    views.push(serde_json::json!({"buffer": 0, "byteOffset": offset, "byteLength": indices.len(), "target": 34963}));
+    accessors.push(serde_json::json!({"bufferView": views.len() - 1, "componentType": 5123, "count": indices.len() / 2, "type": "SCALAR"}));
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"name": "morph cube", "weights": [0.0, 0.5], "extras": {"targetNames": ["lift", "push"]}, "primitives": [{
+            "attributes": {"POSITION": positions, "NORMAL": normals},
+            "indices": accessors.len() - 1,
+            "targets": [{"POSITION": lift}, {"POSITION": push}]
+        }]}],
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": views,
+        "accessors": accessors
+    });
+    let mut json = serde_json::to_vec(&json).unwrap();
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let mut glb = Vec::new();
+    glb.extend(b"glTF");
+    glb.extend(2u32.to_le_bytes());
+    glb.extend(((12 + 8 + json.len() + 8 + bin.len()) as u32).to_le_bytes());
+    glb.extend((json.len() as u32).to_le_bytes());
+    glb.extend(b"JSON");
+    glb.extend(&json);
+    glb.extend((bin.len() as u32).to_le_bytes());
+    glb.extend(b"BIN\0");
+    glb.extend(&bin);
+    std::fs::write(d.join("morph.glb"), glb).unwrap();
+    for out in ["morph-ao.glb", "morph-ao.gltf"] {
+        bake(d, &["morph.glb", "-o", out, "--texture", "64", "--device", "cpu", "--samples", "4"]);
+        let (gltf, buffers) = read_gltf(&d.join(out));
+        let mesh = gltf.meshes().next().unwrap();
+        assert!(mesh.extras().as_ref().is_some_and(|e| e.get().contains("targetNames")), "{out}");
+        let primitive = mesh.primitives().next().unwrap();
+        assert!(primitive.get(&::gltf::Semantic::TexCoords(0)).is_some(), "{out}: no generated coordinates");
+        let targets: Vec<_> = primitive.morph_targets().collect();
+        assert_eq!(targets.len(), 2, "{out}");
+        for (target, name) in targets.iter().zip(["lift", "push"]) {
+            let accessor = target.positions().unwrap();
+            assert_eq!(accessor.name(), Some(name), "{out}");
+            let reader = ::gltf::accessor::Iter::<[f32; 3]>::new(accessor.clone(), |b| Some(&buffers[b.index()]));
+            let values: Vec<[f32; 3]> = reader.unwrap().collect();
+            assert_eq!(values.len(), accessor.count());
+            for c in 0..3 {
+                let lo = values.iter().map(|p| p[c]).fold(f32::MAX, f32::min);
+                let hi = values.iter().map(|p| p[c]).fold(f32::MIN, f32::max);
+                let bound = |v: Option<::gltf::json::Value>| v.unwrap()[c].as_f64().unwrap() as f32;
+                assert_eq!((bound(accessor.min()), bound(accessor.max())), (lo, hi), "{out}: {name}, component {c}");
+            }
+        }
+    }
+}
+
+/// A texture bake of a real model with generated coordinates (2CylinderEngine, from
+/// COLLADA2GLTF, 34 materials, meshes placed by several nodes) leaves no unused object
+/// (the validator says so), shares one sampler between its maps, and keeps no byte its
+/// views do not cover; with bent normals too, and as a `.gltf`.
+#[test]
+fn a_texture_bake_of_a_real_model_leaves_nothing_unused() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let engine = repo().join("scenes/2CylinderEngine.glb");
+    let input = engine.to_str().unwrap();
+    let common = ["--texture", "256", "--padding", "1", "--texel-points", "1", "--samples", "1", "--device", "cpu"];
+    for (out, bent) in [("engine.glb", false), ("engine-bent.glb", true), ("engine.gltf", false)] {
+        let mut args = [&[input, "-o", out][..], &common].concat();
+        if bent {
+            args.push("--bent-normals");
+        }
+        bake(d, &args);
+        let (json, bin) = if out.ends_with(".glb") {
+            glb_parts(&d.join(out))
+        } else {
+            let json: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join(out)).unwrap()).unwrap();
+            let uri = json["buffers"][0]["uri"].as_str().unwrap();
+            let bin = std::fs::read(d.join(uri)).unwrap();
+            (json, bin)
+        };
+        assert_eq!(json["samplers"].as_array().unwrap().len(), 1, "{out}");
+        assert_eq!(json["buffers"].as_array().unwrap().len(), 1, "{out}");
+        let mut covered = vec![false; bin.len()];
+        for view in json["bufferViews"].as_array().unwrap() {
+            let start = view["byteOffset"].as_u64().unwrap_or(0) as usize;
+            covered[start..start + view["byteLength"].as_u64().unwrap() as usize].fill(true);
+        }
+        // Only the padding that keeps each view on a 4-byte boundary is not viewed.
+        let gaps = covered.chunk_by(|a, b| a == b).filter(|run| !run[0]).map(<[bool]>::len).max().unwrap_or(0);
+        assert!(gaps < 4, "{out}: {gaps} bytes in a row that no view covers");
+    }
+}
+
+/// glTF 2.0's default wrap is REPEAT: the floor's coordinates run to 1.5 under a base
+/// colour texture without a sampler, and the bake takes them as `--uv-wrap repeat` does,
+/// to the same bytes. An OBJ whose MTL texture map does not say `-clamp on` repeats as
+/// well; one that does is refused.
+#[test]
+fn textures_without_a_sampler_and_mtl_maps_repeat() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let mut doc = gltf_fixture(1.5, true);
+    doc["textures"][0].as_object_mut().unwrap().remove("sampler");
+    doc.as_object_mut().unwrap().remove("samplers");
+    std::fs::write(d.join("colour.png"), png()).unwrap();
+    std::fs::write(d.join("nosampler.gltf"), serde_json::to_vec(&doc).unwrap()).unwrap();
+    let common = ["--texture", "32", "--device", "cpu", "--samples", "4"];
+    bake(d, &[&["nosampler.gltf", "-o", "file.glb"][..], &common].concat());
+    bake(d, &[&["nosampler.gltf", "-o", "repeat.glb", "--uv-wrap", "repeat"][..], &common].concat());
+    let (file, repeat) = (glb_parts(&d.join("file.glb")), glb_parts(&d.join("repeat.glb")));
+    assert!(file == repeat, "the file's wrap is not REPEAT");
+    let wrap = &file.0["samplers"][0];
+    assert_eq!((wrap["wrapS"].as_u64(), wrap["wrapT"].as_u64()), (Some(10497), Some(10497)));
+
+    // The floor's u runs over [0.25, 1.75] in an OBJ.
+    let (v, f) = floor(2, 1.0, (DVec2::new(0.25, 0.0), 1.5));
+    let mut obj = String::from("mtllib floor.mtl\n");
+    for p in &v {
+        obj += &format!("v {} {} {}\nvt {} {}\n", p.p.x, p.p.y, p.p.z, p.uv.x, p.uv.y);
+    }
+    obj += "usemtl tiles\n";
+    for face in &f {
+        obj += "f";
+        for i in face {
+            obj += &format!(" {}/{}", i + 1, i + 1);
+        }
+        obj += "\n";
+    }
+    std::fs::write(d.join("floor.obj"), &obj).unwrap();
+    let plane = "[[object]]\ntype = \"sphere\"\ncenter = [0, 0.6, 0]\nradius = 0.5\n";
+    std::fs::write(d.join("floor.toml"), scene("floor.obj", plane)).unwrap();
+    for (mtl, wraps) in [("map_Kd -s 1 1 1 tiles.png\n", true), ("map_Kd -clamp on tiles.png\n", false)] {
+        std::fs::write(d.join("floor.mtl"), format!("newmtl tiles\nKd 1 1 1\n{mtl}")).unwrap();
+        let _ = std::fs::remove_file(d.join("file.exr"));
+        if !wraps {
+            bake_refused(&["floor.toml", "-o", "file.exr", "--texture", "32"], d, "outside [0, 1]");
+            continue;
+        }
+        bake(d, &[&["floor.toml", "-o", "file.exr"][..], &common].concat());
+        bake(d, &[&["floor.toml", "-o", "repeat.exr", "--uv-wrap", "repeat"][..], &common].concat());
+        assert_eq!(std::fs::read(d.join("file.exr")).unwrap(), std::fs::read(d.join("repeat.exr")).unwrap());
+        // Every texel is on the floor: u over 1.5 copies of the texture covers it all.
+        let (_, _, texels) = read_exr(&d.join("file.exr"));
+        assert!(texels.iter().all(|t| t.2), "a texel is off the floor");
+    }
+}
+
+/// `aorender bake` with `args` in `dir` under the memory budget `limit` (bytes, through
+/// `AORENDER_MEMORY_LIMIT`): its output.
+fn bake_within(dir: &Path, limit: Option<u64>, args: &[&str]) -> std::process::Output {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_aorender"));
+    command.arg("bake").args(args).current_dir(dir).env("XDG_RUNTIME_DIR", std::env::temp_dir());
+    if let Some(limit) = limit {
+        command.env("AORENDER_MEMORY_LIMIT", limit.to_string());
+    }
+    command.output().expect("aorender runs")
+}
+
+/// A texture bake larger than its memory budget is traced a block of texels at a time:
+/// with bent normals (four film slots a point, where a plain bake has one) its heap's
+/// peak stays within 1.5 times the plain bake's, both within the budget, and the maps are
+/// those of the bake traced whole, byte for byte (on the CPU reference and the adapter). A budget the textures alone exceed is
+/// refused before any work, and so is a bake with a checkpoint (which needs every point
+/// in one film) past it.
+#[test]
+fn a_texture_bake_is_traced_in_blocks_within_its_memory_budget() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let (v, f) = floor(8, 2.0, (DVec2::ZERO, 1.0));
+    std::fs::write(d.join("floor.ply"), ply(&v, &f)).unwrap();
+    let sphere = "[[object]]\ntype = \"sphere\"\ncenter = [0, 0.6, 0]\nradius = 0.5\n";
+    std::fs::write(d.join("scene.toml"), scene("floor.ply", sphere)).unwrap();
+    // 512² texels, 4 points each: a million points, 216 MB of them plain and 624 MB with
+    // bent normals traced whole.
+    const LIMIT: u64 = 64 << 20;
+    let common = ["--texture", "512", "--samples", "2", "--device", "cpu"];
+    let mut peaks = Vec::new();
+    for bent in [false, true] {
+        let mut heap = Vec::new();
+        for (limit, out) in [(None, "whole.exr"), (Some(LIMIT), "blocks.exr")] {
+            let mut args = [&["scene.toml", "-o", out][..], &common].concat();
+            if bent {
+                args.push("--bent-normals");
+            }
+            let o = bake_within(d, limit, &args);
+            assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+            let stats: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+            assert_eq!(stats["points_traced"], 1 << 20);
+            heap.push(stats["heap_peak_bytes"].as_u64().unwrap());
+        }
+        assert_eq!(std::fs::read(d.join("blocks.exr")).unwrap(), std::fs::read(d.join("whole.exr")).unwrap());
+        if bent {
+            let (a, b) = (d.join("blocks_bent_normals.png"), d.join("whole_bent_normals.png"));
+            assert_eq!(std::fs::read(a).unwrap(), std::fs::read(b).unwrap());
+        }
+        assert!(heap[1] <= LIMIT, "bent normals {bent}: {} bytes past the budget of {LIMIT}", heap[1]);
+        assert!(heap[1] < heap[0] / 2, "bent normals {bent}: {heap:?}: the blocks took as much as the whole");
+        peaks.push(heap[1]);
+    }
+    assert!(peaks[1] as f64 <= 1.5 * peaks[0] as f64, "bent normals: {} bytes, plain {}", peaks[1], peaks[0]);
+    // On the adapter too, the blocks give the whole bake's maps.
+    if gpu_available() {
+        let common = ["--texture", "512", "--samples", "2", "--device", "gpu", "--bent-normals"];
+        for (limit, out) in [(None, "gpu-whole.exr"), (Some(LIMIT), "gpu-blocks.exr")] {
+            let o = bake_within(d, limit, &[&["scene.toml", "-o", out][..], &common].concat());
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        }
+        for suffix in [".exr", "_bent_normals.png"] {
+            let read = |name: &str| std::fs::read(d.join(name.replace(".exr", suffix))).unwrap();
+            assert!(read("gpu-blocks.exr") == read("gpu-whole.exr"), "the adapter's blocks differ ({suffix})");
+        }
+    }
+
+    for (limit, extra, expect) in
+        [(1 << 20, &[][..], "for its texels"), (LIMIT, &["--checkpoint", "c.ck"][..], "every point is traced at once")]
+    {
+        let args = [&["scene.toml", "-o", "refused.exr"][..], &common, extra].concat();
+        let o = bake_within(d, Some(limit), &args);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{stderr}");
+        assert!(stderr.lines().count() == 1 && stderr.contains(expect) && stderr.contains("GiB"), "{stderr}");
+        assert!(!d.join("refused.exr").exists() && !d.join("c.ck").exists());
+    }
+}

@@ -11,7 +11,7 @@ mod scene;
 use pyo3::prelude::*;
 use scene::PyScene;
 
-/// ambient_occlusion(V, F, P, N, samples=256, *, hemisphere="cosine", sampler="sobol",
+/// ambient_occlusion(V, F, P, N, samples=256, *, hemisphere="cosine", sampler="independent",
 /// max_distance=None, seed=0, replicate=None, surface_tolerance=None, device="auto") -> (ao, std_error)
 ///
 /// Ambient occlusion of the triangle mesh (V, F) at the points P about the normals N.
@@ -40,12 +40,13 @@ use scene::PyScene;
 /// compare 1 − igl with this AO only as two related measures (equal for a point that is
 /// fully open or fully closed).
 ///
-/// samples: rays per point. sampler: "sobol" (scrambled Sobol' points, lower error),
-/// "independent", "stratified" or "grid". replicate: samples per independently
-/// randomised replicate of "sobol" and "stratified" (a power of two up to 256, of four
-/// for stratified), from whose spread std_error is estimated; None (the default) keeps one
-/// replicate, the best points, and std_error is then the spread of single samples, which
-/// overestimates their error (valid as it stands for "independent"). seed: the random numbers' seed; the same seed,
+/// samples: rays per point. sampler: "independent" (the default, as on the command
+/// line), "sobol" (scrambled Sobol' points, lower error), "stratified" or "grid".
+/// replicate: samples per independently randomised replicate of "sobol" and
+/// "stratified" (a power of two up to 256, of four for stratified), from whose spread
+/// std_error is estimated; None (the default) keeps one replicate, the best points, and
+/// std_error is then the spread of single samples, which overestimates their error (valid
+/// as it stands for "independent"). seed: the random numbers' seed; the same seed,
 /// samples and device give the same values as `aorender probe --seed`. device: "auto" (the
 /// best GPU adapter, else the CPU reference), "gpu", "cpu", or part of an adapter's name.
 ///
@@ -64,7 +65,7 @@ use scene::PyScene;
 /// the current pass and raises KeyboardInterrupt. Bad input raises ValueError before any
 /// work; a device failure raises RuntimeError.
 #[pyfunction]
-#[pyo3(signature = (V, F, P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, replicate = None, surface_tolerance = None, device = "auto"))]
+#[pyo3(signature = (V, F, P, N, samples = 256, *, hemisphere = "cosine", sampler = "independent", max_distance = None, seed = 0, replicate = None, surface_tolerance = None, device = "auto"))]
 #[allow(non_snake_case, clippy::too_many_arguments)]
 fn ambient_occlusion<'py>(
     py: Python<'py>,

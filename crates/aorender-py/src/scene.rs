@@ -260,13 +260,13 @@ impl PyScene {
         format!("Scene({:?}, triangles={})", self.scene.name, self.scene.world_triangle_count())
     }
 
-    /// s.ambient_occlusion(P, N, samples=256, *, hemisphere="cosine", sampler="sobol",
+    /// s.ambient_occlusion(P, N, samples=256, *, hemisphere="cosine", sampler="independent",
     /// max_distance=None, seed=0, replicate=None, surface_tolerance=None, device="auto") -> (ao, std_error)
     ///
     /// AO at the points P (k, 3) about the normals N (k, 3) (any length but zero), with
     /// `samples` rays each: float64 arrays of k values, 1 fully open, and their standard
     /// errors. See `aorender.ambient_occlusion` for the estimator and its arguments.
-    #[pyo3(signature = (P, N, samples = 256, *, hemisphere = "cosine", sampler = "sobol", max_distance = None, seed = 0, replicate = None, surface_tolerance = None, device = "auto"))]
+    #[pyo3(signature = (P, N, samples = 256, *, hemisphere = "cosine", sampler = "independent", max_distance = None, seed = 0, replicate = None, surface_tolerance = None, device = "auto"))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn ambient_occlusion<'py>(
         &self,
@@ -288,7 +288,7 @@ impl PyScene {
         self.probe(py, &probes, samples, &settings, tolerance, device)
     }
 
-    /// s.render(width, height, spp, *, camera=None, hemisphere="cosine", sampler="sobol",
+    /// s.render(width, height, spp, *, camera=None, hemisphere="cosine", sampler="independent",
     /// seed=0, max_distance=None, replicate=None, background=0.0, device="auto") -> (image, stats)
     ///
     /// An AO image as `aorender render` makes it: a float32 array (height, width), row 0
@@ -297,7 +297,7 @@ impl PyScene {
     /// `aorender render --stats` writes them (a dict). `camera` is a dict of any of eye,
     /// look_at, up (3 numbers each) and fov (vertical, degrees) or ortho_height; keys left
     /// out keep the scene's camera (a mesh's, the automatic framing).
-    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "sobol", seed = 0, max_distance = None, replicate = None, background = 0.0, device = "auto"))]
+    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, background = 0.0, device = "auto"))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -336,7 +336,7 @@ impl PyScene {
         Ok((image.into_any(), stats))
     }
 
-    /// s.bake(samples=256, *, at="vertices", hemisphere="cosine", sampler="sobol", seed=0,
+    /// s.bake(samples=256, *, at="vertices", hemisphere="cosine", sampler="independent", seed=0,
     /// max_distance=None, replicate=None, device="auto", output=None, std_error=False, colors=False,
     /// overwrite=False) -> (ao, std_error)
     ///
@@ -348,7 +348,7 @@ impl PyScene {
     ///
     /// For a loaded scene, `output` writes the files as `aorender bake -o output` does: a
     /// mesh file of the input's format for a mesh file, a directory for a scene file.
-    #[pyo3(signature = (samples = 256, *, at = "vertices", hemisphere = "cosine", sampler = "sobol", seed = 0, max_distance = None, replicate = None, device = "auto", output = None, std_error = false, colors = false, overwrite = false))]
+    #[pyo3(signature = (samples = 256, *, at = "vertices", hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, device = "auto", output = None, std_error = false, colors = false, overwrite = false))]
     #[allow(clippy::too_many_arguments)]
     fn bake<'py>(
         &self,

@@ -542,6 +542,10 @@ impl Accumulation {
     /// The sums as a film: the exact sums, plus the block in progress rounded to the same
     /// quanta (as [`merge`] adds it).
     pub fn film(&self) -> Result<Film> {
+        if self.partial.is_none() {
+            // Nothing to add: the sums as they are, not a copy of them.
+            return Ok(self.exact.to_film(self.samples() as u64, self.film_replicate()));
+        }
         Ok(self.counted_sums()?.to_film(self.samples() as u64, self.film_replicate()))
     }
 

@@ -322,10 +322,12 @@ impl Prepared {
 
     /// The film of `probes`, `samples` samples each with the sampling of `settings`,
     /// spread over `lanes` slots a probe; or, with `bent_normals`, four slots a probe
-    /// (`lanes` must be 4): the AO and the escaped directions' x, y, z.
+    /// (`lanes` must be 4): the AO and the escaped directions' x, y, z. Probe k takes the
+    /// sample sequence of point `first_point` + k.
     pub(crate) fn probes(
         &self,
         probes: &[Probe],
+        first_point: u32,
         lanes: u32,
         samples: u32,
         settings: &Settings,
@@ -356,7 +358,7 @@ impl Prepared {
                         scene.node_count,
                         scene.plane_count,
                     );
-                    frame.first_point = (k * per_target) as u32;
+                    frame.first_point = first_point + (k * per_target) as u32;
                     let target = GpuTarget::probes(
                         dev,
                         scene,
@@ -379,6 +381,7 @@ impl Prepared {
                     tracer: tracer.clone(),
                     settings: settings.clone(),
                     probes: probes.to_vec(),
+                    first_point,
                     samples,
                     bent_normals,
                 },
@@ -572,6 +575,8 @@ struct CpuProbes {
     tracer: Arc<CpuTracer>,
     settings: Settings,
     probes: Vec<Probe>,
+    /// The sample sequence of probe k is point `first_point` + k's.
+    first_point: u32,
     samples: u32,
     bent_normals: bool,
 }
@@ -579,11 +584,11 @@ struct CpuProbes {
 impl CpuWork for CpuProbes {
     // Probe requests are not adaptive: every point is sampled.
     fn pass(&self, film: &mut Film, first: u32, count: u32, _inactive: &[bool]) -> u64 {
-        let (t, s, p) = (&self.tracer, &self.settings, &self.probes);
+        let (t, s, p, k) = (&self.tracer, &self.settings, &self.probes, self.first_point);
         if self.bent_normals {
-            t.probe_bent_pass(s, p, self.samples, film, first, count)
+            t.probe_bent_pass(s, p, k, self.samples, film, first, count)
         } else {
-            t.probe_pass(s, p, self.samples, film, first, count)
+            t.probe_pass(s, p, k, self.samples, film, first, count)
         }
     }
 }

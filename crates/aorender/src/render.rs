@@ -533,7 +533,14 @@ impl Render {
 
     /// The film, the figures and the accumulation of the render.
     pub fn finish(mut self) -> Result<RenderOutput> {
-        let accumulation = self.accumulation()?;
+        // The accumulation moves out rather than being copied, and the device's request
+        // goes before the film is made: the exact sums are the largest thing a request
+        // holds (a bake's millions of points).
+        let partial = if self.acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+        let device_bytes = self.passes.device_bytes();
+        drop(self.passes);
+        let mut accumulation = self.acc;
+        accumulation.partial = partial;
         let film = accumulation.film()?;
         let acc = &accumulation;
         let s = &acc.settings;
@@ -574,7 +581,7 @@ impl Render {
             sampler: s.sampler.name().into(),
             seed: s.seed,
             bvh_layout: setup.bvh_layout.name().into(),
-            device_bytes: setup.device_bytes + self.passes.device_bytes(),
+            device_bytes: setup.device_bytes + device_bytes,
             geometry_bindings: setup.geometry_bindings,
             geometry_storage: setup.geometry_storage.into(),
             traversal: setup.traversal.into(),

@@ -259,6 +259,22 @@ impl Session {
         settings: &Settings,
         bent_normals: bool,
     ) -> Result<Render> {
+        self.probe_render_from(probes, 0, spp, samples, settings, bent_normals)
+    }
+
+    /// [`Session::probe_render`] of a block of a larger set of points that starts at point
+    /// `first_point`: probe k takes the sample sequence of point `first_point` + k, so that
+    /// blocks traced one after another give the values of the whole set traced at once
+    /// (how `aorender bake` bounds the memory of a large texture bake).
+    pub fn probe_render_from(
+        &self,
+        probes: &[Probe],
+        first_point: u32,
+        spp: u32,
+        samples: Option<Range<u32>>,
+        settings: &Settings,
+        bent_normals: bool,
+    ) -> Result<Render> {
         settings.validate_sampling()?;
         if spp == 0 {
             return Err(Error::settings("samples per point must be at least 1"));
@@ -275,15 +291,32 @@ impl Session {
         }
         let probes = checked(probes)?;
         let slots = if bent_normals { 4 } else { 1 };
+        if probes.len() as u64 + u64::from(first_point) > u64::from(u32::MAX) {
+            return Err(Error::settings(format!(
+                "{} points from point {first_point}: at most 2³² in all",
+                probes.len()
+            )));
+        }
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * slots as u64, settings.replicate_samples() >= 2)?;
         let start = Instant::now();
-        let passes = self.prepared.probes(&self.local_probes(&probes), slots, spp, settings, bent_normals)?;
+        let local = self.local_probes(&probes);
+        let passes = self.prepared.probes(&local, first_point, slots, spp, settings, bent_normals)?;
+        drop(local);
         let target_seconds = start.elapsed().as_secs_f64();
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let layout = if bent_normals { FilmLayout::BentProbes } else { FilmLayout::Probes };
-        let hash = probes_hash(geometry, &probes);
-        let sample_settings = SampleSettings::probes(hash, layout, slots, probes.len() as u32, spp, settings);
+        let mut hash = probes_hash(geometry, &probes);
+        if first_point > 0 {
+            // Another block's samples: a checkpoint of one is not another's.
+            let mut h = blake3::Hasher::new();
+            h.update(&hash);
+            h.update(&first_point.to_le_bytes());
+            hash = *h.finalize().as_bytes();
+        }
+        let points = probes.len() as u32;
+        drop(probes);
+        let sample_settings = SampleSettings::probes(hash, layout, slots, points, spp, settings);
         let mut acc = Accumulation::new(
             sample_settings,
             self.device.kind(),
@@ -329,7 +362,7 @@ impl Session {
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * lanes as u64, settings.replicate_samples() >= 2)?;
         let rounds = samples.div_ceil(lanes);
-        let passes = self.prepared.probes(&self.local_probes(probes), lanes, samples, settings, false)?;
+        let passes = self.prepared.probes(&self.local_probes(probes), 0, lanes, samples, settings, false)?;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let hash = probes_hash(geometry, probes);
         let sample_settings =

@@ -6,9 +6,10 @@ use crate::args::{RunArgs, SamplingArgs, SceneArgs, read_shards, write_json};
 use crate::{memory, output, signals};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::bake::{
-    Asset, AssetMesh, BakeAt, BakePlan, GeneratedUvs, Placement, TextureFiles, TextureMap, TextureOptions, TexturePlan,
-    TextureStats, UNUSABLE_VALUE, UvWrap, WriteOptions, check_output, format_of, generate_uvs, map_path, output_path,
-    plan_companions, plan_output, read_object,
+    Asset, AssetMesh, BakeAt, BakePlan, BakedTexture, Coverage, GeneratedUvs, Placement, TextureFiles, TextureLayout,
+    TextureMap, TextureOptions, TexturePlan, TextureStats, TextureTarget, UNUSABLE_VALUE, UvWrap, WriteOptions,
+    bytes_per_point, check_output, format_of, generate_uvs, map_path, output_path, plan_companions, plan_output,
+    read_object,
 };
 use aorender::output::{FilePlan, OutputRules, write_output};
 use aorender::scene::MeshObject;
@@ -17,11 +18,16 @@ use aorender::{
     probe_film_values,
 };
 use clap::ValueEnum;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
 #[derive(clap::Args)]
+#[command(mut_arg("scene", |a| a
+    .required(true)
+    .value_name("INPUT")
+    .help("The mesh to bake (.obj, .ply, .gltf or .glb, each optionally gzipped: .gz), or a scene file (.toml) whose mesh objects are baked, all its objects occluding")))]
 pub struct BakeArgs {
     #[command(flatten)]
     scene: SceneArgs,
@@ -281,39 +287,55 @@ pub fn run(args: BakeArgs) -> Result<()> {
         }
         meshes
     });
-    let meshes = targets.iter().flat_map(|t| {
-        let meshes = with_uvs.as_deref().unwrap_or(t.asset.meshes());
-        meshes.iter().map(|m| (m, Placement::of(&t.object)))
-    });
+    let meshes: Vec<(&AssetMesh, Placement)> = targets
+        .iter()
+        .flat_map(|t| {
+            let meshes = with_uvs.as_deref().unwrap_or(t.asset.meshes());
+            meshes.iter().map(|m| (m, Placement::of(&t.object)))
+        })
+        .collect();
+    // A texture bake too large for one block of points is traced a block at a time.
+    let mut blocked: Option<(TextureLayout, Vec<Range<usize>>)> = None;
     let (plan, texture_plan) = match &texture {
-        None => (BakePlan::new(meshes, at), None),
+        None => (BakePlan::new(meshes.iter().copied(), at), None),
         Some(options) => {
-            let meshes: Vec<_> = meshes.collect();
-            let memory = memory::available_bytes().unwrap_or(u64::MAX);
-            let plan = TexturePlan::new(&meshes, options, args.bent_normals, memory).map_err(|e| {
+            let in_input = |e: aorender::Error| {
                 anyhow!("{}: {}", input.display(), e.to_string().trim_start_matches("invalid settings: "))
-            })?;
-            if plan.targets.len() > 1 && is_map(&args.output) {
+            };
+            let memory = memory::budget_bytes()?;
+            let layout = TextureLayout::new(&meshes, options, memory).map_err(in_input)?;
+            if layout.targets.len() > 1 && is_map(&args.output) {
                 bail!(
                     "{}: its meshes use {} materials, each baked into its own texture: bake into a .glb or .gltf file",
                     input.display(),
-                    plan.targets.len()
+                    layout.targets.len()
                 );
             }
-            (BakePlan::default(), Some(plan))
+            let blocks = texture_blocks(&args, &input, &layout, options, memory)?;
+            if blocks.len() <= 1 {
+                (BakePlan::default(), Some(layout.plan(&meshes, 0..layout.covered_texels(), 0)))
+            } else {
+                blocked = Some((layout, blocks));
+                (BakePlan::default(), None)
+            }
         }
     };
     let probes: &[Probe] = texture_plan.as_ref().map_or(&plan.probes, |t| &t.probes);
     let load_seconds = load_start.elapsed().as_secs_f64();
-    if probes.is_empty() {
+    if probes.is_empty() && blocked.is_none() {
         match &texture_plan {
             Some(_) => bail!("{}: no triangle covers a texel with a usable normal: nothing to bake", input.display()),
             None => bail!("{}: no {} has a usable normal: nothing to bake", input.display(), singular(at)),
         }
     }
-    if let Some(tp) = texture_plan.as_ref().filter(|_| !is_map(&args.output)) {
+    let texture_targets: Vec<TextureTarget> = match (&texture_plan, &blocked) {
+        (Some(tp), _) => tp.targets.clone(),
+        (None, Some((layout, _))) => layout.targets.clone(),
+        _ => Vec::new(),
+    };
+    if texture.is_some() && !is_map(&args.output) {
         let written = TextureFiles {
-            maps: tp.targets.len(),
+            maps: texture_targets.len(),
             bent_normals: args.bent_normals,
             generated_uvs: generated.is_some(),
         };
@@ -332,7 +354,10 @@ pub fn run(args: BakeArgs) -> Result<()> {
         input: input.clone(),
         outputs: targets.iter().map(|t| t.output.clone()).collect(),
         at: at.name(),
-        meshes: texture_plan.as_ref().map_or(plan.mesh_count(), |t| t.targets.iter().map(|t| t.meshes.len()).sum()),
+        meshes: match texture {
+            Some(_) => texture_targets.iter().map(|t| t.meshes.len()).sum(),
+            None => plan.mesh_count(),
+        },
         points: texture_plan.as_ref().map_or(plan.entry_count(), TexturePlan::covered_texels),
         points_traced: probes.len(),
         points_without_normal: plan.unusable,
@@ -359,6 +384,30 @@ pub fn run(args: BakeArgs) -> Result<()> {
         heap_peak_bytes: None,
         texture: None,
     };
+    if let (Some((layout, blocks)), Some(options)) = (&blocked, &texture) {
+        let traced = trace_blocks(&args, scene, (layout, blocks), &meshes, &stop, &mut stats)?;
+        let mut maps = traced.maps;
+        for map in &mut maps {
+            map.pad(options.padding);
+        }
+        let counts = TexelCounts {
+            overlapping: traced.overlapping_texels,
+            skipped: layout.skipped_triangles,
+            wrapped: layout.wrapped_triangles,
+        };
+        stats.points = maps.iter().map(|m| m.coverage.iter().filter(|c| **c == Coverage::Covered).count()).sum();
+        let written = (&targets[0], generated.as_ref(), generated_report);
+        return write_texture_bake(
+            &args,
+            options,
+            &texture_targets,
+            maps,
+            counts,
+            written,
+            stats,
+            checkpoint_path.as_deref(),
+        );
+    }
     let film = if args.merge.is_empty() {
         let resume = match &args.run.resume {
             Some(path) => {
@@ -401,100 +450,22 @@ pub fn run(args: BakeArgs) -> Result<()> {
     stats.mean_ao = values.iter().map(|v| v.mean).sum::<f64>() / traced;
     if let (Some(tp), Some(options)) = (&texture_plan, &texture) {
         let maps = tp.textures(&values, bent.as_deref(), options.padding);
-        let report = TextureReport {
-            width: options.width,
-            height: options.height,
-            uv_set: options.uv_set,
-            textures: maps.len(),
-            points_per_texel: options.points,
-            samples_per_texel: u64::from(options.points) * u64::from(stats.samples_per_point),
-            padding: options.padding,
-            bit_depth: args.bit_depth,
-            overlapping_texels: tp.overlapping_texels,
-            skipped_triangles: tp.skipped_triangles,
-            wrapped_triangles: tp.wrapped_triangles,
-            generated_uvs: generated_report,
-            maps: maps.iter().map(|m| m.stats()).collect(),
+        let counts = TexelCounts {
+            overlapping: tp.overlapping_texels,
+            skipped: tp.skipped_triangles,
+            wrapped: tp.wrapped_triangles,
         };
-        let target = &targets[0];
-        let mut written = vec![args.output.clone()];
-        if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the directory", dir.display()))?;
-        }
-        if is_map(&args.output) {
-            let map = &maps[0];
-            let bytes = if is_exr(&args.output) { map.ao_exr()? } else { map.ao_png(args.bit_depth)? };
-            let bent = map.bent_png(args.bit_depth).transpose()?;
-            if let Some(png) = bent {
-                let path = sibling(&args.output, "_bent_normals.png");
-                write_output(&path, &png)?;
-                written.push(path);
-            }
-            write_output(&args.output, &bytes)?;
-        } else {
-            let mut encoded = Vec::with_capacity(maps.len());
-            for (map, t) in maps.iter().zip(&tp.targets) {
-                encoded.push(TextureMap {
-                    material: t.material,
-                    meshes: t.meshes.clone(),
-                    uv_set: options.uv_set,
-                    png: map.ao_png(args.bit_depth)?,
-                    bent_png: map.bent_png(args.bit_depth).transpose()?,
-                    repeat: options.wrap == UvWrap::Repeat || tp.wrapped_triangles > 0,
-                });
-            }
-            for note in target.asset.write_textures(&args.output, &encoded, generated.as_ref())? {
-                eprintln!("note: {}: {note}", args.output.display());
-            }
-            if format_of(&args.output) != Some("glTF") {
-                written.push(map_path(&args.output, "ao"));
-                if args.bent_normals {
-                    written.push(map_path(&args.output, "bent_normals"));
-                }
-            }
-        }
-        let covered: usize = report.maps.iter().map(|m| m.covered_texels).sum();
-        let rms = (report.maps.iter().map(|m| m.rms_std_error.powi(2) * m.covered_texels as f64).sum::<f64>()
-            / covered.max(1) as f64)
-            .sqrt();
-        stats.mean_ao =
-            report.maps.iter().map(|m| m.mean_ao * m.covered_texels as f64).sum::<f64>() / covered.max(1) as f64;
-        stats.outputs = written.clone();
-        stats.heap_peak_bytes = memory::heap_peak_bytes();
-        let written: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
-        eprintln!(
-            "{}: {}×{} texture, {} texels × {} points × {} samples in {:.2} s ({:.1} M AO rays/s) on {}; mean AO {:.4}, RMS standard error {:.4}",
-            written.join(", "),
-            options.width,
-            options.height,
-            covered,
-            options.points,
-            stats.samples_per_point,
-            stats.render_seconds,
-            stats.rays_per_second / 1e6,
-            stats.adapter,
-            stats.mean_ao,
-            rms
+        let written = (&targets[0], generated.as_ref(), generated_report);
+        return write_texture_bake(
+            &args,
+            options,
+            &texture_targets,
+            maps,
+            counts,
+            written,
+            stats,
+            checkpoint_path.as_deref(),
         );
-        if tp.overlapping_texels > 0 {
-            eprintln!(
-                "note: {} texels are covered by overlapping charts (mirrored or stacked UVs): each holds the mean over the surfaces mapped to it",
-                tp.overlapping_texels
-            );
-        }
-        if tp.skipped_triangles > 0 {
-            eprintln!(
-                "note: {} triangles without texture coordinates at a corner or of zero area in UV space were not baked",
-                tp.skipped_triangles
-            );
-        }
-        stats.texture = Some(report);
-        let json = serde_json::to_string_pretty(&stats)?;
-        if let Some(path) = &args.run.stats {
-            write_json(path, &json)?;
-        }
-        output::print(&format!("{json}\n"))?;
-        return finish(&stats, &written, checkpoint_path.as_deref());
     }
     let baked = plan.values(&values, bent.as_deref());
 
@@ -536,6 +507,267 @@ pub fn run(args: BakeArgs) -> Result<()> {
     }
     output::print(&format!("{json}\n"))?;
     finish(&stats, &written, checkpoint_path.as_deref())
+}
+
+/// What a texture bake counted while placing its points.
+struct TexelCounts {
+    overlapping: usize,
+    skipped: usize,
+    wrapped: usize,
+}
+
+/// Writes a texture bake's `maps` (one per target, padded) as `-o` asks: the map alone, or
+/// the mesh (`target`'s asset, with `generated` coordinates) referencing them; then the
+/// statistics and the summary line.
+#[allow(clippy::too_many_arguments)]
+fn write_texture_bake(
+    args: &BakeArgs,
+    options: &TextureOptions,
+    targets: &[TextureTarget],
+    maps: Vec<BakedTexture>,
+    counts: TexelCounts,
+    (target, generated, generated_report): (&Target, Option<&GeneratedUvs>, Option<GeneratedReport>),
+    mut stats: BakeStats,
+    checkpoint_path: Option<&Path>,
+) -> Result<()> {
+    let report = TextureReport {
+        width: options.width,
+        height: options.height,
+        uv_set: options.uv_set,
+        textures: maps.len(),
+        points_per_texel: options.points,
+        samples_per_texel: u64::from(options.points) * u64::from(stats.samples_per_point),
+        padding: options.padding,
+        bit_depth: args.bit_depth,
+        overlapping_texels: counts.overlapping,
+        skipped_triangles: counts.skipped,
+        wrapped_triangles: counts.wrapped,
+        generated_uvs: generated_report,
+        maps: maps.iter().map(|m| m.stats()).collect(),
+    };
+    let mut written = vec![args.output.clone()];
+    if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the directory", dir.display()))?;
+    }
+    if is_map(&args.output) {
+        let map = &maps[0];
+        let bytes = if is_exr(&args.output) { map.ao_exr()? } else { map.ao_png(args.bit_depth)? };
+        let bent = map.bent_png(args.bit_depth).transpose()?;
+        if let Some(png) = bent {
+            let path = sibling(&args.output, "_bent_normals.png");
+            write_output(&path, &png)?;
+            written.push(path);
+        }
+        write_output(&args.output, &bytes)?;
+    } else {
+        let mut encoded = Vec::with_capacity(maps.len());
+        for (map, t) in maps.iter().zip(targets) {
+            encoded.push(TextureMap {
+                material: t.material,
+                meshes: t.meshes.clone(),
+                uv_set: options.uv_set,
+                png: map.ao_png(args.bit_depth)?,
+                bent_png: map.bent_png(args.bit_depth).transpose()?,
+                repeat: options.wrap == UvWrap::Repeat || counts.wrapped > 0,
+            });
+        }
+        for note in target.asset.write_textures(&args.output, &encoded, generated)? {
+            eprintln!("note: {}: {note}", args.output.display());
+        }
+        if format_of(&args.output) != Some("glTF") {
+            written.push(map_path(&args.output, "ao"));
+            if args.bent_normals {
+                written.push(map_path(&args.output, "bent_normals"));
+            }
+        }
+    }
+    let covered: usize = report.maps.iter().map(|m| m.covered_texels).sum();
+    let rms = (report.maps.iter().map(|m| m.rms_std_error.powi(2) * m.covered_texels as f64).sum::<f64>()
+        / covered.max(1) as f64)
+        .sqrt();
+    stats.mean_ao =
+        report.maps.iter().map(|m| m.mean_ao * m.covered_texels as f64).sum::<f64>() / covered.max(1) as f64;
+    stats.outputs = written.clone();
+    stats.heap_peak_bytes = memory::heap_peak_bytes();
+    let written: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
+    eprintln!(
+        "{}: {}×{} texture, {} texels × {} points × {} samples in {:.2} s ({:.1} M AO rays/s) on {}; mean AO {:.4}, RMS standard error {:.4}",
+        written.join(", "),
+        options.width,
+        options.height,
+        covered,
+        options.points,
+        stats.samples_per_point,
+        stats.render_seconds,
+        stats.rays_per_second / 1e6,
+        stats.adapter,
+        stats.mean_ao,
+        rms
+    );
+    if counts.overlapping > 0 {
+        eprintln!(
+            "note: {} texels are covered by overlapping charts (mirrored or stacked UVs): each holds the mean over the surfaces mapped to it",
+            counts.overlapping
+        );
+    }
+    if counts.skipped > 0 {
+        eprintln!(
+            "note: {} triangles without texture coordinates at a corner or of zero area in UV space were not baked",
+            counts.skipped
+        );
+    }
+    stats.texture = Some(report);
+    let json = serde_json::to_string_pretty(&stats)?;
+    if let Some(path) = &args.run.stats {
+        write_json(path, &json)?;
+    }
+    output::print(&format!("{json}\n"))?;
+    finish(&stats, &written, checkpoint_path)
+}
+
+/// The most bytes of points a texture bake traces at once, when nothing needs all its
+/// points in one film: a larger bake is traced a block of texels at a time, so that its
+/// memory is its textures' and one block's whatever its size.
+const BLOCK_BYTES: u64 = 1 << 30;
+
+/// The blocks of covered texels a texture bake traces one after another: one when its
+/// points fit [`BLOCK_BYTES`] (and `memory`); several otherwise, unless a time limit,
+/// checkpoints, a sample range or a merge needs every point in one film, when the bake
+/// must fit `memory` whole. Refused, with the figures, when it cannot fit.
+fn texture_blocks(
+    args: &BakeArgs,
+    input: &Path,
+    layout: &TextureLayout,
+    options: &TextureOptions,
+    memory: u64,
+) -> Result<Vec<Range<usize>>> {
+    let per_point = bytes_per_point(args.bent_normals);
+    let points = layout.nominal_points();
+    let room = memory.saturating_sub(layout.bytes);
+    let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+    if points > u64::from(u32::MAX) {
+        // A point's sample sequence is numbered by a 32-bit index.
+        bail!(
+            "{}: a {}×{} texture with {} points per texel has {points} points, more than the 2³² a bake numbers, and would need {:.2} GiB traced at once: choose a smaller --texture or fewer --texel-points",
+            input.display(),
+            options.width,
+            options.height,
+            options.points,
+            gib(layout.bytes + points * per_point)
+        );
+    }
+    let whole = args.run.time_limit.is_some()
+        || args.run.checkpoint.is_some()
+        || args.run.resume.is_some()
+        || args.run.sample_range.is_some()
+        || !args.merge.is_empty();
+    if whole {
+        if points * per_point > room {
+            bail!(
+                "{}: a {}×{} texture with {} points per texel needs {:.2} GiB for its textures and {points} points, more than the {:.2} GiB of memory available; with a time limit, checkpoints, a sample range or a merge every point is traced at once: choose a smaller --texture or fewer --texel-points, or leave those out to trace in blocks",
+                input.display(),
+                options.width,
+                options.height,
+                options.points,
+                gib(layout.bytes + points * per_point),
+                gib(memory)
+            );
+        }
+        return Ok(std::iter::once(0..layout.covered_texels()).collect());
+    }
+    let block = room.min(BLOCK_BYTES) / per_point;
+    if block < u64::from(options.points) {
+        bail!(
+            "{}: a {}×{} texture needs {:.2} GiB for its textures and the points of a texel, more than the {:.2} GiB of memory available: choose a smaller --texture or fewer --texel-points",
+            input.display(),
+            options.width,
+            options.height,
+            gib(layout.bytes + u64::from(options.points) * per_point),
+            gib(memory)
+        );
+    }
+    Ok(layout.blocks(block))
+}
+
+/// What [`trace_blocks`] made.
+struct Traced {
+    /// The textures, their covered texels baked (not padded).
+    maps: Vec<BakedTexture>,
+    overlapping_texels: usize,
+}
+
+/// Traces a texture bake one block of texels after another on one session (the BVH built
+/// once), each block's points taking the sample sequences they have in the whole bake, and
+/// writes each block's texels into the textures before placing the next block's points.
+/// A signal ends the bake after the current pass, writing nothing.
+fn trace_blocks(
+    args: &BakeArgs,
+    scene: aorender::Scene,
+    (layout, blocks): (&TextureLayout, &[Range<usize>]),
+    meshes: &[(&AssetMesh, Placement)],
+    stop: &AtomicBool,
+    stats: &mut BakeStats,
+) -> Result<Traced> {
+    let settings = scene.settings.clone();
+    let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
+    let session = Session::new(&device, scene, &args.scene.bvh())?;
+    let mut maps = layout.blank_textures(args.bent_normals);
+    let (mut first, mut overlapping_texels, mut traced) = (0u32, 0, 0);
+    let bar = signals::PassProgress::new(args.samples * blocks.len() as u32, "samples");
+    let (mut rays, mut seconds) = (0u64, 0.0f64);
+    for (b, block) in blocks.iter().enumerate() {
+        let plan = layout.plan(meshes, block.clone(), first);
+        if plan.probes.is_empty() {
+            continue;
+        }
+        let done = b as u32 * args.samples;
+        let mut on_progress = |p: &Progress| {
+            bar.update(&Progress {
+                samples_done: done + p.samples_done,
+                samples_total: args.samples * blocks.len() as u32,
+                rays: rays + p.rays,
+                elapsed: seconds + p.elapsed,
+            })
+        };
+        let mut control = Control { stop: Some(stop), progress: Some(&mut on_progress), ..Control::default() };
+        let mut render =
+            session.probe_render_from(&plan.probes, first, args.samples, None, &settings, args.bent_normals)?;
+        render.run(&mut control)?;
+        let out = render.finish()?;
+        if out.stats.interrupted {
+            bar.finish();
+            let signal = signals::stop_signal();
+            eprintln!(
+                "aorender: interrupted by {} in block {} of {}; nothing was written",
+                signals::signal_name(signal),
+                b + 1,
+                blocks.len()
+            );
+            std::process::exit(128 + signal);
+        }
+        let acc = &out.accumulation;
+        (rays, seconds) = (rays + acc.ao_rays, seconds + acc.render_seconds);
+        stats.bvh_build_seconds = out.stats.bvh_build_seconds;
+        stats.setup_seconds += out.stats.setup_seconds;
+        stats.adapter = out.stats.adapter.clone();
+        let values = probe_film_values(&out.film);
+        let bent = probe_film_bent_normals(&out.film);
+        drop(out);
+        plan.fill(&mut maps, &values, bent.as_deref());
+        overlapping_texels += plan.overlapping_texels;
+        traced += plan.probes.len();
+        first += plan.probes.len() as u32;
+    }
+    bar.finish();
+    if traced == 0 {
+        bail!("{}: no triangle covers a texel with a usable normal: nothing to bake", stats.input.display());
+    }
+    stats.samples_per_point = args.samples;
+    stats.points_traced = traced;
+    stats.ao_rays = rays;
+    stats.render_seconds = seconds;
+    stats.rays_per_second = rays as f64 / seconds.max(1e-9);
+    Ok(Traced { maps, overlapping_texels })
 }
 
 /// Exits as `render` does after an interrupted bake; notes a time limit.

@@ -74,10 +74,16 @@ pub fn aorender(args: &[&str], cwd: &std::path::Path) -> std::process::Output {
 }
 
 /// Runs `aorender bake` with `args` in `dir`; panics with its output unless it succeeds.
+/// A glTF output (`-o NAME.glb` or `.gltf`) must pass the Khronos glTF-Validator with no
+/// error or warning its input (a glTF input) does not have ([`assert_valid_gltf`]).
 pub fn bake(dir: &std::path::Path, args: &[&str]) -> String {
     let out = aorender(&[&["bake"][..], args].concat(), dir);
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
     assert!(out.status.success(), "bake {args:?}: {stderr}");
+    if let Some((output, input)) = gltf_output(args) {
+        let input = input.map(|i| dir.join(i));
+        assert_valid_gltf(&dir.join(output), input.as_deref());
+    }
     stderr
 }
 
@@ -151,4 +157,96 @@ pub fn grid_quads(n: u32) -> Vec<Vec<u32>> {
         }
     }
     f
+}
+
+/// One issue the Khronos glTF-Validator reports.
+#[derive(Clone, Debug, serde::Deserialize)]
+pub struct GltfIssue {
+    /// Its code, e.g. `UNUSED_OBJECT`.
+    pub code: String,
+    /// 0 error, 1 warning, 2 information, 3 hint.
+    pub severity: u8,
+    /// Where: a JSON pointer.
+    pub pointer: String,
+    /// In words.
+    pub message: String,
+}
+
+#[derive(serde::Deserialize)]
+struct GltfReport {
+    issues: Vec<GltfIssue>,
+}
+
+/// The issues the Khronos glTF-Validator (`scripts/validate-gltf`, installed from npm on
+/// first use) finds in each of `files`. `None` when node or npm is missing: a failure in
+/// CI (`CI` set), a loud skip elsewhere.
+pub fn gltf_issues(files: &[&std::path::Path]) -> Option<Vec<Vec<GltfIssue>>> {
+    let out = std::process::Command::new("bash")
+        .arg(repo().join("scripts/validate-gltf"))
+        .args(files)
+        .output()
+        .expect("bash runs");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    match out.status.code() {
+        Some(0) => {}
+        Some(3) if std::env::var_os("CI").is_none() => {
+            eprintln!("SKIPPED: the glTF validator cannot run ({})", stderr.trim());
+            return None;
+        }
+        _ => panic!("scripts/validate-gltf {files:?} failed: {stderr}"),
+    }
+    let reports: Vec<GltfReport> = serde_json::from_slice(&out.stdout).expect("the validator's JSON");
+    assert_eq!(reports.len(), files.len());
+    Some(reports.into_iter().map(|r| r.issues).collect())
+}
+
+/// Asserts that the Khronos glTF-Validator finds in `output` no error or warning whose
+/// code it does not find in `input` (when given), and no unused object unless `input`
+/// has one too. Returns the output's issues (`None` when the validator cannot run
+/// outside CI).
+pub fn assert_valid_gltf(output: &std::path::Path, input: Option<&std::path::Path>) -> Option<Vec<GltfIssue>> {
+    let files: Vec<&std::path::Path> = [Some(output), input].into_iter().flatten().collect();
+    let mut reports = gltf_issues(&files)?;
+    let theirs = if input.is_some() { reports.pop().unwrap_or_default() } else { Vec::new() };
+    let ours = reports.pop().unwrap_or_default();
+    let known = |i: &GltfIssue| theirs.iter().any(|t| t.code == i.code);
+    // glTF has no material slot for a bent normals map: the texture the bake references
+    // from a material's extras is one the validator cannot see used.
+    let bent = bent_normal_textures(output);
+    let expected =
+        |i: &GltfIssue| i.code == "UNUSED_OBJECT" && bent.iter().any(|t| i.pointer == format!("/textures/{t}"));
+    let new: Vec<&GltfIssue> =
+        ours.iter().filter(|i| (i.severity <= 1 || i.code == "UNUSED_OBJECT") && !known(i) && !expected(i)).collect();
+    assert!(new.is_empty(), "{}: the glTF validator finds {new:#?}", output.display());
+    Some(ours)
+}
+
+/// The textures a glTF file's materials name in `extras.bentNormalTexture`.
+fn bent_normal_textures(path: &std::path::Path) -> Vec<u64> {
+    let mut bytes = std::fs::read(path).unwrap_or_default();
+    if path.extension().is_some_and(|e| e == "gz") {
+        let mut plain = Vec::new();
+        std::io::Read::read_to_end(&mut flate2::read::GzDecoder::new(&bytes[..]), &mut plain).unwrap();
+        bytes = plain;
+    }
+    let json = match gltf::binary::Glb::from_slice(&bytes) {
+        Ok(glb) => glb.json.into_owned(),
+        Err(_) => bytes,
+    };
+    let doc: serde_json::Value = serde_json::from_slice(&json).unwrap_or_default();
+    let materials = doc["materials"].as_array().cloned().unwrap_or_default();
+    materials.iter().filter_map(|m| m["extras"]["bentNormalTexture"]["index"].as_u64()).collect()
+}
+
+/// The first of `args` that names a glTF output (`-o NAME.glb`, `.gltf`, either
+/// gzipped), and the input (the first argument) when it is a glTF file.
+pub fn gltf_output(args: &[&str]) -> Option<(String, Option<String>)> {
+    let is_gltf = |a: &str| {
+        let a = a.strip_suffix(".gz").unwrap_or(a);
+        a.ends_with(".glb") || a.ends_with(".gltf")
+    };
+    let at = args.iter().position(|a| *a == "-o" || *a == "--output")?;
+    let output = args.get(at + 1).filter(|o| is_gltf(o))?;
+    let input = args.first().filter(|i| is_gltf(i) && !i.starts_with('-'));
+    Some((output.to_string(), input.map(|i| i.to_string())))
 }

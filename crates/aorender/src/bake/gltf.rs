@@ -12,6 +12,7 @@
 use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureFiles, TextureMap, UvSet, WriteOptions,
 };
+use super::gltf_tidy::{self, array};
 use crate::error::{Error, Result};
 use crate::output::{write_output, write_output_with};
 use crate::scene::extension;
@@ -19,7 +20,7 @@ use crate::scene::files::relative_file;
 use crate::scene::gltf::{GltfBytes, json_memory, read_buffers, read_gltf, uri_file};
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::one_line;
-use crate::scene::input::{LoadOptions, Meter};
+use crate::scene::input::{Input, LoadOptions, Meter};
 use crate::scene::meshes::stem;
 use ::gltf::json::{Value, deserialize, serialize};
 use flate2::Compression;
@@ -247,7 +248,7 @@ impl Asset for GltfAsset {
                 "glTF has no per-face attributes: bake at vertices, or per face into a .ply file".to_string(),
             ));
         }
-        let (glb, mut doc, input_dir, output_dir) = self.output_document(path)?;
+        let (glb, mut doc, _, _) = self.output_document(path)?;
         self.check_values(path, values, options)?;
         let mut notes = self.warnings.clone();
 
@@ -256,16 +257,8 @@ impl Asset for GltfAsset {
         // a .gltf (where no index changes).
         let mut data = self.bin.clone().unwrap_or_default();
         pad(&mut data, 0);
-        let buffer = if self.bin.is_some() {
-            0
-        } else if glb {
-            insert_first_buffer(&mut doc);
-            0
-        } else {
-            let buffers = array(&mut doc, "buffers");
-            buffers.push(object([]));
-            buffers.len() - 1
-        };
+        let (buffer, shift) = self.owned_buffer(&mut doc, glb, true);
+        let buffer = buffer.expect("a bake into vertices writes a buffer");
 
         let fill = self.meshes_to_fill(&mut doc, &mut notes);
         let mut kept_colors = BTreeSet::new();
@@ -282,7 +275,8 @@ impl Asset for GltfAsset {
                     notes.push(format!("{}: its own COLOR_0 is kept; AO went into its _AO attribute only", mesh.label));
                 }
             } else {
-                let grey = v.ao.iter().flat_map(|&a| [a, a, a, 1.0]);
+                // A colour is in [0, 1] (glTF 2.0, 3.7.2.1), whatever values it is given.
+                let grey = v.ao.iter().map(|a| a.clamp(0.0, 1.0)).flat_map(|a| [a, a, a, 1.0]);
                 added.push(("COLOR_0", Some(add_accessor(&mut doc, &mut data, buffer, "VEC4", n, grey))));
             }
             added.push((AO, Some(add_accessor(&mut doc, &mut data, buffer, "SCALAR", n, v.ao.iter().copied()))));
@@ -311,28 +305,7 @@ impl Asset for GltfAsset {
                 };
             }
         }
-        if data.is_empty() {
-            // A buffer holds at least one byte.
-            data.extend([0; 4]);
-        }
-
-        let buffers = array(&mut doc, "buffers");
-        buffers[buffer]["byteLength"] = data.len().into();
-        if glb {
-            let json = serialize::to_vec(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
-            let bytes = glb_bytes(json, data).ok_or_else(|| fail("the GLB would exceed 4 GiB".to_string()))?;
-            write_maybe_gzipped(path, &bytes)?;
-        } else {
-            let (bin_path, uri) = self.bin_file(path, &input_dir, &output_dir, &mut notes);
-            buffers[buffer]["uri"] = uri.into();
-            let json =
-                serialize::to_vec_pretty(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
-            // Everything is encoded before the first file is written, so that what can fail
-            // between the two writes is the disk alone.
-            let json = if is_gzip_name(path) { gzip(&json).map_err(|e| fail(e.to_string()))? } else { json };
-            write_output(&bin_path, &data)?;
-            write_output(path, &json)?;
-        }
+        self.emit(path, Draft { glb, doc, data, buffer: Some(buffer), shift, files: Vec::new() }, &mut notes)?;
         Ok(notes)
     }
     fn companion_files(&self, path: &Path, texture: Option<&TextureFiles>) -> Vec<(PathBuf, &'static str)> {
@@ -341,7 +314,7 @@ impl Asset for GltfAsset {
         }
         let (input_dir, output_dir) = (directory(&self.path), directory(path));
         let mut files = Vec::new();
-        if texture.is_none_or(|t| t.generated_uvs) {
+        if texture.is_none_or(|t| t.generated_uvs) || self.bin.is_some() {
             files.push((self.bin_file(path, &input_dir, &output_dir, &mut Vec::new()).0, "the glTF buffer"));
         }
         if let Some(t) = texture {
@@ -363,39 +336,23 @@ impl Asset for GltfAsset {
 
     fn write_textures(&self, path: &Path, maps: &[TextureMap], uvs: Option<&GeneratedUvs>) -> Result<Vec<String>> {
         let fail = |message: String| Error::output(path, message);
-        let (glb, mut doc, input_dir, output_dir) = self.output_document(path)?;
+        let (glb, mut doc, _, output_dir) = self.output_document(path)?;
         let mut notes = self.warnings.clone();
         // A GLB's images go into its binary chunk (buffer 0, made when missing); a .gltf's
         // into PNG files beside it.
         let mut data = self.bin.clone().unwrap_or_default();
-        if glb && self.bin.is_none() {
-            insert_first_buffer(&mut doc);
-        }
+        let (buffer, shift) = self.owned_buffer(&mut doc, glb, uvs.is_some());
         // Generated coordinates: each baked primitive's vertices split along the seams,
         // in new accessors (after the binary chunk's data; a .gltf's in a new buffer file).
-        let mut new_buffer = None;
-        let fill = match uvs {
-            Some(uvs) => {
-                let buffer = if glb {
-                    0
-                } else {
-                    let buffers = array(&mut doc, "buffers");
-                    buffers.push(object([]));
-                    buffers.len() - 1
-                };
+        let fill = match (uvs, buffer) {
+            (Some(uvs), Some(buffer)) => {
                 let fill = self.meshes_to_fill(&mut doc, &mut notes);
-                if glb {
-                    // After the binary chunk's data: the views' offsets are into it.
-                    self.split_primitives(&mut doc, &mut data, buffer, &fill, uvs).map_err(fail)?;
-                } else {
-                    let mut split = Vec::new();
-                    self.split_primitives(&mut doc, &mut split, buffer, &fill, uvs).map_err(fail)?;
-                    new_buffer = Some((buffer, split));
-                }
+                self.split_primitives(&mut doc, &mut data, buffer, &fill, uvs).map_err(fail)?;
                 fill
             }
-            None => self.targets.iter().map(|t| t.mesh).collect(),
+            _ => self.targets.iter().map(|t| t.mesh).collect(),
         };
+        let input_dir = directory(&self.path);
         let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
         let used: BTreeSet<PathBuf> = self.external_files().map(|f| comparable(&input_dir.join(f))).collect();
         let stem = stem(path);
@@ -423,15 +380,22 @@ impl Asset for GltfAsset {
         };
         for map in maps {
             let wrap = if map.repeat { 10497 } else { 33071 };
-            let samplers = array(&mut doc, "samplers");
-            // LINEAR magnification, LINEAR_MIPMAP_LINEAR minification.
-            samplers.push(object([
+            // LINEAR magnification, LINEAR_MIPMAP_LINEAR minification; one such sampler is
+            // shared by every map that wraps alike, the file's own when it has it.
+            let wanted = object([
                 ("magFilter", 9729.into()),
                 ("minFilter", 9987.into()),
                 ("wrapS", wrap.into()),
                 ("wrapT", wrap.into()),
-            ]));
-            let sampler = samplers.len() - 1;
+            ]);
+            let samplers = array(&mut doc, "samplers");
+            let sampler = match samplers.iter().position(|s| *s == wanted) {
+                Some(s) => s,
+                None => {
+                    samplers.push(wanted);
+                    samplers.len() - 1
+                }
+            };
             let texture = |doc: &mut Value, image: usize| {
                 let textures = array(doc, "textures");
                 textures.push(object([("sampler", sampler.into()), ("source", image.into())]));
@@ -484,38 +448,145 @@ impl Asset for GltfAsset {
                 }
             }
         }
-        if glb {
-            pad(&mut data, 0);
-            if data.is_empty() {
-                data.extend([0; 4]);
-            }
-            array(&mut doc, "buffers")[0]["byteLength"] = data.len().into();
-            let json = serialize::to_vec(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
-            let bytes = glb_bytes(json, data).ok_or_else(|| fail("the GLB would exceed 4 GiB".to_string()))?;
-            write_maybe_gzipped(path, &bytes)?;
-        } else {
-            if let Some((buffer, bytes)) = &new_buffer {
-                let (bin_path, uri) = self.bin_file(path, &input_dir, &output_dir, &mut notes);
-                let buffers = array(&mut doc, "buffers");
-                buffers[*buffer]["byteLength"] = bytes.len().max(1).into();
-                buffers[*buffer]["uri"] = uri.into();
-                let mut bytes = bytes.clone();
-                pad(&mut bytes, 0);
-                files.push((bin_path, bytes));
-            }
-            let json =
-                serialize::to_vec_pretty(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
-            let json = if is_gzip_name(path) { gzip(&json).map_err(|e| fail(e.to_string()))? } else { json };
-            for (file, png) in &files {
-                write_output(file, png)?;
-            }
-            write_output(path, &json)?;
-        }
+        self.emit(path, Draft { glb, doc, data, buffer, shift, files }, &mut notes)?;
         Ok(notes)
     }
 }
 
+/// An output being assembled: its JSON, the bytes of the buffer the bake writes, and the
+/// files to write beside a `.gltf`.
+struct Draft {
+    glb: bool,
+    doc: Value,
+    /// Buffer `buffer`'s bytes: the GLB's binary chunk, or a `.gltf`'s `NAME.bin`.
+    data: Vec<u8>,
+    /// The buffer the bake writes; `None` for a `.gltf` output that needs none.
+    buffer: Option<usize>,
+    /// How far the input's buffers moved up in `doc` (1 when a GLB's binary chunk buffer
+    /// was put first).
+    shift: usize,
+    /// Files beside a `.gltf` output (its images), with their bytes.
+    files: Vec<(PathBuf, Vec<u8>)>,
+}
+
 impl GltfAsset {
+    /// The buffer the bake writes into `doc` and how far the input's buffers moved: buffer
+    /// 0 for a GLB (made first when the input has no binary chunk) or an input GLB's chunk;
+    /// else, when `needed`, a new buffer after the file's.
+    fn owned_buffer(&self, doc: &mut Value, glb: bool, needed: bool) -> (Option<usize>, usize) {
+        if self.bin.is_some() {
+            (Some(0), 0)
+        } else if glb {
+            insert_first_buffer(doc);
+            (Some(0), 1)
+        } else if needed {
+            let buffers = array(doc, "buffers");
+            buffers.push(object([]));
+            (Some(buffers.len() - 1), 0)
+        } else {
+            (None, 0)
+        }
+    }
+
+    /// Finishes and writes an output: a GLB gets every buffer and image of the input in
+    /// its binary chunk; the objects the bake left unused are removed and the written
+    /// buffer keeps only the bytes still viewed ([`gltf_tidy`]); a `.gltf` gets its
+    /// buffer as `NAME.bin` and `draft.files` beside it, written before the JSON.
+    fn emit(&self, path: &Path, mut draft: Draft, notes: &mut Vec<String>) -> Result<()> {
+        let fail = |message: String| Error::output(path, message);
+        if draft.glb {
+            self.embed(&mut draft, notes)?;
+        }
+        let Draft { glb, mut doc, mut data, buffer, shift, mut files } = draft;
+        let removed = gltf_tidy::prune(&mut doc, &self.json, |k| if k == gltf_tidy::Kind::Buffers { shift } else { 0 });
+        let buffer = buffer.map(|b| {
+            let before = removed.get(&gltf_tidy::Kind::Buffers).map_or(0, |r| r.range(..b).count());
+            b - before
+        });
+        if let Some(buffer) = buffer {
+            gltf_tidy::compact(&mut doc, &mut data, buffer);
+            if data.is_empty() {
+                // A buffer holds at least one byte.
+                data.extend([0; 4]);
+            }
+            array(&mut doc, "buffers")[buffer]["byteLength"] = data.len().into();
+        }
+        if glb {
+            let json = serialize::to_vec(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
+            let bytes = glb_bytes(json, data).ok_or_else(|| fail("the GLB would exceed 4 GiB".to_string()))?;
+            return write_maybe_gzipped(path, &bytes);
+        }
+        if let Some(buffer) = buffer {
+            let (input_dir, output_dir) = (directory(&self.path), directory(path));
+            let (bin_path, uri) = self.bin_file(path, &input_dir, &output_dir, notes);
+            array(&mut doc, "buffers")[buffer]["uri"] = uri.into();
+            pad(&mut data, 0);
+            files.insert(0, (bin_path, data));
+        }
+        let json = serialize::to_vec_pretty(&doc).map_err(|e| fail(format!("cannot serialise the glTF JSON: {e}")))?;
+        // Everything is encoded before the first file is written, so that what can fail
+        // between the writes is the disk alone.
+        let json = if is_gzip_name(path) { gzip(&json).map_err(|e| fail(e.to_string()))? } else { json };
+        for (file, bytes) in &files {
+            write_output(file, bytes)?;
+        }
+        write_output(path, &json)
+    }
+
+    /// Moves the input's other buffers and its images named by URI into the GLB's binary
+    /// chunk (buffer 0). An image that cannot be read or whose type is unknown keeps its
+    /// URI, with a note.
+    fn embed(&self, draft: &mut Draft, notes: &mut Vec<String>) -> Result<()> {
+        let external = |v: &Value| v.get("uri").is_some();
+        let buffers =
+            draft.doc.get("buffers").and_then(Value::as_array).map_or(0, |b| b.iter().filter(|b| external(b)).count());
+        if buffers > 0 {
+            let mut bytes = read_buffers(&self.path, &self.options)?;
+            let shift = draft.shift;
+            gltf_tidy::embed_buffers(&mut draft.doc, &mut draft.data, 0, |i| {
+                i.checked_sub(shift).and_then(|i| bytes.get_mut(i)).map(std::mem::take)
+            });
+        }
+        let mut meter = Meter::new(&self.options.limits, "the images");
+        let count = self.json.get("images").and_then(Value::as_array).map_or(0, Vec::len);
+        for i in 0..count {
+            let Some(uri) = self.json["images"][i].get("uri").and_then(Value::as_str) else { continue };
+            let (mime, bytes) = match gltf_tidy::data_uri(uri) {
+                Some((mime, bytes)) => (Some(mime).filter(|m| m.starts_with("image/")), bytes),
+                None => match self.read_image(uri, &mut meter) {
+                    Ok(bytes) => (None, bytes),
+                    Err(e) => {
+                        notes.push(format!("image {i} ({uri}) could not be read, so the GLB names it: {e}"));
+                        continue;
+                    }
+                },
+            };
+            let declared = self.json["images"][i].get("mimeType").and_then(Value::as_str).map(str::to_string);
+            let Some(mime) = gltf_tidy::image_mime(&bytes).map(str::to_string).or(mime).or(declared) else {
+                notes.push(format!("image {i} ({uri}) is of a type glTF does not name, so the GLB keeps its URI"));
+                continue;
+            };
+            let view = gltf_tidy::add_view(&mut draft.doc, &mut draft.data, 0, &bytes);
+            let image = &mut draft.doc["images"][i];
+            if let Some(o) = image.as_object_mut() {
+                o.remove("uri");
+            }
+            image["bufferView"] = view.into();
+            image["mimeType"] = mime.into();
+        }
+        Ok(())
+    }
+}
+
+impl GltfAsset {
+    /// The bytes of the image file `uri` names, within the read budget and, unless the
+    /// file was read with external URIs allowed, from the file's folder alone.
+    fn read_image(&self, uri: &str, meter: &mut Meter) -> std::result::Result<Vec<u8>, String> {
+        let file = uri_file(&self.path, uri, self.options.allow_external_uris, true)?;
+        let input = Input::open_plain(&file, meter.limits()).map_err(|e| e.message())?;
+        input.read_all(&file, meter).map_err(|e| e.message())
+    }
+
     /// Rewrites each baked primitive (in the meshes `fill` gives each target) on its
     /// vertices split along the seams of `uvs`: every attribute and morph target gathered
     /// through `xref` into new accessors of `buffer` (their bytes appended to `data`), the
@@ -564,7 +635,7 @@ impl GltfAsset {
             for target in primitive.get("targets").and_then(Value::as_array).into_iter().flatten() {
                 let mut out = object([]);
                 for (name, accessor) in target.as_object().into_iter().flatten() {
-                    out[name.as_str()] = gather(doc, data, accessor, false)?.into();
+                    out[name.as_str()] = gather(doc, data, accessor, name == "POSITION")?.into();
                 }
                 targets.push(out);
             }
@@ -678,17 +749,6 @@ fn repeating_sets(json: &Value, material: Option<usize>) -> Vec<u32> {
         *sets.entry(set).or_insert(true) &= repeats;
     }
     sets.into_iter().filter(|(_, r)| *r).map(|(s, _)| s).collect()
-}
-
-/// `doc[key]` as an array, made one when missing.
-fn array<'v>(doc: &'v mut Value, key: &str) -> &'v mut Vec<Value> {
-    if !doc[key].is_array() {
-        doc[key] = Value::Array(Vec::new());
-    }
-    match &mut doc[key] {
-        Value::Array(a) => a,
-        _ => unreachable!("made an array above"),
-    }
 }
 
 /// A JSON object of `fields`.
@@ -810,10 +870,11 @@ fn accessor_bytes(json: &Value, buffers: &[Vec<u8>], index: usize) -> std::resul
     Ok((out, size))
 }
 
-/// Adds an accessor like `like` (type, component type, normalisation) of `bytes`
-/// (elements of `size` bytes, each stored on a 4-byte boundary as vertex attributes must
-/// be) in a new view of `buffer`; a float `POSITION` (`position`) gets its bounds, which
-/// glTF requires.
+/// Adds an accessor like `like` (type, component type, normalisation, name, extras) of
+/// `bytes` (elements of `size` bytes, each stored on a 4-byte boundary as vertex
+/// attributes must be) in a new view of `buffer`. A `POSITION` (`position`, of the mesh
+/// or of a morph target), which glTF requires to have bounds, and any accessor whose
+/// original had them, gets the bounds of the elements it holds.
 fn add_gathered(
     doc: &mut Value,
     data: &mut Vec<u8>,
@@ -849,29 +910,54 @@ fn add_gathered(
         ("count", count.into()),
         ("type", like["type"].clone()),
     ]);
-    if like.get("normalized").and_then(Value::as_bool) == Some(true) {
-        accessor["normalized"] = true.into();
-    }
-    if position {
-        if like["componentType"].as_u64() == Some(u64::from(FLOAT)) && size == 12 {
-            let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-            for element in bytes.chunks_exact(12) {
-                for c in 0..3 {
-                    let v = f32::from_le_bytes(element[4 * c..4 * c + 4].try_into().expect("4 bytes"));
-                    (lo[c], hi[c]) = (lo[c].min(v), hi[c].max(v));
-                }
-            }
-            accessor["min"] = lo.map(f64::from).to_vec().into();
-            accessor["max"] = hi.map(f64::from).to_vec().into();
-        } else {
-            // Quantised positions: the file's bounds, which hold every vertex copied.
-            accessor["min"] = like["min"].clone();
-            accessor["max"] = like["max"].clone();
+    for key in ["normalized", "name", "extras"] {
+        if let Some(v) = like.get(key).filter(|v| **v != Value::Bool(false)) {
+            accessor[key] = v.clone();
         }
+    }
+    if (position || like.get("min").is_some() || like.get("max").is_some())
+        && let Some((lo, hi)) = bounds(bytes, size, like["componentType"].as_u64())
+    {
+        accessor["min"] = lo.into();
+        accessor["max"] = hi.into();
     }
     let accessors = array(doc, "accessors");
     accessors.push(accessor);
     accessors.len() - 1
+}
+
+/// The per-component minimum and maximum of `bytes` (elements of `size` bytes of
+/// components of `component_type`), as glTF's `min` and `max` hold them (integers for
+/// integer components); `None` when there is no element.
+fn bounds(bytes: &[u8], size: usize, component_type: Option<u64>) -> Option<(Vec<Value>, Vec<Value>)> {
+    let width = component_bytes(component_type).ok()?;
+    let n = size / width;
+    let read = |c: &[u8]| -> f64 {
+        match component_type {
+            Some(5120) => f64::from(c[0] as i8),
+            Some(5121) => f64::from(c[0]),
+            Some(5122) => f64::from(i16::from_le_bytes([c[0], c[1]])),
+            Some(5123) => f64::from(u16::from_le_bytes([c[0], c[1]])),
+            Some(5125) => f64::from(u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+            _ => f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+        }
+    };
+    let (mut lo, mut hi) = (vec![f64::INFINITY; n], vec![f64::NEG_INFINITY; n]);
+    for element in bytes.chunks_exact(size) {
+        for (c, part) in element.chunks_exact(width).enumerate() {
+            let v = read(part);
+            (lo[c], hi[c]) = (lo[c].min(v), hi[c].max(v));
+        }
+    }
+    if bytes.len() < size {
+        return None;
+    }
+    let json = |v: Vec<f64>| -> Vec<Value> {
+        v.into_iter()
+            .map(|x| if component_type == Some(u64::from(FLOAT)) { x.into() } else { (x as i64).into() })
+            .collect()
+    };
+    Some((json(lo), json(hi)))
 }
 
 /// Adds a 32-bit index accessor of `indices` in a new view of `buffer`.
@@ -1134,6 +1220,10 @@ mod tests {
     fn write_fixture(dir: &Path, name: &str) -> (PathBuf, Value) {
         let (mut doc, geom) = fixture();
         let path = dir.join(name);
+        // The image the fixture names, for a GLB output to embed.
+        let mut png = std::io::Cursor::new(Vec::new());
+        image::GrayImage::new(2, 2).write_to(&mut png, image::ImageFormat::Png).unwrap();
+        std::fs::write(dir.join("tex ture.png"), png.into_inner()).unwrap();
         if name.ends_with(".glb") {
             doc["buffers"][0] = json!({"byteLength": 168});
             std::fs::write(&path, glb_bytes(serde_json::to_vec(&doc).unwrap(), geom).unwrap()).unwrap();
@@ -1250,6 +1340,35 @@ mod tests {
         (gltf, buffers)
     }
 
+    /// Asserts that the Khronos glTF-Validator (`scripts/validate-gltf`) finds in `output`
+    /// no error, warning or unused object whose code it does not find in `input`. Outside
+    /// CI, a missing node or npm skips the check, loudly.
+    fn assert_valid(output: &Path, input: &Path) {
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scripts/validate-gltf");
+        let out = std::process::Command::new("bash").arg(script).arg(output).arg(input).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        if out.status.code() == Some(3) && std::env::var_os("CI").is_none() {
+            eprintln!("SKIPPED: the glTF validator cannot run ({})", stderr.trim());
+            return;
+        }
+        assert!(out.status.success(), "scripts/validate-gltf: {stderr}");
+        let reports: Vec<Value> = serde_json::from_slice(&out.stdout).unwrap();
+        let issues = |r: &Value| -> Vec<(String, u64, String)> {
+            let list = r["issues"].as_array().unwrap().iter();
+            list.map(|i| {
+                (i["code"].as_str().unwrap().into(), i["severity"].as_u64().unwrap(), i["pointer"].to_string())
+            })
+            .collect()
+        };
+        let (ours, theirs) = (issues(&reports[0]), issues(&reports[1]));
+        let new: Vec<_> = ours
+            .iter()
+            .filter(|(code, severity, _)| *severity <= 1 || code == "UNUSED_OBJECT")
+            .filter(|(code, ..)| !theirs.iter().any(|t| t.0 == *code))
+            .collect();
+        assert!(new.is_empty(), "{}: the validator finds {new:?}", output.display());
+    }
+
     /// The floats of a tightly packed float accessor.
     fn floats(accessor: &::gltf::Accessor, buffers: &[Vec<u8>]) -> Vec<f32> {
         assert_eq!(accessor.data_type(), DataType::F32);
@@ -1289,10 +1408,12 @@ mod tests {
             }
         }
         for view in out["bufferViews"].as_array_mut().unwrap() {
-            view["buffer"] = (view["buffer"].as_u64().unwrap() - shift as u64).into();
+            view["buffer"] = (view["buffer"].as_u64().unwrap().saturating_sub(shift as u64)).into();
         }
-        out["buffers"] = input["buffers"].clone();
-        out["images"] = input["images"].clone();
+        if out["buffers"].as_array().unwrap().len() > 1 {
+            out["buffers"] = input["buffers"].clone();
+            out["images"] = input["images"].clone();
+        }
         out
     }
 
@@ -1330,6 +1451,7 @@ mod tests {
 
             // The project's loader finds the same triangles, and the same meshes to bake.
             assert!(loaded_triangles(&output_path) == loaded_triangles(&input_path), "{what}: triangles differ");
+            assert_valid(&output_path, &input_path);
             let allowed = LoadOptions { allow_external_uris: true, ..LoadOptions::from_env().unwrap() };
             let again = GltfAsset::read_with(&output_path, &allowed).unwrap_or_else(|e| panic!("{what}: {e}"));
             assert!(asset_triangles(&again) == asset_triangles(&asset), "{what}: meshes differ");
@@ -1389,9 +1511,47 @@ mod tests {
             let shift = usize::from(out_glb && !input_glb);
             let moved = output.starts_with("out/");
             let rebased = |uri: &str| if moved { format!("../{uri}") } else { uri.to_string() };
-            assert_eq!(out_json["images"][0]["uri"], rebased("tex%20ture.png"), "{what}");
             let in_buffers = input_json["buffers"].as_array().unwrap();
             let out_buffers = out_json["buffers"].as_array().unwrap();
+            if out_glb {
+                // Self-contained: one buffer, the binary chunk, holding every view's bytes
+                // as the input had them, and the image.
+                assert_eq!(out_buffers.len(), 1, "{what}");
+                assert!(out_buffers[0].get("uri").is_none(), "{what}");
+                let (input_gltf, input_buffers) = independent_read(&input_path);
+                for (view, original) in gltf.views().zip(input_gltf.views()) {
+                    let bytes = |v: &::gltf::buffer::View, b: &[Vec<u8>]| {
+                        b[v.buffer().index()][v.offset()..v.offset() + v.length()].to_vec()
+                    };
+                    assert_eq!(bytes(&view, &buffers), bytes(&original, &input_buffers), "{what}");
+                }
+                let image = gltf.images().next().unwrap();
+                let ::gltf::image::Source::View { view, mime_type } = image.source() else {
+                    panic!("{what}: the image is not in the GLB")
+                };
+                assert_eq!(mime_type, "image/png");
+                let png = &buffers[0][view.offset()..view.offset() + view.length()];
+                assert_eq!(png, std::fs::read(dir.path().join("tex ture.png")).unwrap(), "{what}");
+                let output_alone = without_additions(&out_json, &input_json, shift);
+                let mut input_json = input_json.clone();
+                for (o, i) in output_alone["bufferViews"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .zip(input_json["bufferViews"].as_array_mut().unwrap())
+                {
+                    i["buffer"] = o["buffer"].clone();
+                    i.as_object_mut().unwrap().remove("byteOffset");
+                    if let Some(offset) = o.get("byteOffset") {
+                        i["byteOffset"] = offset.clone();
+                    }
+                }
+                input_json["images"][0] = output_alone["images"][0].clone();
+                input_json["buffers"] = output_alone["buffers"].clone();
+                assert_eq!(output_alone, input_json, "{what}");
+                continue;
+            }
+            assert_eq!(out_json["images"][0]["uri"], rebased("tex%20ture.png"), "{what}");
             assert_eq!(out_buffers.len(), in_buffers.len() + usize::from(!input_glb), "{what}");
             for (i, b) in in_buffers.iter().enumerate().skip(usize::from(input_glb)) {
                 let o = &out_buffers[i + shift];
@@ -1422,6 +1582,7 @@ mod tests {
             let path = dir.path().join(name);
             asset.write(&path, &values, &WriteOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
             assert!(loaded_triangles(&path) == loaded_triangles(&engine()), "{name}: triangles differ");
+            assert_valid(&path, &engine());
             let (gltf, buffers) = independent_read(&path);
             // Every placement has its own _AO with its own values.
             let mut seen = 0;
@@ -1461,14 +1622,20 @@ mod tests {
         assert!(notes.iter().any(|n| n.contains("geom_ao.bin")), "{notes:?}");
         assert!(dir.path().join("geom_ao.bin").exists());
         assert!(loaded_triangles(&path) == before);
-        // Baking the result again replaces its values rather than piling them up.
+        std::fs::create_dir(dir.path().join("input")).unwrap();
+        let (input, _) = write_fixture(&dir.path().join("input"), "geom.gltf");
+        assert_valid(&path, &input);
+        // Baking the result again replaces its values rather than piling them up: the
+        // three _AO accessors of the first bake go, three new ones come last.
         let again = GltfAsset::read(&path).unwrap();
         let json: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
         let accessors = json["accessors"].as_array().unwrap().len();
         again.write(&path, &values(&again, false), &WriteOptions::default()).unwrap();
         let json: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        assert_eq!(json["accessors"].as_array().unwrap().len(), accessors);
         let ao = &json["meshes"][0]["primitives"][0]["attributes"][AO];
-        assert!(ao.as_u64().unwrap() as usize >= accessors, "{ao}");
+        assert!(ao.as_u64().unwrap() as usize >= accessors - 3, "{ao}");
+        assert_valid(&path, &input);
     }
 
     /// The files a directory holds.

@@ -9,6 +9,7 @@
 
 mod asset;
 pub(crate) mod gltf;
+mod gltf_tidy;
 pub(crate) mod obj;
 mod plan;
 pub(crate) mod ply;
@@ -21,8 +22,8 @@ pub use asset::{
 };
 pub use plan::{BakePlan, Placement, UNUSABLE_VALUE};
 pub use texture::{
-    BYTES_PER_TEXEL, BakedTexture, Coverage, MAX_TEXTURE_SIZE, TextureOptions, TexturePlan, TextureStats,
-    TextureTarget, UvWrap, bytes_per_point, texture_targets,
+    BYTES_PER_TEXEL, BakedTexture, Coverage, MAX_TEXTURE_SIZE, TextureLayout, TextureOptions, TexturePlan,
+    TextureStats, TextureTarget, UvWrap, bytes_per_point, texture_targets,
 };
 pub use unwrap::generate_uvs;
 

@@ -14,7 +14,7 @@ use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
 };
 use crate::error::{Error, Result};
-use crate::scene::input::{Input, LoadOptions, Meter, is_gzip, size_text, vec_bytes};
+use crate::scene::input::{Input, LoadOptions, Meter, ReadLimits, is_gzip, read_text, size_text, vec_bytes};
 use crate::scene::obj::{non_finite_coordinate, parse_vertex_line};
 use flate2::Compression;
 use flate2::write::GzEncoder;
@@ -46,9 +46,76 @@ impl ObjAsset {
         let mut meter = Meter::new(&options.limits, "the mesh");
         let text = Input::open(path, &options.limits)?.read_all(path, &mut meter)?;
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
-        let mesh = parse(&text, label, &mut meter).map_err(|e| Error::scene(path, e))?;
+        let mut mesh = parse(&text, label, &mut meter).map_err(|e| Error::scene(path, e))?;
+        if textures_repeat(path, &text, &options.limits) {
+            mesh.repeating_sets = vec![0];
+        }
         Ok(ObjAsset { text, meshes: vec![mesh] })
     }
+}
+
+/// The text of the material library `name` in the folder `dir`, within `limits`; `None`
+/// when it cannot be read or lies outside the folder (an absolute name, `..`, a symbolic
+/// link leading out): only the OBJ file's own folder is read.
+fn read_library(dir: &Path, name: &str, limits: &ReadLimits) -> Option<String> {
+    let file = Path::new(name);
+    if !file.components().all(|c| matches!(c, std::path::Component::Normal(_))) {
+        return None;
+    }
+    let real = dir.join(file).canonicalize().ok()?;
+    if !real.starts_with(dir.canonicalize().ok()?) {
+        return None;
+    }
+    let bytes = read_text(&real, limits, 1, "the material library").ok()?;
+    Some(bytes)
+}
+
+/// Whether the textures of the materials the file's faces use repeat, so that texture
+/// coordinates outside [0, 1] wrap: an MTL texture map repeats unless it says `-clamp on`
+/// (the MTL format, Wavefront 1995). True when the `.mtl` files the OBJ names (`mtllib`,
+/// relative names inside the OBJ's directory, read within the budget; others are not read) give the materials it
+/// uses (`usemtl`; every material when it names none) at least one map and none clamps.
+fn textures_repeat(path: &Path, text: &[u8], limits: &ReadLimits) -> bool {
+    let text = String::from_utf8_lossy(text);
+    let mut libraries = Vec::new();
+    let mut used = std::collections::BTreeSet::new();
+    for line in text.lines() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("mtllib") => libraries.extend(words.map(str::to_string)),
+            Some("usemtl") => {
+                used.insert(words.collect::<Vec<_>>().join(" "));
+            }
+            _ => {}
+        }
+    }
+    let dir = match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir,
+        _ => Path::new("."),
+    };
+    let (mut maps, mut clamped) = (0, 0);
+    for library in libraries {
+        let Some(mtl) = read_library(dir, &library, limits) else { continue };
+        let mut current = String::new();
+        for line in mtl.lines() {
+            let mut words = line.split_whitespace();
+            let Some(keyword) = words.next() else { continue };
+            if keyword == "newmtl" {
+                current = words.collect::<Vec<_>>().join(" ");
+                continue;
+            }
+            let is_map = keyword.starts_with("map_") || ["bump", "disp", "decal", "refl", "norm"].contains(&keyword);
+            if !is_map || !(used.is_empty() || used.contains(&current)) {
+                continue;
+            }
+            maps += 1;
+            let options: Vec<&str> = words.collect();
+            if options.windows(2).any(|w| w[0] == "-clamp" && w[1] == "on") {
+                clamped += 1;
+            }
+        }
+    }
+    maps > 0 && clamped == 0
 }
 
 /// The lines of `text`, each with its ending (`\n` or `\r\n`; none for a last line without).
@@ -698,6 +765,33 @@ mod tests {
         assert_eq!(uv[5], [0.1, 0.2]);
         assert!(!m.uv_v_down);
         assert!(mesh("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").uv_sets.is_empty());
+    }
+
+    /// Texture coordinates repeat when the materials the faces use have maps and none
+    /// says `-clamp on`; a library outside the file's directory is not read.
+    #[test]
+    fn mtl_textures_repeat_unless_clamped() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("m.mtl"), "newmtl wood\nKd 1 1 1\nmap_Kd -s 2 2 1 wood.png\nnewmtl steel\nmap_Kd -clamp on steel.png\nnewmtl plain\nKd 1 1 1\n").unwrap();
+        std::fs::create_dir(d.join("sub")).unwrap();
+        let repeats = |obj: &str| {
+            let path = d.join("sub/../t.obj");
+            std::fs::write(&path, obj).unwrap();
+            ObjAsset::read(&path).unwrap().meshes[0].repeating_sets == [0]
+        };
+        let faces = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 2 0\nvt 0 2\nf 1/1 2/2 3/3\n";
+        assert!(repeats(&format!("mtllib m.mtl\nusemtl wood\n{faces}")));
+        assert!(!repeats(&format!("mtllib m.mtl\nusemtl steel\n{faces}")), "clamped");
+        assert!(!repeats(&format!("mtllib m.mtl\nusemtl wood\n{faces}usemtl steel\n{faces}")), "one clamps");
+        assert!(!repeats(&format!("mtllib m.mtl\nusemtl plain\n{faces}")), "no map");
+        assert!(!repeats(&format!("mtllib missing.mtl\nusemtl wood\n{faces}")));
+        assert!(!repeats(faces), "no library");
+        std::fs::write(d.join("sub/out.mtl"), "newmtl wood\nmap_Kd wood.png\n").unwrap();
+        assert!(!repeats(&format!(
+            "mtllib ../{}/sub/out.mtl\nusemtl wood\n{faces}",
+            d.file_name().unwrap().to_string_lossy()
+        )));
     }
 
     #[test]

@@ -37,14 +37,16 @@ pub const MAX_TEXTURE_SIZE: u32 = 16384;
 /// beyond its points.
 pub const BYTES_PER_TEXEL: u64 = 48;
 
-/// Host and adapter bytes a traced point needs: the probe (the plan's, with room for its
-/// growth, the checked copy, the one in the local frame and the adapter's: six), its
-/// mesh index and record, and its accumulation, 16 bytes on the adapter and 24 on the
-/// host per film slot (one, or four with bent normals). A 2048² bake of 23 million
-/// points peaked at 188 bytes a point on the host, when a probe took 28 bytes rather than 40.
+/// Host bytes a traced point needs at the peak of a bake, measured: about 96 for the
+/// point itself (its probe in the plan and in the device's copy, its mesh, its value read
+/// back) and 144 for each film slot it has, one, or four with bent normals (the film's
+/// f64 sums, the accumulation's exact i128 sums, the block of sums taken from the device
+/// and the film read back from them). The 2CylinderEngine's 256² bake, 3.67 million
+/// points, peaked at 206 bytes a point without bent normals and 620 with when a render's
+/// finish copied its sums; 196 and 350 since: an upper bound.
 pub fn bytes_per_point(bent_normals: bool) -> u64 {
     let slots = if bent_normals { 4 } else { 1 };
-    6 * std::mem::size_of::<Probe>() as u64 + 8 + 40 * slots
+    96 + 144 * slots
 }
 
 /// What to do with texture coordinates outside [0, 1].
@@ -128,7 +130,8 @@ pub fn texture_targets<'a>(meshes: impl IntoIterator<Item = &'a AssetMesh>, uv_s
     out
 }
 
-/// The points of a texture bake and where their values go.
+/// The points of a texture bake (or of a block of its texels, [`TextureLayout::plan`])
+/// and where their values go.
 #[derive(Clone, Debug, Default)]
 pub struct TexturePlan {
     /// Texture width.
@@ -139,6 +142,9 @@ pub struct TexturePlan {
     pub targets: Vec<TextureTarget>,
     /// The probes, texture after texture, texel after texel.
     pub probes: Vec<Probe>,
+    /// The index of the first probe among all the bake's (0 for a whole bake): the block's
+    /// probes take the sample sequences of points `first_point..`.
+    pub first_point: u32,
     /// For each texture, its covered texels (`y * width + x`, increasing).
     texels: Vec<Vec<u32>>,
     /// For each texture, where each covered texel's probes start in `probes` (one more
@@ -161,7 +167,11 @@ pub struct TexturePlan {
 /// which copy of the texture (whole textures along x and y) the triangle met it in.
 type Record = (u32, u32, [i32; 2]);
 
+/// Host bytes a rasteriser record takes.
+const BYTES_PER_RECORD: u64 = std::mem::size_of::<Record>() as u64;
+
 /// A triangle in texel space, with what places its points.
+#[derive(Clone, Debug)]
 struct UvTriangle {
     /// Corners in texel units (x right, y down).
     uv: [DVec2; 3],
@@ -171,30 +181,70 @@ struct UvTriangle {
     mesh: u32,
 }
 
-impl TexturePlan {
-    /// The plan of baking `meshes` (each with its placement) into textures as `options` say.
-    /// `memory` is the bytes the plan may take; a plan past it is refused before any
-    /// point is placed, with the figures.
-    pub fn new(meshes: &[(&AssetMesh, Placement)], options: &TextureOptions, bent: bool, memory: u64) -> Result<Self> {
+/// The charts of a texture bake rasterised: which texels each triangle touches, before
+/// any point is placed, so that the points can be placed and traced a block of texels at
+/// a time ([`TextureLayout::blocks`], [`TextureLayout::plan`]) with the working set of
+/// one block. Covered texels are numbered texture after texture, in texel order.
+#[derive(Clone, Debug)]
+pub struct TextureLayout {
+    /// Texture width.
+    pub width: u32,
+    /// Texture height.
+    pub height: u32,
+    /// The textures.
+    pub targets: Vec<TextureTarget>,
+    options: TextureOptions,
+    /// Per texture: its triangles, its records sorted by texel, and where each covered
+    /// texel's records start (one more entry than texels).
+    parts: Vec<(Vec<UvTriangle>, Vec<Record>, Vec<u32>)>,
+    /// For each mesh of the targets, in order, world directions into its file's space.
+    to_file: Vec<Mat3>,
+    /// For each mesh of the targets, in order, its vertex normals.
+    normals: Vec<Vec<Option<Vec3>>>,
+    /// Triangles not rasterised (see [`TexturePlan::skipped_triangles`]).
+    pub skipped_triangles: usize,
+    /// Triangles wrapped (see [`TexturePlan::wrapped_triangles`]).
+    pub wrapped_triangles: usize,
+    /// Host bytes the layout and the textures it fills take: [`BYTES_PER_TEXEL`] a texel of
+    /// each texture, and the rasteriser's records.
+    pub bytes: u64,
+}
+
+impl TextureLayout {
+    /// Rasterises the charts of `meshes` (each with its placement) for textures as
+    /// `options` say. `memory` is the bytes the bake may take; textures past it are
+    /// refused before anything is rasterised, and their records past it after, with the
+    /// figures.
+    pub fn new(meshes: &[(&AssetMesh, Placement)], options: &TextureOptions, memory: u64) -> Result<Self> {
         options.validate()?;
         let texel_bytes = options.texels() * BYTES_PER_TEXEL;
-        if texel_bytes > memory {
-            return Err(too_large(options, texel_bytes, memory, "its texels"));
-        }
         let targets = texture_targets(meshes.iter().map(|(m, _)| *m), options.uv_set);
-        let mut planned_bytes = 0u64;
+        if texel_bytes * targets.len().max(1) as u64 > memory {
+            let what = format!("its texels ({} textures)", targets.len().max(1));
+            return Err(too_large(options, texel_bytes * targets.len().max(1) as u64, memory, &what));
+        }
         let (w, h) = (options.width, options.height);
-        let mut plan = TexturePlan { width: w, height: h, targets: targets.clone(), ..TexturePlan::default() };
+        let mut layout = TextureLayout {
+            width: w,
+            height: h,
+            targets: targets.clone(),
+            options: *options,
+            parts: Vec::new(),
+            to_file: Vec::new(),
+            normals: Vec::new(),
+            skipped_triangles: 0,
+            wrapped_triangles: 0,
+            bytes: 0,
+        };
         for target in &targets {
             // The triangles, in texel space.
             let mut triangles = Vec::new();
-            let mut normals = Vec::new();
             for &m in &target.meshes {
                 let (mesh, placement) = &meshes[m];
                 let uv = mesh.uv_set(options.uv_set).expect("targets hold meshes with the set");
-                let index = plan.to_file.len() as u32;
-                plan.to_file.push(mesh.to_file * Mat3::from_mat4(placement.to_world).inverse());
-                normals.push(vertex_normals(mesh, placement).0);
+                let index = layout.to_file.len() as u32;
+                layout.to_file.push(mesh.to_file * Mat3::from_mat4(placement.to_world).inverse());
+                layout.normals.push(vertex_normals(mesh, placement).0);
                 for f in 0..mesh.face_count() {
                     let start = mesh.face_starts[f] as usize;
                     let face = mesh.face(f);
@@ -202,7 +252,7 @@ impl TexturePlan {
                         let corners = [start, start + k, start + k + 1];
                         let t = corners.map(|c| uv.corners[c]);
                         if t.iter().any(|c| !c.is_finite()) {
-                            plan.skipped_triangles += 1;
+                            layout.skipped_triangles += 1;
                             continue;
                         }
                         if t.iter().any(|c| outside_unit(*c)) {
@@ -213,7 +263,7 @@ impl TexturePlan {
                                     mesh.label, bad.x, bad.y, options.uv_set
                                 )));
                             }
-                            plan.wrapped_triangles += 1;
+                            layout.wrapped_triangles += 1;
                         }
                         let to_texels = |c: Vec2| {
                             let v = if mesh.uv_v_down { c.y } else { 1.0 - c.y };
@@ -225,7 +275,7 @@ impl TexturePlan {
                             mesh: index,
                         };
                         if cross(tri.uv[1] - tri.uv[0], tri.uv[2] - tri.uv[0]).abs() < 1e-12 {
-                            plan.skipped_triangles += 1;
+                            layout.skipped_triangles += 1;
                             continue;
                         }
                         triangles.push(tri);
@@ -239,15 +289,78 @@ impl TexturePlan {
             }
             records.sort_unstable();
             records.dedup();
-            let points = records.chunk_by(|a, b| a.0 == b.0).count() as u64 * u64::from(options.points);
-            planned_bytes += texel_bytes + points * bytes_per_point(bent) + records.len() as u64 * 16;
-            let needed = planned_bytes;
-            if needed > memory {
-                return Err(too_large(options, needed, memory, &format!("{points} points")));
+            records.shrink_to_fit();
+            let mut groups: Vec<u32> = Vec::new();
+            for (i, r) in records.iter().enumerate() {
+                if i == 0 || records[i - 1].0 != r.0 {
+                    groups.push(i as u32);
+                }
             }
-            let first_mesh = plan.to_file.len() as u32 - target.meshes.len() as u32;
-            let (mut texels, mut starts) = (Vec::new(), vec![plan.probes.len() as u32]);
-            for group in records.chunk_by(|a, b| a.0 == b.0) {
+            groups.push(records.len() as u32);
+            layout.bytes += texel_bytes
+                + records.len() as u64 * BYTES_PER_RECORD
+                + triangles.len() as u64 * std::mem::size_of::<UvTriangle>() as u64;
+            if layout.bytes > memory {
+                let what = format!("{} texels' records", groups.len() - 1);
+                return Err(too_large(options, layout.bytes, memory, &what));
+            }
+            layout.parts.push((triangles, records, groups));
+        }
+        Ok(layout)
+    }
+
+    /// Covered texels of all textures (a texel whose points all lack a usable normal is
+    /// left out when its points are placed).
+    pub fn covered_texels(&self) -> usize {
+        self.parts.iter().map(|(_, _, g)| g.len() - 1).sum()
+    }
+
+    /// Points placed: `points` a covered texel (and one more on each further surface a
+    /// position lies inside of, where charts overlap).
+    pub fn nominal_points(&self) -> u64 {
+        self.covered_texels() as u64 * u64::from(self.options.points)
+    }
+
+    /// The covered texels (by their numbers) cut into consecutive blocks of at most
+    /// `points` nominal points each (at least one texel a block).
+    pub fn blocks(&self, points: u64) -> Vec<std::ops::Range<usize>> {
+        let per_texel = u64::from(self.options.points);
+        let texels = (points / per_texel).max(1) as usize;
+        let n = self.covered_texels();
+        (0..n.div_ceil(texels)).map(|b| b * texels..((b + 1) * texels).min(n)).collect()
+    }
+
+    /// The plan of the points of covered texels `texels` (by their numbers): placed as in
+    /// a whole bake, their probes numbered from `first_point` (the points of the texels
+    /// before them).
+    pub fn plan(
+        &self,
+        meshes: &[(&AssetMesh, Placement)],
+        texels: std::ops::Range<usize>,
+        first_point: u32,
+    ) -> TexturePlan {
+        let options = &self.options;
+        let (w, h) = (self.width, self.height);
+        let mut plan = TexturePlan {
+            width: w,
+            height: h,
+            targets: self.targets.clone(),
+            first_point,
+            to_file: self.to_file.clone(),
+            skipped_triangles: self.skipped_triangles,
+            wrapped_triangles: self.wrapped_triangles,
+            ..TexturePlan::default()
+        };
+        let mut numbered = 0;
+        let mut first_mesh = 0u32;
+        for (target, (triangles, records, groups)) in self.targets.iter().zip(&self.parts) {
+            let count = groups.len() - 1;
+            let range =
+                texels.start.saturating_sub(numbered).min(count)..texels.end.saturating_sub(numbered).min(count);
+            numbered += count;
+            let (mut covered, mut starts) = (Vec::new(), vec![plan.probes.len() as u32]);
+            for g in range {
+                let group = &records[groups[g] as usize..groups[g + 1] as usize];
                 let texel = group[0].0;
                 let (x, y) = (texel % w, texel / w);
                 let mut overlapping = false;
@@ -264,7 +377,7 @@ impl TexturePlan {
                         .collect();
                     let chosen = if inside.is_empty() {
                         let corner = |c: [i32; 2]| copy(c) - position(options, texel, k);
-                        vec![nearest(group.iter().map(|&(_, t, c)| (t, copy(c), corner(c))), &triangles)]
+                        vec![nearest(group.iter().map(|&(_, t, c)| (t, copy(c), corner(c))), triangles)]
                     } else {
                         overlapping |= inside.len() > 1;
                         inside
@@ -273,7 +386,7 @@ impl TexturePlan {
                         let tri = &triangles[t as usize];
                         let m = (tri.mesh - first_mesh) as usize;
                         let (mesh, placement) = &meshes[target.meshes[m]];
-                        let normal = interpolate_normal(&normals[m], tri.vertices, b);
+                        let normal = interpolate_normal(&self.normals[tri.mesh as usize], tri.vertices, b);
                         let Some(normal) = normal else { continue };
                         plan.probes.push(triangle_probe(mesh, placement, tri.vertices, [b[1], b[2]], normal));
                         plan.probe_mesh.push(tri.mesh);
@@ -284,13 +397,36 @@ impl TexturePlan {
                     continue;
                 }
                 plan.overlapping_texels += usize::from(overlapping);
-                texels.push(texel);
+                covered.push(texel);
                 starts.push(plan.probes.len() as u32);
             }
-            plan.texels.push(texels);
+            first_mesh += target.meshes.len() as u32;
+            plan.texels.push(covered);
             plan.starts.push(starts);
         }
-        Ok(plan)
+        plan.probes.shrink_to_fit();
+        plan.probe_mesh.shrink_to_fit();
+        plan
+    }
+
+    /// The textures before any texel is baked: every texel background.
+    pub fn blank_textures(&self, bent: bool) -> Vec<BakedTexture> {
+        self.targets.iter().map(|_| BakedTexture::blank(self.width, self.height, bent)).collect()
+    }
+}
+
+impl TexturePlan {
+    /// The plan of baking `meshes` (each with its placement) into textures as `options` say,
+    /// every point at once. `memory` is the bytes the plan may take; a plan past it is
+    /// refused before any point is placed, with the figures.
+    pub fn new(meshes: &[(&AssetMesh, Placement)], options: &TextureOptions, bent: bool, memory: u64) -> Result<Self> {
+        let layout = TextureLayout::new(meshes, options, memory)?;
+        let points = layout.nominal_points();
+        let needed = layout.bytes + points * bytes_per_point(bent);
+        if needed > memory {
+            return Err(too_large(options, needed, memory, &format!("{points} points")));
+        }
+        Ok(layout.plan(meshes, 0..layout.covered_texels(), 0))
     }
 
     /// Covered texels of all textures.
@@ -301,43 +437,40 @@ impl TexturePlan {
     /// The baked textures from the probes' estimates (`values[k]` of `probes[k]`) and, when
     /// given, their mean escaped directions (world space), padded by `padding` texels.
     pub fn textures(&self, values: &[ProbeValue], bent: Option<&[Vec3]>, padding: u32) -> Vec<BakedTexture> {
-        let (w, h) = (self.width as usize, self.height as usize);
-        self.texels
-            .iter()
-            .zip(&self.starts)
-            .map(|(texels, starts)| {
-                let mut t = BakedTexture {
-                    width: self.width,
-                    height: self.height,
-                    ao: vec![0.0; w * h],
-                    std_error: vec![0.0; w * h],
-                    coverage: vec![Coverage::Background; w * h],
-                    bent_normals: bent.map(|_| vec![Vec3::ZERO; w * h]),
-                };
-                for (i, &texel) in texels.iter().enumerate() {
-                    let range = starts[i] as usize..starts[i + 1] as usize;
-                    let n = range.len() as f64;
-                    let texel = texel as usize;
-                    t.ao[texel] = (values[range.clone()].iter().map(|v| v.mean).sum::<f64>() / n) as f32;
-                    t.std_error[texel] =
-                        (values[range.clone()].iter().map(|v| v.std_error * v.std_error).sum::<f64>().sqrt() / n)
-                            as f32;
-                    t.coverage[texel] = Coverage::Covered;
-                    if let (Some(out), Some(bent)) = (t.bent_normals.as_mut(), bent) {
-                        let sum: Vec3 = range
-                            .map(|k| {
-                                let b = bent[k];
-                                let b = if b.length_squared() > 1e-12 { b } else { self.probes[k].normal };
-                                (self.to_file[self.probe_mesh[k] as usize] * b).normalize_or_zero()
-                            })
-                            .sum();
-                        out[texel] = sum.normalize_or_zero();
-                    }
+        let mut maps: Vec<BakedTexture> =
+            self.targets.iter().map(|_| BakedTexture::blank(self.width, self.height, bent.is_some())).collect();
+        self.fill(&mut maps, values, bent);
+        for map in &mut maps {
+            map.pad(padding);
+        }
+        maps
+    }
+
+    /// Writes the covered texels of this plan into `maps` (one per target) from the
+    /// probes' estimates (`values[k]` of `probes[k]`) and, when given, their mean escaped
+    /// directions (world space).
+    pub fn fill(&self, maps: &mut [BakedTexture], values: &[ProbeValue], bent: Option<&[Vec3]>) {
+        for ((texels, starts), t) in self.texels.iter().zip(&self.starts).zip(maps.iter_mut()) {
+            for (i, &texel) in texels.iter().enumerate() {
+                let range = starts[i] as usize..starts[i + 1] as usize;
+                let n = range.len() as f64;
+                let texel = texel as usize;
+                t.ao[texel] = (values[range.clone()].iter().map(|v| v.mean).sum::<f64>() / n) as f32;
+                t.std_error[texel] =
+                    (values[range.clone()].iter().map(|v| v.std_error * v.std_error).sum::<f64>().sqrt() / n) as f32;
+                t.coverage[texel] = Coverage::Covered;
+                if let (Some(out), Some(bent)) = (t.bent_normals.as_mut(), bent) {
+                    let sum: Vec3 = range
+                        .map(|k| {
+                            let b = bent[k];
+                            let b = if b.length_squared() > 1e-12 { b } else { self.probes[k].normal };
+                            (self.to_file[self.probe_mesh[k] as usize] * b).normalize_or_zero()
+                        })
+                        .sum();
+                    out[texel] = sum.normalize_or_zero();
                 }
-                t.dilate(padding);
-                t
-            })
-            .collect()
+            }
+        }
     }
 }
 
@@ -457,8 +590,9 @@ fn barycentric(t: &UvTriangle, p: DVec2) -> Option<[f64; 3]> {
 /// copy of the texture it met the texel in) inside the texel `square` (its corner, in
 /// that copy): (triangle, barycentrics).
 fn nearest(candidates: impl Iterator<Item = (u32, DVec2, DVec2)>, triangles: &[UvTriangle]) -> (u32, [f64; 3]) {
+    let candidates: Vec<(u32, DVec2, DVec2)> = candidates.collect();
     let mut best = (u32::MAX, [1.0, 0.0, 0.0], f64::INFINITY);
-    for (i, p, square) in candidates {
+    for &(i, p, square) in &candidates {
         let t = &triangles[i as usize];
         let part = clip(t.uv, square);
         let c = (0..part.len())
@@ -470,6 +604,23 @@ fn nearest(candidates: impl Iterator<Item = (u32, DVec2, DVec2)>, triangles: &[U
             && let Some(b) = barycentric(t, c)
         {
             best = (i, b.map(|x| x.clamp(0.0, 1.0)), d);
+        }
+    }
+    if best.0 == u32::MAX {
+        // A triangle that only touches the texel along its border can clip to nothing
+        // by rounding: its nearest point then.
+        for &(i, p, _) in &candidates {
+            let t = &triangles[i as usize];
+            let c = (0..3)
+                .map(|k| closest_on_segment(t.uv[k], t.uv[(k + 1) % 3], p))
+                .min_by(|a, b| (*a - p).length_squared().total_cmp(&(*b - p).length_squared()))
+                .expect("three edges");
+            let d = (c - p).length_squared();
+            if d < best.2
+                && let Some(b) = barycentric(t, c)
+            {
+                best = (i, b.map(|x| x.clamp(0.0, 1.0)), d);
+            }
         }
     }
     let s: f64 = best.1.iter().sum();
@@ -553,9 +704,23 @@ pub struct BakedTexture {
 }
 
 impl BakedTexture {
+    /// A texture of `width` × `height` background texels (with room for bent normals when
+    /// `bent`).
+    pub fn blank(width: u32, height: u32, bent: bool) -> BakedTexture {
+        let n = width as usize * height as usize;
+        BakedTexture {
+            width,
+            height,
+            ao: vec![0.0; n],
+            std_error: vec![0.0; n],
+            coverage: vec![Coverage::Background; n],
+            bent_normals: bent.then(|| vec![Vec3::ZERO; n]),
+        }
+    }
+
     /// Fills `rounds` rings of texels around the charts with the mean of their filled
     /// 8-neighbours, then the rest with the covered texels' mean.
-    fn dilate(&mut self, rounds: u32) {
+    pub fn pad(&mut self, rounds: u32) {
         let (w, h) = (self.width as i64, self.height as i64);
         for _ in 0..rounds {
             let mut fills = Vec::new();
@@ -637,18 +802,18 @@ impl BakedTexture {
         Some(encode(image, image::ImageFormat::Png))
     }
 
-    /// The OpenEXR float map: R the AO, G its standard error, B 1 on the charts and 0
-    /// elsewhere, A 1.
+    /// The OpenEXR float map, three channels: R the AO, G its standard error, B 1 on the
+    /// charts and 0 elsewhere.
     pub fn ao_exr(&self) -> Result<Vec<u8>> {
         let pixels = self
             .ao
             .iter()
             .zip(&self.std_error)
             .zip(&self.coverage)
-            .flat_map(|((&a, &e), &c)| [a, e, if c == Coverage::Covered { 1.0 } else { 0.0 }, 1.0])
+            .flat_map(|((&a, &e), &c)| [a, e, if c == Coverage::Covered { 1.0 } else { 0.0 }])
             .collect();
-        let image = image::Rgba32FImage::from_raw(self.width, self.height, pixels).expect("four values per texel");
-        encode(image::DynamicImage::ImageRgba32F(image), image::ImageFormat::OpenExr)
+        let image = image::Rgb32FImage::from_raw(self.width, self.height, pixels).expect("three values per texel");
+        encode(image::DynamicImage::ImageRgb32F(image), image::ImageFormat::OpenExr)
     }
 
     /// Statistics of the covered texels' values and standard errors.
@@ -822,6 +987,19 @@ mod tests {
         assert!(p.texels[0].iter().any(|&t| t % 8 < 3));
     }
 
+    /// A wrapped triangle whose edge lies on a texel's border (u = 1.5 at 16 texels) still
+    /// gives that texel a point on the triangle (it once had none, and the plan failed).
+    #[test]
+    fn a_triangle_along_a_texels_border_gives_it_a_point() {
+        let mesh = flat(&[[[0.0, 0.0], [1.5, 1.0], [1.5, 0.0]]]);
+        let o = TextureOptions { wrap: UvWrap::Repeat, ..options(16, 4, 0) };
+        let p = plan(&mesh, &o).unwrap();
+        assert_eq!(p.starts[0].len(), p.texels[0].len() + 1);
+        for q in &p.probes {
+            assert!(q.position.x >= -1e-6 && q.position.x <= 1.5 + 1e-6 && q.position.y <= q.position.x / 1.5 + 1e-6);
+        }
+    }
+
     #[test]
     fn sizes_and_memory_are_checked_before_any_work() {
         let mesh = flat(&[[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]]);
@@ -884,7 +1062,9 @@ mod tests {
         }
         let bent = image::load_from_memory(&t.bent_png(8).unwrap().unwrap()).unwrap().to_rgb8();
         assert_eq!(bent.get_pixel(0, 15).0, [128, 128, 255]);
-        let exr = image::load_from_memory(&t.ao_exr().unwrap()).unwrap().to_rgba32f();
+        let exr = image::load_from_memory(&t.ao_exr().unwrap()).unwrap();
+        assert_eq!(exr.color(), image::ColorType::Rgb32F, "no alpha channel");
+        let exr = exr.to_rgba32f();
         assert_eq!(exr.get_pixel(0, 15).0, [0.5, 0.0, 1.0, 1.0]);
     }
 }

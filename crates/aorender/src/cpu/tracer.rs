@@ -290,10 +290,12 @@ impl CpuTracer {
     /// escaped, from one ray a sample; sample i of probe k takes the numbers
     /// [`CpuTracer::probe_pass`] takes with one lane. The twin of `probe_bent_sample` in
     /// `shaders/ao.wgsl`. Returns the AO rays traced.
+    #[allow(clippy::too_many_arguments)]
     pub fn probe_bent_pass(
         &self,
         settings: &Settings,
         probes: &[Probe],
+        first_point: u32,
         samples: u32,
         film: &mut Film,
         first: u32,
@@ -309,7 +311,7 @@ impl CpuTracer {
                 let p = &probes[k];
                 let mut rays = 0;
                 for index in first..(first + count).min(samples) {
-                    let u = sampler.uniforms(k as u32, 0, index);
+                    let u = sampler.uniforms(first_point + k as u32, 0, index);
                     let (v, open) = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), settings);
                     let d = open.unwrap_or(Vec3::ZERO);
                     for (c, x) in [v, d.x, d.y, d.z].into_iter().enumerate() {
@@ -349,12 +351,14 @@ impl CpuTracer {
 
     /// Adds probe rounds `first .. first + count` to `sums`, whose slots are `lanes` per
     /// probe (`sums.width` = lanes, `sums.height` = probes): round r gives lane l of probe
-    /// k the sample index r × lanes + l, up to `samples`, as on the GPU. Returns the AO
-    /// rays traced.
+    /// k the sample index r × lanes + l, up to `samples`, as on the GPU; probe k takes the
+    /// numbers of pixel (`first_point` + k, 0). Returns the AO rays traced.
+    #[allow(clippy::too_many_arguments)]
     pub fn probe_pass(
         &self,
         settings: &Settings,
         probes: &[Probe],
+        first_point: u32,
         samples: u32,
         sums: &mut Film,
         first: u32,
@@ -376,7 +380,7 @@ impl CpuTracer {
                     if index >= samples as u64 {
                         break;
                     }
-                    let u = sampler.uniforms(k as u32, 0, index as u32);
+                    let u = sampler.uniforms(first_point + k as u32, 0, index as u32);
                     let v = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), settings).0 as f64;
                     *sum += v;
                     *sum_sq += v * v;
