@@ -6,7 +6,8 @@
 //! The device holds the scene in its local frame ([`LocalFrame`]): a session moves each
 //! request's camera and probe points into it, and everything a caller passes or reads
 //! back (the scene, cameras, probes, the hashes of checkpoints) is in the scene's own
-//! coordinates.
+//! coordinates: cameras as they are, probe points (like the primitives) relative to
+//! [`Scene::origin`], which is zero unless a loader placed the scene far away.
 
 use crate::accumulation::{
     Accumulation, FilmLayout, MAX_PROBE_SAMPLE, SampleSettings, geometry_hash, max_sample_value, probes_hash,
@@ -198,8 +199,8 @@ impl Session {
                 range.start, range.end, s.spp
             )));
         }
-        let camera = self.frame.camera(&request.camera);
-        camera.validate()?;
+        let camera = self.frame.camera(&request.camera, self.scene.origin);
+        camera.validate_f32()?;
         let start = Instant::now();
         let passes = self.prepared.image(&camera, s)?;
         let target_seconds = start.elapsed().as_secs_f64();

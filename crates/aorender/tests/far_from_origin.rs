@@ -46,8 +46,8 @@ fn translated(scene: &Scene, t: f32) -> Scene {
         let w = instance.to_world.w_axis;
         instance.to_world.w_axis = moved(w.truncate(), t).extend(w.w);
     }
-    s.camera.eye = moved(s.camera.eye, t);
-    s.camera.look_at = moved(s.camera.look_at, t);
+    s.camera.eye = moved(s.camera.eye.as_vec3(), t).as_dvec3();
+    s.camera.look_at = moved(s.camera.look_at.as_vec3(), t).as_dvec3();
     s
 }
 
@@ -63,8 +63,8 @@ fn bunny() -> Scene {
     let grid = 1.0 / 16.0;
     let triangles = bunny.triangles.iter().map(|t| Triangle { v: t.v.map(|v| on_grid(v * 1e4, grid)), ..*t });
     let mut scene = Scene::from_triangles("bunny", triangles.collect());
-    scene.camera.eye = on_grid(scene.camera.eye, grid);
-    scene.camera.look_at = on_grid(scene.camera.look_at, grid);
+    scene.camera.eye = on_grid(scene.camera.eye.as_vec3(), grid).as_dvec3();
+    scene.camera.look_at = on_grid(scene.camera.look_at.as_vec3(), grid).as_dvec3();
     scene.settings = Settings { width: 192, height: 192, spp: 256, max_distance: Some(625.6), ..Settings::default() };
     scene
 }
@@ -79,7 +79,7 @@ fn aobench(scale: f32) -> Scene {
     for p in &mut scene.planes {
         p.point *= scale;
     }
-    scene.camera.look_at *= scale;
+    scene.camera.look_at *= scale as f64;
     scene.settings = Settings { width: 96, height: 96, spp: 64, sampler: Sampler::Sobol, ..scene.settings };
     scene
 }

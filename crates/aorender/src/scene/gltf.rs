@@ -7,7 +7,9 @@
 //! The default scene (else the first, else every root node) is walked down its node
 //! hierarchy, composing each node's matrix or translation × rotation × scale in f64; every
 //! triangle, triangle-strip and triangle-fan primitive of every node's mesh is placed by
-//! its node's world transform. Other primitive modes (points, lines) are skipped with a
+//! its node's world transform, in f64, and rounded once to f32 relative to the mesh's
+//! origin (zero unless the nodes place the mesh far from the origin for its size, where
+//! the positions keep the accuracy the file's have). Other primitive modes (points, lines) are skipped with a
 //! warning. Skins and morph targets are not applied: the mesh is taken in its bind pose.
 //!
 //! [`read_gltf`] also says where each placed primitive went in the mesh (and reads its
@@ -771,9 +773,10 @@ impl Loader<'_, '_> {
         if u32::try_from(vertices).is_err() || u32::try_from(triangles).is_err() {
             return Err(too_many());
         }
+        let origin = self.origin(&instances, meter)?;
         let mesh_bytes = 12 * (vertices as u64 + triangles as u64);
         meter.charge(self.path, mesh_bytes)?;
-        let mut mesh = IndexedMesh::default();
+        let mut mesh = IndexedMesh { origin, ..Default::default() };
         mesh.positions.try_reserve_exact(vertices).map_err(|_| too_many())?;
         mesh.triangles.try_reserve_exact(triangles).map_err(|_| too_many())?;
         let mut names = Vec::new();
@@ -798,7 +801,9 @@ impl Loader<'_, '_> {
                             quoted(instance.mesh.name()),
                             positions.index()
                         );
-                        self.read_positions(&positions, instance.world, &label, &mut mesh.positions)?;
+                        let mut relative = instance.world;
+                        relative.w_axis -= origin.extend(0.0);
+                        self.read_positions(&positions, relative, &label, &mut mesh.positions)?;
                         names.push((base, label));
                         placed.insert((n, positions.index()), base);
                         base
@@ -883,6 +888,40 @@ impl Loader<'_, '_> {
             mesh.warnings.push(message);
         }
         Ok(PlacedGltf { mesh, placements })
+    }
+
+    /// The point the mesh's positions are kept relative to ([`IndexedMesh::origin`]): by
+    /// the rule of the local frame (`frame::grid_origin`), from the bounds of every placed
+    /// position in f64, so that a mesh placed far away by its nodes keeps the accuracy its
+    /// own coordinates have; zero for a mesh near the origin.
+    fn origin(&self, instances: &[Instance], meter: &mut Meter) -> Result<DVec3> {
+        let (mut min, mut max) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        let mut seen = std::collections::HashSet::new();
+        let mut scratch: Vec<Vec3> = Vec::new();
+        for instance in instances {
+            for (p, primitive) in instance.mesh.primitives().enumerate() {
+                if !matches!(primitive.mode(), Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+                    continue;
+                }
+                let Some(positions) = primitive.get(&Semantic::Positions) else { continue };
+                if positions.dimensions() != Dimensions::Vec3
+                    || !seen.insert((instance.node.index(), positions.index()))
+                {
+                    continue;
+                }
+                let what = self.primitive_name(instance, p);
+                let grow = (positions.count().saturating_sub(scratch.capacity()) * 12) as u64;
+                meter.charge(self.path, grow)?;
+                scratch.clear();
+                self.read_vec3(&positions, &what, &mut scratch)?;
+                for q in scratch.iter().map(|p| instance.world.transform_point3(p.as_dvec3())).filter(|q| q.is_finite())
+                {
+                    (min, max) = (min.min(q), max.max(q));
+                }
+            }
+        }
+        meter.release((scratch.capacity() * 12) as u64);
+        Ok(if min.x <= max.x { crate::scene::grid_origin(min, max) } else { DVec3::ZERO })
     }
 
     fn primitive_name(&self, instance: &Instance, p: usize) -> String {
@@ -1027,7 +1066,8 @@ impl Loader<'_, '_> {
         Ok(Some((index, value)))
     }
 
-    /// Appends the positions of accessor `a`, placed by `world`, to `out`.
+    /// Appends the positions of accessor `a`, placed by `world` (relative to the mesh's
+    /// origin), to `out`.
     fn read_positions(&self, a: &Accessor, world: DMat4, label: &str, out: &mut Vec<Vec3>) -> Result<()> {
         let quantized = [DataType::I8, DataType::U8, DataType::I16, DataType::U16];
         if a.dimensions() != Dimensions::Vec3 || !(a.data_type() == DataType::F32 || quantized.contains(&a.data_type()))
