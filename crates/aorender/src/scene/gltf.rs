@@ -921,7 +921,7 @@ impl Loader<'_, '_> {
             }
         }
         meter.release((scratch.capacity() * 12) as u64);
-        Ok(if min.x <= max.x { crate::scene::grid_origin(min, max) } else { DVec3::ZERO })
+        Ok(if min.x <= max.x { super::frame::grid_origin(min, max) } else { DVec3::ZERO })
     }
 
     fn primitive_name(&self, instance: &Instance, p: usize) -> String {

@@ -21,7 +21,7 @@ pub use camera::{Camera, Projection, RayGen};
 pub use file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME};
 pub use files::input_files;
 pub use frame::LocalFrame;
-pub(crate) use frame::{grid_origin, round_up};
+pub(crate) use frame::round_up;
 pub use input::{DEFAULT_LINE_BYTES, FIXED_READ_BUDGET, LoadOptions, READ_BUDGET_VARIABLE, ReadLimits, read_text};
 pub(crate) use meshes::extension;
 pub use meshes::mesh_triangles;
