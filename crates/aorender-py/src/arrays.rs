@@ -1,7 +1,7 @@
 //! numpy arrays in: every input checked (shape, dtype, finiteness, index range) and
 //! converted before any work starts, whatever its dtype and memory order.
 
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use numpy::{Element, PyArray1, PyArray2, PyArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -41,6 +41,29 @@ pub fn vec3s(py: Python<'_>, x: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<V
         .enumerate()
         .map(|(i, c)| {
             let v = Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
+            if v.is_finite() {
+                Ok(v)
+            } else if c.iter().all(|x| x.is_finite()) {
+                Err(PyValueError::new_err(format!("{name}[{i}] = {c:?} does not fit in 32-bit floats")))
+            } else {
+                Err(PyValueError::new_err(format!("{name}[{i}] has a non-finite coordinate: {c:?}")))
+            }
+        })
+        .collect()
+}
+
+/// An (n, 3) array of real numbers as points relative to `origin`: each subtracted in
+/// f64 and rounded once to f32 (points far from the origin keep their accuracy near it).
+pub fn relative_vec3s(py: Python<'_>, x: &Bound<'_, PyAny>, name: &str, origin: DVec3) -> PyResult<Vec<Vec3>> {
+    let (arr, kind) = as_array(py, x, name)?;
+    if !matches!(kind.as_str(), "f" | "i" | "u") {
+        return Err(PyValueError::new_err(format!("{name} must hold real numbers, got dtype kind '{kind}'")));
+    }
+    let flat: Vec<f64> = contiguous(py, &arr, "float64")?;
+    flat.chunks_exact(3)
+        .enumerate()
+        .map(|(i, c)| {
+            let v = (DVec3::new(c[0], c[1], c[2]) - origin).as_vec3();
             if v.is_finite() {
                 Ok(v)
             } else if c.iter().all(|x| x.is_finite()) {

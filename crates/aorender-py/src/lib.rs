@@ -85,7 +85,7 @@ fn ambient_occlusion<'py>(
     // Every argument checked before the BVH is built.
     let v = arrays::vec3s(py, V, "V")?;
     let f = arrays::faces(py, F, "F", v.len())?;
-    let probes = scene::probes(py, P, N, samples)?;
+    let probes = scene::probes(py, P, N, samples, glam::DVec3::ZERO)?;
     let settings = engine::settings(hemisphere, sampler, seed, max_distance, replicate)?;
     let tolerance = scene::tolerance(surface_tolerance)?;
     let scene = PyScene::of_arrays("arrays", v, f)

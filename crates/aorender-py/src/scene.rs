@@ -1,7 +1,7 @@
 //! `aorender.Scene`: a scene made from arrays or loaded from a file, with one session
 //! (the BVH built and uploaded) per device it has been asked on, kept for its lifetime.
 
-use crate::arrays::{faces, out, vec3s};
+use crate::arrays::{faces, out, relative_vec3s, vec3s};
 use crate::engine::{device, interruptible, settings, to_py};
 use aorender::bake::{
     Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, check_output, output_path, plan_companions,
@@ -13,7 +13,7 @@ use aorender::{
     BvhOptions, Camera, ImageRequest, LoadOptions, Probe, Projection, ReadLimits, Scene, Session, Settings,
     SurfaceTolerance,
 };
-use glam::{Mat4, Vec3};
+use glam::{DVec3, Mat4, Vec3};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::{PyUserWarning, PyValueError};
 use pyo3::prelude::*;
@@ -118,9 +118,17 @@ pub fn tolerance(surface_tolerance: Option<f64>) -> PyResult<SurfaceTolerance> {
     }
 }
 
-/// The points `p` and normals `n` as probes, checked.
-pub fn probes(py: Python<'_>, p: &Bound<'_, PyAny>, n: &Bound<'_, PyAny>, samples: u32) -> PyResult<Vec<Probe>> {
-    let positions = vec3s(py, p, "P")?;
+/// The points `p` and normals `n` as probes, checked; the points, given in the scene's own
+/// coordinates, are taken relative to its `origin` in f64 (they are as given where it is
+/// zero).
+pub fn probes(
+    py: Python<'_>,
+    p: &Bound<'_, PyAny>,
+    n: &Bound<'_, PyAny>,
+    samples: u32,
+    origin: DVec3,
+) -> PyResult<Vec<Probe>> {
+    let positions = if origin == DVec3::ZERO { vec3s(py, p, "P")? } else { relative_vec3s(py, p, "P", origin)? };
     let normals = vec3s(py, n, "N")?;
     if positions.len() != normals.len() {
         return Err(PyValueError::new_err(format!(
@@ -148,17 +156,17 @@ pub fn probes(py: Python<'_>, p: &Bound<'_, PyAny>, n: &Bound<'_, PyAny>, sample
 /// The camera `dict` asks for, starting from `camera`: keys `eye`, `look_at`, `up`
 /// (3-sequences), and `fov` (vertical, degrees) or `ortho_height`.
 fn camera_from(dict: &Bound<'_, PyDict>, mut camera: Camera) -> PyResult<Camera> {
-    let vec = |v: &Bound<'_, PyAny>, key: &str| -> PyResult<Vec3> {
+    let vec = |v: &Bound<'_, PyAny>, key: &str| -> PyResult<DVec3> {
         let a: [f64; 3] =
             v.extract().map_err(|_| PyValueError::new_err(format!("camera['{key}'] must be three numbers")))?;
-        Ok(Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32))
+        Ok(DVec3::from(a))
     };
     for (key, value) in dict.iter() {
         let key: String = key.extract()?;
         match key.as_str() {
             "eye" => camera.eye = vec(&value, &key)?,
             "look_at" => camera.look_at = vec(&value, &key)?,
-            "up" => camera.up = vec(&value, &key)?,
+            "up" => camera.up = vec(&value, &key)?.as_vec3(),
             "fov" => camera.projection = Projection::Perspective { vfov_deg: value.extract::<f64>()? as f32 },
             "ortho_height" => camera.projection = Projection::Orthographic { height: value.extract::<f64>()? as f32 },
             _ => {
@@ -282,7 +290,7 @@ impl PyScene {
         surface_tolerance: Option<f64>,
         device: &str,
     ) -> PyResult<Values<'py>> {
-        let probes = probes(py, P, N, samples)?;
+        let probes = probes(py, P, N, samples, self.scene.origin)?;
         let settings = settings(hemisphere, sampler, seed, max_distance, replicate)?;
         let tolerance = tolerance(surface_tolerance)?;
         self.probe(py, &probes, samples, &settings, tolerance, device)

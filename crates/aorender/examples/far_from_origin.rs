@@ -34,8 +34,8 @@ fn translated(scene: &Scene, t: f32) -> Scene {
     for tri in &mut s.triangles {
         tri.v = tri.v.map(|v| moved(v, t));
     }
-    s.camera.eye = moved(s.camera.eye, t);
-    s.camera.look_at = moved(s.camera.look_at, t);
+    s.camera.eye = moved(s.camera.eye.as_vec3(), t).as_dvec3();
+    s.camera.look_at = moved(s.camera.look_at.as_vec3(), t).as_dvec3();
     s
 }
 
@@ -62,8 +62,8 @@ fn main() -> aorender::Result<()> {
         .map(|t| aorender::scene::Triangle { v: t.v.map(|v| on_grid(v * 1e4, grid)), ..*t })
         .collect();
     let mut origin = Scene::from_triangles("bunny", triangles);
-    origin.camera.eye = on_grid(origin.camera.eye, grid);
-    origin.camera.look_at = on_grid(origin.camera.look_at, grid);
+    origin.camera.eye = on_grid(origin.camera.eye.as_vec3(), grid).as_dvec3();
+    origin.camera.look_at = on_grid(origin.camera.look_at.as_vec3(), grid).as_dvec3();
     let settings = Settings { width: side, height: side, spp, max_distance: Some(625.6), ..Settings::default() };
     let render = |scene: &Scene| -> aorender::Result<(Film, DVec3)> {
         let session = Session::new(&device, scene.clone(), &BvhOptions::default())?;

@@ -256,17 +256,33 @@ impl SampleSettings {
     }
 }
 
-/// BLAKE3 hash of the scene's geometry and camera, with every float by its bits.
+/// BLAKE3 hash of the scene's geometry and camera, with every float by its bits. The
+/// camera's eye and target count as the f32 values its rays start from where that is
+/// what they are (a scene rendered where it is, or a camera at f32 coordinates), as they
+/// always have, so that older checkpoints still match; else by their f64 bits, with the
+/// scene's origin.
 pub fn scene_hash(scene: &Scene, camera: &Camera) -> [u8; 32] {
     let mut h = blake3::Hasher::new();
-    h.update(b"aorender scene v1");
     let c = camera;
+    let exact = |v: glam::DVec3| v.as_vec3().as_dvec3() == v;
+    let as_f32 = scene.origin == glam::DVec3::ZERO
+        && ((exact(c.eye) && exact(c.look_at)) || scene.local_origin() == glam::DVec3::ZERO);
+    if as_f32 {
+        h.update(b"aorender scene v1");
+        for f in [c.eye.as_vec3(), c.look_at.as_vec3()].iter().flat_map(|v| v.to_array()) {
+            h.update(&f.to_le_bytes());
+        }
+    } else {
+        h.update(b"aorender scene v2");
+        for f in [c.eye, c.look_at, scene.origin].iter().flat_map(|v| v.to_array()) {
+            h.update(&f.to_le_bytes());
+        }
+    }
     let projection = match c.projection {
         Projection::Perspective { vfov_deg } => [0.0, vfov_deg],
         Projection::Orthographic { height } => [1.0, height],
     };
-    let floats = [c.eye.x, c.eye.y, c.eye.z, c.look_at.x, c.look_at.y, c.look_at.z, c.up.x, c.up.y, c.up.z];
-    for f in floats.into_iter().chain(projection) {
+    for f in c.up.to_array().into_iter().chain(projection) {
         h.update(&f.to_le_bytes());
     }
     hash_geometry(&mut h, scene);
@@ -319,11 +335,17 @@ fn hash_geometry(h: &mut blake3::Hasher, scene: &Scene) {
     h.update(&buf);
 }
 
-/// BLAKE3 hash of the scene's geometry alone, every float by its bits.
+/// BLAKE3 hash of the scene's geometry alone, every float by its bits (with the scene's
+/// origin, which probe points are relative to, where it is not zero).
 pub fn geometry_hash(scene: &Scene) -> [u8; 32] {
     let mut h = blake3::Hasher::new();
     h.update(b"aorender geometry v1");
     hash_geometry(&mut h, scene);
+    if scene.origin != glam::DVec3::ZERO {
+        for f in scene.origin.to_array() {
+            h.update(&f.to_le_bytes());
+        }
+    }
     *h.finalize().as_bytes()
 }
 

@@ -97,8 +97,8 @@ pub struct Case {
 
 fn empty_scene(name: &str, v: &Variant) -> Scene {
     let camera = Camera {
-        eye: v.point(DVec3::new(0.0, 2.0, 0.0)),
-        look_at: v.point(DVec3::ZERO),
+        eye: v.point(DVec3::new(0.0, 2.0, 0.0)).as_dvec3(),
+        look_at: v.point(DVec3::ZERO).as_dvec3(),
         up: v.normal(DVec3::Z),
         projection: Projection::Orthographic { height: v.length(1.0) },
     };

@@ -6,7 +6,8 @@
 //! The device holds the scene in its local frame ([`LocalFrame`]): a session moves each
 //! request's camera and probe points into it, and everything a caller passes or reads
 //! back (the scene, cameras, probes, the hashes of checkpoints) is in the scene's own
-//! coordinates.
+//! coordinates: cameras as they are, probe points (like the primitives) relative to
+//! [`Scene::origin`], which is zero unless a loader placed the scene far away.
 
 use crate::accumulation::{
     Accumulation, FilmLayout, MAX_PROBE_SAMPLE, SampleSettings, geometry_hash, max_sample_value, probes_hash,
@@ -223,8 +224,8 @@ impl Session {
                 range.start, range.end, s.spp
             )));
         }
-        let camera = self.frame.camera(&request.camera);
-        camera.validate()?;
+        let camera = self.frame.camera(&request.camera, self.scene.origin);
+        camera.validate_f32()?;
         let what = format!("a {}x{} image", s.width, s.height);
         self.check_film_budget(what, s.width as u64 * s.height as u64, s.replicate_samples() >= 2)?;
         let start = Instant::now();

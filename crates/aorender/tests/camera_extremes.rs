@@ -17,6 +17,7 @@ fn scene(camera: Camera, planes: Vec<Plane>, spheres: Vec<Sphere>, width: u32, s
         name: "extreme".into(),
         path: None,
         camera,
+        origin: DVec3::ZERO,
         settings: Settings { width, height: width, spp, ..Default::default() },
         triangles: Vec::new(),
         meshes: Vec::new(),
@@ -46,8 +47,8 @@ fn two_to_the_twenty_samples_converge_to_the_closed_form() {
     const SPP: u32 = 1 << 20;
     // Seen obliquely from the side away from the sphere, so no view ray comes near it.
     let camera = Camera {
-        eye: Vec3::new(-3.0, 3.0, 0.0),
-        look_at: Vec3::ZERO,
+        eye: DVec3::new(-3.0, 3.0, 0.0),
+        look_at: DVec3::ZERO,
         up: Vec3::Y,
         projection: Projection::Orthographic { height: 1e-6 },
     };
@@ -140,8 +141,8 @@ fn grazing_camera_rays_see_one_half_everywhere() {
             // from the origin, where an ulp is 1/16), 1/sin(angle) away.
             let dir = DVec3::new(angle.cos(), -angle.sin(), 0.0);
             let camera = Camera {
-                eye: at(-dir / angle.sin()),
-                look_at: at(DVec3::ZERO),
+                eye: at(-dir / angle.sin()).as_dvec3(),
+                look_at: at(DVec3::ZERO).as_dvec3(),
                 up: Vec3::Y,
                 projection: Projection::Orthographic { height: (0.5 * v.scale * unit) as f32 },
             };

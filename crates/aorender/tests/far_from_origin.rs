@@ -46,8 +46,8 @@ fn translated(scene: &Scene, t: f32) -> Scene {
         let w = instance.to_world.w_axis;
         instance.to_world.w_axis = moved(w.truncate(), t).extend(w.w);
     }
-    s.camera.eye = moved(s.camera.eye, t);
-    s.camera.look_at = moved(s.camera.look_at, t);
+    s.camera.eye = moved(s.camera.eye.as_vec3(), t).as_dvec3();
+    s.camera.look_at = moved(s.camera.look_at.as_vec3(), t).as_dvec3();
     s
 }
 
@@ -63,8 +63,8 @@ fn bunny() -> Scene {
     let grid = 1.0 / 16.0;
     let triangles = bunny.triangles.iter().map(|t| Triangle { v: t.v.map(|v| on_grid(v * 1e4, grid)), ..*t });
     let mut scene = Scene::from_triangles("bunny", triangles.collect());
-    scene.camera.eye = on_grid(scene.camera.eye, grid);
-    scene.camera.look_at = on_grid(scene.camera.look_at, grid);
+    scene.camera.eye = on_grid(scene.camera.eye.as_vec3(), grid).as_dvec3();
+    scene.camera.look_at = on_grid(scene.camera.look_at.as_vec3(), grid).as_dvec3();
     scene.settings = Settings { width: 192, height: 192, spp: 256, max_distance: Some(625.6), ..Settings::default() };
     scene
 }
@@ -79,7 +79,7 @@ fn aobench(scale: f32) -> Scene {
     for p in &mut scene.planes {
         p.point *= scale;
     }
-    scene.camera.look_at *= scale;
+    scene.camera.look_at *= scale as f64;
     scene.settings = Settings { width: 96, height: 96, spp: 64, sampler: Sampler::Sobol, ..scene.settings };
     scene
 }
@@ -268,4 +268,178 @@ fn scenes_near_the_origin_are_not_moved() {
     let mut far = Scene::default_scene();
     far.spheres.iter_mut().for_each(|s| s.center.z += SHIFT);
     assert_eq!(far.local_origin(), DVec3::new(0.0, 0.0, SHIFT as f64));
+}
+
+// --- Placed far away by the files themselves -------------------------------------------
+//
+// The geometry far away is in the files: a bare mesh's coordinates, a glTF file's node
+// translation, a scene file's transforms and positions. The camera (a bare mesh's
+// automatic framing, a scene file's) is placed in f64, and the loaders keep geometry that
+// they place far away relative to the scene's origin, so each renders the film of the same
+// file at the origin, bit for bit: the same f32 numbers reach the device.
+
+/// The film of each of `scenes` (name, scene) on every device, against the first's: the
+/// same bits, and an image with something in view.
+fn assert_same_films(scenes: &[(String, Scene)]) {
+    let (first, reference) = &scenes[0];
+    for config in all_configs() {
+        let at_origin = render_with(reference, &config);
+        let mean = at_origin.image_mean();
+        assert!(mean > 0.02 && mean < 0.98, "{first} on {}: image mean {mean}, nothing in view", label(&config));
+        for (name, scene) in &scenes[1..] {
+            let film = render_with(scene, &config);
+            let same = same_bits(&film, &at_origin);
+            eprintln!(
+                "{name} on {}: image mean {:.6} against {mean:.6} ({first}); same bits: {same}",
+                label(&config),
+                film.image_mean()
+            );
+            assert!(same, "{name} on {}: the film differs from {first}'s", label(&config));
+        }
+    }
+}
+
+/// Small, quick films: the comparisons are bit for bit.
+fn small(mut scene: Scene) -> Scene {
+    scene.settings = Settings { width: 40, height: 32, spp: 16, ..scene.settings };
+    scene
+}
+
+#[test]
+fn bare_meshes_far_from_the_origin_are_framed_and_rendered_as_at_the_origin() {
+    let dir = temp_dir();
+    let d = dir.path();
+    // A unit triangle, at the origin and at 10⁷ (where an f32 step is 1, so its corners are
+    // exact): framed in f32, the far one was shifted and cropped (mean 0.246 against 0.162).
+    let triangle = |t: &str| format!("v {t}0 {t}0 {t}0\nv {t}1 {t}0 {t}0\nv {t}0 {t}1 {t}0\nf 1 2 3\n");
+    std::fs::write(d.join("triangle.obj"), triangle("")).unwrap();
+    std::fs::write(d.join("triangle_1e7.obj"), triangle("1000000")).unwrap();
+    let load = |file: &str| (file.to_string(), small(Scene::load(&d.join(file)).expect("the mesh loads")));
+    assert_same_films(&[load("triangle.obj"), load("triangle_1e7.obj")]);
+
+    // A floor with a box on the grid of an f32 step where it is moved, and small enough
+    // for the move to be a multiple of its local origin's grid `G`, so that it moves back
+    // exactly: 64 across on the grid of 1 at 10⁷ (`G` = 128), 128 across on the grid of 8
+    // at 10⁸ (`G` = 256).
+    for (t, across, step) in [(1e7f32, 64.0f32, 1.0f32), (1e8, 128.0, 8.0)] {
+        let mesh: Vec<[[f32; 3]; 3]> = floor_and_box()
+            .iter()
+            .map(|tri| tri.map(|v| v.map(|c| (c * across / 4.0 / step).round() * step)))
+            .collect();
+        let scenes: Vec<(String, Scene)> = [0.0, t]
+            .iter()
+            .map(|&shift| {
+                let file = format!("floor_{across}_{shift:e}.obj");
+                let moved_mesh: Vec<[[f32; 3]; 3]> =
+                    mesh.iter().map(|tri| tri.map(|v| moved(Vec3::from(v), shift).to_array())).collect();
+                write_obj(&d.join(&file), &moved_mesh);
+                load(&file)
+            })
+            .collect();
+        for (name, scene) in &scenes {
+            assert_eq!(scene.origin, DVec3::ZERO, "{name}: an OBJ's coordinates are stored as they are");
+        }
+        assert_same_films(&scenes);
+    }
+}
+
+/// A glTF document placing `positions` (one triangle each three) under a node with a
+/// rotation, a scale and a translation, itself under a root node translated by `t`.
+fn gltf_text(positions: &[f32], t: [f64; 3]) -> String {
+    use base64::Engine;
+    let bytes: Vec<u8> = positions.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let data = base64::engine::general_purpose::STANDARD.encode(&bytes);
+    let (lo, hi) = positions.chunks(3).fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), p| {
+        ([lo[0].min(p[0]), lo[1].min(p[1]), lo[2].min(p[2])], [hi[0].max(p[0]), hi[1].max(p[1]), hi[2].max(p[2])])
+    });
+    let doc = serde_json::json!({
+        "asset": { "version": "2.0" },
+        "scene": 0,
+        "scenes": [{ "nodes": [0] }],
+        "nodes": [
+            { "children": [1], "translation": t },
+            { "mesh": 0, "rotation": [0.0, 0.2588190451, 0.0, 0.9659258263], "scale": [1.5, 0.75, 1.5],
+              "translation": [0.25, 0.125, -0.5] }
+        ],
+        "meshes": [{ "primitives": [{ "attributes": { "POSITION": 0 } }] }],
+        "accessors": [{ "bufferView": 0, "componentType": 5126, "count": positions.len() / 3, "type": "VEC3",
+                        "min": lo, "max": hi }],
+        "bufferViews": [{ "buffer": 0, "byteLength": bytes.len() }],
+        "buffers": [{ "byteLength": bytes.len(), "uri": format!("data:application/octet-stream;base64,{data}") }]
+    });
+    serde_json::to_string(&doc).unwrap()
+}
+
+#[test]
+fn a_gltf_placed_far_away_by_its_nodes_renders_its_film_at_the_origin() {
+    let dir = temp_dir();
+    let d = dir.path();
+    // The floor and box at their own scale (a few units, coordinates of every f32 value):
+    // at 10⁸, where an f32 step is 8, placed in f32 they were nothing but slivers.
+    let positions: Vec<f32> = floor_and_box().iter().flatten().flatten().copied().collect();
+    let far = [1e8, -1e8, 1e8];
+    std::fs::write(d.join("near.gltf"), gltf_text(&positions, [0.0; 3])).unwrap();
+    std::fs::write(d.join("far.gltf"), gltf_text(&positions, far)).unwrap();
+    let load = |file: &str| (file.to_string(), small(Scene::load(&d.join(file)).expect("the glTF file loads")));
+    let scenes = [load("near.gltf"), load("far.gltf")];
+    assert_eq!(scenes[0].1.origin, DVec3::ZERO);
+    assert_eq!(scenes[1].1.origin, DVec3::from(far), "the far mesh is kept relative to its place");
+    assert!(
+        scenes[1].1.triangles == scenes[0].1.triangles,
+        "the far mesh's stored triangles differ from the near one's"
+    );
+    let eye = scenes[1].1.camera.eye - scenes[0].1.camera.eye;
+    assert_eq!(eye, DVec3::from(far), "the framing moves with the mesh, exactly");
+    assert_same_films(&scenes);
+}
+
+/// A scene file: the floor and box (`mesh.obj`) rotated and moved, a sphere and a floor
+/// plane, seen from a camera, everything moved by `t` (given as text).
+fn far_scene_text(t: [f64; 3], matrix: bool) -> String {
+    let at = |p: [f64; 3]| format!("[{}, {}, {}]", p[0] + t[0], p[1] + t[1], p[2] + t[2]);
+    let transform = if matrix {
+        // 30° about y, then moved by (0.5, 0.25, 0).
+        let (c, s) = (0.8660254037844387, 0.5);
+        format!(
+            "{{ matrix = [[{c}, 0, {s}, {}], [0, 1, 0, {}], [{}, 0, {c}, {}], [0, 0, 0, 1]] }}",
+            0.5 + t[0],
+            0.25 + t[1],
+            -s,
+            t[2]
+        )
+    } else {
+        format!("{{ rotate = [0, 30, 0], translate = {} }}", at([0.5, 0.25, 0.0]))
+    };
+    format!(
+        "[image]\nwidth = 40\nheight = 32\n[sampling]\nspp = 16\nmax_distance = 1.5\n\
+         [camera]\ntype = \"perspective\"\neye = {}\nlook_at = {}\nfov = 50\n\
+         [[object]]\ntype = \"mesh\"\nfile = \"mesh.obj\"\ntransform = {transform}\n\
+         [[object]]\ntype = \"sphere\"\ncenter = {}\nradius = 0.375\n\
+         [[object]]\ntype = \"plane\"\npoint = {}\nnormal = [0, 1, 0]\nalbedo = 0.5\n",
+        at([2.5, 3.0, 4.5]),
+        at([0.0, 0.0, -0.25]),
+        at([0.75, 0.625, 0.5]),
+        at([0.0, -0.125, 0.0]),
+    )
+}
+
+#[test]
+fn a_scene_file_placing_everything_far_away_renders_its_film_at_the_origin() {
+    let dir = temp_dir();
+    let d = dir.path();
+    write_obj(&d.join("mesh.obj"), &floor_and_box());
+    let far = [1e8, 1e8, -1e8];
+    let mut scenes = Vec::new();
+    for matrix in [false, true] {
+        let form = if matrix { "matrix" } else { "rotate and translate" };
+        for t in [[0.0; 3], far] {
+            scenes.push((format!("the scene moved by {t:?} ({form})"), scene_from_toml(&far_scene_text(t, matrix), d)));
+        }
+    }
+    assert_eq!(scenes[1].1.origin, DVec3::from(far), "the scene is kept relative to its first mesh's place");
+    assert_eq!(scenes[1].1.spheres, scenes[0].1.spheres);
+    assert_eq!(scenes[1].1.planes, scenes[0].1.planes);
+    assert!(scenes[1].1.triangles == scenes[0].1.triangles, "the far mesh's stored triangles differ");
+    assert_same_films(&scenes[..2]);
+    assert_same_films(&scenes[2..]);
 }

@@ -649,6 +649,31 @@ fn non_finite_numbers_in_scene_files_are_rejected_naming_the_object() {
     }
 }
 
+/// A `matrix` whose last row is not [0, 0, 0, 1] is projective, which no affine placement
+/// can follow: refused in one line naming the file and the object, for every kind of object
+/// (it was applied as if that row were [0, 0, 0, 1]).
+#[test]
+fn projective_matrices_are_rejected_naming_the_object() {
+    let dir = temp_dir();
+    let d = dir.path();
+    std::fs::write(d.join("m.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let matrix = |row: &str| format!("transform = {{ matrix = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], {row}] }}");
+    let objects = [
+        ("type = \"mesh\"\nfile = \"m.obj\"", "object 1 (mesh \"m.obj\")"),
+        (SPHERE, "object 1 (sphere)"),
+        ("type = \"plane\"\npoint = [0, 0, 0]\nnormal = [0, 1, 0]", "object 1 (plane)"),
+    ];
+    for (object, name) in objects {
+        for (row, shown) in [("[0, 0, 0.5, 1]", "[0, 0, 0.5, 1]"), ("[0, 0, 0, 2]", "[0, 0, 0, 2]")] {
+            let text = scene_text(CAMERA, &format!("{object}\n{}", matrix(row)));
+            assert_rejected(&text, d, &["test.toml", name, "the last row must be [0, 0, 0, 1]", shown]);
+        }
+        // The affine matrix itself loads.
+        let text = scene_text(CAMERA, &format!("{object}\n{}", matrix("[0, 0, 0, 1]")));
+        Scene::from_toml_str(&text, &d.join("test.toml"), d).expect("an affine matrix loads");
+    }
+}
+
 #[test]
 fn non_finite_vertices_in_meshes_are_rejected_naming_the_file_and_vertex() {
     let dir = temp_dir();

@@ -6,7 +6,7 @@ use anyhow::{Result, anyhow, bail};
 use aorender::output::{Destination, FilePlan, write_output};
 use aorender::scene::read_text;
 use aorender::{Control, ErrorTarget, Probe, ProbeValue, ReadLimits, Sampler, Session, SurfaceTolerance};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
@@ -55,7 +55,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         Some(d) => SurfaceTolerance::distance(d)
             .map_err(|e| anyhow!("invalid option: --surface-tolerance: {}", e.message()))?,
     };
-    let (probes, lines) = read_probes(&args.points, &args.scene.load_options()?.limits)?;
+    let (probes, lines) = read_probes(&args.points, &args.scene.load_options()?.limits, scene.origin)?;
     let target = args.target_error.map(ErrorTarget::PointStdError);
     if target.is_some() && args.sampling.replicate.is_none() {
         scene.settings.replicate = Some(scene.settings.sampler.replicate_for(args.samples.min(256), 16));
@@ -68,7 +68,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         aorender::Error::Settings { .. } => anyhow!("invalid option: {}", e.message()),
         e => e.into(),
     })?;
-    let csv = to_csv(&probes, &out.values);
+    let csv = to_csv(&probes, &out.values, session.scene().origin);
     if to_stdout {
         output::print(&csv)?;
     } else {
@@ -117,14 +117,17 @@ const PROBE_TEXT_BYTES_PER_BYTE: u64 = 12;
 
 /// Reads probes from a text file within `limits`: one per line, `x y z nx ny nz`
 /// (whitespace or commas), `#` starts a comment. Errors name the file and line. With
-/// each probe's line number.
-pub fn read_probes(path: &Path, limits: &ReadLimits) -> Result<(Vec<Probe>, Vec<usize>)> {
+/// each probe's line number. The points are in the scene's own coordinates and are kept
+/// relative to its `origin` (see [`parse_probes`]).
+pub fn read_probes(path: &Path, limits: &ReadLimits, origin: DVec3) -> Result<(Vec<Probe>, Vec<usize>)> {
     let text = read_text(path, limits, PROBE_TEXT_BYTES_PER_BYTE, "the probe file")?;
-    parse_probes(&text).map_err(|m| anyhow!("{}: {m}", path.display()))
+    parse_probes(&text, origin).map_err(|m| anyhow!("{}: {m}", path.display()))
 }
 
-/// Parses the text of a probe file: the probes and their line numbers.
-pub fn parse_probes(text: &str) -> std::result::Result<(Vec<Probe>, Vec<usize>), String> {
+/// Parses the text of a probe file: the probes and their line numbers. Each point is
+/// taken relative to `origin` (the scene's, which its primitives are stored relative to),
+/// subtracted in f64 and rounded once; where that is zero, as given.
+pub fn parse_probes(text: &str, origin: DVec3) -> std::result::Result<(Vec<Probe>, Vec<usize>), String> {
     let (mut probes, mut lines) = (Vec::new(), Vec::new());
     for (i, line) in text.lines().enumerate() {
         let line = line.split('#').next().unwrap_or("");
@@ -140,8 +143,15 @@ pub fn parse_probes(text: &str) -> std::result::Result<(Vec<Probe>, Vec<usize>),
         for (k, f) in fields.iter().enumerate() {
             v[k] = f.parse().map_err(|_| at(format!("'{f}' is not a number")))?;
         }
-        let probe =
-            Probe::new(Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5])).map_err(|e| at(e.message()))?;
+        let mut position = Vec3::new(v[0], v[1], v[2]);
+        if origin != DVec3::ZERO {
+            let mut p = [0f64; 3];
+            for (k, f) in fields[..3].iter().enumerate() {
+                p[k] = f.parse().map_err(|_| at(format!("'{f}' is not a number")))?;
+            }
+            position = (DVec3::from(p) - origin).as_vec3();
+        }
+        let probe = Probe::new(position, Vec3::new(v[3], v[4], v[5])).map_err(|e| at(e.message()))?;
         probes.push(probe);
         lines.push(i + 1);
     }
@@ -151,12 +161,20 @@ pub fn parse_probes(text: &str) -> std::result::Result<(Vec<Probe>, Vec<usize>),
     Ok((probes, lines))
 }
 
-/// The probe values as CSV: `x,y,z,nx,ny,nz,ao,std_error,samples`.
-pub fn to_csv(probes: &[Probe], values: &[ProbeValue]) -> String {
+/// The probe values as CSV: `x,y,z,nx,ny,nz,ao,std_error,samples`, the points back in the
+/// scene's own coordinates (plus `origin`, in f64, where that is not zero).
+pub fn to_csv(probes: &[Probe], values: &[ProbeValue], origin: DVec3) -> String {
     let mut out = String::from("x,y,z,nx,ny,nz,ao,std_error,samples\n");
     for (p, v) in probes.iter().zip(values) {
-        let (a, n) = (p.position, p.normal);
-        out += &format!("{},{},{},{},{},{},{},{},{}\n", a.x, a.y, a.z, n.x, n.y, n.z, v.mean, v.std_error, v.samples);
+        let n = p.normal;
+        let position = if origin == DVec3::ZERO {
+            let a = p.position;
+            format!("{},{},{}", a.x, a.y, a.z)
+        } else {
+            let a = origin + p.position.as_dvec3();
+            format!("{},{},{}", a.x, a.y, a.z)
+        };
+        out += &format!("{position},{},{},{},{},{},{}\n", n.x, n.y, n.z, v.mean, v.std_error, v.samples);
     }
     out
 }
@@ -167,7 +185,7 @@ mod tests {
 
     #[test]
     fn parses_probe_lines() {
-        let (p, lines) = parse_probes("# header\n1 2 3 0 0 2\n\n4,5,6, 0,-1,0 # trailing\n").unwrap();
+        let (p, lines) = parse_probes("# header\n1 2 3 0 0 2\n\n4,5,6, 0,-1,0 # trailing\n", DVec3::ZERO).unwrap();
         assert_eq!(lines, [2, 4]);
         assert_eq!(p.len(), 2);
         assert_eq!(p[0].position, Vec3::new(1.0, 2.0, 3.0));
@@ -185,7 +203,7 @@ mod tests {
             ("1 2 3 0 0 inf", "line 1: non-finite"),
             ("# nothing\n", "no probes"),
         ] {
-            let e = parse_probes(text).unwrap_err();
+            let e = parse_probes(text, DVec3::ZERO).unwrap_err();
             assert!(e.contains(expect), "{text:?}: {e}");
         }
     }

@@ -14,8 +14,11 @@ use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
 };
 use crate::error::{Error, Result};
-use crate::scene::input::{Input, LoadOptions, Meter, ReadLimits, is_gzip, read_text, size_text, vec_bytes};
-use crate::scene::obj::{non_finite_coordinate, parse_vertex_line};
+use crate::scene::input::{
+    Input, LoadOptions, Meter, ReadLimits, UTF8_BOM, UTF16_MESSAGE, is_gzip, read_text, size_text, starts_utf16,
+    vec_bytes,
+};
+use crate::scene::obj::{continued_at, non_finite_coordinate, parse_vertex_line};
 use flate2::Compression;
 use flate2::write::GzEncoder;
 use glam::Vec3;
@@ -45,6 +48,7 @@ impl ObjAsset {
     pub fn read_with(path: &Path, options: &LoadOptions) -> Result<ObjAsset> {
         let mut meter = Meter::new(&options.limits, "the mesh");
         let text = Input::open(path, &options.limits)?.read_all(path, &mut meter)?;
+        let text = as_read(text, path, &mut meter)?;
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
         let mut mesh = parse(&text, label, &mut meter).map_err(|e| Error::scene(path, e))?;
         if textures_repeat(path, &text, &options.limits) {
@@ -116,6 +120,52 @@ fn textures_repeat(path: &Path, text: &[u8], limits: &ReadLimits) -> bool {
         }
     }
     maps > 0 && clamped == 0
+}
+
+/// The text of an OBJ file as the scene loader reads it, and as it is written back: a
+/// UTF-8 byte-order mark dropped, UTF-16 refused, each line continued with `\` joined to
+/// the next (an empty line after it, so that lines keep their numbers), and a comment after
+/// a vertex's numbers dropped (a `v` line is written back with its colour after them).
+fn as_read(mut text: Vec<u8>, path: &Path, meter: &mut Meter) -> Result<Vec<u8>> {
+    if starts_utf16(&text) {
+        return Err(Error::scene(path, UTF16_MESSAGE));
+    }
+    if text.starts_with(UTF8_BOM) {
+        text.drain(..UTF8_BOM.len());
+    }
+    let is_comment = |line: &[u8]| line.iter().find(|b| !b.is_ascii_whitespace()) == Some(&b'#');
+    let commented_vertex = |line: &[u8]| line.contains(&b'#') && keyword(&String::from_utf8_lossy(line)) == Some("v");
+    let changes = |line: &[u8]| !is_comment(line) && (continued_at(line).is_some() || commented_vertex(line));
+    if !lines(&text).any(changes) {
+        return Ok(text);
+    }
+    meter.charge(path, text.len() as u64)?;
+    let mut out = Vec::with_capacity(text.len());
+    let mut line = Vec::new();
+    let mut joined = 0;
+    for physical in lines(&text) {
+        let continued = if joined > 0 || !is_comment(physical) { continued_at(physical) } else { None };
+        match continued {
+            Some(at) => {
+                line.extend_from_slice(&physical[..at]);
+                line.push(b' ');
+                joined += 1;
+            }
+            None => {
+                line.extend_from_slice(physical);
+                if !is_comment(&line) && commented_vertex(&line) {
+                    let ending: Vec<u8> =
+                        line.iter().rev().take_while(|&&b| b == b'\n' || b == b'\r').copied().collect();
+                    line.truncate(line.iter().position(|&b| b == b'#').unwrap_or(line.len()));
+                    line.extend(ending.iter().rev());
+                }
+                out.append(&mut line);
+                out.extend(std::iter::repeat_n(b'\n', std::mem::take(&mut joined)));
+            }
+        }
+    }
+    out.append(&mut line);
+    Ok(out)
 }
 
 /// The lines of `text`, each with its ending (`\n` or `\r\n`; none for a last line without).
@@ -247,7 +297,10 @@ impl Parser {
                 numbers.len()
             ));
         }
-        if let Some(bad) = numbers.iter().find(|w| w.parse::<f32>().is_err()) {
+        // A colour is replaced, not read.
+        if let Some(bad) =
+            numbers.iter().take(if numbers.len() == 4 { 4 } else { 3 }).find(|w| w.parse::<f32>().is_err())
+        {
             return Err(format!("line {line}: '{bad}' is not a number"));
         }
         if numbers.len() == 4 && numbers[3].parse::<f32>() == Ok(0.0) {
@@ -274,6 +327,16 @@ impl Parser {
     }
 
     fn face(&mut self, text: &str, line: usize) -> std::result::Result<(), String> {
+        if text.split_whitespace().count() < 4 {
+            // A point or a segment: no surface, and its indices are not resolved, as the
+            // scene loader leaves them.
+            for word in text.split_whitespace().skip(1) {
+                for part in word.split('/').filter(|p| !p.is_empty()) {
+                    part.parse::<isize>().map_err(|_| format!("line {line}: '{part}' is not an index"))?;
+                }
+            }
+            return Ok(());
+        }
         let (start, normals_start) = (self.face_indices.len(), self.corner_normals.len());
         for word in text.split_whitespace().skip(1) {
             let mut parts = word.split('/');
@@ -347,7 +410,8 @@ fn parse(text: &[u8], label: String, meter: &mut Meter) -> std::result::Result<A
             return Err(format!("line {line} is longer than {longest}, the longest line a text file may have"));
         }
         budget(meter, parser.bytes())?;
-        let text = String::from_utf8_lossy(bytes);
+        // A comment after the data is not part of it.
+        let text = String::from_utf8_lossy(bytes.split(|&b| b == b'#').next().unwrap_or_default());
         match keyword(&text) {
             Some("v") => parser.vertex(&text, line)?,
             Some("vt") => {

@@ -5,11 +5,11 @@
 use super::asset::{AssetMesh, BakeAt, BakedValues};
 use crate::geometry::{AffineRows, InverseAffine, gamma, instance_point};
 use crate::probe::{Probe, ProbeValue};
-use crate::scene::{MIN_NORMAL_LENGTH_SQUARED, MeshObject};
+use crate::scene::{MIN_NORMAL_LENGTH_SQUARED, MeshObject, place_point};
 use glam::{DVec3, Mat3, Mat4, Vec3};
 
 /// How a baked mesh is placed in the scene: by `to_world` into the scene's triangles (each
-/// vertex through `Mat4::transform_point3`, as the loader placed it), or as an instance
+/// vertex through [`place_point`], as the loader placed it), or as an instance
 /// whose rays are carried into the mesh's own space.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Placement {
@@ -133,7 +133,7 @@ impl BakePlan {
             .map(|f| {
                 let face = mesh.face(f);
                 let world: Vec<DVec3> =
-                    face.iter().map(|&i| m.transform_point3(mesh.positions[i as usize]).as_dvec3()).collect();
+                    face.iter().map(|&i| place_point(&m, mesh.positions[i as usize]).as_dvec3()).collect();
                 let normal = polygon_area_vector(world.iter().copied()).as_vec3();
                 if face.len() < 3 || !usable(normal) {
                     self.unusable += 1;
@@ -175,7 +175,7 @@ fn place(placement: &Placement, p: Vec3, e: Vec3, n: Vec3) -> Probe {
         // inside triangles placed into the world never come here: their bound is found
         // in the world, from the corners as the scene holds them.)
         debug_assert_eq!(e, Vec3::ZERO);
-        Probe { position: placement.to_world.transform_point3(p), normal: n, error: 0.0, surface_normal: Vec3::ZERO }
+        Probe { position: place_point(&placement.to_world, p), normal: n, error: 0.0, surface_normal: Vec3::ZERO }
     }
 }
 
@@ -186,7 +186,7 @@ pub(super) fn vertex_normals(mesh: &AssetMesh, placement: &Placement) -> (Vec<Op
     let m = placement.to_world;
     let normal_matrix = Mat3::from_mat4(m).as_dmat3().inverse().transpose();
     // Area-weighted face normals (twice the area), in the world, summed per vertex.
-    let world: Vec<DVec3> = mesh.positions.iter().map(|&p| m.transform_point3(p).as_dvec3()).collect();
+    let world: Vec<DVec3> = mesh.positions.iter().map(|&p| place_point(&m, p).as_dvec3()).collect();
     let mut area = vec![DVec3::ZERO; mesh.positions.len()];
     for f in 0..mesh.face_count() {
         let face = mesh.face(f);
@@ -223,7 +223,7 @@ pub(super) fn vertex_normals(mesh: &AssetMesh, placement: &Placement) -> (Vec<Op
 pub(super) fn triangle_probe(mesh: &AssetMesh, placement: &Placement, tri: [u32; 3], b: [f64; 2], n: Vec3) -> Probe {
     let corner = |i: u32| {
         let p = mesh.positions[i as usize];
-        if placement.instanced { p.as_dvec3() } else { placement.to_world.transform_point3(p).as_dvec3() }
+        if placement.instanced { p.as_dvec3() } else { place_point(&placement.to_world, p).as_dvec3() }
     };
     let [a, p1, p2] = tri.map(corner);
     let point = (a + b[0] * (p1 - a) + b[1] * (p2 - a)).as_vec3();

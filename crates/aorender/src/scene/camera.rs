@@ -1,7 +1,9 @@
 //! Cameras: pinhole perspective and orthographic, generating one jittered ray per sample.
+//! A camera is placed in f64, as a scene far from the origin needs: its rays are made in
+//! f32 once it has been moved into the frame the scene is rendered in, near the scene.
 
 use crate::error::{Error, Result};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 
 /// How the camera projects.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -18,13 +20,14 @@ pub enum Projection {
     },
 }
 
-/// A camera placed in world space.
+/// A camera placed in the scene's space, in f64 (so that a camera far from the origin
+/// frames what is near it as exactly as one at the origin).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
     /// Eye position.
-    pub eye: Vec3,
+    pub eye: DVec3,
     /// The point looked at.
-    pub look_at: Vec3,
+    pub look_at: DVec3,
     /// Approximate up direction.
     pub up: Vec3,
     /// Projection.
@@ -59,7 +62,7 @@ impl Camera {
         if forward.length_squared() == 0.0 {
             return Err(Error::settings("camera eye and look_at are the same point"));
         }
-        if forward.normalize().cross(self.up).length_squared() < 1e-12 {
+        if forward.normalize().cross(self.up.as_dvec3()).length_squared() < 1e-12 {
             return Err(Error::settings("camera up is parallel to the view direction"));
         }
         match self.projection {
@@ -73,9 +76,29 @@ impl Camera {
         }
     }
 
+    /// Checks what [`Camera::ray_gen`] makes of the camera in f32: the eye and the target
+    /// still apart, the view still across `up`. A camera moved into the frame the scene
+    /// is rendered in is checked again this way; one far from that frame may fail it.
+    pub(crate) fn validate_f32(&self) -> Result<()> {
+        let (eye, look_at) = (self.eye.as_vec3(), self.look_at.as_vec3());
+        let forward = look_at - eye;
+        if !(forward.length_squared() > 0.0 && forward.length_squared().is_finite()) {
+            return Err(Error::settings(
+                "camera eye and look_at are the same point in f32, where the rays are made: move them apart",
+            ));
+        }
+        if forward.normalize().cross(self.up).length_squared() < 1e-12 {
+            return Err(Error::settings("camera up is parallel to the view direction"));
+        }
+        Ok(())
+    }
+
     /// The ray-generation frame for an image of the given size.
+    /// The eye and the target are rounded to f32 first: the camera is to be in the frame
+    /// the scene is rendered in.
     pub fn ray_gen(&self, width: u32, height: u32) -> RayGen {
-        let forward = (self.look_at - self.eye).normalize();
+        let (eye, look_at) = (self.eye.as_vec3(), self.look_at.as_vec3());
+        let forward = (look_at - eye).normalize();
         let right = forward.cross(self.up).normalize();
         let up = right.cross(forward);
         let aspect = width as f32 / height as f32;
@@ -83,13 +106,7 @@ impl Camera {
             Projection::Perspective { vfov_deg } => ((0.5 * vfov_deg.to_radians()).tan(), false),
             Projection::Orthographic { height } => (0.5 * height, true),
         };
-        RayGen {
-            eye_ws: self.eye,
-            right_ws: right * half_h * aspect,
-            up_ws: up * half_h,
-            forward_ws: forward,
-            orthographic,
-        }
+        RayGen { eye_ws: eye, right_ws: right * half_h * aspect, up_ws: up * half_h, forward_ws: forward, orthographic }
     }
 }
 

@@ -1,18 +1,25 @@
 //! The TOML scene format (documented in the README). Unknown fields are errors.
+//!
+//! Positions and transforms are read in f64 and composed in f64. The scene's origin
+//! ([`Scene::origin`]) is chosen from the first mesh or sphere, by the rule of the local
+//! frame (zero unless it lies far from the origin for its size), and every primitive is
+//! placed relative to it: a mesh by its transform composed with the two origins in f64
+//! and held in f32 (as an instance's is), each vertex through it in f64 and rounded once.
 
 use super::camera::{Camera, Projection};
+use super::frame::grid_origin;
 use super::input::{LoadOptions, Meter, vec_bytes};
 use super::mesh::IndexedMesh;
 use super::meshes::{mesh_bytes, mesh_triangles_within, place_mesh, read_mesh, vertex_name};
 use super::types::{
     Instance, InstancedMesh, MeshObject as PlacedMesh, Scene, Settings, Sphere, Triangle, Warning,
-    non_finite_coordinate,
+    non_finite_coordinate, place_point,
 };
 use crate::error::{Error, Result};
 use crate::geometry::Plane;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
-use glam::{Mat4, Vec3};
+use glam::{DMat4, DVec3, Mat4, Vec3};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -20,12 +27,39 @@ use std::path::{Path, PathBuf};
 /// naming it as `place_mesh` does.
 fn check_placement(path: &Path, mesh: &IndexedMesh, m: &Mat4) -> Result<(), Error> {
     for (k, p) in mesh.positions.iter().enumerate() {
-        if let Some(c) = non_finite_coordinate(m.transform_point3(*p)) {
+        if let Some(c) = non_finite_coordinate(place_point(m, *p)) {
             let name = vertex_name(&mesh.names, k, *p);
             return Err(Error::scene(path, format!("{name} has a non-finite coordinate after the transform ({c})")));
         }
     }
     Ok(())
+}
+
+/// The bounds, in f64, of the vertices of `mesh` placed by `m` (of its file's space), for
+/// choosing the scene's origin; `None` when a vertex is not finite there.
+fn placed_bounds(mesh: &IndexedMesh, m: &DMat4) -> Option<(DVec3, DVec3)> {
+    let (mut min, mut max) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for p in &mesh.positions {
+        let q = m.transform_point3(mesh.origin + p.as_dvec3());
+        (min, max) = (min.min(q), max.max(q));
+    }
+    (min.is_finite() && max.is_finite() && min.x <= max.x).then_some((min, max))
+}
+
+/// `m` (from a file's space to the scene's own) composed with the mesh's origin and the
+/// scene's, in f64, and held in f32: from the positions a loader read (relative to
+/// `mesh_origin`) to the scene's stored coordinates (relative to `scene_origin`).
+fn relative_placement(m: &DMat4, mesh_origin: DVec3, scene_origin: DVec3) -> Result<Mat4, TransformError> {
+    let mut relative = *m * DMat4::from_translation(mesh_origin);
+    relative.w_axis -= scene_origin.extend(0.0);
+    let held = relative.as_mat4();
+    if !held.is_finite() {
+        return Err(TransformError("transform has an entry too large for f32".into()));
+    }
+    if held.determinant() == 0.0 {
+        return Err(TransformError("transform is singular".into()));
+    }
+    Ok(held)
 }
 
 /// The default scene's text, compiled in so the binary renders without any files.
@@ -76,8 +110,8 @@ enum CameraKind {
 struct CameraSection {
     #[serde(rename = "type")]
     kind: CameraKind,
-    eye: [f32; 3],
-    look_at: [f32; 3],
+    eye: [f64; 3],
+    look_at: [f64; 3],
     #[serde(default = "default_up")]
     up: [f32; 3],
     /// Vertical field of view in degrees (perspective).
@@ -117,7 +151,7 @@ struct MeshObject {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct SphereObject {
-    center: [f32; 3],
+    center: [f64; 3],
     radius: f32,
     #[serde(default = "default_albedo")]
     albedo: f32,
@@ -127,7 +161,7 @@ struct SphereObject {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct PlaneObject {
-    point: [f32; 3],
+    point: [f64; 3],
     normal: [f32; 3],
     #[serde(default = "default_albedo")]
     albedo: f32,
@@ -137,8 +171,8 @@ struct PlaneObject {
 #[derive(Deserialize)]
 #[serde(untagged)]
 enum Scale {
-    Uniform(f32),
-    Axes([f32; 3]),
+    Uniform(f64),
+    Axes([f64; 3]),
 }
 
 /// Applied as scale, then rotation (about x, then y, then z, in degrees), then
@@ -147,13 +181,13 @@ enum Scale {
 #[serde(deny_unknown_fields)]
 struct Transform {
     scale: Option<Scale>,
-    rotate: Option<[f32; 3]>,
-    translate: Option<[f32; 3]>,
-    matrix: Option<[[f32; 4]; 4]>,
+    rotate: Option<[f64; 3]>,
+    translate: Option<[f64; 3]>,
+    matrix: Option<[[f64; 4]; 4]>,
 }
 
 /// "has a non-finite entry (NaN)" for the first NaN or infinity in `values`.
-fn non_finite_entry(values: &[f32]) -> Option<String> {
+fn non_finite_entry(values: &[f64]) -> Option<String> {
     values.iter().find(|v| !v.is_finite()).map(|v| format!("has a non-finite entry ({v})"))
 }
 
@@ -161,8 +195,9 @@ fn non_finite_entry(values: &[f32]) -> Option<String> {
 struct TransformError(String);
 
 impl Transform {
-    fn matrix(&self) -> Result<Mat4, TransformError> {
-        let scale: Option<Vec<f32>> = self.scale.as_ref().map(|s| match s {
+    /// The transform in f64: from its object's space to the scene's own.
+    fn matrix(&self) -> Result<DMat4, TransformError> {
+        let scale: Option<Vec<f64>> = self.scale.as_ref().map(|s| match s {
             Scale::Uniform(s) => vec![*s],
             Scale::Axes(a) => a.to_vec(),
         });
@@ -181,18 +216,24 @@ impl Transform {
             if self.scale.is_some() || self.rotate.is_some() || self.translate.is_some() {
                 return Err(TransformError("transform: give either matrix or scale/rotate/translate, not both".into()));
             }
-            Mat4::from_cols_array_2d(&rows).transpose()
+            if rows[3] != [0.0, 0.0, 0.0, 1.0] {
+                let [a, b, c, d] = rows[3];
+                return Err(TransformError(format!(
+                    "transform: matrix: the last row must be [0, 0, 0, 1], not [{a}, {b}, {c}, {d}]: a projective matrix is not an affine transform"
+                )));
+            }
+            DMat4::from_cols_array_2d(&rows).transpose()
         } else {
             let s = match self.scale {
-                None => Vec3::ONE,
-                Some(Scale::Uniform(s)) => Vec3::splat(s),
-                Some(Scale::Axes(a)) => Vec3::from(a),
+                None => DVec3::ONE,
+                Some(Scale::Uniform(s)) => DVec3::splat(s),
+                Some(Scale::Axes(a)) => DVec3::from(a),
             };
-            let r = self.rotate.map(Vec3::from).unwrap_or(Vec3::ZERO);
+            let r = self.rotate.map(DVec3::from).unwrap_or(DVec3::ZERO);
             let rotation =
-                glam::Quat::from_euler(glam::EulerRot::ZYX, r.z.to_radians(), r.y.to_radians(), r.x.to_radians());
-            let t = self.translate.map(Vec3::from).unwrap_or(Vec3::ZERO);
-            Mat4::from_scale_rotation_translation(s, rotation, t)
+                glam::DQuat::from_euler(glam::EulerRot::ZYX, r.z.to_radians(), r.y.to_radians(), r.x.to_radians());
+            let t = self.translate.map(DVec3::from).unwrap_or(DVec3::ZERO);
+            DMat4::from_scale_rotation_translation(s, rotation, t)
         };
         if !m.is_finite() {
             return Err(TransformError("transform has a NaN or infinite entry".into()));
@@ -272,14 +313,82 @@ pub(super) fn parse_scene(
             }
         }
     };
-    for (name, p) in [("eye", c.eye), ("look_at", c.look_at), ("up", c.up)] {
-        if let Some(coordinate) = non_finite_coordinate(p.into()) {
+    // Beyond f32's range is not finite either: the rays are made in f32.
+    for (name, p) in
+        [("eye", DVec3::from(c.eye).as_vec3()), ("look_at", DVec3::from(c.look_at).as_vec3()), ("up", c.up.into())]
+    {
+        if let Some(coordinate) = non_finite_coordinate(p) {
             return Err(err(format!("camera: {name} has a non-finite coordinate ({coordinate})")));
         }
     }
     let camera = Camera { eye: c.eye.into(), look_at: c.look_at.into(), up: c.up.into(), projection };
     camera.validate().map_err(|e| err(e.message()))?;
 
+    // The scene's origin is the local frame's origin of all its meshes and spheres
+    // ([`grid_origin`] of their bounds in f64), which is known once they are placed: the
+    // objects are placed about zero first (what every scene near the origin keeps), and
+    // again about that origin where it differs.
+    let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
+    let start = meter.used();
+    let mut origin = DVec3::ZERO;
+    for pass in 0..3 {
+        let mut bounds = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        let placed = place_objects(&file.objects, path, base_dir, options, meter, origin, &mut bounds);
+        let wanted = if bounds.0.x <= bounds.1.x { grid_origin(bounds.0, bounds.1) } else { DVec3::ZERO };
+        if wanted == origin || pass == 2 {
+            let p = placed?;
+            return Ok(Scene {
+                name,
+                path: Some(path.to_path_buf()),
+                camera,
+                origin,
+                settings,
+                triangles: p.triangles,
+                meshes: p.meshes,
+                instances: p.instances,
+                spheres: p.spheres,
+                planes: p.planes,
+                warnings: p.warnings,
+                mesh_objects: p.mesh_objects,
+            });
+        }
+        drop(placed);
+        meter.set_used(start);
+        origin = wanted;
+    }
+    unreachable!("the third pass returns")
+}
+
+/// The objects of a scene file, placed.
+struct Placed {
+    triangles: Vec<Triangle>,
+    meshes: Vec<InstancedMesh>,
+    instances: Vec<Instance>,
+    spheres: Vec<Sphere>,
+    planes: Vec<Plane>,
+    warnings: Vec<Warning>,
+    mesh_objects: Vec<PlacedMesh>,
+}
+
+/// Places `objects` (of the scene file `path`, mesh paths relative to `base_dir`) relative
+/// to the scene's `origin`, everything held charged to `meter`; `bounds` grows by each
+/// mesh's and sphere's bounds in f64 before the object is placed (so that a failure still
+/// leaves what was seen of the scene).
+fn place_objects(
+    objects: &[Object],
+    path: &Path,
+    base_dir: &Path,
+    options: &LoadOptions,
+    meter: &mut Meter,
+    origin: DVec3,
+    bounds: &mut (DVec3, DVec3),
+) -> Result<Placed> {
+    let err = |m: String| Error::scene(path, m);
+    let mut grow = |b: Option<(DVec3, DVec3)>| {
+        if let Some((lo, hi)) = b {
+            *bounds = (bounds.0.min(lo), bounds.1.max(hi));
+        }
+    };
     let mut triangles: Vec<Triangle> = Vec::new();
     let mut spheres = Vec::new();
     let mut planes = Vec::new();
@@ -291,7 +400,7 @@ pub(super) fn parse_scene(
     let mut meshes: Vec<InstancedMesh> = Vec::new();
     let mut instances: Vec<Instance> = Vec::new();
     let mut mesh_objects: Vec<PlacedMesh> = Vec::new();
-    for object in &file.objects {
+    for object in objects {
         if let Object::Mesh(m) = object {
             let path = base_dir.join(&m.file);
             match mesh_uses.iter_mut().find(|(p, _, _)| *p == path) {
@@ -300,7 +409,7 @@ pub(super) fn parse_scene(
             }
         }
     }
-    for (i, object) in file.objects.iter().enumerate() {
+    for (i, object) in objects.iter().enumerate() {
         // Names the object in errors: `object 3 (mesh "bunny.obj")`, `object 1 (sphere)`.
         let (kind, albedo, transform) = match object {
             Object::Mesh(m) => (format!("mesh {:?}", m.file), m.albedo, &m.transform),
@@ -314,7 +423,7 @@ pub(super) fn parse_scene(
         }
         let m = match transform {
             Some(t) => t.matrix().map_err(|e| fail(e.0))?,
-            None => Mat4::IDENTITY,
+            None => DMat4::IDENTITY,
         };
         match object {
             Object::Mesh(mesh) => {
@@ -331,8 +440,10 @@ pub(super) fn parse_scene(
                 if entry.1 == 1 && entry.2.is_none() {
                     let mut read = read_mesh(&path, &options, meter).map_err(in_scene_error)?;
                     warnings.extend(read.warnings.drain(..).map(|message| Warning { path: path.clone(), message }));
+                    grow(placed_bounds(&read, &m));
+                    let held = relative_placement(&m, read.origin, origin).map_err(|e| fail(e.0))?;
                     let positions = std::mem::take(&mut read.positions);
-                    let placed = place_mesh(&path, positions, &read, albedo, &m, meter).map_err(in_scene_error)?;
+                    let placed = place_mesh(&path, positions, &read, albedo, &held, meter).map_err(in_scene_error)?;
                     // Exact growth: the scene never reserves room it will not fill (a large
                     // array grows by remapping its pages, not by copying them).
                     meter.charge(&path, vec_bytes(&placed)).map_err(in_scene_error)?;
@@ -340,7 +451,7 @@ pub(super) fn parse_scene(
                     triangles.extend(placed);
                     drop(read);
                     meter.set_used(base + retained_bytes(&triangles, &meshes, &mesh_uses));
-                    let to_world = m;
+                    let to_world = held;
                     mesh_objects.push(PlacedMesh {
                         number: i + 1,
                         path,
@@ -364,10 +475,12 @@ pub(super) fn parse_scene(
                     entry.2 = Some((meshes.len() as u32 - 1, read));
                 }
                 let (index, read) = entry.2.as_ref().expect("read above");
-                check_placement(&path, read, &m).map_err(in_scene_error)?;
-                instances.push(Instance { mesh: *index, to_world: m, albedo });
+                grow(placed_bounds(read, &m));
+                let held = relative_placement(&m, read.origin, origin).map_err(|e| fail(e.0))?;
+                check_placement(&path, read, &held).map_err(in_scene_error)?;
+                instances.push(Instance { mesh: *index, to_world: held, albedo });
                 let instance = Some(instances.len() as u32 - 1);
-                let (number, to_world) = (i + 1, m);
+                let (number, to_world) = (i + 1, held);
                 mesh_objects.push(PlacedMesh { number, path: path.clone(), to_world, instance, allow_external_uris });
                 // The file's vertices are kept for the checks of its later instances only.
                 entry.1 -= 1;
@@ -377,8 +490,8 @@ pub(super) fn parse_scene(
                 meter.set_used(base + retained_bytes(&triangles, &meshes, &mesh_uses));
             }
             Object::Sphere(s) => {
-                let (center, radius) = (Vec3::from(s.center), s.radius);
-                if let Some(c) = non_finite_coordinate(center) {
+                let (center, radius) = (DVec3::from(s.center), s.radius);
+                if let Some(c) = non_finite_coordinate(center.as_vec3()) {
                     return Err(fail(format!("centre has a non-finite coordinate ({c})")));
                 }
                 if !(radius.is_finite() && radius > 0.0) {
@@ -387,22 +500,27 @@ pub(super) fn parse_scene(
                 // Spheres stay exact: only similarity transforms keep them spheres.
                 let (scale, _, _) = m.to_scale_rotation_translation();
                 let max_rel = (scale.abs().max_element() - scale.abs().min_element()) / scale.abs().max_element();
-                if max_rel > 1e-5 || m.row(3) != glam::Vec4::W {
+                if max_rel > 1e-5 {
                     return Err(fail(
                         "transform must be a similarity (uniform scale, rotation, translation) to keep a sphere exact"
                             .into(),
                     ));
                 }
                 let center = m.transform_point3(center);
-                let radius = radius * scale.abs().x;
+                let radius = (radius as f64 * scale.abs().x) as f32;
+                if center.is_finite() {
+                    let r = DVec3::splat(radius as f64);
+                    grow(Some((center - r, center + r)));
+                }
+                let center = (center - origin).as_vec3();
                 if !center.is_finite() || !radius.is_finite() {
                     return Err(fail("the transformed sphere is not finite".into()));
                 }
                 spheres.push(Sphere { center, radius, albedo });
             }
             Object::Plane(p) => {
-                let (point, normal) = (Vec3::from(p.point), Vec3::from(p.normal));
-                for (what, v) in [("point", point), ("normal", normal)] {
+                let (point, normal) = (DVec3::from(p.point), Vec3::from(p.normal));
+                for (what, v) in [("point", point.as_vec3()), ("normal", normal)] {
                     if let Some(c) = non_finite_coordinate(v) {
                         return Err(fail(format!("{what} has a non-finite coordinate ({c})")));
                     }
@@ -410,9 +528,9 @@ pub(super) fn parse_scene(
                 if normal.length_squared() == 0.0 {
                     return Err(fail("normal must be non-zero".into()));
                 }
-                let point = m.transform_point3(point);
-                // Normals transform by the inverse transpose.
-                let normal = m.inverse().transpose().transform_vector3(normal).normalize();
+                let point = (m.transform_point3(point) - origin).as_vec3();
+                // Normals transform by the inverse transpose; normalised in f32, as given.
+                let normal = m.inverse().transpose().transform_vector3(normal.as_dvec3()).as_vec3().normalize();
                 if !point.is_finite() || !normal.is_finite() {
                     return Err(fail("the transformed plane is not finite".into()));
                 }
@@ -420,18 +538,5 @@ pub(super) fn parse_scene(
             }
         }
     }
-    let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene").to_string();
-    Ok(Scene {
-        name,
-        path: Some(path.to_path_buf()),
-        camera,
-        settings,
-        triangles,
-        meshes,
-        instances,
-        spheres,
-        planes,
-        warnings,
-        mesh_objects,
-    })
+    Ok(Placed { triangles, meshes, instances, spheres, planes, warnings, mesh_objects })
 }

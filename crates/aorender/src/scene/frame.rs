@@ -15,6 +15,11 @@
 //! bound grows by it. A scene whose bounds are near the origin is not moved at all, nor
 //! any of its films changed; and geometry whose bounds' centre is within `G/2` of the
 //! origin, translated far away by a multiple of `G`, renders the same film bit for bit.
+//!
+//! The frame works on the scene's stored coordinates, which a loader that placed geometry
+//! far away in f64 (a glTF node hierarchy, a scene file's transform) keeps relative to the
+//! scene's own origin ([`Scene::origin`], chosen by the same rule): cameras, which are in
+//! the scene's own coordinates, are moved by both.
 
 use super::camera::Camera;
 use super::types::Scene;
@@ -23,8 +28,9 @@ use glam::{DVec3, Vec3};
 /// The local origin of a scene and what moving the scene by it did.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LocalFrame {
-    /// The scene's point that becomes the local frame's zero, in the scene's coordinates
-    /// (each component an f32 value; zero for a scene near the origin).
+    /// The scene's point that becomes the local frame's zero, in the scene's stored
+    /// coordinates (relative to [`Scene::origin`]; each component an f32 value; zero for a
+    /// scene near the origin).
     pub origin: DVec3,
     /// How far moving the scene may have moved a surface: zero when every subtraction
     /// was exact, else the largest distance a moved point was rounded by (a triangle's
@@ -52,9 +58,13 @@ impl LocalFrame {
         (local, (local.as_dvec3() - exact).length())
     }
 
-    /// `camera` in the local frame (its eye and target moved, its directions kept).
-    pub fn camera(&self, camera: &Camera) -> Camera {
-        Camera { eye: self.point(camera.eye).0, look_at: self.point(camera.look_at).0, ..*camera }
+    /// `camera` (in the scene's own coordinates) in the local frame of a scene whose
+    /// stored coordinates are relative to `scene_origin` ([`Scene::origin`]): its eye and
+    /// target moved in f64 (rounded to f32 only when its rays are made), its directions
+    /// kept.
+    pub fn camera(&self, camera: &Camera, scene_origin: DVec3) -> Camera {
+        let origin = scene_origin + self.origin;
+        Camera { eye: camera.eye - origin, look_at: camera.look_at - origin, ..*camera }
     }
 }
 
@@ -71,21 +81,7 @@ impl Scene {
     /// bounds are near the origin or it has no finite primitive.
     pub fn local_origin(&self) -> DVec3 {
         let Some((min, max)) = self.frame_bounds() else { return DVec3::ZERO };
-        let size = (max - min).max_element();
-        let largest = min.abs().max(max.abs()).max_element();
-        let at_least = (GRID_OVER_SIZE * size).max(largest / COORDINATE_OVER_GRID);
-        if !(at_least > 0.0 && at_least.is_finite()) {
-            return DVec3::ZERO;
-        }
-        let mut grid = 2f64.powi(at_least.log2().ceil() as i32);
-        if grid < at_least {
-            grid *= 2.0; // log2 rounded down to a power just below
-        }
-        let centre = 0.5 * (min + max);
-        let axis = |c: f64| if c.abs() < grid { 0.0 } else { (c / grid).round() * grid };
-        let origin = DVec3::new(axis(centre.x), axis(centre.y), axis(centre.z));
-        // Multiples of the grid below 2²¹ of it are f32 values; checked rather than assumed.
-        if origin.as_vec3().as_dvec3() == origin { origin } else { DVec3::ZERO }
+        grid_origin(min, max)
     }
 
     /// Bounds of the finite primitives in f64 (spheres' centre ± radius exactly,
@@ -171,6 +167,29 @@ impl Scene {
             && self.planes.iter().all(|p| exact(p.point))
             && self.instances.iter().all(|i| exact(i.to_world.w_axis.truncate()))
     }
+}
+
+/// The origin of a frame for geometry within the bounds `min`..`max` (see [`LocalFrame`]):
+/// on each axis whose bounds' centre lies at least `G` from zero, that centre rounded to a
+/// multiple of `G`, the smallest power of two at least twice the bounds' largest side (and
+/// at least 2⁻²⁰ of their largest coordinate); zero on the others. Each component is an f32
+/// value. Loaders that place geometry far from the origin keep it relative to this point.
+pub(crate) fn grid_origin(min: DVec3, max: DVec3) -> DVec3 {
+    let size = (max - min).max_element();
+    let largest = min.abs().max(max.abs()).max_element();
+    let at_least = (GRID_OVER_SIZE * size).max(largest / COORDINATE_OVER_GRID);
+    if !(at_least > 0.0 && at_least.is_finite()) {
+        return DVec3::ZERO;
+    }
+    let mut grid = 2f64.powi(at_least.log2().ceil() as i32);
+    if grid < at_least {
+        grid *= 2.0; // log2 rounded down to a power just below
+    }
+    let centre = 0.5 * (min + max);
+    let axis = |c: f64| if c.abs() < grid { 0.0 } else { (c / grid).round() * grid };
+    let origin = DVec3::new(axis(centre.x), axis(centre.y), axis(centre.z));
+    // Multiples of the grid below 2²¹ of it are f32 values; checked rather than assumed.
+    if origin.as_vec3().as_dvec3() == origin { origin } else { DVec3::ZERO }
 }
 
 /// The smallest f32 at least `x` (a non-negative finite f64).

@@ -7,13 +7,15 @@
 //! The default scene (else the first, else every root node) is walked down its node
 //! hierarchy, composing each node's matrix or translation × rotation × scale in f64; every
 //! triangle, triangle-strip and triangle-fan primitive of every node's mesh is placed by
-//! its node's world transform. Other primitive modes (points, lines) are skipped with a
+//! its node's world transform, in f64, and rounded once to f32 relative to the mesh's
+//! origin (zero unless the nodes place the mesh far from the origin for its size, where
+//! the positions keep the accuracy the file's have). Other primitive modes (points, lines) are skipped with a
 //! warning. Skins and morph targets are not applied: the mesh is taken in its bind pose.
 //!
 //! [`read_gltf`] also says where each placed primitive went in the mesh (and reads its
 //! normals), for baking values back into the file (`bake::gltf`).
 
-use super::input::{Input, LoadOptions, Meter, is_gzip, one_line};
+use super::input::{Input, LoadOptions, Meter, UTF8_BOM, is_gzip, one_line};
 use super::mesh::{IndexedMesh, VertexNames, vertex_index};
 use crate::error::{Error, Result};
 use ::gltf::accessor::{DataType, Dimensions};
@@ -32,11 +34,36 @@ use std::path::{Component, Path, PathBuf};
 /// Required extensions this loader implements.
 const IMPLEMENTED_EXTENSIONS: &[&str] = &["KHR_mesh_quantization"];
 
-/// Prefixes of extensions that change only materials, textures or lights. Ambient
-/// occlusion uses none of them, and a file that requires one keeps its geometry in core
-/// glTF, so it loads.
-const APPEARANCE_EXTENSION_PREFIXES: &[&str] =
-    &["KHR_materials_", "KHR_texture_", "EXT_texture_", "MSFT_texture_", "KHR_lights_"];
+/// Extensions that change the geometry (compressed or instanced data, an offset of every
+/// position) and that this loader does not implement: a file that requires one is refused.
+const GEOMETRY_EXTENSIONS: &[&str] = &[
+    "KHR_draco_mesh_compression",
+    "EXT_meshopt_compression",
+    "KHR_meshopt_compression",
+    "EXT_mesh_gpu_instancing",
+    "CESIUM_RTC",
+];
+
+/// Prefixes of extensions that change only materials, textures, lights, animations or
+/// metadata. Ambient occlusion uses none of them, and a file that requires one keeps its
+/// geometry in core glTF, so it loads.
+const APPEARANCE_EXTENSION_PREFIXES: &[&str] = &[
+    "KHR_materials_",
+    "KHR_texture_",
+    "EXT_texture_",
+    "MSFT_texture_",
+    "MSFT_packing_",
+    "KHR_lights_",
+    "EXT_lights_",
+    "KHR_technique",
+    "KHR_animation_pointer",
+    "KHR_xmp",
+    "ADOBE_materials_",
+    "CESIUM_primitive_outline",
+    "EXT_mesh_features",
+    "EXT_structural_metadata",
+    "EXT_instance_features",
+];
 
 /// Reads a glTF or GLB file, gzipped or not, into one mesh in the scene's space.
 pub(super) fn load_gltf(path: &Path, options: &LoadOptions, meter: &mut Meter) -> Result<IndexedMesh> {
@@ -103,20 +130,22 @@ pub(crate) fn read_gltf<T>(
 ) -> Result<(PlacedGltf, T)> {
     let bytes = read_file(path, meter)?;
     let glb = split_glb(path, &bytes)?;
-    let json_bytes: &[u8] = glb.as_ref().map_or(&bytes, |g| &g.json);
+    let json_bytes = without_bom(glb.as_ref().map_or(&bytes, |g| &g.json));
     let mut root = parse_json(path, json_bytes, meter)?;
-    if let Some(ext) = root.extensions_required.iter().find(|e| !extension_supported(e)) {
-        return Err(Error::scene(path, format!("the file requires the glTF extension {ext}, which is not supported")));
-    }
+    let ignored = check_required_extensions(path, &root)?;
     // The crate's validation refuses every required extension it does not implement
     // itself; the ones left were accepted above.
     root.extensions_required.clear();
-    check_position_accessors_exist(path, &root)?;
-    let document = Document::from_json(root).map_err(|e| Error::scene(path, validation_message(&e)))?;
+    let document = validated(path, root)?;
     let bin = glb.as_ref().and_then(|g| g.bin.as_deref());
     let buffers = load_buffers(path, &document, bin, options, meter)?;
     let total_bytes = bytes.len() + buffers.iter().map(|b| b.len()).sum::<usize>();
-    let placed = Loader { path, buffers: &buffers, total_bytes, normals }.load(&document, meter)?;
+    let mut placed = Loader { path, buffers: &buffers, total_bytes, normals }.load(&document, meter)?;
+    for ext in ignored {
+        placed.mesh.warnings.push(format!(
+            "the file requires the glTF extension {ext}, which only its materials, textures or cameras use: ignored"
+        ));
+    }
     let kept = keep(GltfBytes { json: json_bytes, glb: glb.is_some(), bin });
     Ok((placed, kept))
 }
@@ -127,11 +156,10 @@ pub(crate) fn read_buffers(path: &Path, options: &LoadOptions) -> Result<Vec<Vec
     let mut meter = Meter::new(&options.limits, "the glTF file's data");
     let bytes = read_file(path, &mut meter)?;
     let glb = split_glb(path, &bytes)?;
-    let json_bytes: &[u8] = glb.as_ref().map_or(&bytes, |g| &g.json);
+    let json_bytes = without_bom(glb.as_ref().map_or(&bytes, |g| &g.json));
     let mut root = parse_json(path, json_bytes, &mut meter)?;
     root.extensions_required.clear();
-    check_position_accessors_exist(path, &root)?;
-    let document = Document::from_json(root).map_err(|e| Error::scene(path, validation_message(&e)))?;
+    let document = validated(path, root)?;
     let bin = glb.as_ref().and_then(|g| g.bin.as_deref());
     // The borrowed binary chunk is copied: count it again.
     meter.charge(path, bin.map_or(0, |b| b.len() as u64))?;
@@ -173,11 +201,197 @@ pub(crate) fn json_memory(json: &[u8]) -> u64 {
     (json.len() as u64).saturating_mul(JSON_BYTES_PER_BYTE).saturating_add(json_objects(json) * JSON_BYTES_PER_OBJECT)
 }
 
-/// The glTF document of `json`, its parsed form charged to `meter` first.
+/// `json` without a UTF-8 byte-order mark (glTF forbids one; some writers add it).
+fn without_bom(json: &[u8]) -> &[u8] {
+    json.strip_prefix(UTF8_BOM).unwrap_or(json)
+}
+
+/// The glTF document of `json`, its parsed form charged to `meter` first. A file of
+/// another major version than 2 is refused as such. glTF 2.0 leaves a scene's `nodes`
+/// optional, which the crate's parser requires: a document it refuses is parsed again
+/// with them filled in (and without its animations, which the parser also reads strictly
+/// and ambient occlusion never uses).
 fn parse_json(path: &Path, json: &[u8], meter: &mut Meter) -> Result<json::Root> {
     meter.charge(path, json_memory(json))?;
-    json::deserialize::from_slice(json)
-        .map_err(|e| Error::scene(path, format!("invalid glTF JSON: {}", one_line(&e.to_string()))))
+    let root = match json::deserialize::from_slice::<json::Root>(json) {
+        Ok(root) => root,
+        Err(e) => {
+            check_version(path, declared_version(json).as_deref())?;
+            // The failed parse gave its memory back: the second one takes the same charge.
+            let patched = json::deserialize::from_slice::<json::Value>(json)
+                .ok()
+                .and_then(|mut value| fill_optional_fields(&mut value).then_some(value))
+                .and_then(|value| json::deserialize::from_value::<json::Root>(value).ok());
+            patched.ok_or_else(|| Error::scene(path, format!("invalid glTF JSON: {}", one_line(&e.to_string()))))?
+        }
+    };
+    check_version(path, Some(&root.asset.version))?;
+    Ok(root)
+}
+
+/// `asset.version` of a glTF document's JSON, when it has one, read without the rest.
+fn declared_version(json: &[u8]) -> Option<String> {
+    #[derive(serde::Deserialize)]
+    struct Asset {
+        version: json::Value,
+    }
+    #[derive(serde::Deserialize)]
+    struct VersionOnly {
+        asset: Asset,
+    }
+    let version = json::deserialize::from_slice::<VersionOnly>(json).ok()?.asset.version;
+    Some(version.as_str().map_or_else(|| version.to_string(), str::to_string))
+}
+
+/// Refuses a glTF version other than 2.x, in words.
+fn check_version(path: &Path, version: Option<&str>) -> Result<()> {
+    match version {
+        Some(v) if !(v == "2" || v.starts_with("2.")) => {
+            let major = v.split('.').next().unwrap_or(v);
+            Err(Error::scene(
+                path,
+                format!(
+                    "glTF {major}.0 is not supported (the file's asset.version is {:?}): only glTF 2.0 is; convert it to glTF 2.0 first",
+                    one_line(v)
+                ),
+            ))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// Fills in what glTF 2.0 leaves optional and the crate's parser requires: each scene's
+/// `nodes` (none); and drops the animations, which the parser reads more strictly than
+/// glTF does (a channel without a node) and which ambient occlusion never uses. Whether
+/// anything changed.
+fn fill_optional_fields(value: &mut json::Value) -> bool {
+    let Some(root) = value.as_object_mut() else { return false };
+    let mut changed = root.remove("animations").is_some();
+    for scene in root.get_mut("scenes").and_then(json::Value::as_array_mut).into_iter().flatten() {
+        if let Some(scene) = scene.as_object_mut()
+            && !scene.contains_key("nodes")
+        {
+            scene.insert("nodes".into(), json::Value::Array(Vec::new()));
+            changed = true;
+        }
+    }
+    changed
+}
+
+/// The extensions the file requires that are accepted without being implemented, to be
+/// reported: those that change only appearance are accepted silently; an unknown one is
+/// accepted (and returned) when only materials, textures, images, samplers, cameras or
+/// the file as a whole use it, and no mesh, primitive, accessor, buffer view, buffer,
+/// node or scene. Any other (one that changes the geometry, one the geometry uses, one
+/// used nowhere, whose effect cannot be told) is refused, naming it.
+fn check_required_extensions(path: &Path, root: &json::Root) -> Result<Vec<String>> {
+    let mut ignored = Vec::new();
+    for name in &root.extensions_required {
+        let name = name.as_str();
+        if IMPLEMENTED_EXTENSIONS.contains(&name) || APPEARANCE_EXTENSION_PREFIXES.iter().any(|p| name.starts_with(p)) {
+            continue;
+        }
+        let refused = |at: &str| {
+            Error::scene(
+                path,
+                format!("the file requires the glTF extension {}{at}, which is not supported", one_line(name)),
+            )
+        };
+        if GEOMETRY_EXTENSIONS.contains(&name) {
+            return Err(refused(""));
+        }
+        if let Some(at) = geometry_use(root, name) {
+            return Err(refused(&at));
+        }
+        if !appearance_use(root, name) {
+            return Err(refused(""));
+        }
+        ignored.push(one_line(name));
+    }
+    Ok(ignored)
+}
+
+/// Whether a material, texture, image, sampler or camera, or the file as a whole, uses
+/// the extension `name`.
+fn appearance_use(root: &json::Root, name: &str) -> bool {
+    let has = |others: Option<&json::Value>| others.is_some();
+    root.materials.iter().any(|m| has(m.extensions.as_ref().and_then(|e| e.others.get(name))))
+        || root.textures.iter().any(|t| has(t.extensions.as_ref().and_then(|e| e.others.get(name))))
+        || root.images.iter().any(|i| has(i.extensions.as_ref().and_then(|e| e.others.get(name))))
+        || root.samplers.iter().any(|s| has(s.extensions.as_ref().and_then(|e| e.others.get(name))))
+        || root.cameras.iter().any(|c| has(c.extensions.as_ref().and_then(|e| e.others.get(name))))
+        || has(root.extensions.as_ref().and_then(|e| e.others.get(name)))
+}
+
+/// Where the extension `name` is used by the geometry (` (used by mesh 0 primitive 1)`),
+/// if it is: by a mesh, primitive, accessor, buffer view, buffer, node or scene.
+fn geometry_use(root: &json::Root, name: &str) -> Option<String> {
+    let at = |what: String| Some(format!(" (used by {what})"));
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        if mesh.extensions.as_ref().is_some_and(|e| e.others.contains_key(name)) {
+            return at(format!("mesh {m}"));
+        }
+        for (p, primitive) in mesh.primitives.iter().enumerate() {
+            if primitive.extensions.as_ref().is_some_and(|e| e.others.contains_key(name)) {
+                return at(format!("mesh {m} primitive {p}"));
+            }
+        }
+    }
+    let lists: [(&str, Vec<bool>); 5] = [
+        (
+            "accessor",
+            root.accessors.iter().map(|a| a.extensions.as_ref().is_some_and(|e| e.others.contains_key(name))).collect(),
+        ),
+        (
+            "buffer view",
+            root.buffer_views
+                .iter()
+                .map(|v| v.extensions.as_ref().is_some_and(|e| e.others.contains_key(name)))
+                .collect(),
+        ),
+        (
+            "buffer",
+            root.buffers.iter().map(|b| b.extensions.as_ref().is_some_and(|e| e.others.contains_key(name))).collect(),
+        ),
+        (
+            "node",
+            root.nodes.iter().map(|n| n.extensions.as_ref().is_some_and(|e| e.others.contains_key(name))).collect(),
+        ),
+        (
+            "scene",
+            root.scenes.iter().map(|s| s.extensions.as_ref().is_some_and(|e| e.others.contains_key(name))).collect(),
+        ),
+    ];
+    for (what, list) in lists {
+        if let Some(i) = list.into_iter().position(|used| used) {
+            return at(format!("{what} {i}"));
+        }
+    }
+    None
+}
+
+/// The document of `root`, validated as the crate validates it, less what glTF 2.0
+/// allows and the crate's validation refuses: an accessor without a buffer view (its
+/// elements are zeros, glTF 2.0 section 5.1.1) and a POSITION accessor without `min` and
+/// `max` (required, but only for bounds, which are computed here; other importers read
+/// such files). The crate's validation indexes the accessor of each primitive's POSITION
+/// without checking it exists: that is checked first, so a bad index is an error, not a
+/// panic.
+fn validated(path: &Path, root: json::Root) -> Result<Document> {
+    use ::gltf::json::validation::{Error as Invalid, Validate};
+    check_position_accessors_exist(path, &root)?;
+    let mut errors = Vec::new();
+    root.validate(&root, json::Path::new, &mut |at, error| errors.push((at(), error)));
+    errors.retain(|(at, error)| {
+        let at = at.as_str();
+        let no_view = at.starts_with("accessors[") && at.ends_with("].bufferView") && *error == Invalid::Missing;
+        let bounds = at.contains(".attributes[\"POSITION\"].") && (at.ends_with(".min") || at.ends_with(".max"));
+        !(no_view || bounds)
+    });
+    if !errors.is_empty() {
+        return Err(Error::scene(path, validation_message(&::gltf::Error::Validation(errors))));
+    }
+    Ok(Document::from_json_without_validation(root))
 }
 
 /// The bytes of a glTF file (the JSON) or a GLB file (as many as its header declares),
@@ -189,7 +403,7 @@ fn read_file(path: &Path, meter: &mut Meter) -> Result<Vec<u8>> {
     if !(bytes.starts_with(b"glTF") && bytes.len() == 12) {
         // JSON text starts with an object: anything else is refused at its first byte
         // (as the parser would refuse it) rather than read to the end.
-        if bytes.iter().find(|b| !b.is_ascii_whitespace()).is_some_and(|&b| b != b'{') {
+        if without_bom(&bytes).iter().find(|b| !b.is_ascii_whitespace()).is_some_and(|&b| b != b'{') {
             parse_json(path, &bytes, meter)?;
         }
         input.read_into(path, &mut bytes, meter, 1, u64::MAX)?;
@@ -204,10 +418,6 @@ fn read_file(path: &Path, meter: &mut Meter) -> Result<Vec<u8>> {
         }
     }
     Ok(bytes)
-}
-
-fn extension_supported(name: &str) -> bool {
-    IMPLEMENTED_EXTENSIONS.contains(&name) || APPEARANCE_EXTENSION_PREFIXES.iter().any(|p| name.starts_with(p))
 }
 
 /// The GLB container of `bytes`, or `None` when they are glTF JSON. The header's length
@@ -258,8 +468,7 @@ fn chunk_name(ty: ChunkType) -> &'static str {
     }
 }
 
-/// The crate's validation indexes the accessor of each primitive's POSITION without
-/// checking it exists; check it first so a bad index is an error, not a panic.
+/// Fails when a primitive's POSITION names an accessor the file lacks.
 fn check_position_accessors_exist(path: &Path, root: &json::Root) -> Result<()> {
     for (m, mesh) in root.meshes.iter().enumerate() {
         for (p, primitive) in mesh.primitives.iter().enumerate() {
@@ -325,6 +534,14 @@ fn load_buffers<'a>(
     Ok(out)
 }
 
+/// Base64 as glTF's `data:` URIs hold it (RFC 4648's alphabet), with or without the
+/// padding at the end, which some writers leave out.
+const BASE64: base64::engine::GeneralPurpose = base64::engine::GeneralPurpose::new(
+    &base64::alphabet::STANDARD,
+    base64::engine::GeneralPurposeConfig::new()
+        .with_decode_padding_mode(base64::engine::DecodePaddingMode::Indifferent),
+);
+
 /// The bytes of buffer `index`'s URI, `length` of them (its byteLength; fewer when the
 /// file has fewer): base64 `data:`, or a file name relative to `path`'s folder.
 fn read_uri(
@@ -340,9 +557,7 @@ fn read_uri(
         let (_, payload) =
             data.split_once(";base64,").ok_or_else(|| fail("only base64 data URIs are supported".into()))?;
         meter.charge(path, payload.len() as u64 / 4 * 3 + 3)?;
-        return base64::engine::general_purpose::STANDARD
-            .decode(payload)
-            .map_err(|e| fail(format!("invalid base64 data URI: {e}")));
+        return BASE64.decode(payload).map_err(|e| fail(format!("invalid base64 data URI: {e}")));
     }
     let file = uri_file(path, uri, options.allow_external_uris, true).map_err(fail)?;
     // Only byteLength bytes are read: a longer file (or a device) gives no more.
@@ -511,6 +726,11 @@ impl Loader<'_, '_> {
 
     fn load(&self, document: &Document, meter: &mut Meter) -> Result<PlacedGltf> {
         let instances = self.instances(document)?;
+        if let Some(scene) = document.default_scene().or_else(|| document.scenes().next())
+            && scene.nodes().len() == 0
+        {
+            return Err(self.error(format!("mesh has no triangles: its scene {} has no nodes", scene.index())));
+        }
 
         // Sizes first, so the mesh is allocated once at its final size.
         let mut placed: HashMap<(usize, usize), usize> = HashMap::new();
@@ -553,9 +773,10 @@ impl Loader<'_, '_> {
         if u32::try_from(vertices).is_err() || u32::try_from(triangles).is_err() {
             return Err(too_many());
         }
+        let origin = self.origin(&instances, meter)?;
         let mesh_bytes = 12 * (vertices as u64 + triangles as u64);
         meter.charge(self.path, mesh_bytes)?;
-        let mut mesh = IndexedMesh::default();
+        let mut mesh = IndexedMesh { origin, ..Default::default() };
         mesh.positions.try_reserve_exact(vertices).map_err(|_| too_many())?;
         mesh.triangles.try_reserve_exact(triangles).map_err(|_| too_many())?;
         let mut names = Vec::new();
@@ -580,7 +801,9 @@ impl Loader<'_, '_> {
                             quoted(instance.mesh.name()),
                             positions.index()
                         );
-                        self.read_positions(&positions, instance.world, &label, &mut mesh.positions)?;
+                        let mut relative = instance.world;
+                        relative.w_axis -= origin.extend(0.0);
+                        self.read_positions(&positions, relative, &label, &mut mesh.positions)?;
                         names.push((base, label));
                         placed.insert((n, positions.index()), base);
                         base
@@ -665,6 +888,40 @@ impl Loader<'_, '_> {
             mesh.warnings.push(message);
         }
         Ok(PlacedGltf { mesh, placements })
+    }
+
+    /// The point the mesh's positions are kept relative to ([`IndexedMesh::origin`]): by
+    /// the rule of the local frame (`frame::grid_origin`), from the bounds of every placed
+    /// position in f64, so that a mesh placed far away by its nodes keeps the accuracy its
+    /// own coordinates have; zero for a mesh near the origin.
+    fn origin(&self, instances: &[Instance], meter: &mut Meter) -> Result<DVec3> {
+        let (mut min, mut max) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        let mut seen = std::collections::HashSet::new();
+        let mut scratch: Vec<Vec3> = Vec::new();
+        for instance in instances {
+            for (p, primitive) in instance.mesh.primitives().enumerate() {
+                if !matches!(primitive.mode(), Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+                    continue;
+                }
+                let Some(positions) = primitive.get(&Semantic::Positions) else { continue };
+                if positions.dimensions() != Dimensions::Vec3
+                    || !seen.insert((instance.node.index(), positions.index()))
+                {
+                    continue;
+                }
+                let what = self.primitive_name(instance, p);
+                let grow = (positions.count().saturating_sub(scratch.capacity()) * 12) as u64;
+                meter.charge(self.path, grow)?;
+                scratch.clear();
+                self.read_vec3(&positions, &what, &mut scratch)?;
+                for q in scratch.iter().map(|p| instance.world.transform_point3(p.as_dvec3())).filter(|q| q.is_finite())
+                {
+                    (min, max) = (min.min(q), max.max(q));
+                }
+            }
+        }
+        meter.release((scratch.capacity() * 12) as u64);
+        Ok(if min.x <= max.x { super::frame::grid_origin(min, max) } else { DVec3::ZERO })
     }
 
     fn primitive_name(&self, instance: &Instance, p: usize) -> String {
@@ -809,7 +1066,8 @@ impl Loader<'_, '_> {
         Ok(Some((index, value)))
     }
 
-    /// Appends the positions of accessor `a`, placed by `world`, to `out`.
+    /// Appends the positions of accessor `a`, placed by `world` (relative to the mesh's
+    /// origin), to `out`.
     fn read_positions(&self, a: &Accessor, world: DMat4, label: &str, out: &mut Vec<Vec3>) -> Result<()> {
         let quantized = [DataType::I8, DataType::U8, DataType::I16, DataType::U16];
         if a.dimensions() != Dimensions::Vec3 || !(a.data_type() == DataType::F32 || quantized.contains(&a.data_type()))

@@ -358,6 +358,18 @@ pub(crate) fn vec_bytes<T>(v: &Vec<T>) -> u64 {
     (v.capacity() * std::mem::size_of::<T>()) as u64
 }
 
+/// The UTF-8 byte-order mark some editors write at the start of a text file: skipped.
+pub(crate) const UTF8_BOM: &[u8] = b"\xEF\xBB\xBF";
+
+/// The message for text in UTF-16 (a text file that starts with a UTF-16 byte-order mark,
+/// or a line with NUL bytes), which no reader here decodes.
+pub(crate) const UTF16_MESSAGE: &str = "UTF-16 text is not supported: convert the file to UTF-8";
+
+/// Whether `bytes`, the start of a text file, are UTF-16 (either byte order's mark).
+pub(crate) fn starts_utf16(bytes: &[u8]) -> bool {
+    bytes.starts_with(b"\xFF\xFE") || bytes.starts_with(b"\xFE\xFF")
+}
+
 /// True when `path` names a gzip-compressed file (`.gz`).
 pub(crate) fn is_gzip(path: &Path) -> bool {
     path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("gz"))
@@ -571,6 +583,21 @@ impl Input {
                 return Ok(line.len() - start);
             }
         }
+    }
+
+    /// Skips a UTF-8 byte-order mark at the start of a text file; refuses one of UTF-16
+    /// ([`UTF16_MESSAGE`]), which the stream then reports as its error.
+    pub(crate) fn skip_text_mark(&mut self) -> io::Result<()> {
+        if self.consumed > 0 {
+            return Ok(());
+        }
+        let start = self.fill_buf()?;
+        if start.starts_with(UTF8_BOM) {
+            self.consume(UTF8_BOM.len());
+        } else if starts_utf16(start) {
+            return Err(self.fail(UTF16_MESSAGE.to_string()));
+        }
+        Ok(())
     }
 
     /// Lines read by [`Input::read_line`] so far.

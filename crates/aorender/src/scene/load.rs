@@ -7,7 +7,7 @@ use super::input::{self, LoadOptions, Meter};
 use super::meshes::{MESH_EXTENSIONS, MESH_FORMATS, extension, place_mesh, read_mesh, stem};
 use super::types::{MeshObject, Scene, Settings, Triangle, Warning};
 use crate::error::{Error, Result};
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use std::path::Path;
 
 /// Bytes of memory a scene file's text may take per byte, with its parsed form (the TOML
@@ -71,7 +71,7 @@ impl Scene {
         let positions = std::mem::take(&mut mesh.positions);
         let triangles = place_mesh(path, positions, &mesh, 1.0, &glam::Mat4::IDENTITY, &mut meter)?;
         let warnings = mesh.warnings.into_iter().map(|message| Warning { path: path.to_path_buf(), message });
-        Ok(Scene {
+        let mut scene = Scene {
             path: Some(path.to_path_buf()),
             warnings: warnings.collect(),
             mesh_objects: vec![MeshObject {
@@ -81,8 +81,12 @@ impl Scene {
                 instance: None,
                 allow_external_uris: options.allow_external_uris,
             }],
+            // The loader's positions are relative to the mesh's origin: the scene keeps them so.
+            origin: mesh.origin,
             ..Scene::from_triangles(&stem(path), triangles)
-        })
+        };
+        scene.camera = scene.auto_camera();
+        Ok(scene)
     }
 
     /// A scene of `triangles` alone (from [`super::mesh_triangles`], say), framed as a
@@ -92,11 +96,12 @@ impl Scene {
             name: name.into(),
             path: None,
             camera: Camera {
-                eye: Vec3::ZERO,
-                look_at: Vec3::NEG_Z,
+                eye: DVec3::ZERO,
+                look_at: DVec3::NEG_Z,
                 up: Vec3::Y,
                 projection: Projection::Perspective { vfov_deg: 45.0 },
             },
+            origin: DVec3::ZERO,
             settings: Settings::default(),
             triangles,
             meshes: Vec::new(),

@@ -1,14 +1,18 @@
 //! The indexed triangle mesh every loader returns: each distinct vertex stored once, so
 //! that the object transform touches it once and shared vertices stay bit-identical.
 
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use std::path::PathBuf;
 
 /// Vertices and triangles of a mesh file, in the file's space (a glTF node hierarchy
 /// already applied). Every index is below `positions.len()`.
 #[derive(Debug, Default)]
 pub(crate) struct IndexedMesh {
-    /// Distinct vertex positions, all finite.
+    /// The point of the file's space the positions are relative to: zero, unless the
+    /// loader placed the mesh far from the origin for its size (a glTF node hierarchy,
+    /// in f64), where it keeps the positions' accuracy (see `frame::grid_origin`).
+    pub origin: DVec3,
+    /// Distinct vertex positions, all finite, relative to `origin`.
     pub positions: Vec<Vec3>,
     /// Triangles as indices into `positions`.
     pub triangles: Vec<[u32; 3]>,

@@ -3,7 +3,9 @@
 
 use super::input::{self, LoadOptions, Meter, vec_bytes};
 use super::mesh::{IndexedMesh, VertexNames};
-use super::types::{MAX_NORMAL_LENGTH_SQUARED, MIN_NORMAL_LENGTH_SQUARED, Triangle, non_finite_coordinate};
+use super::types::{
+    MAX_NORMAL_LENGTH_SQUARED, MIN_NORMAL_LENGTH_SQUARED, Triangle, non_finite_coordinate, place_point,
+};
 use super::{gltf, obj, ply};
 use crate::error::{Error, Result};
 use glam::Vec3;
@@ -52,8 +54,9 @@ pub(crate) fn mesh_bytes(mesh: &IndexedMesh) -> u64 {
     vec_bytes(&mesh.positions) + vec_bytes(&mesh.triangles)
 }
 
-/// The triangles of `mesh` (read from `path`) placed in the world by `transform`;
-/// `positions` are the mesh's vertices (its own, taken out, or a copy), transformed in place.
+/// The triangles of `mesh` (read from `path`) placed in the world by `transform` (each
+/// vertex through [`place_point`]); `positions` are the mesh's vertices (its own, taken
+/// out, or a copy), transformed in place.
 /// The triangles are charged to `meter` before they are made.
 pub(crate) fn place_mesh(
     path: &Path,
@@ -66,7 +69,7 @@ pub(crate) fn place_mesh(
     // Each distinct vertex goes through the transform once, and every triangle below takes
     // its corners from the result, so shared vertices stay bit-identical.
     for (k, p) in positions.iter_mut().enumerate() {
-        let q = transform.transform_point3(*p);
+        let q = place_point(transform, *p);
         if let Some(c) = non_finite_coordinate(q) {
             let name = vertex_name(&mesh.names, k, *p);
             return Err(Error::scene(path, format!("{name} has a non-finite coordinate after the transform ({c})")));

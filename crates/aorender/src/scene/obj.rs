@@ -1,12 +1,17 @@
 //! Wavefront OBJ through `tobj`: polygons triangulated as fans, every object and group
 //! merged, points and lines ignored, materials ignored (a missing, empty or malformed
 //! material library never stops a load). The file is streamed (`.obj.gz` decompressed on
-//! the way) a line at a time past a reader that checks each `v` line as `tobj` reads it,
-//! so a non-finite vertex is reported with its number and line from the same single pass,
-//! and that charges the memory each line will take to the read budget before `tobj` sees
-//! it (`tobj` holds the whole file's elements until it returns).
+//! the way) a line at a time past a reader that prepares each line for `tobj` and checks
+//! it first, so that every error names its line: it reads bytes, not text (a name or a
+//! comment in any encoding is no error: names are not needed), skips a UTF-8 byte-order
+//! mark, refuses UTF-16 in one line, joins lines continued with `\`, cuts comments off
+//! the end of lines with data, checks each `v`,
+//! `vt`, `vn` and `f` line as `tobj` will read it (and the face indices where `tobj`
+//! resolves them, when an object ends), reports a non-finite vertex with its number and
+//! line, and charges the memory each line will take to the read budget before `tobj`
+//! sees it (`tobj` holds the whole file's elements until it returns).
 
-use super::input::{Input, Meter, ReadLimits};
+use super::input::{Input, Meter, ReadLimits, UTF16_MESSAGE, size_text};
 use super::mesh::{IndexedMesh, VertexNames, vertex_index};
 // Re-exported for the OBJ bake, which checks `v` lines as this loader does.
 pub(crate) use super::types::non_finite_coordinate;
@@ -96,7 +101,8 @@ fn line_bytes(line: &str) -> u64 {
 /// materials are not AO's business, and `tobj` refuses a `usemtl` without a name),
 /// polylines (`l`, which `tobj` would triangulate when they have three points or more)
 /// and empty faces are dropped (`false`); a vertex's colour (`v x y z r g b`) is cut off,
-/// since `tobj` refuses a file where some vertices have one and others not.
+/// since `tobj` refuses a file where some vertices have one and others not; a texture
+/// coordinate of one number is given its v, 0.
 fn keep_geometry(line: &mut Vec<u8>) -> bool {
     let Ok(text) = std::str::from_utf8(line) else {
         // `tobj` refuses the line itself.
@@ -107,6 +113,14 @@ fn keep_geometry(line: &mut Vec<u8>) -> bool {
         Some("mtllib" | "usemtl" | "l") => return false,
         // A face of no corners, which `tobj` refuses, has no surface either.
         Some("f") if words.next().is_none() => return false,
+        // `vt u` (v and w are optional): `tobj` wants two numbers.
+        Some("vt") if text.split_whitespace().count() == 2 => {
+            let u = words.next().unwrap_or_default();
+            let end = u.as_ptr() as usize - text.as_ptr() as usize + u.len();
+            line.truncate(end);
+            line.extend_from_slice(b" 0\n");
+            return true;
+        }
         Some("v") if text.split_whitespace().count() == 7 => {
             let z = words.nth(2).unwrap_or_default();
             z.as_ptr() as usize - text.as_ptr() as usize + z.len()
@@ -118,11 +132,118 @@ fn keep_geometry(line: &mut Vec<u8>) -> bool {
     true
 }
 
+/// What the face indices of an OBJ file refer to.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Element {
+    Vertex,
+    TexCoord,
+    Normal,
+}
+
+impl Element {
+    const ALL: [Element; 3] = [Element::Vertex, Element::TexCoord, Element::Normal];
+
+    /// "vertex", "texture coordinate", "normal".
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Element::Vertex => "vertex",
+            Element::TexCoord => "texture coordinate",
+            Element::Normal => "normal",
+        }
+    }
+
+    /// "vertices", "texture coordinates", "normals".
+    pub(crate) fn plural(self) -> &'static str {
+        match self {
+            Element::Vertex => "vertices",
+            Element::TexCoord => "texture coordinates",
+            Element::Normal => "normals",
+        }
+    }
+}
+
+/// If `line` (with its ending) is continued on the next (its last character before the
+/// ending is `\`), where that `\` is.
+pub(crate) fn continued_at(line: &[u8]) -> Option<usize> {
+    let end = line.len() - line.iter().rev().take_while(|&&b| b == b'\n' || b == b'\r').count();
+    (end > 0 && line[end - 1] == b'\\').then_some(end - 1)
+}
+
+/// Checks the numbers of a `v`, `vt` or `vn` line (`words` after its keyword) as `tobj`
+/// reads them: a vertex's x, y, z, then a w (non-zero) or a colour (r g b, not read) or
+/// nothing; a texture coordinate's u (then v and w, optional); a normal's three. `Err`
+/// says what is wrong, in words.
+pub(crate) fn check_numbers(keyword: &str, words: &[&str]) -> std::result::Result<(), String> {
+    let number = |w: &str, what: &str| match w.parse::<f32>() {
+        Ok(_) => Ok(()),
+        Err(_) => Err(format!("'{}' is not a number ({what})", super::input::one_line(w))),
+    };
+    match keyword {
+        "v" => {
+            let n = words.len();
+            if n < 3 {
+                return Err(format!("a vertex position needs 3 numbers, found {n}"));
+            }
+            if !matches!(n, 3 | 4 | 6) {
+                return Err(format!("a vertex has x y z, then a w or a color (r g b) or nothing; found {n} numbers"));
+            }
+            words[..3].iter().try_for_each(|w| number(w, "a vertex position coordinate"))?;
+            if n == 4 {
+                number(words[3], "a vertex's w")?;
+                if words[3].parse::<f32>() == Ok(0.0) {
+                    return Err("a vertex with w = 0 (at infinity)".to_string());
+                }
+            }
+        }
+        "vt" => {
+            if words.is_empty() {
+                return Err("a texture coordinate needs 1 to 3 numbers, found none".to_string());
+            }
+            words.iter().take(2).try_for_each(|w| number(w, "a texture coordinate"))?;
+        }
+        "vn" => {
+            if words.len() < 3 {
+                return Err(format!("a normal needs 3 numbers, found {}", words.len()));
+            }
+            words[..3].iter().try_for_each(|w| number(w, "a normal"))?;
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// One index of a face corner, 1-based or (negative) relative to the elements so far:
+/// `Err` when it is not an integer.
+fn corner_index(part: &str, corner: &str) -> std::result::Result<i64, String> {
+    part.parse::<i64>().map_err(|_| {
+        format!(
+            "the face corner '{}' has '{}', not an index",
+            super::input::one_line(corner),
+            super::input::one_line(part)
+        )
+    })
+}
+
+/// The face indices of one element since its object began (where `tobj` resolves them):
+/// the largest 1-based one and its line, and the first that reaches before the first
+/// element (zero, or relative past the start) with its line.
+#[derive(Clone, Copy, Default)]
+struct PendingIndices {
+    largest: u64,
+    largest_line: u64,
+    /// The index, its line and the count of elements before that line.
+    before_start: Option<(i64, u64, u64)>,
+}
+
 /// An OBJ file as `tobj` reads it, a line at a time: blank and comment lines dropped (and
-/// counted against the limits' allowance for them), the others as [`keep_geometry`]
-/// leaves them; every `v` line checked for a non-finite coordinate, and the memory each
-/// line will take charged to the meter before `tobj` sees it. A limit exceeded ends the
-/// stream with an error, which the loader reports instead of `tobj`'s.
+/// counted against the limits' allowance for them), comments after data cut off, lines
+/// continued with `\` joined, bytes
+/// that are not UTF-8 replaced (they can only be in names, which are not needed, or make a
+/// number invalid), every line checked (see [`check_numbers`], the face indices when their
+/// object ends) and then left as [`keep_geometry`] leaves it; every `v` line checked for a
+/// non-finite coordinate, and the memory each line will take charged to the meter before
+/// `tobj` sees it. A limit exceeded or a line in error ends the stream with an error,
+/// which the loader reports instead of `tobj`'s.
 struct ObjLines<'a> {
     input: Input,
     meter: &'a mut Meter,
@@ -130,7 +251,12 @@ struct ObjLines<'a> {
     /// The current line, served from `pos` on.
     line: Vec<u8>,
     pos: usize,
-    vertices: usize,
+    /// The line number of the current line (of its first line, when continued).
+    line_number: u64,
+    /// `v`, `vt` and `vn` lines so far.
+    counts: [u64; 3],
+    /// Face indices not yet resolved, per element.
+    pending: [PendingIndices; 3],
     /// Bytes of blank and comment lines, and of the others.
     idle: u64,
     data: u64,
@@ -138,6 +264,8 @@ struct ObjLines<'a> {
     first_non_finite: Option<String>,
     /// A limit exceeded.
     error: Option<Error>,
+    /// The first line in error.
+    line_error: Option<Error>,
 }
 
 impl<'a> ObjLines<'a> {
@@ -148,12 +276,21 @@ impl<'a> ObjLines<'a> {
             path,
             line: Vec::new(),
             pos: 0,
-            vertices: 0,
+            line_number: 0,
+            counts: [0; 3],
+            pending: [PendingIndices::default(); 3],
             idle: 0,
             data: 0,
             first_non_finite: None,
             error: None,
+            line_error: None,
         }
+    }
+
+    /// `v` lines read so far.
+    #[cfg(test)]
+    fn vertices(&self) -> u64 {
+        self.counts[Element::Vertex as usize]
     }
 
     /// Skips white space up to the next line that has more, counting its line breaks;
@@ -184,47 +321,202 @@ impl<'a> ObjLines<'a> {
 
     /// Reads the next line `tobj` is to see into `line` (empty at the end of the file).
     fn next_line(&mut self) -> io::Result<()> {
+        self.input.skip_text_mark()?;
         loop {
             self.line.clear();
             self.pos = 0;
             self.skip_blank()?;
             let n = self.input.read_line(&mut self.line)? as u64;
             if n == 0 {
-                return Ok(());
+                // The end of the last object: its face indices are resolved.
+                return self.resolve_pending(None);
             }
+            self.line_number = self.input.line_number();
             if self.line[0] == b'#' {
                 self.idle += n;
-            } else {
-                self.data += n;
-                let text = String::from_utf8_lossy(&self.line);
-                let bytes = line_bytes(&text);
-                if let Some(p) = parse_vertex_line(&text) {
-                    self.vertices += 1;
-                    if self.first_non_finite.is_none()
-                        && let Some(c) = non_finite_coordinate(p)
-                    {
-                        let line = self.input.line_number();
-                        self.first_non_finite =
-                            Some(format!("vertex {} (line {line}) has a non-finite coordinate ({c})", self.vertices));
-                    }
+                self.check_idle()?;
+                continue;
+            }
+            self.data += n;
+            while let Some(at) = continued_at(&self.line) {
+                self.line.truncate(at);
+                self.line.push(b' ');
+                let more = self.input.read_line(&mut self.line)? as u64;
+                self.data += more;
+                let longest = self.input.limits().line_bytes();
+                if self.line.len() > longest {
+                    let message = format!(
+                        "line {}, continued with '\\', is longer than {}, the longest line a text file may have",
+                        self.line_number,
+                        size_text(longest as u64)
+                    );
+                    return Err(self.stop(Error::scene(self.path, message)));
                 }
-                if let Err(e) = self.meter.charge(self.path, bytes) {
-                    return Err(self.stop(e));
+                if more == 0 {
+                    break;
                 }
             }
             self.check_idle()?;
-            if self.line[0] != b'#' && keep_geometry(&mut self.line) {
+            if memchr::memchr(0, &self.line).is_some() {
+                let message = if self.line_number == 1 || self.line[0] == 0 {
+                    format!("line {}: a NUL byte: {UTF16_MESSAGE}", self.line_number)
+                } else {
+                    format!("line {}: invalid OBJ: a NUL byte", self.line_number)
+                };
+                return Err(self.stop_at_line(message));
+            }
+            if let Some(at) = memchr::memchr(b'#', &self.line) {
+                // A comment after the data.
+                self.line.truncate(at);
+                self.line.push(b'\n');
+            }
+            if std::str::from_utf8(&self.line).is_err() {
+                // Names in other encodings: not needed, and `tobj` reads only UTF-8.
+                self.line = String::from_utf8_lossy(&self.line).into_owned().into_bytes();
+            }
+            let line = std::mem::take(&mut self.line);
+            let checked = self.check_line(std::str::from_utf8(&line).unwrap_or_default());
+            self.line = line;
+            checked?;
+            if keep_geometry(&mut self.line) {
                 return Ok(());
             }
         }
     }
 
-    /// Ends the stream with `e`, which the loader reports.
+    /// Checks the line `text` (the current line) and charges what `tobj` will hold for it.
+    fn check_line(&mut self, text: &str) -> io::Result<()> {
+        let mut words = text.split_whitespace();
+        let keyword = words.next().unwrap_or("");
+        let number = self.line_number;
+        let fail = |message: String| format!("line {number}: invalid OBJ: {message}");
+        match keyword {
+            "v" | "vt" | "vn" => {
+                let numbers: Vec<&str> = words.collect();
+                if let Err(e) = check_numbers(keyword, &numbers) {
+                    return Err(self.stop_at_line(fail(e)));
+                }
+                let element = match keyword {
+                    "v" => Element::Vertex,
+                    "vt" => Element::TexCoord,
+                    _ => Element::Normal,
+                };
+                self.counts[element as usize] += 1;
+                if element == Element::Vertex
+                    && self.first_non_finite.is_none()
+                    && let Some(c) = parse_vertex_line(text).and_then(non_finite_coordinate)
+                {
+                    self.first_non_finite = Some(format!(
+                        "vertex {} (line {}) has a non-finite coordinate ({c})",
+                        self.counts[0], self.line_number
+                    ));
+                }
+            }
+            "f" => {
+                if let Err(e) = self.check_face(words) {
+                    return Err(self.stop_at_line(fail(e)));
+                }
+            }
+            // An object or a group ends the one before: `tobj` resolves its faces' indices.
+            "o" | "g" => self.resolve_pending(Some(self.line_number))?,
+            _ => {}
+        }
+        if let Err(e) = self.meter.charge(self.path, line_bytes(text)) {
+            return Err(self.stop(e));
+        }
+        Ok(())
+    }
+
+    /// Checks the corners of a face (`corners`: the words after `f`) as `tobj` parses
+    /// them, and, for a face of three corners or more (fewer make no surface, and `tobj`
+    /// leaves their indices alone), keeps its indices to resolve where its object ends.
+    fn check_face<'t>(&mut self, corners: impl Iterator<Item = &'t str> + Clone) -> std::result::Result<(), String> {
+        let surface = corners.clone().count() >= 3;
+        for corner in corners {
+            let mut parts = corner.split('/');
+            for (k, element) in Element::ALL.into_iter().enumerate() {
+                let part = match parts.next() {
+                    Some(p) if !p.is_empty() => p,
+                    _ if k == 0 => {
+                        return Err(format!("the face corner '{}' names no vertex", super::input::one_line(corner)));
+                    }
+                    _ => continue,
+                };
+                let i = corner_index(part, corner)?;
+                if !surface {
+                    continue;
+                }
+                let count = self.counts[element as usize];
+                let pending = &mut self.pending[element as usize];
+                if i > 0 {
+                    if i as u64 > pending.largest {
+                        (pending.largest, pending.largest_line) = (i as u64, self.line_number);
+                    }
+                } else if i == 0 || i.unsigned_abs() > count {
+                    if element == Element::Vertex {
+                        return Err(out_of_bounds(element, i, count, " before it"));
+                    }
+                    pending.before_start.get_or_insert((i, self.line_number, count));
+                }
+            }
+            if parts.next().is_some() {
+                return Err(format!("the face corner '{}' has more than v/vt/vn", super::input::one_line(corner)));
+            }
+        }
+        Ok(())
+    }
+
+    /// Resolves the face indices of the object that ends at line `end` (at the end of the
+    /// file for `None`) as `tobj` does there: every vertex index must name a vertex read
+    /// by then, and every texture coordinate or normal index one of those, if the file
+    /// has any by then (`tobj` ignores them otherwise).
+    fn resolve_pending(&mut self, end: Option<u64>) -> io::Result<()> {
+        let pending = std::mem::take(&mut self.pending);
+        for element in Element::ALL {
+            let count = self.counts[element as usize];
+            let p = pending[element as usize];
+            if element != Element::Vertex && count == 0 {
+                continue;
+            }
+            let at = match end {
+                Some(line) => format!(" by line {line}, where its object ends"),
+                None => String::new(),
+            };
+            let error = if let Some((i, line, then)) = p.before_start {
+                Some((line, out_of_bounds(element, i, then, " before it")))
+            } else if p.largest > count {
+                Some((p.largest_line, out_of_bounds(element, p.largest as i64, count, &at)))
+            } else {
+                None
+            };
+            if let Some((line, message)) = error {
+                return Err(self.stop_at_line(format!("line {line}: invalid OBJ: {message}")));
+            }
+        }
+        Ok(())
+    }
+
+    /// Ends the stream with `e`, a limit exceeded, which the loader reports.
     fn stop(&mut self, e: Error) -> io::Error {
         let message = e.message();
         self.error.get_or_insert(e);
         io::Error::other(message)
     }
+
+    /// Ends the stream at a line in error, `message` (which names it).
+    fn stop_at_line(&mut self, message: String) -> io::Error {
+        self.line_error.get_or_insert(Error::scene(self.path, message.clone()));
+        io::Error::other(message)
+    }
+}
+
+/// "face vertex index out of bounds (9, with 3 vertices)".
+fn out_of_bounds(element: Element, index: i64, count: u64, at: &str) -> String {
+    let (name, plural) = (element.name(), element.plural());
+    if index == 0 {
+        return format!("face {name} index out of bounds (0: OBJ counts from 1)");
+    }
+    format!("face {name} index out of bounds ({index}, with {count} {plural}{at})")
 }
 
 impl BufRead for ObjLines<'_> {
@@ -265,10 +557,15 @@ pub(crate) fn load_obj(path: &Path, meter: &mut Meter) -> Result<IndexedMesh> {
     if let Some(message) = lines.input.stream_error() {
         return Err(Error::scene(path, message));
     }
+    // The first problem in the file: a non-finite vertex comes before the line that stopped it.
     if let Some(message) = lines.first_non_finite.take() {
         return Err(Error::scene(path, message));
     }
-    let (models, _) = loaded.map_err(|e| Error::scene(path, format!("invalid OBJ: {e}")))?;
+    if let Some(e) = lines.line_error.take() {
+        return Err(e);
+    }
+    let line = lines.line_number;
+    let (models, _) = loaded.map_err(|e| Error::scene(path, format!("line {line}: invalid OBJ: {e}")))?;
 
     let mut mesh = IndexedMesh { names: VertexNames::Obj(path.to_path_buf()), ..Default::default() };
     // Exact sizes: the loaded mesh takes what the lines were charged for it.
@@ -304,14 +601,24 @@ pub(super) fn find_vertex(path: &Path, position: Vec3) -> Option<(usize, usize)>
         return None;
     }
     let mut input = Input::open(path, &ReadLimits::from_env().ok()?).ok()?;
+    input.skip_text_mark().ok()?;
     let mut line = Vec::new();
-    let (mut number, mut line_number) = (0, 0);
+    let mut number = 0;
     loop {
         line.clear();
         if input.read_line(&mut line).ok()? == 0 {
             return None;
         }
-        line_number += 1;
+        let line_number = input.line_number() as usize;
+        if line.iter().find(|b| !b.is_ascii_whitespace()) != Some(&b'#') {
+            while let Some(at) = continued_at(&line) {
+                line.truncate(at);
+                line.push(b' ');
+                if input.read_line(&mut line).ok()? == 0 {
+                    break;
+                }
+            }
+        }
         if let Some(p) = parse_vertex_line(&String::from_utf8_lossy(&line)) {
             number += 1;
             if p.to_array().map(f32::to_bits) == position.to_array().map(f32::to_bits) {
@@ -366,7 +673,7 @@ mod tests {
                 let mut lines = ObjLines::new(Input::open(&path, &limits).unwrap(), &mut meter, &path);
                 let mut buf = vec![0; chunk];
                 while lines.read(&mut buf).unwrap() > 0 {}
-                assert_eq!(lines.vertices, 5, "reads of {chunk}");
+                assert_eq!(lines.vertices(), 5, "reads of {chunk}");
                 let want = format!("vertex 4 (line {line}) has a non-finite coordinate (y = NaN)");
                 assert_eq!(lines.first_non_finite.as_deref(), Some(want.as_str()), "reads of {chunk}");
             }
@@ -419,6 +726,55 @@ mod tests {
         let mesh = load_files(&[("m.obj", text)]).unwrap();
         assert_eq!(mesh.positions, [Vec3::ZERO, Vec3::X, Vec3::Y]);
         assert_eq!(mesh.triangles, [[0, 1, 2]]);
+    }
+
+    #[test]
+    fn the_file_is_read_as_tobj_resolves_it_whatever_its_names_and_line_ends() {
+        let plain = load_files(&[("m.obj", &format!("{SQUARE}f 1 2 3 4\n"))]).unwrap();
+        // A face may name a vertex below it in its object; texture coordinates and normals a
+        // file has none of are not resolved; `vt u` is a coordinate; a comment may follow data.
+        for text in [
+            "f 1 2 3 4\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n".to_string(),
+            format!("{SQUARE}f 1/9/9 2/9/9 3/9/9 4/9/9\n"),
+            format!("{SQUARE}vt 0.5\nf 1/1 2/1 3/-1 4/1 # a quad\n"),
+            format!("\u{feff}{SQUARE}f 1 2 \\\r\n 3 4\r\n"),
+        ] {
+            let mesh = load_files(&[("m.obj", &text)]).unwrap_or_else(|e| panic!("{text:?}: {e}"));
+            assert_eq!(
+                (mesh.positions, mesh.triangles),
+                (plain.positions.clone(), plain.triangles.clone()),
+                "{text:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn errors_name_the_line_tobj_would_fail_at() {
+        for (text, want) in [
+            // The object ends before the vertex its face names.
+            (
+                format!("v 0 0 0\nf 1 2 3\ng next\n{SQUARE}"),
+                "line 2: invalid OBJ: face vertex index out of bounds (3, with 1 vertices by line 3",
+            ),
+            (
+                format!("{SQUARE}vt 0 0\nf 1/2 2/1 3/1\n"),
+                "line 6: invalid OBJ: face texture coordinate index out of bounds (2, with 1 texture coordinates)",
+            ),
+            (
+                format!("{SQUARE}f 1//-1 2 3\nvn 0 0 1\n"),
+                "line 5: invalid OBJ: face normal index out of bounds (-1, with 0 normals before it)",
+            ),
+            (
+                format!("{SQUARE}f 1 2 -5\n"),
+                "line 5: invalid OBJ: face vertex index out of bounds (-5, with 4 vertices before it)",
+            ),
+            (format!("# c\n\n{SQUARE}vn 0 1\n"), "line 7: invalid OBJ: a normal needs 3 numbers, found 2"),
+            (format!("{SQUARE}v 1 2 3 0\n"), "line 5: invalid OBJ: a vertex with w = 0"),
+            ("v 1 \\\n2 3\nv x 0 0\n".to_string(), "line 3: invalid OBJ: 'x' is not a number"),
+        ] {
+            let e = load_files(&[("m.obj", &text)]).unwrap_err().to_string();
+            assert!(e.contains(want), "{text:?}: {e}");
+        }
     }
 
     #[test]

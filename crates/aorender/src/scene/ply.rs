@@ -10,7 +10,7 @@
 //! size an allocation beyond what the rest of the file could hold (see
 //! [`Input::remaining_bound`]).
 
-use super::input::{Input, Meter, make_room, one_line};
+use super::input::{Input, Meter, UTF8_BOM, make_room, one_line};
 use super::mesh::{IndexedMesh, VertexNames};
 pub(crate) use super::types::non_finite_coordinate;
 use crate::error::{Error, Result};
@@ -421,7 +421,9 @@ pub(crate) fn read_header(path: &Path, input: &mut Input) -> Result<PlyHeader> {
 fn read_header_lines(input: &mut Input) -> std::result::Result<PlyHeader, String> {
     let mut raw = Vec::new();
     let eof = "invalid PLY header: the file ends before 'end_header'".to_string();
-    if input.read_until(b'\n', &mut raw).map_err(|e| e.to_string())? == 0 || trim_line(&raw) != b"ply" {
+    if input.read_until(b'\n', &mut raw).map_err(|e| e.to_string())? == 0
+        || trim_line(raw.strip_prefix(UTF8_BOM).unwrap_or(&raw)) != b"ply"
+    {
         return Err("not a PLY file: the first line is not 'ply'".to_string());
     }
     let mut format = None;

@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use crate::geometry::{AffineRows, InverseAffine, Plane};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
-use glam::Vec3;
+use glam::{DVec3, Mat4, Vec3};
 use std::path::PathBuf;
 
 /// A triangle with its albedo.
@@ -45,8 +45,9 @@ pub struct InstancedMesh {
 pub struct Instance {
     /// Index into `Scene::meshes`.
     pub mesh: u32,
-    /// Object to world, as the scene file gives it: every vertex of the mesh is finite
-    /// under it.
+    /// Object to world (to the scene's stored coordinates, relative to [`Scene::origin`]),
+    /// as the scene file gives it, composed in f64 and held in f32: every vertex of the
+    /// mesh is finite under it ([`place_point`]).
     pub to_world: glam::Mat4,
     /// Diffuse reflectance ρ of this placement.
     pub albedo: f32,
@@ -72,11 +73,13 @@ pub struct MeshObject {
     pub number: usize,
     /// The mesh file.
     pub path: PathBuf,
-    /// Object to world.
+    /// From the mesh's positions as its loader reads them to the scene's stored
+    /// coordinates (relative to [`Scene::origin`]): the object's transform, composed in
+    /// f64 with the two origins and held in f32.
     pub to_world: glam::Mat4,
     /// Its placement in `Scene::instances` when the mesh file is placed by several
     /// objects; `None` when its triangles went into `Scene::triangles`, each distinct
-    /// vertex through `Mat4::transform_point3` once.
+    /// vertex through [`place_point`] once.
     pub instance: Option<u32>,
     /// Whether the file's glTF URIs may lead outside its folder (as it was loaded).
     pub allow_external_uris: bool,
@@ -191,6 +194,12 @@ impl Settings {
 }
 
 /// A scene ready to render.
+///
+/// Its primitives (and probe points in it) are stored in f32 relative to
+/// [`Scene::origin`], which is zero unless a loader placed geometry far from the origin
+/// for its size (a glTF node hierarchy, a scene file's transform): then the geometry keeps
+/// the accuracy its own coordinates have. Cameras are in the scene's own coordinates, in
+/// f64.
 #[derive(Clone, Debug)]
 pub struct Scene {
     /// Human-readable name (file stem or "aobench").
@@ -198,8 +207,11 @@ pub struct Scene {
     /// The file it was read from (a scene file or a bare mesh); `None` for a scene made
     /// in memory and for the built-in one.
     pub path: Option<PathBuf>,
-    /// The camera.
+    /// The camera, in the scene's own coordinates.
     pub camera: Camera,
+    /// The point of the scene's own coordinates that its stored primitives' coordinates
+    /// are relative to (each component an f32 value; zero for a scene near the origin).
+    pub origin: DVec3,
     /// Render settings.
     pub settings: Settings,
     /// Triangles of meshes placed once, transformed to world space.
@@ -233,13 +245,19 @@ impl Scene {
         self.path.clone().unwrap_or_else(|| PathBuf::from(&self.name))
     }
 
-    /// The automatic framing used for bare meshes.
+    /// The automatic framing used for bare meshes: the eye at centre + normalize(0.6, 0.45,
+    /// 1.0) × 1.2 × diagonal of the bounds, looking at their centre, in the scene's own
+    /// coordinates. The centre is exact in f64 and the offset an f32 vector, so that their
+    /// sum is exact too and a scene moved far away keeps its camera bit for bit in the
+    /// frame it is rendered in.
     pub fn auto_camera(&self) -> Camera {
         let b = self.bounds().unwrap_or(Bounds { min: Vec3::splat(-1.0), max: Vec3::splat(1.0) });
-        let centre = 0.5 * (b.min + b.max);
-        let diagonal = (b.max - b.min).length().max(f32::MIN_POSITIVE);
+        let (min, max) = (b.min.as_dvec3(), b.max.as_dvec3());
+        let diagonal = (max - min).as_vec3().length().max(f32::MIN_POSITIVE);
+        let offset = Vec3::new(0.6, 0.45, 1.0).normalize() * 1.2 * diagonal;
+        let centre = self.origin + 0.5 * (min + max);
         Camera {
-            eye: centre + Vec3::new(0.6, 0.45, 1.0).normalize() * 1.2 * diagonal,
+            eye: centre + offset.as_dvec3(),
             look_at: centre,
             up: Vec3::Y,
             projection: Projection::Perspective { vfov_deg: 45.0 },
@@ -264,8 +282,8 @@ impl Scene {
     }
 
     /// The scene with every instance's triangles transformed into the world and added to
-    /// `triangles`, as the loader placed meshes before instancing (each vertex through
-    /// `Mat4::transform_point3`, degenerate results dropped).
+    /// `triangles`, as the loader places a mesh placed once (each vertex through
+    /// [`place_point`], degenerate results dropped).
     pub fn flattened(&self) -> Scene {
         let mut scene = Scene { meshes: Vec::new(), instances: Vec::new(), ..self.clone() };
         for object in &mut scene.mesh_objects {
@@ -273,7 +291,7 @@ impl Scene {
         }
         for instance in &self.instances {
             let m = &instance.to_world;
-            let world = self.meshes[instance.mesh as usize].triangles.iter().map(|t| t.map(|v| m.transform_point3(v)));
+            let world = self.meshes[instance.mesh as usize].triangles.iter().map(|t| t.map(|v| place_point(m, v)));
             scene
                 .triangles
                 .extend(world.filter(|&v| !is_degenerate(v)).map(|v| Triangle { v, albedo: instance.albedo }));
@@ -281,7 +299,8 @@ impl Scene {
         scene
     }
 
-    /// Bounds of triangles, instances and spheres; `None` when the scene has none.
+    /// Bounds of triangles, instances and spheres, in the stored coordinates (relative to
+    /// [`Scene::origin`]); `None` when the scene has none.
     pub fn bounds(&self) -> Option<Bounds> {
         let mut min = Vec3::splat(f32::INFINITY);
         let mut max = Vec3::splat(f32::NEG_INFINITY);
@@ -294,7 +313,7 @@ impl Scene {
         for instance in &self.instances {
             for t in &self.meshes[instance.mesh as usize].triangles {
                 for v in t {
-                    let w = instance.to_world.transform_point3(*v);
+                    let w = place_point(&instance.to_world, *v);
                     min = min.min(w);
                     max = max.max(w);
                 }
@@ -311,6 +330,12 @@ impl Scene {
     pub fn finite_primitive_count(&self) -> usize {
         self.triangles.len() + self.spheres.len() + self.instances.len()
     }
+}
+
+/// `p` placed by the affine `m` as the loaders place a mesh's vertices: in f64 (the
+/// products and sums of f32 values exact or nearly), rounded once to f32.
+pub fn place_point(m: &Mat4, p: Vec3) -> Vec3 {
+    m.as_dmat4().transform_point3(p.as_dvec3()).as_vec3()
 }
 
 /// Smallest squared length of `(v1 - v0) × (v2 - v0)` of a triangle that is kept: below
