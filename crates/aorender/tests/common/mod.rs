@@ -179,9 +179,15 @@ pub fn gpu_image(
     let storage = storage.unwrap_or_else(|| dev.ctx.preferred_storage());
     let gs = GpuScene::upload(&dev.ctx, scene, bvh, storage, None)?;
     let s = &scene.settings;
-    let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count);
+    let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count, value_exponent_of(scene));
     let target = GpuTarget::image(dev, &gs, frame, s.sampler, s.hemisphere)?;
     Ok((gs, target))
+}
+
+/// The bound 2^e of the samples of an image of `scene` (its albedos and background), as
+/// a session sets it: e.
+pub fn value_exponent_of(scene: &Scene) -> i32 {
+    aorender::film::value_exponent(aorender::accumulation::max_sample_value(scene, scene.settings.background))
 }
 
 /// A scene from TOML text; mesh paths resolve against `dir`.
