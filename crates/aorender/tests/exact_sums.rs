@@ -212,3 +212,47 @@ fn probe_and_bent_normal_films_split_anywhere_merge_exactly() {
         }
     }
 }
+
+/// Two films of 64 samples a pixel: 400 pixels of independent Bernoulli samples (0 or
+/// 0.8, p from 0.1 to 0.9; xorshift streams of their own), then pixels without spread:
+/// open on both sides (0.8 every sample), and one whose value is `flat` on the second.
+fn films_with_flat_pixels(flat: f64) -> (Film, Film) {
+    let mut films = [Film::new(410, 1), Film::new(410, 1)];
+    for (k, film) in films.iter_mut().enumerate() {
+        film.samples = 64;
+        let mut x = 0x853c_49e6_748f_ea9bu64 + k as u64;
+        for i in 0..400 {
+            let p = 0.1 + 0.8 * i as f64 / 400.0;
+            for _ in 0..64 {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                let v = if ((x >> 11) as f64 / (1u64 << 53) as f64) < p { 0.8f32 as f64 } else { 0.0 };
+                film.sum[i] += v;
+                film.sum_sq[i] += v * v;
+            }
+        }
+        for i in 400..410 {
+            let v = if k == 1 && i == 409 { flat } else { 0.8f32 as f64 };
+            (film.sum[i], film.sum_sq[i]) = (64.0 * v, 64.0 * v * v);
+        }
+    }
+    let [a, b] = films;
+    (a, b)
+}
+
+/// The statistical comparison of two renders takes pixels without spread on either side
+/// by their bounded-value intervals: equal ones and ones a rounding apart pass (no z² of
+/// a difference over a zero variance), an open pixel against a closed one fails.
+#[test]
+fn pixels_without_spread_are_compared_by_their_intervals() {
+    let (a, b) = films_with_flat_pixels(0.8f32 as f64);
+    assert_statistical_agreement(&a, &b, 1.6, "exact");
+    let (a, b) = films_with_flat_pixels(0.8f32 as f64 * (1.0 + 1e-7));
+    assert_statistical_agreement(&a, &b, 1.6, "a rounding apart");
+    let (a, b) = films_with_flat_pixels(0.0);
+    let failed = std::panic::catch_unwind(|| assert_statistical_agreement(&a, &b, 1.6, "open against closed"));
+    let message = failed.expect_err("an open pixel agreed with a closed one");
+    let text = message.downcast_ref::<String>().cloned().unwrap_or_default();
+    assert!(text.contains("pixel 409, no spread on either side"), "{text}");
+}
