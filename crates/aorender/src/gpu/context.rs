@@ -3,7 +3,7 @@
 //! submissions and read-backs every pass uses.
 
 use super::fault::{Fault, Faults, catch_panic};
-use super::layout::GROUP_LANES;
+use super::layout::{GROUP_LANES, OTHER_STORAGE_BINDINGS};
 use super::shaders::{GeometryStorage, Traversal};
 use crate::bvh::BvhLayout;
 use crate::error::{Error, Result};
@@ -98,6 +98,9 @@ pub struct GpuContext {
     preferred_traversal: Traversal,
     /// Fewer traversal stack entries than the kernel has, for tests of a BVH too deep.
     stack_limit: Option<u32>,
+    /// Fewer bindings for the geometry than the adapter allows, for tests of a scene that
+    /// needs too many.
+    geometry_binding_limit: Option<u32>,
 }
 
 impl Drop for GpuContext {
@@ -195,6 +198,7 @@ impl GpuContext {
             stack_limit: std::env::var(TEST_STACK_ENTRIES_ENV).ok().and_then(|v| v.trim().parse().ok()),
             #[cfg(not(feature = "testing"))]
             stack_limit: None,
+            geometry_binding_limit: None,
         })
     }
 
@@ -282,6 +286,42 @@ impl GpuContext {
     #[cfg(feature = "testing")]
     pub fn limit_texture_size(&mut self, width: u32, height: u32) {
         self.max_texture_size = [self.max_texture_size[0].min(width), self.max_texture_size[1].min(height).max(1)];
+    }
+
+    /// How many bindings the BVH nodes and the primitives may take together in `storage`,
+    /// from the adapter's limits (the storage buffers a shader stage may bind, less the
+    /// kernel's other buffers; or the storage textures), and the limit's name for
+    /// messages.
+    pub fn geometry_bindings(&self, storage: GeometryStorage) -> (u32, &'static str) {
+        let limits = self.device.limits();
+        let (per_stage, name) = match storage {
+            GeometryStorage::Buffers => (
+                limits.max_storage_buffers_per_shader_stage.saturating_sub(OTHER_STORAGE_BINDINGS),
+                "max_storage_buffers_per_shader_stage (less the kernel's other bindings) \
+                 × max_storage_buffer_binding_size",
+            ),
+            GeometryStorage::Textures => (
+                limits.max_storage_textures_per_shader_stage,
+                "max_storage_textures_per_shader_stage × the texels of a texture (max_texture_dimension_2d²)",
+            ),
+        };
+        (per_stage.min(self.geometry_binding_limit.unwrap_or(u32::MAX)), name)
+    }
+
+    /// How many chunks of the nodes, and as many of the primitives, the binding numbers
+    /// of a bind group leave room for: k chunks of each end at binding 2k + 5
+    /// (`layout::node_binding`, `layout::primitive_binding`), below the adapter's
+    /// `max_bindings_per_bind_group`.
+    pub fn geometry_chunks_per_kind(&self) -> u32 {
+        self.device.limits().max_bindings_per_bind_group.saturating_sub(6) / 2
+    }
+
+    /// Caps the bindings the geometry may take below the adapter's limits, so that a
+    /// small scene split into small chunks needs more than are allowed on any adapter (for
+    /// testing the refusal).
+    #[cfg(feature = "testing")]
+    pub fn limit_geometry_bindings(&mut self, bindings: u32) {
+        self.geometry_binding_limit = Some(bindings);
     }
 
     /// Caps the bytes of nodes or primitives in one binding below the adapter's limit, so
