@@ -44,6 +44,9 @@ fn exact(v: &[f32]) -> f64 {
     v.iter().map(|&x| x as f64).sum()
 }
 
+/// One way of summing a block's samples.
+type Sum = fn(&[f32]) -> f64;
+
 fn main() {
     let mut scene = Scene::default_scene();
     let s = &mut scene.settings;
@@ -58,11 +61,8 @@ fn main() {
         .collect();
     let single = [0, 256, 512, 600];
     let merged = [0, 100, 256, 333, 512, 600];
-    let blocks = |v: &[f32], cuts: &[usize], sum: fn(&[f32]) -> f64| -> f64 {
-        cuts.windows(2).map(|w| sum(&v[w[0]..w[1]])).sum()
-    };
-    let ways: [(&str, fn(&[f32]) -> f64); 3] =
-        [("compensated", compensated), ("compensation dropped", plain), ("exact", exact)];
+    let blocks = |v: &[f32], cuts: &[usize], sum: Sum| -> f64 { cuts.windows(2).map(|w| sum(&v[w[0]..w[1]])).sum() };
+    let ways: [(&str, Sum); 3] = [("compensated", compensated), ("compensation dropped", plain), ("exact", exact)];
     for (name, sum) in ways {
         let (a, b) = (blocks(&samples[155], &merged, sum), blocks(&samples[155], &single, sum));
         let beyond = samples

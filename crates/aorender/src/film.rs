@@ -354,7 +354,7 @@ mod tests {
                 } else {
                     assert!((back2 - x2).abs() <= square_quantum / 2.0, "e {e}: {v:e}² → {back2:e}");
                 }
-                assert_eq!((q >= 0) || v < 0.0, true, "e {e}: {v:e} changed sign");
+                assert!(q == 0 || (q > 0) == (v > 0.0), "e {e}: {v:e} changed sign");
             }
             // Past the bound, infinite or NaN: flagged, whatever the sign.
             let bound = pow2(e) as f32;
@@ -694,7 +694,7 @@ impl ExactSums {
                 if s.unsigned_abs() >= 1 << 63 {
                     return Err(bad());
                 }
-                let q = ((s * s + (1 << (shift - 1))) >> shift) as i128;
+                let q = (s * s + (1 << (shift - 1))) >> shift;
                 self.replicate_sq[g] = self.replicate_sq[g].checked_add(q).ok_or_else(bad)?;
             }
         }
