@@ -423,8 +423,8 @@ mod tests {
 
 /// Samples per block, the unit of a device's sums: block `k` holds sample indices
 /// `256k .. 256k + 256` (cut short by the ends of the rendered range). A device sums one
-/// block at a time in 64-bit integers ([`BlockSums`]); each finished block is shifted
-/// exactly into the wider [`ExactSums`]. Integer addition is exact and associative, so
+/// block at a time in 64-bit integers (`film::BlockSums`); each finished block is shifted
+/// exactly into the wider `ExactSums`. Integer addition is exact and associative, so
 /// the result does not depend on how the samples were grouped into passes, blocks, runs
 /// or shards, nor on the device that added them.
 pub const BLOCK_SAMPLES: u32 = 256;
