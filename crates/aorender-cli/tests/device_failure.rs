@@ -63,7 +63,7 @@ fn a_lost_device_leaves_a_checkpoint_that_resumes_to_the_same_bits() {
     if !gpu_available() {
         return;
     }
-    let adapter = GpuContext::new(None).unwrap().description.name;
+    let adapter = GpuContext::new(None).unwrap().description.name.clone();
     let dir = temp_dir();
     let d = dir.path();
     let base = ["render", "--width", "64", "--height", "48", "--spp", "600", "--hemisphere", "uniform"];
@@ -114,7 +114,7 @@ fn an_adapter_out_of_memory_is_one_line_and_keeps_the_checkpoint() {
     if !gpu_available() {
         return;
     }
-    let adapter = GpuContext::new(None).unwrap().description.name;
+    let adapter = GpuContext::new(None).unwrap().description.name.clone();
     let dir = temp_dir();
     let d = dir.path();
     // 8 Mi pixels: the film and its readback take 128 MiB each on the adapter.

@@ -1,9 +1,10 @@
 //#import sampler.wgsl
+//#import sums.wgsl
 //#import trace.wgsl
-// The AO kernel: one pixel per invocation, dispatch.sample_count samples of it in order
-// (each a camera ray, then one AO ray from its hit), added one by one to the pixel's
-// compensated running sums: the same additions, in the same order, as one sample per
-// dispatch.
+// The AO kernel: one pixel per invocation, dispatch.sample_count samples of it (each a
+// camera ray, then one AO ray from its hit), added one by one to the pixel's block sums in
+// 64-bit integers (sums.wgsl): exact, so the film is the same however the samples are
+// split into dispatches, passes, shards or devices.
 //
 // Every invocation of a workgroup runs the same loops and calls `trace` together, a lane
 // with nothing to trace (outside the image, past its samples, its camera ray missed)
@@ -20,18 +21,6 @@ var<private> ao_rays: u32 = 0u;
 // pipeline by src/gpu/pipeline.rs, so that only the chosen one is compiled in.
 override SAMPLER: u32;
 override HEMISPHERE: u32;
-
-// Neumaier's compensated addition: (sum, compensation) + x.
-fn add_compensated(acc: vec2f, x: f32) -> vec2f {
-    let t = acc.x + x;
-    var c: f32;
-    if (abs(acc.x) >= abs(x)) {
-        c = (acc.x - t) + x;
-    } else {
-        c = (x - t) + acc.x;
-    }
-    return vec2f(t, acc.y + c);
-}
 
 fn camera_ray(pixel: vec2f) -> array<vec3f, 2> {
     let sx = 2.0 * pixel.x / f32(frame.width) - 1.0;
@@ -156,14 +145,14 @@ fn shade_sample(px: vec2u, u: vec4f, live: bool) -> f32 {
     return value;
 }
 
-// Adds one sample's value to the running sums `acc` (a film slot), or counts it void
-// when its traversal ran out of budget.
-fn accumulate(acc: vec4f, value: f32) -> vec4f {
+// Adds one sample's value to the block sums `acc` (a film slot), or counts it void when
+// its traversal ran out of budget.
+fn accumulate(acc: vec4u, value: f32) -> vec4u {
     if (truncated) {
         atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
         return acc;
     }
-    return vec4f(add_compensated(acc.xy, value), add_compensated(acc.zw, value * value));
+    return add_sample(acc, value, frame.value_exponent);
 }
 
 // Adds the workgroup's counts to the global counters (after a barrier).
@@ -194,7 +183,7 @@ fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_i
     let i = select(0u, (pixel.y - frame.first_row) * frame.width + pixel.x, inside);
     var acc = film[i];
     // A pixel an adaptive render no longer samples is marked in its slot's last word.
-    let live = inside && bitcast<u32>(acc.w) != INACTIVE_SLOT;
+    let live = inside && acc.w != INACTIVE_SLOT;
     for (var k = 0u; k < dispatch.sample_count; k++) {
         if (!rays_left(live)) {
             break;
@@ -292,10 +281,11 @@ fn probe_bent_sample(
         if (live && truncated) {
             atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
         } else if (live) {
-            ao = accumulate(ao, ao_estimate(shadow, ray.w_local));
-            bx = accumulate(bx, open.x);
-            by = accumulate(by, open.y);
-            bz = accumulate(bz, open.z);
+            let e = frame.value_exponent;
+            ao = add_sample(ao, ao_estimate(shadow, ray.w_local), e);
+            bx = add_sample(bx, open.x, e);
+            by = add_sample(by, open.y, e);
+            bz = add_sample(bz, open.z, e);
         }
     }
     if (valid) {

@@ -5,8 +5,9 @@
 //! format (`output::checkpoint`) stores it.
 //!
 //! Samples are summed in blocks of [`BLOCK_SAMPLES`] sample indices: the device sums a
-//! block in its own arithmetic, then the block is rounded once to fixed point and added to
-//! [`ExactSums`], where addition is exact.
+//! block in 64-bit fixed point ([`BlockSums`], the same integers on every device for the
+//! same samples), then the block is shifted exactly into the wider [`ExactSums`]. Every
+//! addition is an integer's, so the sums do not depend on how the samples were split.
 
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
@@ -412,7 +413,10 @@ pub struct Accumulation {
     pub next: u32,
     /// Samples of the block in progress (in `partial`, not yet in `exact`).
     pub partial_samples: u32,
-    /// False once the blocks no longer follow the absolute grid of [`BLOCK_SAMPLES`].
+    /// False once the replicates whose sums are taken no longer follow their absolute grid
+    /// (a render whose last replicate was cut short by its end, continued past that end:
+    /// that replicate is not whole in either part). Always true without replicates: the
+    /// sums of blocks cut anywhere add to the same integers.
     pub on_grid: bool,
     /// AO rays traced so far.
     pub ao_rays: u64,
@@ -561,7 +565,7 @@ impl Accumulation {
         self.next - self.first
     }
 
-    /// The sums as a film: the exact sums, plus the block in progress rounded to the same
+    /// The sums as a film: the exact sums, plus the block in progress shifted into the same
     /// quanta (as [`merge`] adds it).
     pub fn film(&self) -> Result<Film> {
         if self.partial.is_none() {
@@ -757,7 +761,7 @@ impl Accumulation {
         for g in 0..plan.groups {
             for j in 0..plan.per_take {
                 let first = g * plan.stride + j * plan.summed;
-                sums.push((first..first + plan.summed).map(|i| block.pixel(i).0).sum::<f64>());
+                sums.push((first..first + plan.summed).map(|i| block.sum[i] as i128).sum::<i128>());
             }
         }
         self.exact.add_replicates(&sums, plan.per_take as u64).map_err(|e| self.error(e))?;
@@ -767,7 +771,7 @@ impl Accumulation {
         Ok(())
     }
 
-    /// The exact sums with the block in progress, if any, rounded to the same quanta and
+    /// The exact sums with the block in progress, if any, shifted into the same quanta and
     /// added.
     pub fn sums(&self) -> Result<ExactSums> {
         let mut exact = self.exact.clone();
@@ -841,8 +845,11 @@ pub struct Merged {
     /// One past the last sample index held.
     pub end: u32,
     /// True when the merge has the same bits as one uninterrupted render of `first..end`
-    /// on the shards' adapter: every shard boundary is a multiple of [`BLOCK_SAMPLES`],
-    /// every shard's blocks follow that grid, and one adapter rendered them all.
+    /// on the shards' adapter: one adapter rendered them all and, when the samples are in
+    /// replicates whose sums are taken, every shard boundary is a multiple of the
+    /// replicate and every shard's replicates follow that grid. The sums of samples add
+    /// to the same integers wherever the shards split; a replicate cut by a boundary is
+    /// whole in neither shard, and its square is missing.
     pub same_as_single_run: bool,
     /// The shards, in sample order.
     pub shards: Vec<MergedShard>,
@@ -864,8 +871,8 @@ pub struct MergedShard {
 /// Combines accumulations of disjoint sample ranges of one render, given with their files.
 /// They must hold samples of the same scene and settings and together one contiguous range
 /// of sample indices; the order given does not matter. The exact sums are added as
-/// integers (each shard's block in progress, if any, rounded to the same quanta first), so
-/// the result does not depend on the order or grouping of the shards.
+/// integers (each shard's block in progress, if any, shifted into the same quanta first),
+/// so the result does not depend on the order or grouping of the shards.
 pub fn merge(shards: &[(PathBuf, Accumulation)]) -> Result<Merged> {
     let Some((first_path, first)) = shards.first() else {
         return Err(Error::checkpoint("merge", "no accumulations given"));
@@ -930,7 +937,8 @@ pub fn merge(shards: &[(PathBuf, Accumulation)]) -> Result<Merged> {
         exact.add(&sums).map_err(|m| Error::checkpoint(path, m))?;
     }
     let (lo, hi) = (order[0].1.first, order[order.len() - 1].1.next);
-    let aligned = order.windows(2).all(|p| p[0].1.next % BLOCK_SAMPLES == 0);
+    let unit = first.settings.replicate_plan().map_or(1, |p| p.take);
+    let aligned = order.windows(2).all(|p| p[0].1.next % unit == 0);
     let on_grid = order.iter().all(|(_, a)| a.on_grid);
     let one_adapter = order.iter().all(|(_, a)| a.adapter == first.adapter && a.device == first.device);
     Ok(Merged {

@@ -7,7 +7,7 @@ use crate::bvh::ploc::cwbvh_depth;
 use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::{Error, Result};
-use crate::film::{BlockSums, Film, INACTIVE_SLOT_BITS};
+use crate::film::{BlockSums, INACTIVE_SLOT_BITS};
 use crate::gpu::{
     AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal,
 };
@@ -201,8 +201,8 @@ pub struct Setup {
 
 /// A scene prepared on a device: its BVH built and uploaded, ready for requests.
 pub(crate) enum Prepared {
-    /// The geometry on the adapter.
-    Gpu { dev: Arc<GpuDevice>, scene: GpuScene },
+    /// The geometry on the adapter (dropped before the adapter's device, last).
+    Gpu { scene: GpuScene, dev: Arc<GpuDevice> },
     /// The CPU tracer.
     Cpu(Arc<CpuTracer>),
 }
@@ -256,7 +256,7 @@ impl Prepared {
                         geometry_storage: storage.name(),
                         traversal: gpu_scene.traversal.name(),
                     };
-                    out.push((Prepared::Gpu { dev: dev.clone(), scene: gpu_scene }, setup));
+                    out.push((Prepared::Gpu { scene: gpu_scene, dev: dev.clone() }, setup));
                 }
                 Opened::Cpu(_) => {
                     // The last device that needs the CWBVH takes it; the others copy it.
@@ -290,11 +290,12 @@ impl Prepared {
         Ok(out)
     }
 
-    /// The film of an image of `settings` seen by `camera`.
-    pub(crate) fn image(&self, camera: &Camera, settings: &Settings) -> Result<Box<dyn Passes>> {
+    /// The film of an image of `settings` seen by `camera`, whose samples are at most
+    /// 2^`e` in magnitude ([`value_exponent`]).
+    pub(crate) fn image(&self, camera: &Camera, settings: &Settings, e: i32) -> Result<Box<dyn Passes>> {
         match self {
             Prepared::Gpu { dev, scene } => {
-                let frame = FrameUniforms::image(camera, settings, scene.node_count, scene.plane_count);
+                let frame = FrameUniforms::image(camera, settings, scene.node_count, scene.plane_count, e);
                 let rows = crate::gpu::target::image_rows_per_target(dev, settings.width);
                 if rows >= settings.height {
                     return Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?));
@@ -315,7 +316,8 @@ impl Prepared {
             Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
                 inactive: Vec::new(),
                 work: CpuImage { tracer: tracer.clone(), camera: *camera, settings: settings.clone() },
-                film: Film::new(settings.width, settings.height),
+                sums: BlockSums::new(settings.width as usize * settings.height as usize),
+                e,
             })),
         }
     }
@@ -323,7 +325,8 @@ impl Prepared {
     /// The film of `probes`, `samples` samples each with the sampling of `settings`,
     /// spread over `lanes` slots a probe; or, with `bent_normals`, four slots a probe
     /// (`lanes` must be 4): the AO and the escaped directions' x, y, z. Probe k takes the
-    /// sample sequence of point `first_point` + k.
+    /// sample sequence of point `first_point` + k. Its samples are at most 2^`e` in
+    /// magnitude.
     pub(crate) fn probes(
         &self,
         probes: &[Probe],
@@ -332,6 +335,7 @@ impl Prepared {
         samples: u32,
         settings: &Settings,
         bent_normals: bool,
+        e: i32,
     ) -> Result<Box<dyn Passes>> {
         match self {
             Prepared::Gpu { dev, scene } => {
@@ -357,6 +361,7 @@ impl Prepared {
                         samples,
                         scene.node_count,
                         scene.plane_count,
+                        e,
                     );
                     frame.first_point = first_point + (k * per_target) as u32;
                     let target = GpuTarget::probes(
@@ -383,9 +388,11 @@ impl Prepared {
                     probes: probes.to_vec(),
                     first_point,
                     samples,
+                    lanes,
                     bent_normals,
                 },
-                film: Film::new(lanes, probes.len() as u32),
+                sums: BlockSums::new(lanes as usize * probes.len()),
+                e,
             })),
         }
     }
@@ -429,11 +436,11 @@ impl Passes for GpuTarget {
     fn read(&mut self) -> Result<BlockSums> {
         let mut words = self.film_words()?;
         for w in &mut words {
-            if w[3].to_bits() == INACTIVE_SLOT_BITS {
-                *w = [0.0; 4];
+            if w[3] == INACTIVE_SLOT_BITS {
+                *w = [0; 4];
             }
         }
-        Ok(BlockSums::Gpu(words))
+        Ok(BlockSums::from_words(&words))
     }
 
     fn take(&mut self) -> Result<BlockSums> {
@@ -444,13 +451,9 @@ impl Passes for GpuTarget {
     }
 
     fn load(&mut self, block: &BlockSums) -> Result<()> {
-        match block {
-            BlockSums::Gpu(words) => {
-                self.set_film_words(words)?;
-                self.mark_inactive(Some(words))
-            }
-            BlockSums::Cpu { .. } => Err(Error::Gpu("the CPU reference's sums cannot continue on the GPU".into())),
-        }
+        let words = block.to_words();
+        self.set_film_words(&words)?;
+        self.mark_inactive(Some(&words))
     }
 
     fn device_bytes(&self) -> u64 {
@@ -487,16 +490,13 @@ impl GpuChunks {
             .collect()
     }
 
-    fn join(blocks: Vec<BlockSums>) -> Result<BlockSums> {
-        let slots = blocks.iter().map(|b| if let BlockSums::Gpu(w) = b { w.len() } else { 0 }).sum();
-        let mut out = Vec::with_capacity(slots);
+    fn join(blocks: Vec<BlockSums>) -> BlockSums {
+        let mut out = BlockSums::default();
         for block in blocks {
-            match block {
-                BlockSums::Gpu(words) => out.extend(words),
-                BlockSums::Cpu { .. } => return Err(Error::Gpu("a GPU target read back CPU sums".into())),
-            }
+            out.sum.extend(block.sum);
+            out.sum_sq.extend(block.sum_sq);
         }
-        Ok(BlockSums::Gpu(out))
+        out
     }
 }
 
@@ -513,21 +513,23 @@ impl Passes for GpuChunks {
 
     fn read(&mut self) -> Result<BlockSums> {
         let blocks = self.targets.iter_mut().map(|(t, _)| Passes::read(t)).collect::<Result<Vec<_>>>()?;
-        GpuChunks::join(blocks)
+        Ok(GpuChunks::join(blocks))
     }
 
     fn take(&mut self) -> Result<BlockSums> {
         let blocks = self.targets.iter_mut().map(|(t, _)| Passes::take(t)).collect::<Result<Vec<_>>>()?;
-        GpuChunks::join(blocks)
+        Ok(GpuChunks::join(blocks))
     }
 
     fn load(&mut self, block: &BlockSums) -> Result<()> {
-        let BlockSums::Gpu(words) = block else {
-            return Err(Error::Gpu("the CPU reference's sums cannot continue on the GPU".into()));
-        };
-        let parts: Vec<Vec<[f32; 4]>> = self.split(words).into_iter().map(<[_]>::to_vec).collect();
+        if block.len() != self.targets.iter().map(|(_, slots)| slots).sum::<usize>() {
+            return Err(Error::settings("the checkpoint's block does not fit the film"));
+        }
+        let (sums, squares) = (self.split(&block.sum), self.split(&block.sum_sq));
+        let parts: Vec<BlockSums> =
+            sums.into_iter().zip(squares).map(|(s, q)| BlockSums { sum: s.to_vec(), sum_sq: q.to_vec() }).collect();
         for ((target, _), part) in self.targets.iter_mut().zip(parts) {
-            Passes::load(target, &BlockSums::Gpu(part))?;
+            Passes::load(target, &part)?;
         }
         Ok(())
     }
@@ -551,9 +553,10 @@ impl Passes for GpuChunks {
 
 /// What the CPU reference traces into a film: an image, or probe points.
 trait CpuWork {
-    /// Adds samples (or probe rounds) `first .. first + count` to `film`, leaving the
-    /// slots marked in `inactive` (empty: none); returns the AO rays traced.
-    fn pass(&self, film: &mut Film, first: u32, count: u32, inactive: &[bool]) -> u64;
+    /// Adds samples (or probe rounds) `first .. first + count` to `sums`, in the quanta
+    /// of samples of bound 2^`e`, leaving the slots marked in `inactive` (empty: none);
+    /// returns the AO rays traced.
+    fn pass(&self, sums: &mut BlockSums, e: i32, first: u32, count: u32, inactive: &[bool]) -> u64;
 }
 
 /// An image on the CPU reference.
@@ -564,8 +567,8 @@ struct CpuImage {
 }
 
 impl CpuWork for CpuImage {
-    fn pass(&self, film: &mut Film, first: u32, count: u32, inactive: &[bool]) -> u64 {
-        self.tracer.render_pass(&self.camera, &self.settings, film, first, count, inactive)
+    fn pass(&self, sums: &mut BlockSums, e: i32, first: u32, count: u32, inactive: &[bool]) -> u64 {
+        self.tracer.render_pass(&self.camera, &self.settings, sums, e, first, count, inactive)
     }
 }
 
@@ -578,32 +581,37 @@ struct CpuProbes {
     /// The sample sequence of probe k is point `first_point` + k's.
     first_point: u32,
     samples: u32,
+    lanes: u32,
     bent_normals: bool,
 }
 
 impl CpuWork for CpuProbes {
     // Probe requests are not adaptive: every point is sampled.
-    fn pass(&self, film: &mut Film, first: u32, count: u32, _inactive: &[bool]) -> u64 {
+    fn pass(&self, sums: &mut BlockSums, e: i32, first: u32, count: u32, _inactive: &[bool]) -> u64 {
         let (t, s, p, k) = (&self.tracer, &self.settings, &self.probes, self.first_point);
         if self.bent_normals {
-            t.probe_bent_pass(s, p, k, self.samples, film, first, count)
+            t.probe_bent_pass(s, p, k, self.samples, sums, e, first, count)
         } else {
-            t.probe_pass(s, p, k, self.samples, film, first, count)
+            t.probe_pass(s, p, k, self.samples, self.lanes, sums, e, first, count)
         }
     }
 }
 
-/// A request on the CPU reference and its film: f64 sums per slot.
+/// A request on the CPU reference and its block's sums: the integers the GPU keeps, in
+/// the same quanta.
 struct CpuTarget<W> {
     work: W,
-    film: Film,
+    sums: BlockSums,
+    /// The bound 2^e of the samples ([`value_exponent`]).
+    e: i32,
     /// Slots not sampled (empty: none).
     inactive: Vec<bool>,
 }
 
 impl<W: CpuWork> Passes for CpuTarget<W> {
     fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
-        Ok(PassReport { ao_rays: self.work.pass(&mut self.film, first, count, &self.inactive), gpu_seconds: None })
+        let rays = self.work.pass(&mut self.sums, self.e, first, count, &self.inactive);
+        Ok(PassReport { ao_rays: rays, gpu_seconds: None })
     }
 
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
@@ -612,25 +620,20 @@ impl<W: CpuWork> Passes for CpuTarget<W> {
     }
 
     fn read(&mut self) -> Result<BlockSums> {
-        Ok(BlockSums::Cpu { sum: self.film.sum.clone(), sum_sq: self.film.sum_sq.clone() })
+        Ok(self.sums.clone())
     }
 
     fn take(&mut self) -> Result<BlockSums> {
-        let empty = Film::new(self.film.width, self.film.height);
-        let film = std::mem::replace(&mut self.film, empty);
-        Ok(BlockSums::Cpu { sum: film.sum, sum_sq: film.sum_sq })
+        let empty = BlockSums::new(self.sums.len());
+        Ok(std::mem::replace(&mut self.sums, empty))
     }
 
     fn load(&mut self, block: &BlockSums) -> Result<()> {
-        let film = &mut self.film;
-        match block {
-            BlockSums::Cpu { sum, sum_sq } if sum.len() == film.sum.len() && sum_sq.len() == sum.len() => {
-                film.sum.clone_from(sum);
-                film.sum_sq.clone_from(sum_sq);
-                Ok(())
-            }
-            _ => Err(Error::settings("the checkpoint's block does not fit the CPU reference's film")),
+        if block.len() != self.sums.len() || block.sum_sq.len() != block.sum.len() {
+            return Err(Error::settings("the checkpoint's block does not fit the CPU reference's film"));
         }
+        self.sums.clone_from(block);
+        Ok(())
     }
 
     fn device_bytes(&self) -> u64 {

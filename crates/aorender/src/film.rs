@@ -305,61 +305,263 @@ mod tests {
         assert!((se - (1.0f64 / 96.0).sqrt()).abs() < 1e-15, "{se}");
         assert_eq!(standard_error(ErrorEstimator::Replicates { size: 4, count: 1 }, 4, 1.0, 0.0, 1.0), f64::INFINITY);
     }
+
+    /// Random f32 values of every magnitude from 2^(e − 60) to 2^e, both signs (xorshift,
+    /// fixed seed), with the edges of the ranges the quanta are exact in.
+    fn values(e: i32, n: usize) -> Vec<f32> {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let bound = pow2(e) as f32;
+        let mut v: Vec<f32> = (0..n)
+            .map(|_| {
+                let r = next();
+                let magnitude = (r >> 11) as f64 / (1u64 << 53) as f64 * pow2(e - (r % 61) as i32);
+                let v = (magnitude as f32).min(bound);
+                if r >> 63 == 1 { -v } else { v }
+            })
+            .collect();
+        for k in [0, 1, 4, 5, 16, 30, 31, 32, 40, 54, 55, 56, 80, 120, 149] {
+            let p = (pow2(e - k.min(e + 149)) as f32).max(f32::from_bits(1));
+            v.extend([p, -p, f32::from_bits(p.to_bits() + 1).min(bound), f32::from_bits(p.to_bits() - 1).min(bound)]);
+        }
+        v.extend([0.0, -0.0, bound, -bound, f32::from_bits(1), f32::from_bits(0x7f_ffff)]);
+        v
+    }
+
+    #[test]
+    fn samples_are_quantised_exactly_or_within_half_a_quantum() {
+        for e in [0, 1, 2, 7, 20, 127] {
+            let (quantum, square_quantum) = (pow2(e - SAMPLE_FRACTION_BITS), pow2(2 * e - SAMPLE_FRACTION_BITS));
+            for v in values(e, 20_000) {
+                let (q, sq) = quantize_sample(v, e);
+                let (x, x2) = (v as f64, v as f64 * v as f64);
+                assert_eq!(sq & OUT_OF_RANGE_BIT, 0, "e {e}: {v:e} flagged");
+                assert!(q.unsigned_abs() <= 1 << 54 && sq <= 1 << 54, "e {e}: {v:e} gives {q}, {sq}");
+                // f64 holds every quantised value and square exactly (54 bits at most).
+                let (back, back2) = (q as f64 * quantum, sq as f64 * square_quantum);
+                if x.abs() >= pow2(e - 31) {
+                    assert_eq!(back, x, "e {e}: {v:e} is a whole number of quanta");
+                } else {
+                    assert!((back - x).abs() <= quantum / 2.0, "e {e}: {v:e} → {back:e}");
+                }
+                if x.abs() >= pow2(e - 4) {
+                    assert_eq!(back2, x2, "e {e}: the square of {v:e} is a whole number of quanta");
+                } else {
+                    assert!((back2 - x2).abs() <= square_quantum / 2.0, "e {e}: {v:e}² → {back2:e}");
+                }
+                assert!(q == 0 || (q > 0) == (v > 0.0), "e {e}: {v:e} changed sign");
+            }
+            // Past the bound, infinite or NaN: flagged, whatever the sign.
+            let bound = pow2(e) as f32;
+            for v in [f32::from_bits(bound.to_bits() + 1), 2.0 * bound, f32::INFINITY, f32::NAN] {
+                for v in [v, -v] {
+                    assert_eq!(quantize_sample(v, e), (0, OUT_OF_RANGE_BIT), "e {e}: {v:e}");
+                }
+            }
+        }
+        // The quantum of e = 1 is 2^-53: half of it rounds away from zero, three quarters
+        // up, just under half down.
+        assert_eq!(quantize_sample(2f32.powi(-54), 1).0, 1);
+        assert_eq!(quantize_sample(-(2f32.powi(-54)), 1).0, -1);
+        assert_eq!(quantize_sample(3.0 * 2f32.powi(-55), 1).0, 1);
+        assert_eq!(quantize_sample(2f32.powi(-54) * 0.99, 1).0, 0);
+    }
+
+    /// A block of the largest samples stays within 64 bits, and its sums shift into the
+    /// exact sums to the exact total; the words round-trip; a flagged sample stays flagged
+    /// and the block is refused naming its pixel.
+    #[test]
+    fn a_block_of_the_largest_samples_fits_and_adds_exactly() {
+        for e in [0, 1, 5, 127] {
+            let bound = pow2(e) as f32;
+            let mut block = BlockSums::new(3);
+            for k in 0..BLOCK_SAMPLES {
+                block.add(0, bound, e);
+                block.add(1, -bound, e);
+                block.add(2, if k % 2 == 0 { 0.75 * bound } else { -0.25 * bound }, e);
+            }
+            assert_eq!(block.sum, [1 << 62, -(1 << 62), 1 << 60]);
+            assert_eq!(block.sum_sq, [1 << 62, 1 << 62, 5 << 58]);
+            assert_eq!(BlockSums::from_words(&block.to_words()), block);
+            let mut exact = ExactSums::new(3, 1, pow2(e) * 0.75);
+            exact.add_block(&block).unwrap();
+            exact.add_block(&block).unwrap();
+            let film = exact.to_film(512, 1);
+            let b = bound as f64;
+            assert_eq!(film.sum, [512.0 * b, -512.0 * b, 128.0 * b]);
+            assert_eq!(film.sum_sq, [512.0 * b * b, 512.0 * b * b, 160.0 * b * b]);
+        }
+        let mut block = BlockSums::new(2);
+        block.add(1, 0.5, 0);
+        block.add(1, f32::NAN, 0);
+        block.add(1, 0.5, 0);
+        assert_eq!(block.sum[1], 1 << 54);
+        assert_ne!(block.sum_sq[1] & OUT_OF_RANGE_BIT, 0);
+        let e = ExactSums::new(2, 1, 1.0).add_block(&block).unwrap_err();
+        assert!(e.0.starts_with("pixel (1, 0): a sample was not finite"), "{e}");
+    }
+
+    /// A replicate's integer sum is squared exactly and rounded once to the quantum of
+    /// the replicates' squares.
+    #[test]
+    fn replicate_squares_come_from_the_integer_sums() {
+        let mut exact = ExactSums::new(1, 2, 2.0);
+        // Replicates of 16 samples of 1.5 and of 0.1f32 (not a whole number of quanta of its square).
+        let (a, b) = (quantize_sample(1.5, 1).0 as i128 * 16, quantize_sample(0.1, 1).0 as i128 * 16);
+        exact.add_replicates(&[a, b], 1).unwrap();
+        let film = exact.to_film(16, 16);
+        assert_eq!(film.replicate_sq[0], 24.0 * 24.0);
+        let s = 16.0 * 0.1f32 as f64;
+        assert!((film.replicate_sq[1] - s * s).abs() <= pow2(2 - 85), "{} against {}", film.replicate_sq[1], s * s);
+    }
 }
 
-/// The bits a device film slot's last word holds while its pixel is inactive (an
-/// adaptive render has stopped sampling it): a NaN no sum produces. The GPU kernel skips
-/// such a slot; the slot reads back as empty.
-pub const INACTIVE_SLOT_BITS: u32 = 0x7fc0_0a0d;
-
-/// Samples per block, the unit of exact accumulation: block `k` holds sample indices
+/// Samples per block, the unit of a device's sums: block `k` holds sample indices
 /// `256k .. 256k + 256` (cut short by the ends of the rendered range). A device sums one
-/// block at a time in its own arithmetic (compensated f32 on the GPU, f64 on the CPU);
-/// each finished block is rounded once to a fixed-point integer and added to
-/// exact fixed-point sums, where addition is exact, so the result does not depend on how the
-/// blocks were grouped into passes, runs or shards.
+/// block at a time in 64-bit integers (`film::BlockSums`); each finished block is shifted
+/// exactly into the wider `ExactSums`. Integer addition is exact and associative, so
+/// the result does not depend on how the samples were grouped into passes, blocks, runs
+/// or shards, nor on the device that added them.
 pub const BLOCK_SAMPLES: u32 = 256;
 
-/// Per-pixel sums of the samples of one block, as the device keeps them.
-#[derive(Clone, Debug, PartialEq)]
-pub enum BlockSums {
-    /// The GPU film's f32 words per pixel: Σv, its Neumaier compensation, Σv², its
-    /// compensation.
-    Gpu(Vec<[f32; 4]>),
-    /// The CPU reference's f64 sums.
-    Cpu {
-        /// Σv.
-        sum: Vec<f64>,
-        /// Σv².
-        sum_sq: Vec<f64>,
-    },
+/// log2 of the ratio of the bound on a sample's magnitude, 2^e ([`value_exponent`]), to
+/// the quantum of a block's Σv: a sample is summed in units of 2^(e − 54), its square in
+/// units of 2^(2e − 54). A sample of magnitude at most 2^e is then at most 2^54 quanta,
+/// and so is its square, so [`BLOCK_SAMPLES`] of them stay within 2^62 in a 64-bit
+/// integer. A sample of at least 2^(e − 31) is a whole number of quanta (its f32 value
+/// exactly), and a square of a sample of at least 2^(e − 4); smaller ones are rounded, by
+/// at most half a quantum: 2^(e − 55) of a sample, 2^(2e − 55) of a square, far below
+/// the f32 resolution of any mean (`docs/design.md`, "Accumulation and checkpoints").
+pub const SAMPLE_FRACTION_BITS: i32 = 54;
+
+/// The bit of a slot's Σv² that marks a sample out of range (not finite, or past the
+/// bound 2^e): no sum of squares of samples within range reaches it (they stay below
+/// 2^62), and the host refuses a block that carries it.
+pub const OUT_OF_RANGE_BIT: u64 = 1 << 63;
+
+/// The bits the last word of a device film slot (the high word of Σv²) holds while its
+/// pixel is inactive (an adaptive render has stopped sampling it): past any sum of
+/// squares, and not what an out-of-range sample leaves ([`OUT_OF_RANGE_BIT`] with a sum
+/// below 2^62). The GPU kernel skips such a slot; the slot reads back as empty.
+pub const INACTIVE_SLOT_BITS: u32 = 0xffff_ffff;
+
+/// The exponent e of the smallest power of two, 2^e, at least `max_value` (taken as at
+/// least 1; a non-finite bound as twice the largest f32): the scale of a render's sums,
+/// from the largest magnitude its samples can take.
+pub fn value_exponent(max_value: f64) -> i32 {
+    let v = if max_value.is_finite() { max_value.max(1.0) } else { 2.0 * f32::MAX as f64 };
+    // At most 129 for any f32 value doubled.
+    let mut e = 0;
+    while e < 256 && pow2(e) < v {
+        e += 1;
+    }
+    e
+}
+
+/// One sample's contribution to a block's sums: `v` in quanta of 2^(e − 54) and `v²` in
+/// quanta of 2^(2e − 54) ([`SAMPLE_FRACTION_BITS`]), each rounded to the nearest quantum
+/// (halves away from zero), or `(0, OUT_OF_RANGE_BIT)` when `v` is not finite or larger
+/// than 2^e in magnitude. Computed from the bits of `v` in integer arithmetic alone, as
+/// `quantize_sample` in `shaders/sums.wgsl` does, so that no compiler's contraction or
+/// reordering of float operations can change it: the square is that of the significand,
+/// exact in 48 bits, then shifted, not the float product.
+pub fn quantize_sample(v: f32, e: i32) -> (i64, u64) {
+    let bits = v.to_bits();
+    let biased = (bits >> 23) & 0xff;
+    // v = m × 2^(b − 150), with b the biased exponent (1 for subnormals).
+    let (m, b) = if biased == 0 { (bits & 0x7f_ffff, 1) } else { ((bits & 0x7f_ffff) | 0x80_0000, biased as i32) };
+    // v / 2^(e − 54) = m × 2^s.
+    let s = b - 96 - e;
+    if biased == 0xff || s > 31 || (s == 31 && m > 0x80_0000) {
+        return (0, OUT_OF_RANGE_BIT);
+    }
+    let q = shift_rounded(m as u64, s);
+    // v² / 2^(2e − 54) = m² × 2^(2s − 54).
+    let sq = shift_rounded(m as u64 * m as u64, 2 * s - 54);
+    (if bits >> 31 == 1 { -(q as i64) } else { q as i64 }, sq)
+}
+
+/// `x` × 2^`k`, rounded to the nearest integer (halves up) where `k` is negative; `x`
+/// × 2^`k` must fit 64 bits.
+fn shift_rounded(x: u64, k: i32) -> u64 {
+    match k {
+        0.. => x << k,
+        -63..=-1 => (x + (1 << (-k - 1))) >> -k,
+        _ => 0,
+    }
+}
+
+/// Per-slot sums of the samples of one block, as a device keeps them: 64-bit integers in
+/// the quanta of [`quantize_sample`] for the render's bound 2^e, the same on every device
+/// for the same samples.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct BlockSums {
+    /// Σv in quanta of 2^(e − 54).
+    pub sum: Vec<i64>,
+    /// Σv² in quanta of 2^(2e − 54); [`OUT_OF_RANGE_BIT`] set where a sample was out
+    /// of range.
+    pub sum_sq: Vec<u64>,
 }
 
 impl BlockSums {
-    /// Pixels.
-    pub fn len(&self) -> usize {
-        match self {
-            BlockSums::Gpu(words) => words.len(),
-            BlockSums::Cpu { sum, .. } => sum.len(),
-        }
+    /// Zero sums of `slots` slots.
+    pub fn new(slots: usize) -> BlockSums {
+        BlockSums { sum: vec![0; slots], sum_sq: vec![0; slots] }
     }
 
-    /// True when there are no pixels.
+    /// Slots.
+    pub fn len(&self) -> usize {
+        self.sum.len()
+    }
+
+    /// True when there are no slots.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
 
-    /// Pixel `i`'s (Σv, Σv²); a compensated pair is added in f64, where two f32 add exactly
-    /// unless their exponents are more than 29 apart.
-    pub fn pixel(&self, i: usize) -> (f64, f64) {
-        match self {
-            BlockSums::Gpu(words) => {
-                let t = words[i];
-                (t[0] as f64 + t[1] as f64, t[2] as f64 + t[3] as f64)
-            }
-            BlockSums::Cpu { sum, sum_sq } => (sum[i], sum_sq[i]),
+    /// Adds the sample `v` to slot `i`, for samples of magnitude at most 2^`e`.
+    pub fn add(&mut self, i: usize, v: f32, e: i32) {
+        add_sample(&mut self.sum[i], &mut self.sum_sq[i], v, e);
+    }
+
+    /// The sums as a GPU film holds them: per slot, the low and high words of Σv (two's
+    /// complement), then of Σv².
+    pub fn to_words(&self) -> Vec<[u32; 4]> {
+        self.sum
+            .iter()
+            .zip(&self.sum_sq)
+            .map(|(&s, &q)| [s as u32, (s as u64 >> 32) as u32, q as u32, (q >> 32) as u32])
+            .collect()
+    }
+
+    /// The sums of a GPU film's words ([`BlockSums::to_words`]).
+    pub fn from_words(words: &[[u32; 4]]) -> BlockSums {
+        let word = |lo: u32, hi: u32| lo as u64 | (hi as u64) << 32;
+        BlockSums {
+            sum: words.iter().map(|w| word(w[0], w[1]) as i64).collect(),
+            sum_sq: words.iter().map(|w| word(w[2], w[3])).collect(),
         }
     }
+
+    /// Slot `i`'s Σv and Σv² as f64, in the units of the samples (2^`e` their bound).
+    pub fn slot(&self, i: usize, e: i32) -> (f64, f64) {
+        let f = SAMPLE_FRACTION_BITS;
+        (self.sum[i] as f64 * pow2(e - f), (self.sum_sq[i] & !OUT_OF_RANGE_BIT) as f64 * pow2(2 * e - f))
+    }
+}
+
+/// Adds the sample `v` (of magnitude at most 2^`e`) to a slot's sums `sum` and `sum_sq`,
+/// in the quanta of [`quantize_sample`], wrapping as the GPU's 64-bit words do: the sum of
+/// a block of samples within range does not reach their bounds.
+pub fn add_sample(sum: &mut i64, sum_sq: &mut u64, v: f32, e: i32) {
+    let (q, sq) = quantize_sample(v, e);
+    *sum = sum.wrapping_add(q);
+    *sum_sq = sum_sq.wrapping_add(sq) | (sq & OUT_OF_RANGE_BIT) | (*sum_sq & OUT_OF_RANGE_BIT);
 }
 
 /// Sums that cannot be added: of another size or scale, or out of range (a device that
@@ -373,6 +575,10 @@ const MAX_SAMPLES_LOG2: i32 = 32;
 /// log2 of the bound on the integers of [`ExactSums`]: 2^32 samples of the largest value
 /// stay below it, and i128 holds twice it.
 const MAGNITUDE_LOG2: i32 = 125;
+/// log2 of the ratio of a block's quanta to those of [`ExactSums`] (2^39, Σv and Σv²
+/// alike): a block's sums shift into the exact sums without rounding.
+const BLOCK_SHIFT: i32 = MAGNITUDE_LOG2 - MAX_SAMPLES_LOG2 - SAMPLE_FRACTION_BITS;
+const _: () = assert!(BLOCK_SHIFT > 0);
 
 /// 2^n as f64, exactly, for n in -1022..=1023.
 fn pow2(n: i32) -> f64 {
@@ -382,9 +588,10 @@ fn pow2(n: i32) -> f64 {
 
 /// Per-pixel sums of finished blocks in fixed point: Σv of pixel `i` is
 /// `sum[i]` × 2^`sum_exponent`, Σv² is `sum_sq[i]` × 2^`sq_exponent`. The quanta are set
-/// from the largest value a sample can take so that 2^32 samples fit; they are about
-/// 2^-93 of that value, far below f64's resolution of any sum of samples. Integer
-/// addition is associative: blocks added in any order or grouping give the same bits.
+/// from the largest value a sample can take so that 2^32 samples fit; they are 2^-93 of
+/// that value's bound 2^e, 2^39 times finer than a block's ([`BlockSums`]), so blocks
+/// shift into them exactly. Integer addition is associative: blocks added in any order
+/// or grouping give the same bits.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ExactSums {
     /// Image width.
@@ -461,9 +668,10 @@ impl ExactSums {
     }
 
     /// Adds `count` complete replicates whose sums are `sums` (`count` per group, group
-    /// after group), each squared in f64 and rounded once to the quantum. An error names
-    /// the first group whose square is out of range.
-    pub fn add_replicates(&mut self, sums: &[f64], count: u64) -> Result<(), SumsError> {
+    /// after group), in the quanta of a block's Σv ([`BlockSums::sum`]): each is squared
+    /// exactly and rounded once to the quantum of `replicate_sq` (halves up). An error
+    /// names the first group whose square is out of range.
+    pub fn add_replicates(&mut self, sums: &[i128], count: u64) -> Result<(), SumsError> {
         let groups = sums.len() / count.max(1) as usize;
         if self.replicate_sq.is_empty() {
             self.replicate_sq = vec![0; groups];
@@ -475,11 +683,18 @@ impl ExactSums {
                 self.replicate_sq.len()
             )));
         }
-        let e = self.sq_exponent + REPLICATE_SQ_SHIFT;
+        // The square's quantum is 2^(2 (sum_exponent + BLOCK_SHIFT)), replicate_sq's
+        // 2^(sq_exponent + REPLICATE_SQ_SHIFT): 2^23 times coarser.
+        let shift = self.sq_exponent + REPLICATE_SQ_SHIFT - 2 * (self.sum_exponent + BLOCK_SHIFT);
+        debug_assert!(shift > 0);
         for (g, chunk) in sums.chunks_exact(count.max(1) as usize).enumerate() {
             for &s in chunk {
-                let bad = || SumsError(format!("group {g}: a replicate's sum {s} is out of range"));
-                let q = quantize(s * s, e).ok_or_else(bad)?;
+                let bad = || SumsError(format!("group {g}: a replicate's sum of {s} quanta is out of range"));
+                // A replicate of at most 256 samples sums to under 2^62 quanta in magnitude.
+                if s.unsigned_abs() >= 1 << 63 {
+                    return Err(bad());
+                }
+                let q = (s * s + (1 << (shift - 1))) >> shift;
                 self.replicate_sq[g] = self.replicate_sq[g].checked_add(q).ok_or_else(bad)?;
             }
         }
@@ -487,34 +702,37 @@ impl ExactSums {
         Ok(())
     }
 
-    /// The quanta's exponents for samples of magnitude at most `max_value` (taken as at
-    /// least 1; non-finite is taken as the largest f32 doubled).
+    /// The quanta's exponents for samples of magnitude at most `max_value`
+    /// ([`value_exponent`] e): e + 32 − 125 and 2e + 32 − 125.
     pub fn exponents(max_value: f64) -> (i32, i32) {
-        let v = if max_value.is_finite() { max_value.max(1.0) } else { 2.0 * f32::MAX as f64 };
-        // The smallest e with 2^e ≥ v: at most 129 for any f32 value doubled.
-        let mut e = 0;
-        while e < 256 && pow2(e) < v {
-            e += 1;
-        }
+        let e = value_exponent(max_value);
         (e + MAX_SAMPLES_LOG2 - MAGNITUDE_LOG2, 2 * e + MAX_SAMPLES_LOG2 - MAGNITUDE_LOG2)
     }
 
-    /// Adds a finished block, each pixel's sums rounded to the nearest quantum. An error
-    /// names the first pixel whose sum is not finite or out of range.
+    /// The bound 2^e of the samples these sums are scaled for ([`value_exponent`]).
+    pub fn value_exponent(&self) -> i32 {
+        self.sum_exponent - MAX_SAMPLES_LOG2 + MAGNITUDE_LOG2
+    }
+
+    /// Adds a block's sums, shifted exactly from the block's quanta into these. An error
+    /// names the first pixel whose block carries a sample out of range, or whose sum
+    /// overflows.
     pub fn add_block(&mut self, block: &BlockSums) -> Result<(), SumsError> {
-        if block.len() != self.sum.len() {
+        if block.len() != self.sum.len() || block.sum_sq.len() != block.sum.len() {
             return Err(SumsError(format!("a block of {} pixels added to sums of {}", block.len(), self.sum.len())));
         }
         let w = self.width.max(1) as usize;
         for i in 0..self.sum.len() {
-            let (s, q) = block.pixel(i);
-            let bad = || {
-                SumsError(format!("pixel ({}, {}): a sum of samples ({s}, squares {q}) is out of range", i % w, i / w))
-            };
-            let s = quantize(s, self.sum_exponent).ok_or_else(bad)?;
-            let q = quantize(q, self.sq_exponent).ok_or_else(bad)?;
-            self.sum[i] = self.sum[i].checked_add(s).ok_or_else(bad)?;
-            self.sum_sq[i] = self.sum_sq[i].checked_add(q).ok_or_else(bad)?;
+            let (s, q) = (block.sum[i], block.sum_sq[i]);
+            let bad = |why: &str| SumsError(format!("pixel ({}, {}): {why}", i % w, i / w));
+            if q & OUT_OF_RANGE_BIT != 0 {
+                return Err(bad("a sample was not finite or larger than the scene's albedos and background allow"));
+            }
+            let overflow = || bad("a sum of samples is out of range");
+            let s = (s as i128) << BLOCK_SHIFT;
+            let q = (q as i128) << BLOCK_SHIFT;
+            self.sum[i] = self.sum[i].checked_add(s).ok_or_else(overflow)?;
+            self.sum_sq[i] = self.sum_sq[i].checked_add(q).ok_or_else(overflow)?;
         }
         Ok(())
     }
@@ -580,9 +798,23 @@ impl ExactSums {
     }
 }
 
-/// `x` / 2^`exponent` rounded to the nearest integer (halves away from zero); `None`
-/// when `x` is not finite or the result is not below 2^125 in magnitude.
-fn quantize(x: f64, exponent: i32) -> Option<i128> {
-    let y = (x * pow2(-exponent)).round();
-    (y.abs() < pow2(MAGNITUDE_LOG2)).then_some(y as i128)
+impl BlockSums {
+    /// The block of float sums a device kept before sums were integers (checkpoint
+    /// format versions 1 and 2: the GPU's compensated f32 pairs added in f64, the CPU
+    /// reference's f64 sums), each rounded to the nearest quantum for samples of bound
+    /// 2^`e`. An error names the first slot whose sum is not finite or out of range.
+    pub fn from_floats(sums: impl Iterator<Item = (f64, f64)>, e: i32) -> Result<BlockSums, SumsError> {
+        let f = SAMPLE_FRACTION_BITS;
+        let mut block = BlockSums::default();
+        for (i, (s, q)) in sums.enumerate() {
+            let (qs, qq) = ((s * pow2(f - e)).round(), (q * pow2(f - 2 * e)).round());
+            // A block within range is below 2^62 quanta: twice that is damage.
+            if !(qs.abs() < pow2(63) && (0.0..pow2(63)).contains(&qq)) {
+                return Err(SumsError(format!("slot {i}: a sum of samples ({s}, squares {q}) is out of range")));
+            }
+            block.sum.push(qs as i64);
+            block.sum_sq.push(qq as u64);
+        }
+        Ok(block)
+    }
 }

@@ -11,8 +11,8 @@ use std::path::Path;
 pub const FILM_BUDGET_ENV: &str = "AORENDER_FILM_BUDGET";
 
 /// Host bytes a film slot takes at a render's peak: the exact block sums (two i128, 32
-/// bytes), the device's block as it is taken and handed over (a film of f64 or
-/// compensated f32 sums, and its copy: 32 to 48), and the film and figures the render
+/// bytes), the device's block as it is taken and handed over (64-bit integer sums, 16
+/// bytes, with the GPU's words or the CPU's copy beside them: 32 to 48), and the film and figures the render
 /// ends with (32 to 48). Measured (aorender's heap peak, 2048² images): 128 bytes on the
 /// CPU reference, 112 on the GPU; an eighth more here for the allocator's rounding and
 /// the outputs' buffers. `tests/limits.rs` holds every device to it.

@@ -313,8 +313,10 @@ impl Render {
     pub fn resume(&mut self, mut saved: Accumulation) -> Result<()> {
         saved.check_resume(&self.acc)?;
         if saved.end != self.acc.end {
-            // A last block cut short by the old end was summed as a block of its own.
-            if saved.next == saved.end && !saved.end.is_multiple_of(saved.take_rounds()) {
+            // A last replicate cut short by the old end was taken as it was: neither it
+            // nor its rest is whole, and its square is lost.
+            let replicates = saved.settings.replicate_plan().is_some();
+            if replicates && saved.next == saved.end && !saved.end.is_multiple_of(saved.take_rounds()) {
                 saved.on_grid = false;
             }
             saved.end = self.acc.end;
@@ -525,7 +527,7 @@ impl Render {
         Ok(acc)
     }
 
-    /// The per-pixel sums so far: the exact sums, plus the block in progress rounded to
+    /// The per-pixel sums so far: the exact sums, plus the block in progress shifted into
     /// the same quanta.
     pub fn film(&mut self) -> Result<Film> {
         self.accumulation()?.film()

@@ -15,6 +15,7 @@ use crate::accumulation::{
 };
 use crate::device::{BvhOptions, Device, Prepared, Setup};
 use crate::error::{Error, Result};
+use crate::film::value_exponent;
 use crate::probe::{Probe, ProbeValue, checked, lanes_for};
 use crate::render::{Control, Render, RenderInfo};
 use crate::scene::{Camera, LocalFrame, Scene, Settings, round_up};
@@ -229,7 +230,8 @@ impl Session {
         let what = format!("a {}x{} image", s.width, s.height);
         self.check_film_budget(what, s.width as u64 * s.height as u64, s.replicate_samples() >= 2)?;
         let start = Instant::now();
-        let passes = self.prepared.image(&camera, s)?;
+        let max_value = max_sample_value(&self.scene, s.background);
+        let passes = self.prepared.image(&camera, s, value_exponent(max_value))?;
         let target_seconds = start.elapsed().as_secs_f64();
         let settings = SampleSettings::with_hash(self.scene_hash(&request.camera), s);
         let mut acc = Accumulation::new(
@@ -239,7 +241,7 @@ impl Session {
             self.options.quality,
             range.start,
             range.end,
-            max_sample_value(&self.scene, s.background),
+            max_value,
         );
         acc.adapter = self.setup.adapter.name.clone();
         Ok(Render::new(passes, acc, self.info(target_seconds)))
@@ -301,8 +303,9 @@ impl Session {
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * slots as u64, settings.replicate_samples() >= 2)?;
         let start = Instant::now();
+        let e = value_exponent(MAX_PROBE_SAMPLE);
         let local = self.local_probes(&probes);
-        let passes = self.prepared.probes(&local, first_point, slots, spp, settings, bent_normals)?;
+        let passes = self.prepared.probes(&local, first_point, slots, spp, settings, bent_normals, e)?;
         drop(local);
         let target_seconds = start.elapsed().as_secs_f64();
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
@@ -363,7 +366,8 @@ impl Session {
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * lanes as u64, settings.replicate_samples() >= 2)?;
         let rounds = samples.div_ceil(lanes);
-        let passes = self.prepared.probes(&self.local_probes(probes), 0, lanes, samples, settings, false)?;
+        let e = value_exponent(MAX_PROBE_SAMPLE);
+        let passes = self.prepared.probes(&self.local_probes(probes), 0, lanes, samples, settings, false, e)?;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let hash = probes_hash(geometry, probes);
         let sample_settings =

@@ -238,7 +238,7 @@ fn bunny_on(floor: Vec<Triangle>) -> Scene {
 const FLOOR: [Vec3; 3] = [Vec3::new(-0.4, 0.033, -0.3), Vec3::new(0.3, 0.033, -0.3), Vec3::new(0.0, 0.033, 0.4)];
 
 /// Renders `scene` on the CPU reference and on the GPU in both layouts: every pixel the
-/// same within float rounding (the CPU sums in f64, the GPU in compensated f32), the floor
+/// same within float rounding (a GPU may round a sample's arithmetic otherwise), the floor
 /// and the bunny in view; returns the duplicates the BVH left out.
 fn gpu_matches_cpu(scene: &Scene, what: &str) -> usize {
     let cpu_session = session(scene, &Config::cpu());

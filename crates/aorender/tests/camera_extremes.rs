@@ -3,12 +3,10 @@
 //! and position of `aorender::closed_form::Variant`.
 
 mod common;
-use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
 use aorender::closed_form::Variant;
-use aorender::cpu::CpuTracer;
 use aorender::gpu::MAX_PASS_SAMPLES;
 use aorender::scene::{Camera, Plane, Projection, Settings, Sphere};
-use aorender::{DeviceKind, Film, Hemisphere, Sampler, Scene};
+use aorender::{Control, DeviceKind, Film, Hemisphere, PassSizing, Sampler, Scene};
 use common::*;
 use glam::{DVec3, Vec3};
 
@@ -39,9 +37,8 @@ fn mean_and_error(film: &Film) -> (f64, f64) {
 /// under a sphere (1 − cos β (r/d)²), on the CPU reference and on the adapter: at every
 /// power of 4 from 2^10 the image mean is within 4 standard errors of the closed form and
 /// the standard error times √N stays put (the error shrinks as 1/√N over the whole range),
-/// and the adapter's compensated f32 running sums equal the reference's f64 sums of the
-/// same samples. The uniform hemisphere gives every sample its own value (2 cos θ or 0):
-/// cosine-weighted values are 0 or 1, whose f32 sums stay exact up to 2^24 without help.
+/// and the adapter's sums equal the reference's bit for bit (both add the same samples as
+/// integers). The uniform hemisphere gives every sample its own value (2 cos θ or 0).
 #[test]
 fn two_to_the_twenty_samples_converge_to_the_closed_form() {
     const SPP: u32 = 1 << 20;
@@ -62,20 +59,19 @@ fn two_to_the_twenty_samples_converge_to_the_closed_form() {
     let expected = 1.0 - h * r * r / (d * d * d);
     let checkpoints: Vec<u32> = (10..=20).step_by(2).map(|k| 1u32 << k).collect();
 
-    // The CPU reference, f64 sums.
-    let tracer = CpuTracer::new(&s, build_cwbvh(&s, BuildQuality::default()));
-    let mut cpu = Film::new(4, 4);
-    let mut cpu_at = Vec::new();
-    let mut done = 0;
-    for &target in &checkpoints {
-        while done < target {
-            let count = (target - done).min(1 << 14);
-            tracer.render_pass(&s.camera, &s.settings, &mut cpu, done, count, &[]);
-            done += count;
-        }
-        cpu_at.push(cpu.clone());
-    }
-
+    // The films at each checkpoint, from one render run on in stretches.
+    let films_at = |kind: DeviceKind| -> Vec<Film> {
+        let session = session(&s, &Config { device: kind, ..Default::default() });
+        let mut render = session.render(&session.default_request()).unwrap_or_else(|e| panic!("{e}"));
+        let mut control = Control { sizing: PassSizing::Fixed(MAX_PASS_SAMPLES), ..Default::default() };
+        checkpoints
+            .iter()
+            .map(|&target| {
+                render.run_to(target, &mut control).unwrap_or_else(|e| panic!("{e}"));
+                render.film().unwrap_or_else(|e| panic!("{e}"))
+            })
+            .collect()
+    };
     let check = |film: &Film, what: &str, scaled: &mut Vec<f64>| {
         let (mean, se) = mean_and_error(film);
         let n = film.samples;
@@ -84,6 +80,7 @@ fn two_to_the_twenty_samples_converge_to_the_closed_form() {
         assert!((mean - expected).abs() <= 4.0 * se, "{what} at N = {n}: {mean} is not {expected} ± 4·{se}");
         scaled.push(se * (n as f64).sqrt());
     };
+    let cpu_at = films_at(DeviceKind::Cpu);
     let mut cpu_scaled = Vec::new();
     for film in &cpu_at {
         check(film, "cpu", &mut cpu_scaled);
@@ -96,23 +93,12 @@ fn two_to_the_twenty_samples_converge_to_the_closed_form() {
     if !gpu_available() {
         return;
     }
-    let bvh = GpuBvh::build(&s, BvhLayout::Cwbvh, BuildQuality::default());
-    let (_, mut renderer) = gpu_image(&gpu_adapter(), &s, &bvh, None).unwrap();
     let mut gpu_scaled = Vec::new();
-    let mut done = 0;
-    for (k, &target) in checkpoints.iter().enumerate() {
-        while done < target {
-            let count = (target - done).min(MAX_PASS_SAMPLES);
-            renderer.render_pass(done, count).unwrap();
-            done += count;
-        }
-        let film = renderer.read_film(target as u64).unwrap();
-        check(&film, "gpu", &mut gpu_scaled);
-        // The same samples: the compensated f32 running sums hold the f64 sum to f32 precision.
-        for (i, (g, c)) in film.sum.iter().zip(&cpu_at[k].sum).enumerate() {
-            let rel = (g - c).abs() / c.abs();
-            assert!(rel < 1e-6, "pixel {i} at N = {target}: gpu sum {g}, cpu sum {c} ({rel:.1e} apart)");
-        }
+    for (k, film) in films_at(DeviceKind::Gpu).iter().enumerate() {
+        check(film, "gpu", &mut gpu_scaled);
+        // The same samples, added as integers: the same sums.
+        assert_eq!(film.sum, cpu_at[k].sum, "sums at N = {}", checkpoints[k]);
+        assert_eq!(film.sum_sq, cpu_at[k].sum_sq, "sums of squares at N = {}", checkpoints[k]);
     }
     let (lo, hi) = gpu_scaled.iter().fold((f64::MAX, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
     assert!(hi / lo < 1.05, "gpu: σ·√N drifts: {gpu_scaled:?}");

@@ -146,7 +146,7 @@ fn image_target(
     let gs = GpuScene::upload(&dev.ctx, scene, bvh, storage, Some(traversal)).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(gs.traversal, traversal);
     let s = &scene.settings;
-    let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count);
+    let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count, value_exponent_of(scene));
     let target = GpuTarget::image(dev, &gs, frame, s.sampler, s.hemisphere).unwrap_or_else(|e| panic!("{e}"));
     (gs, target)
 }

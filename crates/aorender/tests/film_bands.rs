@@ -74,7 +74,7 @@ fn an_image_in_bands_renders_the_unsplit_film() {
         let a = render(&whole, &request, &mut Control::default()).film().unwrap();
         let b = render(&banded, &request, &mut Control::default()).film().unwrap();
         assert_same_film(&a, &b, what);
-        // As the unsplit film, the CPU reference's within float rounding.
+        // As the unsplit film, the CPU reference's within the rounding of an adapter's samples.
         let c = render(&cpu, &request, &mut Control::default()).film().unwrap();
         let worst = b.mean().iter().zip(c.mean()).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
         assert!(worst <= 1e-5, "{what}: a pixel differs from the CPU reference's by {worst}");

@@ -293,7 +293,7 @@ fn checkpoint_bytes() -> Vec<u8> {
         Accumulation::image(&scene, &scene.camera, &scene.settings, 0..64, DeviceKind::Cpu, &BvhOptions::default());
     acc.next = 5;
     acc.partial_samples = 5;
-    acc.partial = Some(BlockSums::Cpu { sum: vec![2.5; 12], sum_sq: vec![1.25; 12] });
+    acc.partial = Some(BlockSums { sum: vec![5 << 52; 12], sum_sq: vec![5 << 52; 12] });
     acc.adapter = "cpu".into();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("seed.ck");

@@ -3,6 +3,7 @@
 //! seed they trace the same random numbers and agree pixel by pixel.
 
 mod common;
+use aorender::accumulation::max_sample_value;
 use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
 use aorender::gpu::GpuScene;
 use aorender::gpu::context::GpuContext;
@@ -55,7 +56,8 @@ fn check_scene(mut scene: Scene, what: &str) {
                 scene.settings.seed = 2;
                 let cpu = render_settings(&cpu_session, &scene.settings);
                 assert_ne!(cpu.mean(), cpu_same_seed.mean(), "{what}: seeds must change the image");
-                assert_statistical_agreement(&gpu, &cpu, &what);
+                let max = max_sample_value(&scene, scene.settings.background);
+                assert_statistical_agreement(&gpu, &cpu, max, &what);
             }
             let (a, b) = (gpu.mean(), cpu_same_seed.mean());
             let close = a.iter().zip(&b).filter(|(x, y)| (*x - *y).abs() <= 1e-4).count();
@@ -151,9 +153,10 @@ fn passes_report_gpu_time_from_timestamps() {
 }
 
 /// Nodes and primitives in storage buffers or in textures, each whole or split across
-/// several bindings (buffers capped at 8,000 bytes, textures at 600 × 2 texels, so this
-/// small scene takes several), render the same film, bit for bit; a cap too small for the
-/// adapter's bindings is an error with the numbers.
+/// several bindings (the chunks sized from the adapter's binding limits: buffers of at
+/// most 8,000 bytes and textures of 600 × 2 texels, or larger where the adapter binds too
+/// few to hold this small scene so), render the same film, bit for bit; a split into more
+/// chunks than the adapter's bindings (or a cap below them) is an error with the numbers.
 #[test]
 fn geometry_in_buffers_or_textures_whole_or_split_renders_the_same_film() {
     if !gpu_available() {
@@ -162,23 +165,38 @@ fn geometry_in_buffers_or_textures_whole_or_split_renders_the_same_film() {
     let dir = temp_dir();
     let mut scene = mesh_scene(dir.path());
     scene.settings.hemisphere = Hemisphere::Uniform;
-    // The geometry's storage is chosen at upload: one device whole, one split.
     let whole = gpu_adapter();
-    let split = gpu_device_with(|ctx| {
-        ctx.limit_chunk_bytes(8_000);
-        ctx.limit_texture_size(600, 2);
-    });
-    let contexts = [
-        (&whole, GeometryStorage::Buffers),
-        (&split, GeometryStorage::Buffers),
-        (&whole, GeometryStorage::Textures),
-        (&split, GeometryStorage::Textures),
-    ];
+    let prim_size = std::mem::size_of::<aorender::bvh::GpuPrimitive>();
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
         let bvh = GpuBvh::build(&scene, layout, BuildQuality::default());
-        // 400 primitives fill one 600 × 2 texture: the split takes three or more.
-        assert!(bvh.records.len() > 2 * 400);
-        assert!(bvh.records.len() * std::mem::size_of::<aorender::bvh::GpuPrimitive>() > 3 * 8_000);
+        let (node_bytes, prim_bytes) = (bvh.node_bytes.len() as u64, (bvh.records.len() * prim_size) as u64);
+        // Chunks of at most 8,000 bytes (600 × 2 texels) make three or more of the
+        // primitives; larger ones where the adapter binds too few for that, each kind
+        // taking at most half of what it binds.
+        let chunk_bytes = |allowed: u32, at_least: u64| {
+            let half = u64::from(allowed / 2).max(1);
+            at_least.max(node_bytes.div_ceil(half)).max(prim_bytes.div_ceil(half))
+        };
+        let (buffers, _) = whole.ctx.geometry_bindings(GeometryStorage::Buffers);
+        let (textures, _) = whole.ctx.geometry_bindings(GeometryStorage::Textures);
+        let buffer_bytes = chunk_bytes(buffers, 8_000);
+        // Rows of 600 texels of 16 bytes.
+        let texture_rows = chunk_bytes(textures, 2 * 600 * 16).div_ceil(600 * 16) as u32;
+        let split = gpu_device_with(|ctx| {
+            ctx.limit_chunk_bytes(buffer_bytes);
+            ctx.limit_texture_size(600, texture_rows);
+        });
+        eprintln!(
+            "{layout:?}: {buffers} buffer and {textures} texture bindings allowed: chunks of {buffer_bytes} bytes, \
+             textures of 600 × {texture_rows}"
+        );
+        assert!(prim_bytes > 2 * buffer_bytes.max(texture_rows as u64 * 600 * 16), "too few chunks to test");
+        let contexts = [
+            (&whole, GeometryStorage::Buffers),
+            (&split, GeometryStorage::Buffers),
+            (&whole, GeometryStorage::Textures),
+            (&split, GeometryStorage::Textures),
+        ];
         let render = |&(dev, storage): &(&std::sync::Arc<aorender::gpu::GpuDevice>, GeometryStorage)| {
             let (gs, mut renderer) = gpu_image(dev, &scene, &bvh, Some(storage)).unwrap();
             assert_eq!(gs.chunks.storage, storage);
@@ -197,13 +215,18 @@ fn geometry_in_buffers_or_textures_whole_or_split_renders_the_same_film() {
             assert_eq!(a.sum_sq, b.sum_sq, "{layout:?} context {k}");
         }
     }
+    // One chunk a node or primitive, past what the adapter binds, or past eight bindings
+    // where it binds more.
     let mut tiny = GpuContext::new(None).unwrap();
     tiny.limit_chunk_bytes(64);
+    let allowed = tiny.geometry_bindings(GeometryStorage::Buffers).0.min(8);
+    tiny.limit_geometry_bindings(allowed);
     let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
     let e = GpuScene::upload(&tiny, &scene, &bvh, GeometryStorage::Buffers, None)
-        .expect_err("too many chunks for the adapter")
+        .expect_err("more chunks than the adapter's bindings")
         .to_string();
     assert!(e.contains("max_storage_buffers_per_shader_stage"), "{e}");
+    assert!(e.contains(&format!("{} bytes", allowed as u64 * 64)), "{e}");
 }
 
 /// The traversal's formulations for CPU adapters (`CPU_LANES`: min and max as a

@@ -214,7 +214,9 @@ fn rounds_per_invocation_leave_the_sums_unchanged() {
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
         let bvh = GpuBvh::build(&s, layout, BuildQuality::default());
         let gs = GpuScene::upload(&dev.ctx, &s, &bvh, dev.ctx.preferred_storage(), None).unwrap();
-        let frame = FrameUniforms::probes(settings, lanes, points.len() as u32, samples, gs.node_count, gs.plane_count);
+        let e = aorender::film::value_exponent(aorender::accumulation::MAX_PROBE_SAMPLE);
+        let frame =
+            FrameUniforms::probes(settings, lanes, points.len() as u32, samples, gs.node_count, gs.plane_count, e);
         let mut sums = Vec::new();
         for per in [1, 5, u32::MAX] {
             let mut renderer =

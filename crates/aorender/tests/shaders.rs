@@ -125,7 +125,7 @@ fn host_structs_match_wgsl_layout() {
     assert_eq!(wgsl_size(&cw_module, "CwNode") as usize, std::mem::size_of::<CwBvhNode>());
     let size_of = |name: &str| wgsl_size(&module, name);
     let scene = aorender::Scene::default_scene();
-    assert_eq!(size_of("Frame") as usize, size_of_val(&FrameUniforms::image(&scene.camera, &scene.settings, 0, 0)));
+    assert_eq!(size_of("Frame") as usize, size_of_val(&FrameUniforms::image(&scene.camera, &scene.settings, 0, 0, 0)));
     assert_eq!(size_of("Dispatch") as usize, std::mem::size_of::<DispatchUniforms>());
     assert_eq!(size_of("Node") as usize, std::mem::size_of::<GpuNode>());
     assert_eq!(size_of("Primitive") as usize, std::mem::size_of::<GpuPrimitive>());

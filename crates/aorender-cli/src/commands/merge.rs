@@ -5,7 +5,7 @@ use crate::args::{check_output_extension, read_shards, write_json};
 use crate::output;
 use anyhow::Result;
 use aorender::output::{FilePlan, IMAGE_EXTENSIONS, write_image};
-use aorender::{BLOCK_SAMPLES, MergedShard, ReadLimits, merge};
+use aorender::{MergedShard, ReadLimits, merge};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -71,9 +71,8 @@ pub fn run(args: MergeArgs) -> Result<()> {
     );
     if !stats.same_as_single_run {
         eprintln!(
-            "note: a shard boundary is not a multiple of {BLOCK_SAMPLES} samples, a shard was continued past an \
-             unaligned end, or the shards come from different adapters: the sums equal a single render's within \
-             float rounding, not bit for bit"
+            "note: the shards come from different adapters, or a shard boundary cuts a replicate of the error \
+             estimate (whose square is then in neither shard): the merge is not bit for bit a single render's"
         );
     }
     output::print(&format!("{json}\n"))?;

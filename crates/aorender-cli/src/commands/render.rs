@@ -220,8 +220,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
         && adapter != st.adapter
     {
         eprintln!(
-            "note: the checkpoint was rendered on {adapter} and continued on {}: the sums equal an uninterrupted \
-             render's within float rounding, not bit for bit",
+            "note: the checkpoint was rendered on {adapter} and continued on {}: the sums are exact, but the two \
+             adapters' samples may differ in their last bits: not bit for bit an uninterrupted render on either",
             st.adapter
         );
     }

@@ -4,7 +4,7 @@
 //! rayon.
 
 use crate::bvh::{GpuPrimitive, PRIM_INSTANCE, PRIM_SPHERE, SceneCwbvh, gpu_primitive, mesh_primitive};
-use crate::film::Film;
+use crate::film::{BlockSums, add_sample};
 use crate::geometry::{
     AffineRows, InverseAffine, Plane, SurfacePoint, instance_hit_point, intersect_plane, intersect_sphere,
     intersect_triangle, plane_hit_point, sphere_hit_point, triangle_hit_point,
@@ -285,11 +285,13 @@ impl CpuTracer {
         if self.occluded(o, w, t_max) { (0.0, None) } else { (settings.hemisphere.weight(w_local), Some(w)) }
     }
 
-    /// Adds samples `first .. first + count` (of `samples`) of every probe to `film`,
+    /// Adds samples `first .. first + count` (of `samples`) of every probe to `sums`,
     /// four slots a probe: the AO estimate, then the x, y and z of the directions that
     /// escaped, from one ray a sample; sample i of probe k takes the numbers
-    /// [`CpuTracer::probe_pass`] takes with one lane. The twin of `probe_bent_sample` in
+    /// [`CpuTracer::probe_pass`] takes with one lane. Values are summed in the quanta of
+    /// samples of bound 2^`e` ([`BlockSums`]). The twin of `probe_bent_sample` in
     /// `shaders/ao.wgsl`. Returns the AO rays traced.
+    // The request and the block: grouping them would only rename them.
     #[allow(clippy::too_many_arguments)]
     pub fn probe_bent_pass(
         &self,
@@ -297,15 +299,15 @@ impl CpuTracer {
         probes: &[Probe],
         first_point: u32,
         samples: u32,
-        film: &mut Film,
+        sums: &mut BlockSums,
+        e: i32,
         first: u32,
         count: u32,
     ) -> u64 {
         let sampler = PointSampler::new(settings.sampler, settings.seed, samples, settings.replicate_samples());
-        let rays: u64 = film
-            .sum
+        sums.sum
             .par_chunks_mut(4)
-            .zip(film.sum_sq.par_chunks_mut(4))
+            .zip(sums.sum_sq.par_chunks_mut(4))
             .enumerate()
             .map(|(k, (sum, sum_sq))| {
                 let p = &probes[k];
@@ -315,16 +317,13 @@ impl CpuTracer {
                     let (v, open) = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), settings);
                     let d = open.unwrap_or(Vec3::ZERO);
                     for (c, x) in [v, d.x, d.y, d.z].into_iter().enumerate() {
-                        sum[c] += x as f64;
-                        sum_sq[c] += x as f64 * x as f64;
+                        add_sample(&mut sum[c], &mut sum_sq[c], x, e);
                     }
                     rays += 1;
                 }
                 rays
             })
-            .sum();
-        film.samples += count as u64;
-        rays
+            .sum()
     }
 
     /// One sample of pixel `(px, py)`: its value and whether an AO ray was traced. The
@@ -350,9 +349,11 @@ impl CpuTracer {
     }
 
     /// Adds probe rounds `first .. first + count` to `sums`, whose slots are `lanes` per
-    /// probe (`sums.width` = lanes, `sums.height` = probes): round r gives lane l of probe
-    /// k the sample index r × lanes + l, up to `samples`, as on the GPU; probe k takes the
-    /// numbers of pixel (`first_point` + k, 0). Returns the AO rays traced.
+    /// probe (probe k's lanes at `k × lanes ..`): round r gives lane l of probe k the
+    /// sample index r × lanes + l, up to `samples`, as on the GPU; probe k takes the
+    /// numbers of pixel (`first_point` + k, 0). Values are summed in the quanta of samples
+    /// of bound 2^`e`. Returns the AO rays traced.
+    // The request and the block: grouping them would only rename them.
     #[allow(clippy::too_many_arguments)]
     pub fn probe_pass(
         &self,
@@ -360,14 +361,14 @@ impl CpuTracer {
         probes: &[Probe],
         first_point: u32,
         samples: u32,
-        sums: &mut Film,
+        lanes: u32,
+        sums: &mut BlockSums,
+        e: i32,
         first: u32,
         count: u32,
     ) -> u64 {
-        let lanes = sums.width;
         let sampler = PointSampler::new(settings.sampler, settings.seed, samples, settings.replicate_samples());
-        let rays: u64 = sums
-            .sum
+        sums.sum
             .par_iter_mut()
             .zip(sums.sum_sq.par_iter_mut())
             .enumerate()
@@ -381,26 +382,27 @@ impl CpuTracer {
                         break;
                     }
                     let u = sampler.uniforms(first_point + k as u32, 0, index as u32);
-                    let v = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), settings).0 as f64;
-                    *sum += v;
-                    *sum_sq += v * v;
+                    let v = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), settings).0;
+                    add_sample(sum, sum_sq, v, e);
                     rays += 1;
                 }
                 rays
             })
-            .sum();
-        sums.samples += count as u64;
-        rays
+            .sum()
     }
 
     /// Adds samples `first .. first + count` of every pixel of the image of `settings`
-    /// seen by `camera` to `film`; returns the number of AO rays traced.
-    /// Pixels marked in `inactive` (empty: none) are left as they are.
+    /// seen by `camera` to `sums`, in the quanta of samples of bound 2^`e`
+    /// ([`BlockSums`]); returns the number of AO rays traced. Pixels marked in `inactive`
+    /// (empty: none) are left as they are.
+    // The request and the block: grouping them would only rename them.
+    #[allow(clippy::too_many_arguments)]
     pub fn render_pass(
         &self,
         camera: &Camera,
         settings: &Settings,
-        film: &mut Film,
+        sums: &mut BlockSums,
+        e: i32,
         first: u32,
         count: u32,
         inactive: &[bool],
@@ -409,10 +411,9 @@ impl CpuTracer {
         let rg = camera.ray_gen(s.width, s.height);
         let sampler = PointSampler::new(s.sampler, s.seed, s.spp, s.replicate_samples());
         let w = s.width as usize;
-        let ao_rays: u64 = film
-            .sum
+        sums.sum
             .par_chunks_mut(w)
-            .zip(film.sum_sq.par_chunks_mut(w))
+            .zip(sums.sum_sq.par_chunks_mut(w))
             .enumerate()
             .map(|(y, (sum, sum_sq))| {
                 let mut rays = 0u64;
@@ -423,15 +424,12 @@ impl CpuTracer {
                     for k in 0..count {
                         let (v, traced) =
                             self.shade_sample(&rg, s, &sampler, x as u32, y as u32, first.wrapping_add(k));
-                        sum[x] += v as f64;
-                        sum_sq[x] += (v as f64) * (v as f64);
+                        add_sample(&mut sum[x], &mut sum_sq[x], v, e);
                         rays += traced as u64;
                     }
                 }
                 rays
             })
-            .sum();
-        film.samples += count as u64;
-        ao_rays
+            .sum()
     }
 }

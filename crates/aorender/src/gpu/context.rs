@@ -3,11 +3,12 @@
 //! submissions and read-backs every pass uses.
 
 use super::fault::{Fault, Faults, catch_panic};
-use super::layout::GROUP_LANES;
+use super::layout::{GROUP_LANES, OTHER_STORAGE_BINDINGS};
 use super::shaders::{GeometryStorage, Traversal};
 use crate::bvh::BvhLayout;
 use crate::error::{Error, Result};
-use std::sync::Arc;
+use std::mem::ManuallyDrop;
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 
 /// Test hook: with this environment variable set to N, the kernel's traversal stack is
 /// taken to hold N entries, so that a small scene's BVH is refused as too deep.
@@ -38,27 +39,49 @@ impl AdapterInfo {
     }
 }
 
-fn instance() -> wgpu::Instance {
-    wgpu::Instance::new(wgpu::InstanceDescriptor {
-        backends: wgpu::Backends::PRIMARY,
-        ..wgpu::InstanceDescriptor::new_without_display_handle()
+/// The process's one wgpu instance, made on first use and never destroyed. NVIDIA's
+/// Vulkan driver on Linux races with itself when instances (and devices) are created or
+/// destroyed on several threads at once: heap corruption ("corrupted size vs. prev_size")
+/// or a segfault inside the driver (gfx-rs/wgpu#5930, labelled a driver bug; kvark/blade#336
+/// for devices). One instance, and the [`lifecycle`] lock around every device's creation
+/// and destruction, keep those calls on one thread at a time.
+fn instance() -> &'static wgpu::Instance {
+    static INSTANCE: OnceLock<wgpu::Instance> = OnceLock::new();
+    INSTANCE.get_or_init(|| {
+        let _held = lifecycle();
+        wgpu::Instance::new(wgpu::InstanceDescriptor {
+            backends: wgpu::Backends::PRIMARY,
+            ..wgpu::InstanceDescriptor::new_without_display_handle()
+        })
     })
+}
+
+/// Held while the driver creates or destroys an instance or a device, or enumerates the
+/// adapters ([`instance`]); whatever a panicking holder left behind, the lock is taken.
+fn lifecycle() -> MutexGuard<'static, ()> {
+    static LIFECYCLE: Mutex<()> = Mutex::new(());
+    LIFECYCLE.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Every adapter wgpu finds.
 pub fn list_adapters() -> Vec<AdapterInfo> {
-    let adapters = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::PRIMARY));
+    let instance = instance();
+    let _held = lifecycle();
+    let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
     adapters.iter().map(|a| AdapterInfo::new(&a.get_info())).collect()
 }
 
 /// An adapter, its device and queue, with device errors captured instead of panicking.
+/// Opened and dropped under a process-wide lock ([`instance`]): several threads may open,
+/// use and drop contexts at once. Whatever holds a resource made on its device holds the
+/// context too and drops it last, so that the device is destroyed when the context is.
 pub struct GpuContext {
     /// The adapter.
-    pub adapter: wgpu::Adapter,
+    pub adapter: ManuallyDrop<wgpu::Adapter>,
     /// The device, created with the adapter's own limits.
-    pub device: wgpu::Device,
+    pub device: ManuallyDrop<wgpu::Device>,
     /// Its queue.
-    pub queue: wgpu::Queue,
+    pub queue: ManuallyDrop<wgpu::Queue>,
     /// The adapter's description.
     pub description: AdapterInfo,
     /// What the device's callbacks reported since the last check.
@@ -75,13 +98,30 @@ pub struct GpuContext {
     preferred_traversal: Traversal,
     /// Fewer traversal stack entries than the kernel has, for tests of a BVH too deep.
     stack_limit: Option<u32>,
+    /// Fewer bindings for the geometry than the adapter allows, for tests of a scene that
+    /// needs too many.
+    geometry_binding_limit: Option<u32>,
+}
+
+impl Drop for GpuContext {
+    fn drop(&mut self) {
+        let _held = lifecycle();
+        // SAFETY: each field is dropped once, here, and never used again.
+        unsafe {
+            ManuallyDrop::drop(&mut self.queue);
+            ManuallyDrop::drop(&mut self.device);
+            ManuallyDrop::drop(&mut self.adapter);
+        }
+    }
 }
 
 impl GpuContext {
     /// Opens the best adapter (discrete, then integrated, virtual, CPU), or the first
     /// whose name contains `name_filter` (case-insensitive).
     pub fn new(name_filter: Option<&str>) -> Result<GpuContext> {
-        let adapters = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::PRIMARY));
+        let instance = instance();
+        let _held = lifecycle();
+        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
         let rank = |t: wgpu::DeviceType| match t {
             wgpu::DeviceType::DiscreteGpu => 0,
             wgpu::DeviceType::IntegratedGpu => 1,
@@ -142,9 +182,9 @@ impl GpuContext {
         let max_texture_size = [limits.max_texture_dimension_2d; 2];
         let cpu_lanes = adapter.get_info().device_type == wgpu::DeviceType::Cpu;
         Ok(GpuContext {
-            adapter,
-            device,
-            queue,
+            adapter: ManuallyDrop::new(adapter),
+            device: ManuallyDrop::new(device),
+            queue: ManuallyDrop::new(queue),
             description,
             faults,
             max_chunk_bytes,
@@ -158,6 +198,7 @@ impl GpuContext {
             stack_limit: std::env::var(TEST_STACK_ENTRIES_ENV).ok().and_then(|v| v.trim().parse().ok()),
             #[cfg(not(feature = "testing"))]
             stack_limit: None,
+            geometry_binding_limit: None,
         })
     }
 
@@ -245,6 +286,42 @@ impl GpuContext {
     #[cfg(feature = "testing")]
     pub fn limit_texture_size(&mut self, width: u32, height: u32) {
         self.max_texture_size = [self.max_texture_size[0].min(width), self.max_texture_size[1].min(height).max(1)];
+    }
+
+    /// How many bindings the BVH nodes and the primitives may take together in `storage`,
+    /// from the adapter's limits (the storage buffers a shader stage may bind, less the
+    /// kernel's other buffers; or the storage textures), and the limit's name for
+    /// messages.
+    pub fn geometry_bindings(&self, storage: GeometryStorage) -> (u32, &'static str) {
+        let limits = self.device.limits();
+        let (per_stage, name) = match storage {
+            GeometryStorage::Buffers => (
+                limits.max_storage_buffers_per_shader_stage.saturating_sub(OTHER_STORAGE_BINDINGS),
+                "max_storage_buffers_per_shader_stage (less the kernel's other bindings) \
+                 × max_storage_buffer_binding_size",
+            ),
+            GeometryStorage::Textures => (
+                limits.max_storage_textures_per_shader_stage,
+                "max_storage_textures_per_shader_stage × the texels of a texture (max_texture_dimension_2d²)",
+            ),
+        };
+        (per_stage.min(self.geometry_binding_limit.unwrap_or(u32::MAX)), name)
+    }
+
+    /// How many chunks of the nodes, and as many of the primitives, the binding numbers
+    /// of a bind group leave room for: k chunks of each end at binding 2k + 5
+    /// (`layout::node_binding`, `layout::primitive_binding`), below the adapter's
+    /// `max_bindings_per_bind_group`.
+    pub fn geometry_chunks_per_kind(&self) -> u32 {
+        self.device.limits().max_bindings_per_bind_group.saturating_sub(6) / 2
+    }
+
+    /// Caps the bindings the geometry may take below the adapter's limits, so that a
+    /// small scene split into small chunks needs more than are allowed on any adapter (for
+    /// testing the refusal).
+    #[cfg(feature = "testing")]
+    pub fn limit_geometry_bindings(&mut self, bindings: u32) {
+        self.geometry_binding_limit = Some(bindings);
     }
 
     /// Caps the bytes of nodes or primitives in one binding below the adapter's limit, so

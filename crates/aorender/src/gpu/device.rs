@@ -5,18 +5,19 @@ use super::context::GpuContext;
 use super::pipeline::Pipelines;
 use crate::error::Result;
 
-/// An adapter's context and its compiled pipelines.
+/// An adapter's context and its compiled pipelines (dropped before the context, whose
+/// device they were made on).
 pub struct GpuDevice {
-    /// The adapter, device and queue.
-    pub ctx: GpuContext,
     /// Pipelines compiled on it so far.
     pub pipelines: Pipelines,
+    /// The adapter, device and queue.
+    pub ctx: GpuContext,
 }
 
 impl GpuDevice {
     /// Wraps an opened context (after any test limits were set on it).
     pub fn new(ctx: GpuContext) -> GpuDevice {
-        GpuDevice { ctx, pipelines: Pipelines::default() }
+        GpuDevice { pipelines: Pipelines::default(), ctx }
     }
 
     /// Opens the best adapter, or the first whose name contains `name_filter`

@@ -61,9 +61,18 @@ impl Faults {
     }
 
     /// The most serious fault since the last call, as the error of `adapter`: a lost
-    /// device, then running out of memory, then the first other error.
+    /// device, then running out of memory, then the first other error. A lost device
+    /// stays lost: every later call, on any thread that shares the device, reports it.
     pub(crate) fn take(&self, adapter: &str) -> Result<()> {
-        let faults = std::mem::take(&mut *self.lock());
+        let faults = {
+            let mut held = self.lock();
+            let faults = std::mem::take(&mut *held);
+            held.extend(faults.iter().filter_map(|f| match f {
+                Fault::Lost(m) => Some(Fault::Lost(m.clone())),
+                _ => None,
+            }));
+            faults
+        };
         let adapter = adapter.to_string();
         let lost = faults.iter().find_map(|f| if let Fault::Lost(m) = f { Some(m) } else { None });
         let oom = faults.iter().find_map(|f| if let Fault::OutOfMemory(m) = f { Some(m) } else { None });

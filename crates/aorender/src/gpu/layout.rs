@@ -6,7 +6,7 @@
 
 use crate::bvh::PRIM_TRIANGLE;
 use crate::bvh::{CWBVH_STACK_SIZE, CwNodeWords, GpuNode, GpuPrimitive, INVALID_INDEX, PRIM_INSTANCE, PRIM_SPHERE};
-use crate::film::INACTIVE_SLOT_BITS;
+use crate::film::{INACTIVE_SLOT_BITS, OUT_OF_RANGE_BIT, SAMPLE_FRACTION_BITS};
 use crate::geometry::{BOX_EXIT_WIDENING, Plane, gamma};
 use crate::mirror::{GpuStruct, StructLayout, gpu_struct};
 use crate::sampler::Sampler;
@@ -83,8 +83,10 @@ gpu_struct! {
         pub first_point: u32 = "u32",
         /// Image row of the target's first film row (images split in bands); 0 for probes.
         pub first_row: u32 = "u32",
+        /// e, 2^e bounding every sample: sums in quanta of 2^(e − 54), squares of 2^(2e − 54).
+        pub value_exponent: i32 = "i32",
         /// Padding to 16 bytes.
-        pub _pad: [u32; 3] = "array<u32, 3>",
+        pub _pad: [u32; 2] = "array<u32, 2>",
     }
 }
 
@@ -142,8 +144,9 @@ impl From<&Plane> for GpuPlane {
 
 impl FrameUniforms {
     /// The constants of an image of `settings` seen by `camera`, over a BVH of
-    /// `node_count` nodes and `plane_count` planes.
-    pub fn image(camera: &Camera, settings: &Settings, node_count: u32, plane_count: u32) -> Self {
+    /// `node_count` nodes and `plane_count` planes, its samples at most 2^`value_exponent`
+    /// in magnitude (`film::value_exponent`).
+    pub fn image(camera: &Camera, settings: &Settings, node_count: u32, plane_count: u32, value_exponent: i32) -> Self {
         let s = settings;
         let rg = camera.ray_gen(s.width, s.height);
         FrameUniforms {
@@ -164,12 +167,14 @@ impl FrameUniforms {
             replicate: s.replicate_samples(),
             first_point: 0,
             first_row: 0,
-            _pad: [0; 3],
+            value_exponent,
+            _pad: [0; 2],
         }
     }
 
     /// The constants of `points` probe points of `samples` samples each, spread over
-    /// `lanes` slots a point, with the sampling of `settings`.
+    /// `lanes` slots a point, with the sampling of `settings`, the samples at most
+    /// 2^`value_exponent` in magnitude.
     pub fn probes(
         settings: &Settings,
         lanes: u32,
@@ -177,6 +182,7 @@ impl FrameUniforms {
         samples: u32,
         node_count: u32,
         plane_count: u32,
+        value_exponent: i32,
     ) -> Self {
         FrameUniforms {
             eye: [0.0; 3],
@@ -196,7 +202,8 @@ impl FrameUniforms {
             replicate: settings.replicate_samples(),
             first_point: 0,
             first_row: 0,
-            _pad: [0; 3],
+            value_exponent,
+            _pad: [0; 2],
         }
     }
 }
@@ -227,6 +234,8 @@ pub fn constants() -> Vec<Constant> {
     vec![
         U32("INVALID_INDEX", INVALID_INDEX),
         U32("INACTIVE_SLOT", INACTIVE_SLOT_BITS),
+        U32("SAMPLE_FRACTION_BITS", SAMPLE_FRACTION_BITS as u32),
+        U32("OUT_OF_RANGE_HIGH", (OUT_OF_RANGE_BIT >> 32) as u32),
         U32("PRIM_TRIANGLE", PRIM_TRIANGLE),
         U32("PRIM_SPHERE", PRIM_SPHERE),
         U32("PRIM_INSTANCE", PRIM_INSTANCE),
@@ -336,14 +345,14 @@ pub const PLANES: Binding = Binding {
     dynamic_offset: false,
     doc: "the infinite planes (one zeroed element when there are none)",
 };
-/// The film: per slot (sum, compensation, sum of squares, compensation).
+/// The film: per slot, the block's Σv and Σv² as 64-bit integers in two words each.
 pub const FILM: Binding = Binding {
     index: 5,
     name: "film",
-    ty: "array<vec4f>",
+    ty: "array<vec4u>",
     access: Access::ReadWrite,
     dynamic_offset: false,
-    doc: "per pixel or probe lane: (sum, compensation, sum of squares, compensation)",
+    doc: "per pixel or probe lane: the block's sum (low, high word; two's complement) and sum of squares (low, high)",
 };
 /// The pass counters.
 pub const COUNTERS: Binding = Binding {

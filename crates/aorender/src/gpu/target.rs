@@ -39,7 +39,6 @@ pub struct PassCounters {
 /// The AO pipeline bound to the session's geometry and one image (or one set of probe
 /// points), with its film.
 pub struct GpuTarget {
-    dev: Arc<GpuDevice>,
     pipeline: wgpu::ComputePipeline,
     bind_group: wgpu::BindGroup,
     film: wgpu::Buffer,
@@ -74,8 +73,13 @@ pub struct GpuTarget {
     lose_device_after: Option<u32>,
     /// Pixels an adaptive render no longer samples (empty: none).
     pub(crate) inactive: Vec<bool>,
+    /// The bound 2^e of the samples, which sets the film's quanta (for `read_film`).
+    #[cfg(feature = "testing")]
+    value_exponent: i32,
     /// The scene's file, for messages.
     source: std::path::PathBuf,
+    /// The adapter: last, so that its device outlives the resources above.
+    dev: Arc<GpuDevice>,
 }
 
 impl GpuTarget {
@@ -163,6 +167,8 @@ impl GpuTarget {
         let ctx = &dev.ctx;
         let device = &ctx.device;
         let (width, height) = (frame.width, rows);
+        #[cfg(feature = "testing")]
+        let value_exponent = frame.value_exponent;
         let frame = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("frame"),
             contents: bytemuck::bytes_of(&frame),
@@ -301,7 +307,6 @@ impl GpuTarget {
         #[cfg(not(feature = "testing"))]
         let lose_device_after = None;
         Ok(GpuTarget {
-            dev: dev.clone(),
             pipeline: pipeline.pipeline,
             bind_group,
             film,
@@ -321,7 +326,10 @@ impl GpuTarget {
             passes_run: 0,
             lose_device_after,
             inactive: Vec::new(),
+            #[cfg(feature = "testing")]
+            value_exponent,
             source: scene.source.clone(),
+            dev: dev.clone(),
         })
     }
 
@@ -435,23 +443,23 @@ impl GpuTarget {
         Ok((PassCounters { ao_rays: words[COUNTER_AO_RAYS as usize] as u64, gpu_seconds }, truncated))
     }
 
-    /// The film as per-slot f64 sums (each compensated pair added in f64), labelled as
+    /// The film as per-slot f64 sums (its integers scaled by their quanta), labelled as
     /// holding `samples` samples.
     #[cfg(feature = "testing")]
     pub fn read_film(&self, samples: u64) -> Result<crate::film::Film> {
         let mut film = crate::film::Film::new(self.width, self.height);
         film.samples = samples;
-        for (i, t) in self.film_words()?.iter().enumerate() {
-            film.sum[i] = t[0] as f64 + t[1] as f64;
-            film.sum_sq[i] = t[2] as f64 + t[3] as f64;
+        let block = crate::film::BlockSums::from_words(&self.film_words()?);
+        for i in 0..block.len() {
+            (film.sum[i], film.sum_sq[i]) = block.slot(i, self.value_exponent);
         }
         Ok(film)
     }
 
-    /// The film's raw words, one `[Σv, compensation, Σv², compensation]` per slot, as
-    /// the kernel left them: with [`GpuTarget::set_film_words`], a render can stop and
-    /// go on later from the same bits.
-    pub fn film_words(&self) -> Result<Vec<[f32; 4]>> {
+    /// The film's raw words, one `[Σv low, Σv high, Σv² low, Σv² high]` per slot
+    /// ([`crate::film::BlockSums::from_words`]), as the kernel left them: with
+    /// [`GpuTarget::set_film_words`], a render can stop and go on later from the same bits.
+    pub fn film_words(&self) -> Result<Vec<[u32; 4]>> {
         let ctx = &self.dev.ctx;
         let mut encoder =
             ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("film words") });
@@ -461,14 +469,14 @@ impl GpuTarget {
     }
 
     /// This target's film as last copied to the readback buffer (which may be larger).
-    fn read_film_readback(&self) -> Result<Vec<[f32; 4]>> {
-        let mut words: Vec<[f32; 4]> = self.dev.ctx.read(&self.film_readback)?;
+    fn read_film_readback(&self) -> Result<Vec<[u32; 4]>> {
+        let mut words: Vec<[u32; 4]> = self.dev.ctx.read(&self.film_readback)?;
         words.truncate(self.slots());
         Ok(words)
     }
 
     /// Replaces the film with `words` (as [`GpuTarget::film_words`] returned them).
-    pub fn set_film_words(&mut self, words: &[[f32; 4]]) -> Result<()> {
+    pub fn set_film_words(&mut self, words: &[[u32; 4]]) -> Result<()> {
         let slots = self.slots();
         if words.len() != slots {
             return Err(Error::Gpu(format!("{} film slots given for a film of {slots}", words.len())));
@@ -482,14 +490,14 @@ impl GpuTarget {
     /// Marks the slots of the inactive pixels in the film (`words`: its current words, or
     /// `None` for a cleared film), so that the kernel skips them; nothing to do when every
     /// pixel is active.
-    pub fn mark_inactive(&mut self, words: Option<&[[f32; 4]]>) -> Result<()> {
+    pub fn mark_inactive(&mut self, words: Option<&[[u32; 4]]>) -> Result<()> {
         if !self.inactive.iter().any(|&x| x) {
             return Ok(());
         }
-        let mut marked = words.map_or_else(|| vec![[0.0f32; 4]; self.slots()], <[_]>::to_vec);
+        let mut marked = words.map_or_else(|| vec![[0u32; 4]; self.slots()], <[_]>::to_vec);
         for (w, &off) in marked.iter_mut().zip(&self.inactive) {
             if off {
-                *w = [0.0, 0.0, 0.0, f32::from_bits(INACTIVE_SLOT_BITS)];
+                *w = [0, 0, 0, INACTIVE_SLOT_BITS];
             }
         }
         self.set_film_words(&marked)
@@ -551,7 +559,7 @@ pub(crate) fn probe_points_per_target(dev: &GpuDevice, slots_per_point: u32) -> 
     let limits = dev.ctx.device.limits();
     let binding = limits.max_storage_buffer_binding_size.min(limits.max_buffer_size);
     let point_bytes = std::mem::size_of::<GpuProbePoint>() as u64;
-    // A film slot is four f32 words (the sum, its compensation, the sum of squares, its).
+    // A film slot is four u32 words: the sum and the sum of squares, 64 bits each.
     let slot_bytes = 16 * u64::from(slots_per_point.max(1));
     let n = (binding / point_bytes).min(binding / slot_bytes).min(u64::from(u32::MAX)) as usize;
     match PROBE_POINTS_PER_TARGET.load(Ordering::Relaxed) {
@@ -564,7 +572,7 @@ pub(crate) fn probe_points_per_target(dev: &GpuDevice, slots_per_point: u32) -> 
 /// smaller cap), in whole workgroup rows, so that every band's workgroups are those of the
 /// unsplit image and render its pixels bit for bit.
 pub fn image_rows_per_target(dev: &GpuDevice, width: u32) -> u32 {
-    // A film slot is four f32 words: the sum, its compensation, the sum of squares, its.
+    // A film slot is four u32 words: the sum and the sum of squares, 64 bits each.
     let row_bytes = 16 * u64::from(width.max(1));
     let rows = dev.ctx.max_film_bytes() / row_bytes;
     let rows = rows / u64::from(WORKGROUP_SIZE[1]) * u64::from(WORKGROUP_SIZE[1]);

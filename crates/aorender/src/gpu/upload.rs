@@ -3,7 +3,7 @@
 //! most one binding each; and the planes. Requests bind them as they are.
 
 use super::context::GpuContext;
-use super::layout::{GpuPlane, OTHER_STORAGE_BINDINGS, node_binding, primitive_binding};
+use super::layout::{GpuPlane, node_binding, primitive_binding};
 use super::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE, Traversal};
 use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
@@ -167,7 +167,6 @@ fn geometry_chunks(
 ) -> Result<GeometryChunks> {
     let node_size = layout.node_size();
     let prim_size = std::mem::size_of::<GpuPrimitive>();
-    let limits = ctx.device.limits();
     // Texels in a texture row (0 for buffers), and the bytes one binding holds at most.
     let (row_texels, chunk_bytes) = match storage {
         GeometryStorage::Buffers => (0, ctx.max_chunk_bytes()),
@@ -194,23 +193,20 @@ fn geometry_chunks(
         primitives_per_chunk,
         row_texels,
     };
-    let (allowed, limit_name) = match storage {
-        GeometryStorage::Buffers => (
-            limits.max_storage_buffers_per_shader_stage.saturating_sub(OTHER_STORAGE_BINDINGS),
-            "max_storage_buffers_per_shader_stage (less the kernel's other bindings) \
-             × max_storage_buffer_binding_size",
-        ),
-        GeometryStorage::Textures => (
-            limits.max_storage_textures_per_shader_stage,
-            "max_storage_textures_per_shader_stage × the texels of a texture (max_texture_dimension_2d²)",
-        ),
-    };
+    let (allowed, limit_name) = ctx.geometry_bindings(storage);
+    let needed = (nodes * node_size + primitives * prim_size) as u64;
     if chunks.node_chunks + chunks.primitive_chunks > allowed {
+        let limit = allowed as u64 * chunk_bytes;
+        return Err(Error::TooLarge { what: "the BVH nodes and primitives", needed, limit, limit_name });
+    }
+    let per_kind = ctx.geometry_chunks_per_kind();
+    if chunks.node_chunks.max(chunks.primitive_chunks) > per_kind {
         return Err(Error::TooLarge {
             what: "the BVH nodes and primitives",
-            needed: (nodes * node_size + primitives * prim_size) as u64,
-            limit: allowed as u64 * chunk_bytes,
-            limit_name,
+            needed,
+            limit: 2 * per_kind as u64 * chunk_bytes,
+            limit_name: "max_bindings_per_bind_group (chunk k of the nodes and of the primitives binds at 2k + 6 \
+                         and 2k + 7) × the bytes of a chunk",
         });
     }
     Ok(chunks)

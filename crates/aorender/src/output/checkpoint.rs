@@ -3,13 +3,13 @@
 //! written atomically.
 //!
 //! An accumulation holds the exact fixed-point sums of the finished 256-sample blocks
-//! ([`ExactSums`], see [`BLOCK_SAMPLES`]) and the device's own sums of the block in
-//! progress (the GPU film's f32 words or the CPU reference's f64 sums). Loading it back
-//! into the same device continues the render from the same bits; adding the exact sums of
+//! ([`ExactSums`], see [`BLOCK_SAMPLES`]) and the device's sums of the block in progress
+//! ([`BlockSums`]: 64-bit integers, the same on every device for the same samples).
+//! Loading it back continues the render from the same bits; adding the exact sums of
 //! accumulations of disjoint sample ranges (`accumulation::merge`) is exact integer
 //! addition.
 //!
-//! File layout (version 2; version 1 is read too), every number little-endian:
+//! File layout (version 3; versions 1 and 2 are read too), every number little-endian:
 //!
 //! | bytes | field |
 //! |---|---|
@@ -28,7 +28,7 @@
 //! | 32 × pixels | exact sums: Σv for every pixel, then Σv² (i128) |
 //! | 16 × groups | Σ of the squares of complete replicates' sums, per group (i128) |
 //! | 9 × pixels | with the per-pixel flag (an adaptive render): each pixel's samples, then its complete replicates (u32), then whether it is no longer sampled (u8, 0 or 1) |
-//! | 16 × pixels | block in progress, when present: GPU, 4 × f32 per pixel; CPU, Σv then Σv² (f64) |
+//! | 16 × pixels | block in progress, when present: Σv (i64) for every pixel, then Σv² (u64), in the quanta of [`BlockSums`] |
 //! | 32 | BLAKE3 hash of every byte before it |
 //!
 //! The reader checks the magic, the version and every field's range, computes the file's
@@ -49,14 +49,18 @@
 //! | film layout | 0 image, 1 probes, 2 probes with bent normals |
 //!
 //! A version 1 file has none of the replicate fields: it is an image whose samples are
-//! one replicate (independent ones: replicates of one sample each).
+//! one replicate (independent ones: replicates of one sample each). Versions 1 and 2
+//! hold the block in progress as the device's floats (GPU: Σv, its Neumaier
+//! compensation, Σv², its compensation, 4 × f32 per pixel; CPU: Σv then Σv², f64): each
+//! pair is added in f64 and rounded to the nearest quantum of a block's integers when
+//! read.
 
 use super::policy::write_output_with;
 use crate::accumulation::{Accumulation, FilmLayout, SampleSettings};
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::DeviceKind;
 use crate::error::{Error, Result};
-use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums};
+use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, OUT_OF_RANGE_BIT};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::ReadLimits;
@@ -66,8 +70,8 @@ use std::path::Path;
 
 /// The first bytes of a checkpoint file.
 pub const MAGIC: [u8; 8] = *b"AOCKPT\r\n";
-/// The format version this build writes and reads.
-pub const VERSION: u32 = 2;
+/// The format version this build writes (it reads 1 and 2 as well).
+pub const VERSION: u32 = 3;
 /// The most film slots a checkpoint holds: those of the largest image, 16384 × 16384.
 const MAX_SLOTS: u64 = 16384 * 16384;
 /// Longest adapter name stored.
@@ -245,19 +249,14 @@ impl Accumulation {
                 flush(w, &mut buf, false)?;
             }
         }
-        match &self.partial {
-            None => {}
-            Some(BlockSums::Gpu(words)) => {
-                for f in words.iter().flatten() {
-                    buf.extend_from_slice(&f.to_le_bytes());
-                    flush(w, &mut buf, false)?;
-                }
+        if let Some(block) = &self.partial {
+            for v in &block.sum {
+                buf.extend_from_slice(&v.to_le_bytes());
+                flush(w, &mut buf, false)?;
             }
-            Some(BlockSums::Cpu { sum, sum_sq }) => {
-                for f in sum.iter().chain(sum_sq) {
-                    buf.extend_from_slice(&f.to_le_bytes());
-                    flush(w, &mut buf, false)?;
-                }
+            for v in &block.sum_sq {
+                buf.extend_from_slice(&v.to_le_bytes());
+                flush(w, &mut buf, false)?;
             }
         }
         flush(w, &mut buf, true)
@@ -291,11 +290,7 @@ impl Accumulation {
     /// The bytes of memory the sums of a read checkpoint hold.
     pub fn memory_bytes(&self) -> u64 {
         let e = &self.exact;
-        let partial = match &self.partial {
-            Some(BlockSums::Gpu(v)) => vec_bytes(v),
-            Some(BlockSums::Cpu { sum, sum_sq }) => vec_bytes(sum) + vec_bytes(sum_sq),
-            None => 0,
-        };
+        let partial = self.partial.as_ref().map_or(0, |b| vec_bytes(&b.sum) + vec_bytes(&b.sum_sq));
         vec_bytes(&e.sum)
             + vec_bytes(&e.sum_sq)
             + vec_bytes(&e.replicate_sq)
@@ -324,9 +319,9 @@ impl Accumulation {
         }
         r.at = MAGIC.len();
         let version = r.u32()?;
-        if version != VERSION && version != 1 {
+        if !(1..=VERSION).contains(&version) {
             return Err(
-                format!("checkpoint format version {version}; this aorender reads versions 1 and {VERSION}").into()
+                format!("checkpoint format version {version}; this aorender reads versions 1 to {VERSION}").into()
             );
         }
         let scene_hash: [u8; 32] = r.take(32)?.try_into().expect("32 bytes");
@@ -455,18 +450,34 @@ impl Accumulation {
             pixel_replicates,
             stopped,
         };
-        let partial = if has_partial == 0 {
-            None
-        } else {
-            Some(match device {
-                DeviceKind::Gpu => BlockSums::Gpu(body.read_vec(n, 16, |c| {
-                    std::array::from_fn(|k| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes")))
-                })?),
-                DeviceKind::Cpu => {
-                    let f = |c: &[u8]| f64::from_le_bytes(c.try_into().expect("8 bytes"));
-                    BlockSums::Cpu { sum: body.read_vec(n, 8, f)?, sum_sq: body.read_vec(n, 8, f)? }
+        let partial = match (has_partial, version) {
+            (0, _) => None,
+            (_, 3..) => {
+                let sum = body.read_vec(n, 8, |c| i64::from_le_bytes(c.try_into().expect("8 bytes")))?;
+                let sum_sq = body.read_vec(n, 8, |c| u64::from_le_bytes(c.try_into().expect("8 bytes")))?;
+                if sum_sq.iter().any(|&q| q & OUT_OF_RANGE_BIT != 0) {
+                    return Err("a sum of samples in the block in progress is out of range".into());
                 }
-            })
+                Some(BlockSums { sum, sum_sq })
+            }
+            // The device's floats of versions 1 and 2, rounded to the block's quanta.
+            _ => {
+                let e = exact.value_exponent();
+                let floats: Vec<(f64, f64)> = match device {
+                    DeviceKind::Gpu => body.read_vec(n, 16, |c| {
+                        let f = |k: usize| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes")) as f64;
+                        (f(0) + f(1), f(2) + f(3))
+                    })?,
+                    DeviceKind::Cpu => {
+                        let f = |c: &[u8]| f64::from_le_bytes(c.try_into().expect("8 bytes"));
+                        let (sum, sum_sq) = (body.read_vec(n, 8, f)?, body.read_vec(n, 8, f)?);
+                        sum.into_iter().zip(sum_sq).collect()
+                    }
+                };
+                let block = BlockSums::from_floats(floats.into_iter(), e)
+                    .map_err(|e| Invalid(format!("the block in progress: {e}")))?;
+                Some(block)
+            }
         };
         let computed = body.hasher.finalize();
         let mut hash = [0u8; 32];

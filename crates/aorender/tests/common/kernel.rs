@@ -37,9 +37,10 @@ pub fn validate(name: &str, source: &str) -> naga::Module {
 /// A test kernel's pipelines on the default adapter.
 pub struct TestKernel {
     name: &'static str,
-    ctx: GpuContext,
     layout: wgpu::BindGroupLayout,
     pipelines: Vec<(&'static str, wgpu::ComputePipeline)>,
+    /// Last: the device outlives what was made on it.
+    ctx: GpuContext,
 }
 
 impl TestKernel {
@@ -86,7 +87,7 @@ impl TestKernel {
         if let Some(e) = pollster::block_on(scope.pop()) {
             panic!("{name} does not build: {e}");
         }
-        TestKernel { name, ctx, layout, pipelines }
+        TestKernel { name, layout, pipelines, ctx }
     }
 
     /// Runs `entry` over `count` invocations with `params` and the storage `inputs`, and

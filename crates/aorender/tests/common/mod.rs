@@ -179,9 +179,15 @@ pub fn gpu_image(
     let storage = storage.unwrap_or_else(|| dev.ctx.preferred_storage());
     let gs = GpuScene::upload(&dev.ctx, scene, bvh, storage, None)?;
     let s = &scene.settings;
-    let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count);
+    let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count, value_exponent_of(scene));
     let target = GpuTarget::image(dev, &gs, frame, s.sampler, s.hemisphere)?;
     Ok((gs, target))
+}
+
+/// The bound 2^e of the samples of an image of `scene` (its albedos and background), as
+/// a session sets it: e.
+pub fn value_exponent_of(scene: &Scene) -> i32 {
+    aorender::film::value_exponent(aorender::accumulation::max_sample_value(scene, scene.settings.background))
 }
 
 /// A scene from TOML text; mesh paths resolve against `dir`.
@@ -227,7 +233,11 @@ pub fn write_obj(path: &std::path::Path, triangles: &[[[f32; 3]; 3]]) {
 /// Independent renders agree: the image means within 4 standard errors, and the
 /// per-pixel z-scores have mean square within 4 of its own standard errors of the value
 /// expected for two estimates whose variances are themselves estimated from n samples.
-pub fn assert_statistical_agreement(gpu: &Film, cpu: &Film, what: &str) {
+/// A pixel whose samples were all the same on both sides (no spread: an open or a closed
+/// pixel under cosine sampling) has no z-score: its two means, samples of magnitude at
+/// most `max_value`, must lie within each other's bounded-value 95 % intervals
+/// ([`aorender::interval_95`]: equal means always do).
+pub fn assert_statistical_agreement(gpu: &Film, cpu: &Film, max_value: f64, what: &str) {
     let (mg, mc) = (gpu.image_mean(), cpu.image_mean());
     let (sg, sc) = (image_mean_std_error(gpu), image_mean_std_error(cpu));
     let sigma = (sg * sg + sc * sc).sqrt();
@@ -240,10 +250,28 @@ pub fn assert_statistical_agreement(gpu: &Film, cpu: &Film, what: &str) {
 
     let (a, b) = (gpu.mean(), cpu.mean());
     let (ea, eb) = (gpu.std_error(), cpu.std_error());
-    let z2: Vec<f64> = (0..a.len())
-        .filter(|&i| ea[i] > 0.0 || eb[i] > 0.0 || a[i] != b[i])
-        .map(|i| (a[i] - b[i]).powi(2) / (ea[i] * ea[i] + eb[i] * eb[i]))
-        .collect();
+    // What interval_95 takes for no spread at all.
+    let flat = |e: f64| e <= 1e-9 * max_value;
+    let mut z2 = Vec::new();
+    let mut both_flat = 0;
+    for i in 0..a.len() {
+        if flat(ea[i]) && flat(eb[i]) {
+            both_flat += 1;
+            let interval = |film: &Film, mean: f64| {
+                let n = film.samples_of(i);
+                aorender::interval_95(mean, 0.0, n.saturating_sub(1), n, max_value)
+            };
+            let ((la, ha), (lb, hb)) = (interval(gpu, a[i]), interval(cpu, b[i]));
+            assert!(
+                la <= b[i] && b[i] <= ha && lb <= a[i] && a[i] <= hb,
+                "{what}: pixel {i}, no spread on either side: {} ([{la}, {ha}]) and {} ([{lb}, {hb}])",
+                a[i],
+                b[i]
+            );
+            continue;
+        }
+        z2.push((a[i] - b[i]).powi(2) / (ea[i] * ea[i] + eb[i] * eb[i]));
+    }
     assert!(z2.len() > 100, "{what}: only {} pixels vary", z2.len());
     let m = z2.iter().sum::<f64>() / z2.len() as f64;
     let sd = (z2.iter().map(|z| (z - m).powi(2)).sum::<f64>() / (z2.len() - 1) as f64).sqrt();
@@ -251,7 +279,11 @@ pub fn assert_statistical_agreement(gpu: &Film, cpu: &Film, what: &str) {
     // A t-distributed z with ν = 2(n - 1) degrees of freedom has E[z²] = ν/(ν - 2).
     let nu = 2.0 * (gpu.samples as f64 - 1.0);
     let expected = nu / (nu - 2.0);
-    eprintln!("{what}: mean {mg:.5} vs {mc:.5} (σ {sigma:.2e}); mean z² {m:.3} ± {se:.3} over {} pixels", z2.len());
+    eprintln!(
+        "{what}: mean {mg:.5} vs {mc:.5} (σ {sigma:.2e}); mean z² {m:.3} ± {se:.3} over {} pixels ({both_flat} without \
+         spread on either side)",
+        z2.len()
+    );
     assert!((m - expected).abs() <= 4.0 * se, "{what}: mean z² {m} is not {expected} ± 4·{se}");
 }
 
