@@ -241,10 +241,12 @@ fn a_ply_header_claiming_2_31_vertices_over_an_endless_body_is_refused_before_re
     );
 }
 
-/// `head`, then `count` bytes `byte`, gzipped into `path` a megabyte at a time.
+/// `head`, then `count` bytes `byte`, gzipped into `path` a megabyte at a time (at the
+/// default level, whose lazy matching keeps a run near DEFLATE's limit of 1032:1 whatever
+/// the backend).
 fn gzip_bomb(path: &Path, head: &[u8], byte: u8, count: usize) {
     let file = std::fs::File::create(path).unwrap();
-    let mut encoder = flate2::write::GzEncoder::new(std::io::BufWriter::new(file), flate2::Compression::fast());
+    let mut encoder = flate2::write::GzEncoder::new(std::io::BufWriter::new(file), flate2::Compression::default());
     encoder.write_all(head).unwrap();
     let chunk = vec![byte; 1 << 20];
     for _ in 0..count / chunk.len() {

@@ -14,6 +14,7 @@ pub(crate) mod mesh;
 pub(crate) mod meshes;
 pub(crate) mod obj;
 pub(crate) mod ply;
+mod ply_data;
 mod types;
 
 pub use crate::geometry::Plane;
@@ -32,3 +33,5 @@ pub use types::{
 
 #[cfg(feature = "testing")]
 pub use meshes::load_mesh;
+#[cfg(feature = "testing")]
+pub use ply::read_ply_mesh;

@@ -5,13 +5,15 @@
 //! A header line that starts with none of the header's keywords (free text some writers
 //! put in without `comment`) is skipped with a warning.
 //!
-//! The header is read here ([`read_header`], shared with the bake), the elements one at a
-//! time by the crate; this module owns the storage, so the counts in the header never
+//! The header is read here ([`read_header`], shared with the bake), the vertices and faces
+//! in bulk where their layout allows ([`super::ply_data`]), other elements one at a time by
+//! the crate; this module owns the storage, so the counts in the header never
 //! size an allocation beyond what the rest of the file could hold (see
 //! [`Input::remaining_bound`]).
 
 use super::input::{Input, Meter, UTF8_BOM, make_room, one_line};
 use super::mesh::{IndexedMesh, VertexNames};
+use super::ply_data::{Keep, LIST_ITEM_BYTES, Layout, ascii_axes, ascii_indices, read_binary};
 pub(crate) use super::types::non_finite_coordinate;
 use crate::error::{Error, Result};
 use glam::Vec3;
@@ -166,19 +168,17 @@ fn reserve<T>(path: &Path, v: &mut Vec<T>, n: usize, meter: &mut Meter, what: &s
     v.try_reserve_exact(n).map_err(|_| out_of_memory(path, n, what))
 }
 
-/// Bytes of memory a list item may take while its element is read: the crate's own vector
-/// of the file's type, then this loader's of `i64`.
-const LIST_ITEM_BYTES: u64 = 8 + 8;
-
 /// Reads the `def.count` elements of `def`, passing each with its number to `each`. An
 /// element's lists may take at most what is left of `meter`'s budget: a binary element is
-/// cut off there (an ASCII one is a line, at most the longest line).
+/// cut off there (an ASCII one is a line, at most the longest line). An ASCII line is read
+/// by `fast` where it can (`None`: by the crate, which also says what is wrong with it).
 fn read_elements<E: PropertyAccess>(
     path: &Path,
     input: &mut Input,
     encoding: Encoding,
     def: &ElementDef,
     meter: &mut Meter,
+    mut fast: impl FnMut(&[u8]) -> Option<E>,
     mut each: impl FnMut(usize, E, &mut Meter) -> Result<()>,
 ) -> Result<()> {
     if encoding != Encoding::Ascii && def.properties.is_empty() {
@@ -198,12 +198,15 @@ fn read_elements<E: PropertyAccess>(
                 line.clear();
                 match input.read_line(&mut line) {
                     Ok(0) => Err(ParseError::from(std::io::Error::from(ErrorKind::UnexpectedEof))),
-                    Ok(_) => match std::str::from_utf8(&line) {
-                        Ok(text) => parser.read_ascii_element(text, def),
-                        Err(_) => Err(ParseError::from(std::io::Error::new(
-                            ErrorKind::InvalidData,
-                            "stream did not contain valid UTF-8",
-                        ))),
+                    Ok(_) => match fast(&line) {
+                        Some(element) => Ok(element),
+                        None => match std::str::from_utf8(&line) {
+                            Ok(text) => parser.read_ascii_element(text, def),
+                            Err(_) => Err(ParseError::from(std::io::Error::new(
+                                ErrorKind::InvalidData,
+                                "stream did not contain valid UTF-8",
+                            ))),
+                        },
                     },
                     Err(e) => Err(ParseError::from(e)),
                 }
@@ -502,6 +505,20 @@ pub(crate) fn index_list_name(path: &Path, face: &ElementDef) -> Result<String> 
 /// Reads a PLY file (`.ply` or `.ply.gz`) within `meter`'s budget. Vertices and faces are
 /// numbered from 0, as the faces' indices count them.
 pub(crate) fn load_ply(path: &Path, meter: &mut Meter) -> Result<IndexedMesh> {
+    read_ply(path, meter, true)
+}
+
+/// The vertices and triangles of a PLY file within `limits`: through the bulk readers
+/// (`bulk`), or with the element-at-a-time reader alone, the reference they are compared
+/// with.
+#[cfg(feature = "testing")]
+pub fn read_ply_mesh(path: &Path, limits: &super::ReadLimits, bulk: bool) -> Result<(Vec<Vec3>, Vec<[u32; 3]>)> {
+    let mesh = read_ply(path, &mut Meter::new(limits, "the mesh"), bulk)?;
+    Ok((mesh.positions, mesh.triangles))
+}
+
+/// [`load_ply`], through the bulk readers where `fast` is set.
+fn read_ply(path: &Path, meter: &mut Meter, fast: bool) -> Result<IndexedMesh> {
     let mut input = Input::open(path, meter.limits())?;
     let header = read_header(path, &mut input)?;
     let encoding = header.encoding;
@@ -543,55 +560,127 @@ pub(crate) fn load_ply(path: &Path, meter: &mut Meter) -> Result<IndexedMesh> {
             "vertex" => {
                 let n = capacity(def, &input, encoding, None, meter, 12);
                 reserve(path, &mut mesh.positions, n, meter, "vertices")?;
-                read_elements(path, &mut input, encoding, def, meter, |i, v: PlyVertex, meter| {
-                    let p = Vec3::from(v.p);
-                    if let Some(c) = non_finite_coordinate(p) {
-                        return Err(Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})")));
-                    }
-                    make_room(&mut mesh.positions, meter, path)?;
-                    mesh.positions.push(p);
-                    Ok(())
-                })?;
+                let positions = &mut mesh.positions;
+                match Layout::new(def, encoding, Keep::Axes).filter(|_| fast) {
+                    Some(layout) if encoding == Encoding::Ascii => read_elements(
+                        path,
+                        &mut input,
+                        encoding,
+                        def,
+                        meter,
+                        |line| ascii_axes(&layout, line).map(|p| PlyVertex { p }),
+                        |i, v: PlyVertex, meter| push_vertex(path, positions, i, v.p, meter),
+                    )?,
+                    Some(layout) => read_binary(path, &mut input, def, &layout, meter, |i, element, meter| {
+                        push_vertex(path, positions, i, layout.axes_of(element), meter)
+                    })?,
+                    None => read_elements(
+                        path,
+                        &mut input,
+                        encoding,
+                        def,
+                        meter,
+                        |_| None,
+                        |i, v: PlyVertex, meter| push_vertex(path, positions, i, v.p, meter),
+                    )?,
+                }
             }
             "face" => {
                 let n = capacity(def, &input, encoding, Some(&index_list), meter, 12);
                 reserve(path, &mut mesh.triangles, n, meter, "triangles")?;
-                read_elements(path, &mut input, encoding, def, meter, |i, f: PlyFace, meter| {
-                    let n = f.indices.len();
-                    if n < 3 {
-                        return Err(Error::scene(path, format!("face {i} has {n} vertices; a face needs at least 3")));
-                    }
-                    let mut index = [0u32; 3];
-                    for (slot, &v) in f.indices.iter().enumerate() {
-                        let valid = usize::try_from(v).ok().filter(|&v| v < vertex_count);
-                        let Some(v) = valid.and_then(|v| u32::try_from(v).ok()) else {
-                            return Err(Error::scene(
-                                path,
-                                format!(
-                                    "face {i}: vertex index {v} is out of range (the file has {vertex_count} vertices)"
-                                ),
-                            ));
-                        };
-                        // A fan: (v0, v1, v2), (v0, v2, v3), ...
-                        match slot {
-                            0 | 1 => index[slot] = v,
-                            _ => {
-                                index[2] = v;
-                                make_room(&mut mesh.triangles, meter, path)?;
-                                mesh.triangles.push(index);
-                                index[1] = v;
-                            }
-                        }
-                    }
-                    Ok(())
-                })?;
+                let triangles = &mut mesh.triangles;
+                let keep = Keep::IndexList(&index_list, &INDEX_LISTS);
+                let push = |triangles: &mut Vec<[u32; 3]>, i, f: PlyFace, meter: &mut Meter| {
+                    push_face(path, triangles, vertex_count, i, f.indices.len(), |k| f.indices[k], meter)
+                };
+                match Layout::new(def, encoding, keep).filter(|_| fast) {
+                    Some(layout) if encoding == Encoding::Ascii => read_elements(
+                        path,
+                        &mut input,
+                        encoding,
+                        def,
+                        meter,
+                        |line| {
+                            let mut indices = Vec::with_capacity(3);
+                            ascii_indices(&layout, line, &mut indices).then_some(PlyFace { indices })
+                        },
+                        |i, f, meter| push(triangles, i, f, meter),
+                    )?,
+                    Some(layout) => read_binary(path, &mut input, def, &layout, meter, |i, element, meter| {
+                        let count = layout.index_count(element);
+                        push_face(path, triangles, vertex_count, i, count, |k| layout.index(element, k), meter)
+                    })?,
+                    None => read_elements(
+                        path,
+                        &mut input,
+                        encoding,
+                        def,
+                        meter,
+                        |_| None,
+                        |i, f, meter| push(triangles, i, f, meter),
+                    )?,
+                }
             }
             _ if skip_elements(path, &mut input, encoding, def)? => {}
-            _ => read_elements(path, &mut input, encoding, def, meter, |_, _: Skipped, _| Ok(()))?,
+            _ => match Layout::new(def, encoding, Keep::Nothing).filter(|_| fast && encoding != Encoding::Ascii) {
+                Some(layout) => read_binary(path, &mut input, def, &layout, meter, |_, _, _| Ok(()))?,
+                None => read_elements(path, &mut input, encoding, def, meter, |_| None, |_, _: Skipped, _| Ok(()))?,
+            },
         }
     }
     check_end(path, &mut input, encoding)?;
     Ok(mesh)
+}
+
+/// Appends vertex `i` at `p`, refused when a coordinate is not finite.
+#[inline]
+fn push_vertex(path: &Path, positions: &mut Vec<Vec3>, i: usize, p: [f32; 3], meter: &mut Meter) -> Result<()> {
+    let p = Vec3::from(p);
+    if let Some(c) = non_finite_coordinate(p) {
+        return Err(Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})")));
+    }
+    make_room(positions, meter, path)?;
+    positions.push(p);
+    Ok(())
+}
+
+/// Appends face `i`, its `n` vertex indices given by `index`, as a triangle fan; refused
+/// when it has fewer than 3 vertices or an index out of range.
+#[inline]
+fn push_face(
+    path: &Path,
+    triangles: &mut Vec<[u32; 3]>,
+    vertex_count: usize,
+    i: usize,
+    n: usize,
+    index: impl Fn(usize) -> i64,
+    meter: &mut Meter,
+) -> Result<()> {
+    if n < 3 {
+        return Err(Error::scene(path, format!("face {i} has {n} vertices; a face needs at least 3")));
+    }
+    let mut corners = [0u32; 3];
+    for slot in 0..n {
+        let v = index(slot);
+        let valid = usize::try_from(v).ok().filter(|&v| v < vertex_count);
+        let Some(v) = valid.and_then(|v| u32::try_from(v).ok()) else {
+            return Err(Error::scene(
+                path,
+                format!("face {i}: vertex index {v} is out of range (the file has {vertex_count} vertices)"),
+            ));
+        };
+        // A fan: (v0, v1, v2), (v0, v2, v3), ...
+        match slot {
+            0 | 1 => corners[slot] = v,
+            _ => {
+                corners[2] = v;
+                make_room(triangles, meter, path)?;
+                triangles.push(corners);
+                corners[1] = v;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// After the last element only white space may follow in ascii, nothing in binary: more

@@ -1,0 +1,352 @@
+//! The bulk PLY readers against the element-at-a-time reader they replace: the same
+//! vertices and triangles, bit for bit, on the shipped dragons, the test corpus and the
+//! dragon written in other layouts (binary of either byte order, doubles, lists before and
+//! after the index list, skipped elements with lists); the same error, word for word, on
+//! truncated, lying, over-budget and endless input.
+
+use aorender::scene::{ReadLimits, read_ply_mesh};
+use glam::Vec3;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+type Mesh = (Vec<Vec3>, Vec<[u32; 3]>);
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// Both readers' results for `path`, checked to agree: equal meshes (positions compared
+/// as bits) or equal messages.
+fn agree(path: &Path, limits: &ReadLimits) -> Result<Mesh, String> {
+    let reference = read_ply_mesh(path, limits, false).map_err(|e| e.to_string());
+    let bulk = read_ply_mesh(path, limits, true).map_err(|e| e.to_string());
+    type Bits = Result<(Vec<[u32; 3]>, Vec<[u32; 3]>), String>;
+    let bits = |r: &Result<Mesh, String>| -> Bits {
+        r.clone().map(|(p, t)| (p.iter().map(|v| v.to_array().map(f32::to_bits)).collect(), t))
+    };
+    assert_eq!(bits(&bulk), bits(&reference), "{}", path.display());
+    bulk
+}
+
+/// How a test file lays the dragon out.
+#[derive(Clone, Copy, Debug)]
+enum Layout {
+    /// `float x y z`, `list uchar int vertex_indices`, as most writers do.
+    Plain,
+    /// Doubles, a colour between the coordinates, a list after them, a flag and two lists
+    /// in each face, and skipped elements of scalars and of lists.
+    Rich,
+}
+
+/// The dragon's `mesh` written as PLY in `format` ("ascii", "binary_little_endian",
+/// "binary_big_endian") and `layout`.
+fn write_ply(mesh: &Mesh, format: &str, layout: Layout) -> Vec<u8> {
+    let (positions, triangles) = mesh;
+    let (nv, nf) = (positions.len(), triangles.len());
+    let mut header = format!("ply\nformat {format} 1.0\ncomment bulk reader test\n");
+    match layout {
+        Layout::Plain => write!(
+            header,
+            "element vertex {nv}\nproperty float x\nproperty float y\nproperty float z\n\
+             element face {nf}\nproperty list uchar int vertex_indices\n"
+        ),
+        Layout::Rich => write!(
+            header,
+            "element vertex {nv}\nproperty double x\nproperty float y\nproperty uchar red\nproperty double z\n\
+             property list uchar float uv\nelement material 2\nproperty float shine\nproperty short id\n\
+             element face {nf}\nproperty uchar flags\nproperty list ushort uint vertex_index\n\
+             property list char float texcoord\nelement edge 3\nproperty list uint short ends\n"
+        ),
+    }
+    .unwrap();
+    header.push_str("end_header\n");
+    let mut out = header.into_bytes();
+    let ascii = format == "ascii";
+    let big = format == "binary_big_endian";
+    macro_rules! put {
+        ($v:expr, $fmt:literal) => {{
+            let v = $v;
+            if ascii {
+                write!(out, $fmt, v).unwrap();
+            } else if big {
+                out.extend_from_slice(&v.to_be_bytes());
+            } else {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }};
+    }
+    let end = |out: &mut Vec<u8>| {
+        if ascii {
+            out.push(b'\n');
+        }
+    };
+    for (k, p) in positions.iter().enumerate() {
+        match layout {
+            Layout::Plain => {
+                put!(p.x, "{} ");
+                put!(p.y, "{} ");
+                put!(p.z, "{}");
+            }
+            Layout::Rich => {
+                // Some values in exponent form, some doubles that are no f32.
+                put!(f64::from(p.x) + 1e-12, "{:e} ");
+                put!(p.y, "{}\t");
+                put!((k % 256) as u8, "{} ");
+                put!(f64::from(p.z), "{} ");
+                put!(2u8, "{} ");
+                put!(0.5f32, "{} ");
+                put!(-0.25f32, "{}");
+            }
+        }
+        end(&mut out);
+    }
+    if let Layout::Rich = layout {
+        for id in [7i16, -3] {
+            put!(1.5f32, "{} ");
+            put!(id, "{}");
+            end(&mut out);
+        }
+    }
+    for (k, t) in triangles.iter().enumerate() {
+        match layout {
+            Layout::Plain => {
+                put!(3u8, "{} ");
+                for &i in t {
+                    put!(i as i32, "{} ");
+                }
+            }
+            Layout::Rich => {
+                put!(1u8, "{} ");
+                // Every third face a quad of its triangle and the next one's first corner.
+                let quad = k % 3 == 0 && k + 1 < nf;
+                put!(if quad { 4u16 } else { 3 }, "{} ");
+                for &i in t {
+                    put!(i, "{} ");
+                }
+                if quad {
+                    put!(triangles[k + 1][0], "{} ");
+                }
+                put!(1i8, "{} ");
+                put!(0.75f32, "{}");
+            }
+        }
+        end(&mut out);
+    }
+    if let Layout::Rich = layout {
+        for e in 0..3u32 {
+            put!(2u32, "{} ");
+            put!(e as i16, "{} ");
+            put!(-(e as i16), "{}");
+            end(&mut out);
+        }
+    }
+    out
+}
+
+const FORMATS: [&str; 3] = ["ascii", "binary_little_endian", "binary_big_endian"];
+
+#[test]
+fn the_bulk_readers_give_the_reference_meshes_on_the_dragons_and_the_corpus() {
+    let limits = ReadLimits::with_memory(4 << 30);
+    let scenes = root().join("scenes");
+    for name in ["dragon_vrip.ply.gz", "dragon_vrip_res2.ply.gz", "dragon_vrip_res3.ply.gz", "dragon_vrip_res4.ply.gz"]
+    {
+        let mesh = agree(&scenes.join(name), &limits).unwrap_or_else(|e| panic!("{e}"));
+        assert!(mesh.1.len() > 10_000, "{name}: {} triangles", mesh.1.len());
+    }
+    let tests = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");
+    let mut corpus = 0;
+    for dir in ["malformed", "fuzz_regressions"] {
+        for entry in std::fs::read_dir(tests.join(dir)).unwrap() {
+            let path = entry.unwrap().path();
+            if path.to_string_lossy().contains(".ply") {
+                let _ = agree(&path, &limits);
+                corpus += 1;
+            }
+        }
+    }
+    assert!(corpus >= 15, "{corpus} PLY files in the corpus");
+}
+
+#[test]
+fn the_bulk_readers_give_the_reference_meshes_in_every_layout() {
+    let limits = ReadLimits::with_memory(4 << 30);
+    let dragon = agree(&root().join("scenes/dragon_vrip_res2.ply.gz"), &limits).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for format in FORMATS {
+        for layout in [Layout::Plain, Layout::Rich] {
+            let path = dir.path().join(format!("{format}-{layout:?}.ply"));
+            std::fs::write(&path, write_ply(&dragon, format, layout)).unwrap();
+            let mesh = agree(&path, &limits).unwrap_or_else(|e| panic!("{format} {layout:?}: {e}"));
+            let quads = match layout {
+                Layout::Plain => 0,
+                Layout::Rich => dragon.1.len().div_ceil(3) - usize::from(dragon.1.len() % 3 == 1),
+            };
+            assert_eq!(mesh.1.len(), dragon.1.len() + quads, "{format} {layout:?}");
+            // The plain layout keeps the f32 coordinates as they are.
+            if let Layout::Plain = layout {
+                assert_eq!(mesh, dragon, "{format}");
+            }
+        }
+    }
+}
+
+/// A small dragon in every format and layout, with its header's length.
+fn small_files() -> Vec<(String, Vec<u8>, usize)> {
+    let dragon = agree(&root().join("scenes/dragon_vrip_res4.ply.gz"), &ReadLimits::with_memory(1 << 30)).unwrap();
+    let mut files = Vec::new();
+    for format in FORMATS {
+        for layout in [Layout::Plain, Layout::Rich] {
+            let bytes = write_ply(&dragon, format, layout);
+            let header = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+            files.push((format!("{format}-{layout:?}"), bytes, header));
+        }
+    }
+    files
+}
+
+#[test]
+fn truncated_and_lying_files_fail_as_before() {
+    let limits = ReadLimits::with_memory(1 << 30);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cut.ply");
+    let mut failures = 0;
+    for (name, bytes, header) in small_files() {
+        // Cut anywhere in the data: in a value, between elements, in a list.
+        let data = bytes.len() - header;
+        for k in 0..=97 {
+            let end = header + data * k / 97 - usize::from(k > 0 && k < 97) * (k % 5);
+            std::fs::write(&path, &bytes[..end]).unwrap();
+            failures += usize::from(agree(&path, &limits).is_err());
+        }
+        // Counts that do not match the data, either way.
+        let text = String::from_utf8_lossy(&bytes[..header]).to_string();
+        let counts = |element: &str| {
+            let line = text.lines().find(|l| l.starts_with(&format!("element {element} "))).unwrap().to_string();
+            let n: usize = line.rsplit(' ').next().unwrap().parse().unwrap();
+            (line, n)
+        };
+        for element in ["vertex", "face"] {
+            let (line, n) = counts(element);
+            for lie in [n - 1, n + 1, n / 2, n * 3] {
+                let header = text.replace(&line, &format!("element {element} {lie}"));
+                std::fs::write(&path, [header.as_bytes(), &bytes[text.len()..]].concat()).unwrap();
+                let result = agree(&path, &limits);
+                assert!(result.is_err(), "{name}: {element} {lie} of {n} read");
+                failures += 1;
+            }
+        }
+        // Corrupt data: a coordinate that is not a number, an index past the end, a
+        // negative list count (in binary), a truncated gzip stream.
+        for (at, byte) in [(header + 2, 0xffu8), (bytes.len() - 30, 0x7f), (bytes.len() - 9, 0x80)] {
+            let mut bad = bytes.clone();
+            bad[at] = byte;
+            std::fs::write(&path, &bad).unwrap();
+            let _ = agree(&path, &limits);
+        }
+        let gz = dir.path().join("cut.ply.gz");
+        let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        encoder.write_all(&bytes).unwrap();
+        let compressed = encoder.finish().unwrap();
+        for end in [compressed.len() / 3, compressed.len() - 5] {
+            std::fs::write(&gz, &compressed[..end]).unwrap();
+            assert!(agree(&gz, &limits).is_err(), "{name}: a truncated gzip stream read");
+        }
+    }
+    assert!(failures > 6 * 97, "{failures} failures");
+}
+
+#[test]
+fn over_budget_files_fail_as_before() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("budget.ply");
+    for (name, bytes, _) in small_files() {
+        std::fs::write(&path, &bytes).unwrap();
+        let need = {
+            let (p, t) = agree(&path, &ReadLimits::with_memory(1 << 30)).unwrap();
+            (p.len() * 12 + t.len() * 12) as u64
+        };
+        // Budgets around what the mesh needs: refused at the header, while reading the
+        // vertices, the faces, or a face's lists; or read.
+        let mut refused = 0;
+        for k in 1..=24 {
+            refused += usize::from(agree(&path, &ReadLimits::with_memory(need * k / 12)).is_err());
+        }
+        assert!((6..24).contains(&refused), "{name}: {refused} budgets of 24 refused");
+        // A face whose list would take more than the budget leaves it.
+        let lines = ReadLimits::with_memory(4 << 20).with_line_bytes(64);
+        let _ = agree(&path, &lines);
+    }
+}
+
+/// A pipe that delivers `header` and then `element` for ever, as `name` in `dir`.
+fn endless(dir: &Path, name: &str, header: &str, element: &'static [u8]) -> (PathBuf, std::thread::JoinHandle<()>) {
+    let path = dir.join(name);
+    let c_path = std::ffi::CString::new(path.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a valid, NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0, "mkfifo");
+    let (writer_path, header) = (path.clone(), header.to_string());
+    let writer = std::thread::spawn(move || {
+        let mut pipe = std::fs::OpenOptions::new().write(true).open(writer_path).unwrap();
+        let block: Vec<u8> = element.iter().copied().cycle().take(element.len() * 4096).collect();
+        // Until the reader stops reading and closes the pipe.
+        if pipe.write_all(header.as_bytes()).is_ok() {
+            while pipe.write_all(&block).is_ok() {}
+        }
+    });
+    (path, writer)
+}
+
+#[test]
+fn endless_input_fails_as_before() {
+    let dir = tempfile::tempdir().unwrap();
+    let limits = ReadLimits::with_memory(1 << 20);
+    let cases: [(&str, &str, &'static [u8]); 4] = [
+        // Faces of zeros past the input cap: each face a list of no entries in a skipped
+        // element first.
+        (
+            "binary_little_endian",
+            "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+             element junk 1000000000000\nproperty list uchar uchar v\nelement face 1\n\
+             property list uchar int vertex_indices\n",
+            &[0],
+        ),
+        // A vertex whose list goes on for ever.
+        (
+            "binary_big_endian",
+            "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+             property list uint uchar v\nelement face 1\nproperty list uchar int vertex_indices\n",
+            &[0xff],
+        ),
+        // Faces (0, 0, 0) after 13 vertices (12 copies of the element), and data after the
+        // last of them.
+        (
+            "binary_little_endian",
+            "element vertex 13\nproperty float x\nproperty float y\nproperty float z\n\
+             element face 80000\nproperty list uchar int vertex_indices\n",
+            &[3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0],
+        ),
+        // Lines of an element before the faces, past the input cap.
+        (
+            "ascii",
+            "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+             element junk 1000000000000\nproperty float v\nelement face 1\n\
+             property list uchar int vertex_indices\n",
+            b"0 0 0\n",
+        ),
+    ];
+    for (k, (format, elements, element)) in cases.into_iter().enumerate() {
+        let header = format!("ply\nformat {format} 1.0\n{elements}end_header\n");
+        let mut messages = Vec::new();
+        for bulk in [false, true] {
+            let (path, writer) = endless(dir.path(), &format!("endless-{k}.ply"), &header, element);
+            let message = read_ply_mesh(&path, &limits, bulk).map(|_| ()).unwrap_err().to_string();
+            drop(std::fs::remove_file(&path));
+            writer.join().unwrap();
+            messages.push(message);
+        }
+        assert_eq!(messages[0], messages[1], "case {k}");
+        println!("case {k}: {}", messages[1]);
+    }
+}
