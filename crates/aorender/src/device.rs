@@ -327,6 +327,8 @@ impl Prepared {
     /// (`lanes` must be 4): the AO and the escaped directions' x, y, z. Probe k takes the
     /// sample sequence of point `first_point` + k. Its samples are at most 2^`e` in
     /// magnitude.
+    // The request and where its points start: grouping them would only rename them.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn probes(
         &self,
         probes: &[Probe],
