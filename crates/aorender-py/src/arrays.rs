@@ -32,24 +32,8 @@ fn contiguous<'py, T: Element + Copy>(py: Python<'py>, arr: &Bound<'py, PyAny>, 
 /// An (n, 3) array of any real dtype as n points in f32: non-finite values, and values
 /// that do not fit in f32, are refused naming the row.
 pub fn vec3s(py: Python<'_>, x: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Vec3>> {
-    let (arr, kind) = as_array(py, x, name)?;
-    if !matches!(kind.as_str(), "f" | "i" | "u") {
-        return Err(PyValueError::new_err(format!("{name} must hold real numbers, got dtype kind '{kind}'")));
-    }
-    let flat: Vec<f64> = contiguous(py, &arr, "float64")?;
-    flat.chunks_exact(3)
-        .enumerate()
-        .map(|(i, c)| {
-            let v = Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32);
-            if v.is_finite() {
-                Ok(v)
-            } else if c.iter().all(|x| x.is_finite()) {
-                Err(PyValueError::new_err(format!("{name}[{i}] = {c:?} does not fit in 32-bit floats")))
-            } else {
-                Err(PyValueError::new_err(format!("{name}[{i}] has a non-finite coordinate: {c:?}")))
-            }
-        })
-        .collect()
+    // Less zero is exact: each coordinate is rounded once, from f64 to f32.
+    relative_vec3s(py, x, name, DVec3::ZERO)
 }
 
 /// An (n, 3) array of real numbers as points relative to `origin`: each subtracted in
