@@ -512,7 +512,7 @@ pub(crate) fn load_ply(path: &Path, meter: &mut Meter) -> Result<IndexedMesh> {
 /// (`bulk`), or with the element-at-a-time reader alone, the reference they are compared
 /// with.
 #[cfg(feature = "testing")]
-pub fn read_ply_mesh(path: &Path, limits: &super::ReadLimits, bulk: bool) -> Result<(Vec<Vec3>, Vec<[u32; 3]>)> {
+pub fn read_ply_mesh(path: &Path, limits: &super::input::ReadLimits, bulk: bool) -> Result<(Vec<Vec3>, Vec<[u32; 3]>)> {
     let mesh = read_ply(path, &mut Meter::new(limits, "the mesh"), bulk)?;
     Ok((mesh.positions, mesh.triangles))
 }
