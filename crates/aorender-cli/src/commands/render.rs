@@ -183,6 +183,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     })?;
     out.stats.load_seconds = load_seconds;
     out.stats.adapter_seconds = adapter_seconds;
+    out.stats.heap_peak_bytes = memory::heap_peak_bytes();
     bar.finish();
     let st = &out.stats;
     let signal = signals::stop_signal();
@@ -199,12 +200,6 @@ pub fn run(args: RenderArgs) -> Result<()> {
         write_error_image(&out.film, path)?;
     }
     out.stats.write_seconds = writing.elapsed().as_secs_f64();
-    // The peaks after writing, which may hold the encoded image.
-    out.stats.heap_peak_bytes = memory::heap_peak_bytes();
-    if let Some(peak) = aorender::peak_rss_bytes() {
-        out.stats.host_peak_bytes = peak;
-        out.stats.host_peak_bytes_per_triangle = phases::per(peak, out.stats.triangles as u64);
-    }
     out.stats.process_seconds = Some(phases::process_seconds());
     let st = &out.stats;
     let json = serde_json::to_string_pretty(&out.stats)?;
