@@ -220,6 +220,14 @@ def test_render_equals_the_command(cli, repo, tmp_path):
     assert stats["image_mean"] == want["image_mean"]
     assert stats["samples_per_pixel"] == 16 and stats["width"] == 48 and stats["height"] == 32
     assert abs(float(image.mean(dtype=np.float64)) - stats["image_mean"]) < 1e-6
+    # The command's fields, its phases included; the call itself opens, loads and writes nothing.
+    assert set(stats) == set(want)
+    for key in ("upload_seconds", "pipeline_seconds", "pass_seconds", "readback_seconds", "host_stats_seconds",
+                "checkpoint_seconds"):
+        assert math.isfinite(stats[key]) and stats[key] >= 0, key
+    assert stats["pass_seconds"] > 0 and stats["readback_bytes"] == 0 and stats["checks"] == 0
+    assert stats["write_seconds"] == 0 and stats["process_seconds"] is None and want["process_seconds"] > 0
+    assert stats["host_peak_bytes_per_triangle"] is None and stats["host_peak_bytes_per_point"] is None
 
 
 def test_render_camera_dict_overrides_keys():

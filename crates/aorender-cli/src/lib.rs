@@ -8,4 +8,5 @@ pub mod bench;
 pub mod commands;
 pub mod memory;
 pub mod output;
+pub mod phases;
 pub mod signals;

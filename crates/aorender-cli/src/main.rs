@@ -43,6 +43,7 @@ enum Command {
 static HEAP: memory::CountingAlloc = memory::CountingAlloc;
 
 fn main() {
+    aorender_cli::phases::start_clock();
     // A panic inside wgpu that the library turns into an error is reported as that error.
     let default_hook = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {

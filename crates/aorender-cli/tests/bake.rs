@@ -532,3 +532,28 @@ fn the_input_is_required_and_its_formats_are_listed() {
         assert!(help.contains(format), "{format}: {help}");
     }
 }
+
+/// A bake's statistics account for its process phase by phase on both devices, with the
+/// peak memory per triangle and per point traced; the summary line says the phases.
+#[test]
+fn bake_stats_account_for_every_phase() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let dragon = repo().join("scenes/dragon_vrip_res4.ply.gz");
+    let mut devices = vec!["cpu"];
+    if gpu_available() {
+        devices.push("gpu");
+    }
+    for device in devices {
+        let (output, json) = (format!("{device}.ply"), format!("{device}.json"));
+        let args = [dragon.to_str().unwrap(), "-o", &output, "--samples", "32", "--stats", &json, "--device", device];
+        let stderr = bake(d, &args);
+        let stats = stats_json(d, &json);
+        let points = stats["points_traced"].as_u64().unwrap();
+        assert!(points > 1000, "{device}: {stats}");
+        check_phases(&stats, device, Some(points));
+        assert!(stats["triangles"].as_u64().unwrap() > 0 && stats["write_seconds"].as_f64().unwrap() > 0.0);
+        assert_eq!(stats["checks"], 0);
+        assert!(stderr.contains("read-back ") && stderr.contains("writing ") && stderr.contains("whole "), "{stderr}");
+    }
+}

@@ -280,3 +280,64 @@ fn error_targets_and_error_images() {
     assert_rejected(&[&sobol[..], &["--target-error", "0"]].concat(), d, &["positive"]);
     assert_rejected(&[&sobol[..], &["--error-image", "se.pfm"]].concat(), d, &["--error-image", "--replicate"]);
 }
+
+/// A render's statistics account for its process phase by phase on both devices (load,
+/// BVH, adapter, upload, pipeline, passes, read-back, host statistics, checkpoints,
+/// writing): each finite and non-negative, together within the whole process and, on a
+/// render whose passes outweigh the fixed costs, at least 80 % of it (what is left out is
+/// parsing the command line and checking options: milliseconds); the GPU reads back at
+/// least the film; a render with an error target counts its checks and says how many.
+#[test]
+fn render_stats_account_for_every_phase() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let dragon = repo().join("scenes/dragon_vrip_res4.ply.gz");
+    let mut devices = vec!["cpu"];
+    if gpu_available() {
+        devices.push("gpu");
+    }
+    for device in devices {
+        let json = format!("{device}.json");
+        let args = ["render", dragon.to_str().unwrap(), "--width", "192", "--height", "192", "--spp", "64"];
+        let out = aorender(&[&args[..], &["-o", "d.png", "--stats", &json, "--device", device]].concat(), d);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{device}: {stderr}");
+        let stats = stats_json(d, &json);
+        let (sum, whole) = check_phases(&stats, device, None);
+        assert!(sum >= 0.8 * whole, "{device}: the phases account for {sum} s of {whole} s");
+        assert!(stats["triangles"].as_u64().unwrap() > 0 && stats["host_peak_bytes_per_point"].is_null());
+        if device == "gpu" {
+            let film = 192 * 192 * 16;
+            assert!(stats["readback_bytes"].as_u64().unwrap() >= film, "{device}: {stats}");
+        }
+        assert_eq!(stats["checks"], 0, "{device}: no target, no check");
+        assert!(!stderr.contains(" checks"), "{device}: {stderr}");
+        for phase in [
+            "load ",
+            "BVH ",
+            "adapter ",
+            "upload ",
+            "pipeline ",
+            "passes ",
+            "read-back ",
+            "statistics ",
+            "writing ",
+            "whole ",
+        ] {
+            assert!(stderr.contains(phase), "{device}: the summary lacks {phase}: {stderr}");
+        }
+
+        let args = ["render", "--width", "24", "--height", "16", "--sampler", "sobol", "--target-error", "0.02"];
+        let out = aorender(&[&args[..], &["-o", "t.pfm", "--stats", "t.json", "--device", device]].concat(), d);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{device}: {stderr}");
+        let stats = stats_json(d, "t.json");
+        check_phases(&stats, device, None);
+        assert_eq!(stats["ended_by"], "target");
+        let checks = stats["checks"].as_u64().unwrap();
+        // Checked once a replicate at most: 16 samples each.
+        let replicates = stats["samples_per_pixel"].as_u64().unwrap() / 16;
+        assert!((1..=replicates).contains(&checks), "{device}: {checks} checks of {replicates} replicates");
+        assert!(stderr.contains(&format!(", {checks} checks)")), "{device}: {stderr}");
+    }
+}

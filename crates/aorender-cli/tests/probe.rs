@@ -68,3 +68,38 @@ fn points_on_no_surface_are_counted_and_the_tolerance_is_checked() {
         assert!(!d.join("ao.csv").exists(), "{bad}: output written");
     }
 }
+
+/// A probe run's statistics (`--stats`) account for its process phase by phase on both
+/// devices, with the peak memory per point; with an error target they count its checks,
+/// and the summary line says them.
+#[test]
+fn probe_stats_account_for_every_phase() {
+    let dir = temp_dir();
+    let d = dir.path();
+    std::fs::write(d.join("points.txt"), "0 0 0 0 1 0\n1 0 -1 0 1 0\n-1 0.5 0 0 1 0\n").unwrap();
+    let mut devices = vec!["cpu"];
+    if gpu_available() {
+        devices.push("gpu");
+    }
+    for device in devices {
+        let args = ["probe", "--points", "points.txt", "-o", "ao.csv", "--samples", "256", "--device", device];
+        let out = aorender(&[&args[..], &["--stats", "p.json"]].concat(), d);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{device}: {stderr}");
+        let stats = stats_json(d, "p.json");
+        check_phases(&stats, device, Some(3));
+        assert_eq!((stats["points"].as_u64(), stats["checks"].as_u64()), (Some(3), Some(0)), "{device}: {stats}");
+        assert!(stderr.contains("read-back ") && stderr.contains("whole "), "{device}: {stderr}");
+
+        let args = ["probe", "--points", "points.txt", "-o", "ao.csv", "--samples", "65536", "--device", device];
+        let out = aorender(&[&args[..], &["--target-error", "0.02", "--stats", "t.json"]].concat(), d);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{device}: {stderr}");
+        let stats = stats_json(d, "t.json");
+        check_phases(&stats, device, Some(3));
+        let checks = stats["checks"].as_u64().unwrap();
+        assert!(checks >= 1, "{device}: {stats}");
+        assert!(stats["largest_std_error"].as_f64().unwrap() <= 0.02, "{device}: {stats}");
+        assert!(stderr.contains(&format!("({checks} checks)")), "{device}: {stderr}");
+    }
+}

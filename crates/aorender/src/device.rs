@@ -423,6 +423,8 @@ pub(crate) trait Passes {
     fn load(&mut self, block: &BlockSums) -> Result<()>;
     /// Bytes of device memory the film and its buffers take (0 on the CPU).
     fn device_bytes(&self) -> u64;
+    /// Bytes read back from the device since the last call (0 on the CPU).
+    fn take_readback_bytes(&mut self) -> u64;
     /// Stops sampling the slots marked in `inactive` (from the next pass on; an empty
     /// mask samples every slot). Their sums read back as empty. Called while the block
     /// holds no samples: right after a take, or before a checkpoint's block is loaded.
@@ -460,6 +462,10 @@ impl Passes for GpuTarget {
 
     fn device_bytes(&self) -> u64 {
         self.device_bytes
+    }
+
+    fn take_readback_bytes(&mut self) -> u64 {
+        GpuTarget::take_readback_bytes(self)
     }
 
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
@@ -538,6 +544,10 @@ impl Passes for GpuChunks {
 
     fn device_bytes(&self) -> u64 {
         self.targets.iter().map(|(t, _)| t.device_bytes).sum()
+    }
+
+    fn take_readback_bytes(&mut self) -> u64 {
+        self.targets.iter().map(|(t, _)| GpuTarget::take_readback_bytes(t)).sum()
     }
 
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
@@ -639,6 +649,10 @@ impl<W: CpuWork> Passes for CpuTarget<W> {
     }
 
     fn device_bytes(&self) -> u64 {
+        0
+    }
+
+    fn take_readback_bytes(&mut self) -> u64 {
         0
     }
 }

@@ -4,7 +4,7 @@
 //! exact sums of the [`Accumulation`], which is handed to a save callback every few
 //! seconds. Every render, comparison cell, benchmark run and probe request runs here.
 
-use crate::accumulation::{Accumulation, ErrorTarget};
+use crate::accumulation::{Accumulation, ErrorTarget, FilmLayout};
 use crate::device::{Passes, Setup};
 use crate::error::Result;
 use crate::film::Film;
@@ -144,6 +144,37 @@ pub struct RenderStats {
     /// Seconds to upload the geometry and create the pipeline (GPU), or to lay out the
     /// tracer's records (CPU).
     pub setup_seconds: f64,
+    /// Of `setup_seconds`: seconds to upload the geometry to the device (GPU), or to lay
+    /// out the tracer's records (CPU).
+    pub upload_seconds: f64,
+    /// Of `setup_seconds`: seconds to make the request's film and pipeline (compiling the
+    /// kernel the first time the adapter sees its specialisation; on the CPU, the film).
+    pub pipeline_seconds: f64,
+    /// Of `render_seconds`, this run's seconds in passes alone: submitting them and
+    /// waiting for the rays (a checkpoint's aside).
+    pub pass_seconds: f64,
+    /// Seconds this run spent reading the film back from the device (on the CPU, taking
+    /// the block's sums from the tracer's film).
+    pub readback_seconds: f64,
+    /// Bytes this run read back from the device: films and pass counters (0 on the CPU).
+    pub readback_bytes: u64,
+    /// Seconds this run spent on the host folding blocks into the exact sums, checking an
+    /// error target, deciding adaptive masks, and making the film and its error estimates.
+    pub host_stats_seconds: f64,
+    /// Seconds this run spent saving checkpoints (their read-back included).
+    pub checkpoint_seconds: f64,
+    /// Times this run checked its error target (each stretch of replicates, and each
+    /// replicate's adaptive masks); 0 without a target.
+    pub checks: u32,
+    /// Seconds to open the device (the adapter and its logical device): set by the
+    /// caller that opened it (`aorender render` does), 0 otherwise.
+    pub adapter_seconds: f64,
+    /// Seconds to write the outputs (image, error image): set by the caller that wrote
+    /// them (`aorender render` does), 0 otherwise.
+    pub write_seconds: f64,
+    /// Seconds of the whole process from its start to the statistics: set by a program
+    /// (`aorender render` does), `None` otherwise.
+    pub process_seconds: Option<f64>,
     /// rays_traced / render_seconds.
     pub rays_per_second: f64,
     /// Triangles in the scene.
@@ -194,6 +225,10 @@ pub struct RenderStats {
     pub bvh_bytes: u64,
     /// Peak resident memory of the process so far, in bytes (Linux; 0 elsewhere).
     pub host_peak_bytes: u64,
+    /// `host_peak_bytes` per triangle of the scene (`None` without triangles or a peak).
+    pub host_peak_bytes_per_triangle: Option<f64>,
+    /// `host_peak_bytes` per probe point, for a probe render (`None` for an image).
+    pub host_peak_bytes_per_point: Option<f64>,
     /// The most bytes the program's own heap held at once so far: the loaded scene, the
     /// BVH build's workspace, the bytes prepared for upload; not the driver's. Filled in
     /// by a program that counts its allocations (`aorender` does); `None` otherwise.
@@ -272,6 +307,20 @@ pub struct PassTimes {
     pub gpu_seconds: Option<f64>,
     /// AO rays the passes traced.
     pub ao_rays: u64,
+    /// Seconds spent reading the film's block back from the device (on the CPU, taking
+    /// the block's sums from the tracer's film).
+    pub readback_seconds: f64,
+    /// Bytes mapped from the device's readback buffers: films and pass counters (0 on
+    /// the CPU).
+    pub readback_bytes: u64,
+    /// Seconds spent on the host folding blocks into the exact sums, deciding adaptive
+    /// masks and checking an error target.
+    pub host_stats_seconds: f64,
+    /// Seconds spent saving checkpoints (their block's read-back included).
+    pub checkpoint_seconds: f64,
+    /// Times an error target was checked (after a stretch of replicates, and an adaptive
+    /// render's masks, each decided once a replicate).
+    pub checks: u32,
 }
 
 /// A request in progress: its film on the device and its accumulation. Made by
@@ -344,6 +393,7 @@ impl Render {
         if self.acc.partial_samples > 0 {
             self.passes.take()?;
         }
+        self.passes.take_readback_bytes();
         let acc = &mut self.acc;
         acc.exact.clear();
         (acc.next, acc.partial_samples, acc.on_grid) = (acc.first, 0, true);
@@ -449,18 +499,24 @@ impl Render {
             acc.passes += 1;
             passes += 1;
             if acc.next == block_end {
+                let t = Instant::now();
                 let block = self.passes.take()?;
+                self.times.readback_seconds += t.elapsed().as_secs_f64();
+                let t = Instant::now();
                 acc.add_taken(&block, acc.next - acc.partial_samples..acc.next)?;
                 acc.partial_samples = 0;
-                if let (true, Some(target)) = (control.adaptive, control.target)
-                    && let Some(mask) = acc.adapt(target)?
-                {
-                    self.passes.set_inactive(&mask)?;
-                    if mask.iter().all(|&off| off) {
-                        end = RunEnd::TargetMet;
-                        break;
+                if let (true, Some(target)) = (control.adaptive, control.target) {
+                    self.times.checks += 1;
+                    if let Some(mask) = acc.adapt(target)? {
+                        self.passes.set_inactive(&mask)?;
+                        if mask.iter().all(|&off| off) {
+                            self.times.host_stats_seconds += t.elapsed().as_secs_f64();
+                            end = RunEnd::TargetMet;
+                            break;
+                        }
                     }
                 }
+                self.times.host_stats_seconds += t.elapsed().as_secs_f64();
             }
             let mut target = PASS_TARGET_SECONDS;
             if let Some(limit) = control.time_limit {
@@ -487,14 +543,20 @@ impl Render {
                 save(acc)?;
                 acc.partial = None;
                 save_seconds = t.elapsed().as_secs_f64();
+                self.times.checkpoint_seconds += save_seconds;
                 last_save = Instant::now();
             }
             if let (Some(target), Some(c)) = (control.target, check)
                 && acc.next.is_multiple_of(c)
             {
+                let t = Instant::now();
                 acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+                self.times.readback_seconds += t.elapsed().as_secs_f64();
+                let t = Instant::now();
                 let met = acc.target_met(target);
                 acc.partial = None;
+                self.times.host_stats_seconds += t.elapsed().as_secs_f64();
+                self.times.checks += 1;
                 if met? {
                     end = RunEnd::TargetMet;
                     break;
@@ -506,10 +568,13 @@ impl Render {
         if passes > 0
             && let Some(save) = control.save.as_mut()
         {
+            let t = Instant::now();
             acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
             save(acc)?;
             acc.partial = None;
+            self.times.checkpoint_seconds += t.elapsed().as_secs_f64();
         }
+        self.times.readback_bytes += self.passes.take_readback_bytes();
         Ok(end)
     }
 
@@ -523,7 +588,10 @@ impl Render {
     /// The accumulation as it stands, its block in progress read back from the device.
     pub fn accumulation(&mut self) -> Result<Accumulation> {
         let mut acc = self.acc.clone();
+        let t = Instant::now();
         acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+        self.times.readback_seconds += t.elapsed().as_secs_f64();
+        self.times.readback_bytes += self.passes.take_readback_bytes();
         Ok(acc)
     }
 
@@ -538,9 +606,14 @@ impl Render {
         // The accumulation moves out rather than being copied, and the device's request
         // goes before the film is made: the exact sums are the largest thing a request
         // holds (a bake's millions of points).
+        let t = Instant::now();
         let partial = if self.acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+        let mut times = self.times;
+        times.readback_seconds += t.elapsed().as_secs_f64();
+        times.readback_bytes += self.passes.take_readback_bytes();
         let device_bytes = self.passes.device_bytes();
         drop(self.passes);
+        let host_stats = Instant::now();
         let mut accumulation = self.acc;
         accumulation.partial = partial;
         let film = accumulation.film()?;
@@ -553,6 +626,10 @@ impl Render {
         let pixel_samples: u64 = (0..film.sum.len()).map(|i| film.samples_of(i)).sum();
         let camera_rays = pixel_samples;
         let rays = camera_rays + acc.ao_rays;
+        let (rmse_estimate, rmse_bound, image_mean) = (film.rmse_estimate(), film.rmse_bound(), film.image_mean());
+        let error_estimator = film.error_estimator();
+        times.host_stats_seconds += host_stats.elapsed().as_secs_f64();
+        let host_peak_bytes = peak_rss_bytes().unwrap_or(0);
         let stats = RenderStats {
             scene: info.scene.clone(),
             samples_per_pixel: done,
@@ -568,6 +645,17 @@ impl Render {
             render_seconds: acc.render_seconds,
             bvh_build_seconds: setup.bvh_build_seconds,
             setup_seconds: setup.upload_seconds + info.target_seconds,
+            upload_seconds: setup.upload_seconds,
+            pipeline_seconds: info.target_seconds,
+            pass_seconds: times.wall_seconds,
+            readback_seconds: times.readback_seconds,
+            readback_bytes: times.readback_bytes,
+            host_stats_seconds: times.host_stats_seconds,
+            checkpoint_seconds: times.checkpoint_seconds,
+            checks: times.checks,
+            adapter_seconds: 0.0,
+            write_seconds: 0.0,
+            process_seconds: None,
             rays_per_second: rays as f64 / acc.render_seconds.max(1e-9),
             triangles: info.triangles,
             instances: info.instances,
@@ -589,11 +677,16 @@ impl Render {
             traversal: setup.traversal.into(),
             scene_bytes: info.scene_bytes,
             bvh_bytes: setup.bvh_bytes,
-            host_peak_bytes: peak_rss_bytes().unwrap_or(0),
+            host_peak_bytes,
+            host_peak_bytes_per_triangle: per(host_peak_bytes, info.triangles as u64),
+            host_peak_bytes_per_point: match s.layout {
+                FilmLayout::Image => None,
+                _ => per(host_peak_bytes, s.height as u64),
+            },
             heap_peak_bytes: None,
             load_seconds: 0.0,
             passes: acc.passes,
-            image_mean: film.image_mean(),
+            image_mean,
             mean_samples_per_pixel: pixel_samples as f64 / film.sum.len().max(1) as f64,
             adaptive: !film.pixel_samples.is_empty(),
             ended_by: match self.ended {
@@ -611,14 +704,19 @@ impl Render {
             }),
             replicate_samples: film.replicate,
             replicates: film.replicates,
-            error_estimator: film.error_estimator().describe(),
-            error_degrees_of_freedom: film.error_estimator().degrees_of_freedom(film.samples),
-            rmse_estimate: film.rmse_estimate(),
-            relative_rmse_estimate: film.rmse_estimate().map(|e| e / film.image_mean().abs()),
-            rmse_bound: film.rmse_bound(),
+            error_estimator: error_estimator.describe(),
+            error_degrees_of_freedom: error_estimator.degrees_of_freedom(film.samples),
+            rmse_estimate,
+            relative_rmse_estimate: rmse_estimate.map(|e| e / image_mean.abs()),
+            rmse_bound,
         };
         Ok(RenderOutput { film, stats, accumulation })
     }
+}
+
+/// `bytes` per item, for `items` of them (`None` for none).
+fn per(bytes: u64, items: u64) -> Option<f64> {
+    (items > 0 && bytes > 0).then(|| bytes as f64 / items as f64)
 }
 
 /// Peak resident memory of this process (Linux's `VmHWM`), in bytes.

@@ -17,7 +17,7 @@ use crate::device::{BvhOptions, Device, Prepared, Setup};
 use crate::error::{Error, Result};
 use crate::film::value_exponent;
 use crate::probe::{Probe, ProbeValue, checked, lanes_for};
-use crate::render::{Control, Render, RenderInfo};
+use crate::render::{Control, PassTimes, Render, RenderInfo};
 use crate::scene::{Camera, LocalFrame, Scene, Settings, round_up};
 use crate::surface::{Located, SurfaceIndex, SurfaceTolerance};
 use glam::DVec3;
@@ -50,6 +50,11 @@ pub struct ProbeOutput {
     pub seconds: f64,
     /// Adapter name, or "cpu".
     pub adapter: String,
+    /// Seconds to make the request's film and pipeline.
+    pub pipeline_seconds: f64,
+    /// The passes' seconds and rays, the film's read-back and the host's statistics
+    /// (making the values from the sums included).
+    pub times: PassTimes,
 }
 
 /// A scene prepared on a device, answering requests.
@@ -360,14 +365,17 @@ impl Session {
         let probes = &checked(probes)?[..];
         let adapter = self.setup.adapter.name.clone();
         if probes.is_empty() {
-            return Ok(ProbeOutput { values: Vec::new(), rays: 0, seconds: 0.0, adapter });
+            let (pipeline_seconds, times) = (0.0, PassTimes::default());
+            return Ok(ProbeOutput { values: Vec::new(), rays: 0, seconds: 0.0, adapter, pipeline_seconds, times });
         }
         let lanes = lanes_for(probes.len(), samples);
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * lanes as u64, settings.replicate_samples() >= 2)?;
         let rounds = samples.div_ceil(lanes);
         let e = value_exponent(MAX_PROBE_SAMPLE);
+        let start = Instant::now();
         let passes = self.prepared.probes(&self.local_probes(probes), 0, lanes, samples, settings, false, e)?;
+        let pipeline_seconds = start.elapsed().as_secs_f64();
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let hash = probes_hash(geometry, probes);
         let sample_settings =
@@ -381,11 +389,15 @@ impl Session {
             rounds,
             MAX_PROBE_SAMPLE,
         );
-        let mut render = Render::new(passes, acc, self.info(0.0));
+        let mut render = Render::new(passes, acc, self.info(pipeline_seconds));
         render.run(control)?;
         let acc = render.accumulation()?;
+        let start = Instant::now();
         let values = acc.lane_probe_values()?;
-        Ok(ProbeOutput { values, rays: acc.ao_rays, seconds: acc.render_seconds, adapter })
+        let mut times = render.times();
+        times.host_stats_seconds += start.elapsed().as_secs_f64();
+        let (rays, seconds) = (acc.ao_rays, acc.render_seconds);
+        Ok(ProbeOutput { values, rays, seconds, adapter, pipeline_seconds, times })
     }
 }
 

@@ -3,6 +3,7 @@
 //! and signal handling of `render`.
 
 use crate::args::{RunArgs, SamplingArgs, SceneArgs, read_shards, write_json};
+use crate::phases::{self, Phases};
 use crate::{memory, output, signals};
 use anyhow::{Context, Result, anyhow, bail};
 use aorender::bake::{
@@ -22,6 +23,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+use std::time::Instant;
 
 #[derive(clap::Args)]
 #[command(mut_arg("scene", |a| a
@@ -166,8 +168,8 @@ struct BakeStats {
     ao_rays: u64,
     render_seconds: f64,
     rays_per_second: f64,
-    load_seconds: f64,
-    bvh_build_seconds: f64,
+    #[serde(flatten)]
+    phases: Phases,
     duplicates_dropped: usize,
     setup_seconds: f64,
     adapter: String,
@@ -176,9 +178,25 @@ struct BakeStats {
     seed: u32,
     max_distance: Option<f32>,
     mean_ao: f64,
+    triangles: usize,
+    host_peak_bytes: u64,
+    host_peak_bytes_per_triangle: Option<f64>,
+    host_peak_bytes_per_point: Option<f64>,
     heap_peak_bytes: Option<u64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     texture: Option<TextureReport>,
+}
+
+impl BakeStats {
+    /// Fills in the figures known once everything is written: the peaks and the process's
+    /// seconds.
+    fn end(&mut self) {
+        self.heap_peak_bytes = memory::heap_peak_bytes();
+        self.host_peak_bytes = aorender::peak_rss_bytes().unwrap_or(0);
+        self.host_peak_bytes_per_triangle = phases::per(self.host_peak_bytes, self.triangles as u64);
+        self.host_peak_bytes_per_point = phases::per(self.host_peak_bytes, self.points_traced as u64);
+        self.phases.process_seconds = phases::process_seconds();
+    }
 }
 
 /// One baked file: the mesh object it comes from, its asset, and where it goes.
@@ -371,8 +389,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         ao_rays: 0,
         render_seconds: 0.0,
         rays_per_second: 0.0,
-        load_seconds,
-        bvh_build_seconds: 0.0,
+        phases: Phases { load_seconds, ..Phases::default() },
         duplicates_dropped: 0,
         setup_seconds: 0.0,
         adapter: String::new(),
@@ -381,6 +398,10 @@ pub fn run(args: BakeArgs) -> Result<()> {
         seed: settings.seed,
         max_distance: settings.max_distance,
         mean_ao: 0.0,
+        triangles: 0,
+        host_peak_bytes: 0,
+        host_peak_bytes_per_triangle: None,
+        host_peak_bytes_per_point: None,
         heap_peak_bytes: None,
         texture: None,
     };
@@ -418,9 +439,15 @@ pub fn run(args: BakeArgs) -> Result<()> {
             None => None,
         };
         let acc = trace(&args, scene, probes, resume, checkpoint_path.as_deref(), &stop, &mut stats)?;
-        acc.film()?
+        let start = Instant::now();
+        let film = acc.film()?;
+        stats.phases.host_stats_seconds += start.elapsed().as_secs_f64();
+        film
     } else {
+        let start = Instant::now();
         let shards = read_shards(&args.merge, &limits)?;
+        stats.phases.load_seconds += start.elapsed().as_secs_f64();
+        stats.triangles = scene.world_triangle_count();
         let this = expected()?;
         let diff = shards[0].1.settings.differences(&this.settings);
         if !diff.is_empty() {
@@ -430,7 +457,9 @@ pub fn run(args: BakeArgs) -> Result<()> {
                 diff.join("; ")
             );
         }
+        let start = Instant::now();
         let merged = merge(&shards)?;
+        stats.phases.host_stats_seconds += start.elapsed().as_secs_f64();
         if merged.first != 0 || merged.end != args.samples {
             bail!(
                 "the shards hold samples {}..{}, not all 0..{} of --samples {}",
@@ -444,10 +473,12 @@ pub fn run(args: BakeArgs) -> Result<()> {
         stats.adapter = merged.shards.iter().map(|s| s.adapter.clone()).collect::<Vec<_>>().join(", ");
         merged.film
     };
+    let start = Instant::now();
     let values = probe_film_values(&film);
     let bent = probe_film_bent_normals(&film);
     let traced = values.len().max(1) as f64;
     stats.mean_ao = values.iter().map(|v| v.mean).sum::<f64>() / traced;
+    stats.phases.host_stats_seconds += start.elapsed().as_secs_f64();
     if let (Some(tp), Some(options)) = (&texture_plan, &texture) {
         let maps = tp.textures(&values, bent.as_deref(), options.padding);
         let counts = TexelCounts {
@@ -467,9 +498,12 @@ pub fn run(args: BakeArgs) -> Result<()> {
             checkpoint_path.as_deref(),
         );
     }
+    let start = Instant::now();
     let baked = plan.values(&values, bent.as_deref());
+    stats.phases.host_stats_seconds += start.elapsed().as_secs_f64();
 
     // Written back, file by file (each atomically).
+    let writing = Instant::now();
     let options = WriteOptions { at, std_error: args.std_error, colors: args.colors };
     let mut baked = baked.into_iter();
     for t in &targets {
@@ -481,14 +515,15 @@ pub fn run(args: BakeArgs) -> Result<()> {
             eprintln!("note: {}: {note}", t.output.display());
         }
     }
-    stats.heap_peak_bytes = memory::heap_peak_bytes();
+    stats.phases.write_seconds += writing.elapsed().as_secs_f64();
+    stats.end();
     let json = serde_json::to_string_pretty(&stats)?;
     if let Some(path) = &args.run.stats {
         write_json(path, &json)?;
     }
     let written: Vec<String> = targets.iter().map(|t| t.output.display().to_string()).collect();
     eprintln!(
-        "{}: {} {} × {} samples in {:.2} s ({:.1} M AO rays/s) on {}; mean AO {:.4}",
+        "{}: {} {} × {} samples in {:.2} s ({:.1} M AO rays/s) on {}; mean AO {:.4}; {}",
         written.join(", "),
         stats.points,
         plural(at),
@@ -496,7 +531,8 @@ pub fn run(args: BakeArgs) -> Result<()> {
         stats.render_seconds,
         stats.rays_per_second / 1e6,
         stats.adapter,
-        stats.mean_ao
+        stats.mean_ao,
+        stats.phases.line()
     );
     if plan.unusable > 0 {
         eprintln!(
@@ -545,6 +581,7 @@ fn write_texture_bake(
         generated_uvs: generated_report,
         maps: maps.iter().map(|m| m.stats()).collect(),
     };
+    let writing = Instant::now();
     let mut written = vec![args.output.clone()];
     if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the directory", dir.display()))?;
@@ -581,6 +618,7 @@ fn write_texture_bake(
             }
         }
     }
+    stats.phases.write_seconds += writing.elapsed().as_secs_f64();
     let covered: usize = report.maps.iter().map(|m| m.covered_texels).sum();
     let rms = (report.maps.iter().map(|m| m.rms_std_error.powi(2) * m.covered_texels as f64).sum::<f64>()
         / covered.max(1) as f64)
@@ -588,10 +626,10 @@ fn write_texture_bake(
     stats.mean_ao =
         report.maps.iter().map(|m| m.mean_ao * m.covered_texels as f64).sum::<f64>() / covered.max(1) as f64;
     stats.outputs = written.clone();
-    stats.heap_peak_bytes = memory::heap_peak_bytes();
+    stats.end();
     let written: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
     eprintln!(
-        "{}: {}×{} texture, {} texels × {} points × {} samples in {:.2} s ({:.1} M AO rays/s) on {}; mean AO {:.4}, RMS standard error {:.4}",
+        "{}: {}×{} texture, {} texels × {} points × {} samples in {:.2} s ({:.1} M AO rays/s) on {}; mean AO {:.4}, RMS standard error {:.4}; {}",
         written.join(", "),
         options.width,
         options.height,
@@ -602,7 +640,8 @@ fn write_texture_bake(
         stats.rays_per_second / 1e6,
         stats.adapter,
         stats.mean_ao,
-        rms
+        rms,
+        stats.phases.line()
     );
     if counts.overlapping > 0 {
         eprintln!(
@@ -709,7 +748,10 @@ fn trace_blocks(
     stats: &mut BakeStats,
 ) -> Result<Traced> {
     let settings = scene.settings.clone();
+    stats.triangles = scene.world_triangle_count();
+    let opening = Instant::now();
     let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
+    stats.phases.adapter_seconds = opening.elapsed().as_secs_f64();
     let session = Session::new(&device, scene, &args.scene.bvh())?;
     let mut maps = layout.blank_textures(args.bent_normals);
     let (mut first, mut overlapping_texels, mut traced) = (0u32, 0, 0);
@@ -747,13 +789,18 @@ fn trace_blocks(
         }
         let acc = &out.accumulation;
         (rays, seconds) = (rays + acc.ao_rays, seconds + acc.render_seconds);
-        stats.bvh_build_seconds = out.stats.bvh_build_seconds;
+        stats.phases.bvh_build_seconds = out.stats.bvh_build_seconds;
         stats.setup_seconds += out.stats.setup_seconds;
         stats.adapter = out.stats.adapter.clone();
+        stats.phases.add_render(&out.stats);
+        // The session's upload is once, not once a block.
+        stats.phases.upload_seconds = out.stats.upload_seconds;
+        let start = Instant::now();
         let values = probe_film_values(&out.film);
         let bent = probe_film_bent_normals(&out.film);
         drop(out);
         plan.fill(&mut maps, &values, bent.as_deref());
+        stats.phases.host_stats_seconds += start.elapsed().as_secs_f64();
         overlapping_texels += plan.overlapping_texels;
         traced += plan.probes.len();
         first += plan.probes.len() as u32;
@@ -827,8 +874,12 @@ fn trace(
         ..Control::default()
     };
     let resumed = resume.as_ref().map_or(0, |a| a.samples());
+    stats.triangles = scene.world_triangle_count();
+    let mut adapter_seconds = 0.0;
     let out = (|| {
+        let opening = Instant::now();
         let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
+        adapter_seconds = opening.elapsed().as_secs_f64();
         let session = Session::new(&device, scene, &args.scene.bvh())?;
         let mut render =
             session.probe_render(probes, args.samples, args.run.sample_range.clone(), &settings, args.bent_normals)?;
@@ -865,7 +916,9 @@ fn trace(
     stats.ao_rays = acc.ao_rays;
     stats.render_seconds = acc.render_seconds;
     stats.rays_per_second = acc.ao_rays as f64 / acc.render_seconds.max(1e-9);
-    stats.bvh_build_seconds = out.stats.bvh_build_seconds;
+    stats.phases.adapter_seconds = adapter_seconds;
+    stats.phases.bvh_build_seconds = out.stats.bvh_build_seconds;
+    stats.phases.add_render(&out.stats);
     stats.duplicates_dropped = out.stats.duplicates_dropped;
     stats.setup_seconds = out.stats.setup_seconds;
     stats.adapter = out.stats.adapter.clone();

@@ -1,13 +1,15 @@
 //! `aorender probe`: AO at points and normals read from a text file, written as CSV.
 
-use crate::args::{SamplingArgs, SceneArgs, check_output_extension};
-use crate::output;
+use crate::args::{SamplingArgs, SceneArgs, check_output_extension, write_json};
+use crate::phases::{self, Phases};
+use crate::{memory, output};
 use anyhow::{Result, anyhow, bail};
 use aorender::output::{Destination, FilePlan, write_output};
 use aorender::scene::read_text;
 use aorender::{Control, ErrorTarget, Probe, ProbeValue, ReadLimits, Sampler, Session, SurfaceTolerance};
 use glam::{DVec3, Vec3};
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct ProbeArgs {
@@ -33,6 +35,34 @@ pub struct ProbeArgs {
     surface_tolerance: Option<f32>,
     #[command(flatten)]
     sampling: SamplingArgs,
+    /// Write the statistics as JSON.
+    #[arg(long, value_name = "FILE")]
+    stats: Option<PathBuf>,
+}
+
+/// Figures of a probe run (`aorender probe --stats`).
+#[derive(serde::Serialize)]
+struct ProbeStats {
+    points: usize,
+    points_off_surface: usize,
+    samples_per_point: u64,
+    samples_requested: u32,
+    target_error: Option<f64>,
+    largest_std_error: f64,
+    ao_rays: u64,
+    render_seconds: f64,
+    rays_per_second: f64,
+    #[serde(flatten)]
+    phases: Phases,
+    adapter: String,
+    hemisphere: &'static str,
+    sampler: &'static str,
+    seed: u32,
+    triangles: usize,
+    host_peak_bytes: u64,
+    host_peak_bytes_per_triangle: Option<f64>,
+    host_peak_bytes_per_point: Option<f64>,
+    heap_peak_bytes: Option<u64>,
 }
 
 pub fn run(args: ProbeArgs) -> Result<()> {
@@ -42,6 +72,11 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     plan.input(&args.points, "the --points file");
     // A FIFO or a device (`-o /dev/stdout`) takes the CSV whatever its name.
     let stream = !to_stdout && matches!(plan.output(&args.output, "-o")?, Destination::Stream(_));
+    if let Some(path) = &args.stats {
+        plan.output(path, "--stats")?;
+    }
+    let mut phases = Phases::default();
+    let loading = Instant::now();
     let mut scene = args.scene.load()?;
     args.sampling.apply(&mut scene)?;
     if args.samples == 0 {
@@ -56,27 +91,69 @@ pub fn run(args: ProbeArgs) -> Result<()> {
             .map_err(|e| anyhow!("invalid option: --surface-tolerance: {}", e.message()))?,
     };
     let (probes, lines) = read_probes(&args.points, &args.scene.load_options()?.limits, scene.origin)?;
+    phases.load_seconds = loading.elapsed().as_secs_f64();
     let target = args.target_error.map(ErrorTarget::PointStdError);
     if target.is_some() && args.sampling.replicate.is_none() {
         scene.settings.replicate = Some(scene.settings.sampler.replicate_for(args.samples.min(256), 16));
     }
     let settings = scene.settings.clone();
-    let session = Session::new(&args.scene.device()?, scene, &args.scene.bvh())?;
+    let opening = Instant::now();
+    let device = args.scene.device()?;
+    phases.adapter_seconds = opening.elapsed().as_secs_f64();
+    let session = Session::new(&device, scene, &args.scene.bvh())?;
+    let setup = session.setup();
+    (phases.bvh_build_seconds, phases.upload_seconds) = (setup.bvh_build_seconds, setup.upload_seconds);
     let mut control = Control { target, ..Control::default() };
+    // Placing the points on their surfaces is part of reading them.
+    let locating = Instant::now();
     let located = session.locate(&probes, tolerance)?;
+    phases.load_seconds += locating.elapsed().as_secs_f64();
     let out = session.probe_with(&located.probes, args.samples, &settings, &mut control).map_err(|e| match e {
         aorender::Error::Settings { .. } => anyhow!("invalid option: {}", e.message()),
         e => e.into(),
     })?;
+    phases.pipeline_seconds = out.pipeline_seconds;
+    phases.add_times(&out.times);
+    let writing = Instant::now();
     let csv = to_csv(&probes, &out.values, session.scene().origin);
     if to_stdout {
         output::print(&csv)?;
     } else {
         write_output(&args.output, csv.as_bytes())?;
     }
+    phases.write_seconds = writing.elapsed().as_secs_f64();
     let samples = out.values.first().map_or(0, |v| v.samples);
+    let most = out.values.iter().map(|v| v.std_error).fold(0.0, f64::max);
+    let triangles = session.scene().world_triangle_count();
+    let host_peak_bytes = aorender::peak_rss_bytes().unwrap_or(0);
+    phases.process_seconds = phases::process_seconds();
+    let line = phases.line();
+    let stats = ProbeStats {
+        points: probes.len(),
+        points_off_surface: located.off_surface(),
+        samples_per_point: samples,
+        samples_requested: args.samples,
+        target_error: args.target_error,
+        largest_std_error: most,
+        ao_rays: out.rays,
+        render_seconds: out.seconds,
+        rays_per_second: out.rays as f64 / out.seconds.max(1e-9),
+        phases,
+        adapter: out.adapter.clone(),
+        hemisphere: settings.hemisphere.name(),
+        sampler: settings.sampler.name(),
+        seed: settings.seed,
+        triangles,
+        host_peak_bytes,
+        host_peak_bytes_per_triangle: phases::per(host_peak_bytes, triangles as u64),
+        host_peak_bytes_per_point: phases::per(host_peak_bytes, probes.len() as u64),
+        heap_peak_bytes: memory::heap_peak_bytes(),
+    };
+    if let Some(path) = &args.stats {
+        write_json(path, &serde_json::to_string_pretty(&stats)?)?;
+    }
     eprintln!(
-        "{} probes × {samples} samples in {:.2} s ({:.1} M AO rays/s) on {}; {} on no surface",
+        "{} probes × {samples} samples in {:.2} s ({:.1} M AO rays/s) on {}; {} on no surface; {line}",
         probes.len(),
         out.seconds,
         out.rays as f64 / out.seconds.max(1e-9) / 1e6,
@@ -103,9 +180,11 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         );
     }
     if let Some(e) = args.target_error {
-        let most = out.values.iter().map(|v| v.std_error).fold(0.0, f64::max);
         let met = if most <= e { "met" } else { "not met" };
-        eprintln!("error target {e} {met}: the largest standard error is {most:.3e} after {samples} samples");
+        eprintln!(
+            "error target {e} {met}: the largest standard error is {most:.3e} after {samples} samples ({} checks)",
+            stats.phases.checks
+        );
     }
     Ok(())
 }

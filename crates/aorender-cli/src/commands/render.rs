@@ -2,6 +2,7 @@
 //! sample-range shards and signal handling.
 
 use crate::args::{RunArgs, SamplingArgs, SceneArgs, SizeArgs, check_output_extension, invalid_option, write_json};
+use crate::phases::{self, Phases};
 use crate::{memory, output, signals};
 use anyhow::{Result, bail};
 use aorender::output::{FLOAT_IMAGE_EXTENSIONS, FilePlan, IMAGE_EXTENSIONS, write_error_image, write_image};
@@ -150,8 +151,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
         adaptive: args.adaptive,
         ..Control::default()
     };
+    let mut adapter_seconds = 0.0;
     let rendered = (|| {
+        let opening = std::time::Instant::now();
         let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
+        adapter_seconds = opening.elapsed().as_secs_f64();
         // The film's memory is known before the BVH is built: a film past the budget is
         // refused before that work.
         device.check_image_budget(&scene, &scene.settings)?;
@@ -178,6 +182,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         }
     })?;
     out.stats.load_seconds = load_seconds;
+    out.stats.adapter_seconds = adapter_seconds;
     out.stats.heap_peak_bytes = memory::heap_peak_bytes();
     bar.finish();
     let st = &out.stats;
@@ -189,10 +194,14 @@ pub fn run(args: RenderArgs) -> Result<()> {
         );
         std::process::exit(128 + signal);
     }
+    let writing = std::time::Instant::now();
     write_image(&out.film, &args.output)?;
     if let Some(path) = &args.error_image {
         write_error_image(&out.film, path)?;
     }
+    out.stats.write_seconds = writing.elapsed().as_secs_f64();
+    out.stats.process_seconds = Some(phases::process_seconds());
+    let st = &out.stats;
     let json = serde_json::to_string_pretty(&out.stats)?;
     if let Some(path) = &args.run.stats {
         write_json(path, &json)?;
@@ -202,19 +211,22 @@ pub fn run(args: RenderArgs) -> Result<()> {
         0 => String::new(),
         n => format!("; {n} copies of triangles or spheres left out of the BVH"),
     };
+    let checks = match target {
+        Some(_) => format!(", {} checks", st.checks),
+        None => String::new(),
+    };
     eprintln!(
-        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s, load {:.2} s, BVH {:.2} s) on {} ({}); mean {:.4}{copies}",
+        "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s{checks}) on {} ({}); mean {:.4}{copies}; {}",
         args.output.display(),
         st.width,
         st.height,
         st.samples_per_pixel,
         st.render_seconds,
         st.rays_per_second / 1e6,
-        st.load_seconds,
-        st.bvh_build_seconds,
         st.adapter,
         st.backend,
-        st.image_mean
+        st.image_mean,
+        Phases::of_render(st).line()
     );
     if let Some(adapter) = resumed_adapter
         && adapter != st.adapter

@@ -250,3 +250,64 @@ pub fn gltf_output(args: &[&str]) -> Option<(String, Option<String>)> {
     let input = args.first().filter(|i| is_gltf(i) && !i.starts_with('-'));
     Some((output.to_string(), input.map(|i| i.to_string())))
 }
+
+/// The phases `--stats` gives a render, probe or bake, in seconds: together they account
+/// for the process (`process_seconds`).
+pub const PHASES: [&str; 10] = [
+    "load_seconds",
+    "bvh_build_seconds",
+    "adapter_seconds",
+    "upload_seconds",
+    "pipeline_seconds",
+    "pass_seconds",
+    "readback_seconds",
+    "host_stats_seconds",
+    "checkpoint_seconds",
+    "write_seconds",
+];
+
+/// Checks the accounting of a command's statistics on `device` ("cpu" or "gpu"): every
+/// phase present, finite and non-negative, their sum within the whole process (to the
+/// rounding of their clocks); bytes read back on the GPU and none on the CPU; `checks`
+/// present; the peak memory per triangle and per point (where `points` is given) the
+/// peak's share. Returns the sum of the phases and the whole process's seconds.
+pub fn check_phases(stats: &serde_json::Value, device: &str, points: Option<u64>) -> (f64, f64) {
+    let seconds = |key: &str| {
+        let s = stats[key].as_f64().unwrap_or_else(|| panic!("{device}: stats lack {key}: {stats}"));
+        assert!(s.is_finite() && s >= 0.0, "{device}: {key} {s}");
+        s
+    };
+    let sum: f64 = PHASES.iter().map(|k| seconds(k)).sum();
+    let whole = seconds("process_seconds");
+    assert!(whole > 0.0, "{device}: the process took no time");
+    assert!(sum <= whole * (1.0 + 1e-6) + 1e-3, "{device}: phases {sum} s, whole {whole} s");
+    let readback = stats["readback_bytes"].as_u64().expect("readback_bytes");
+    match device {
+        "cpu" => assert_eq!(readback, 0, "the CPU reference reads nothing back"),
+        _ => assert!(readback > 0, "{device}: nothing read back"),
+    }
+    assert!(stats["checks"].as_u64().is_some(), "{device}: stats lack checks");
+    let peak = stats["host_peak_bytes"].as_u64().expect("host_peak_bytes") as f64;
+    assert!(peak > 0.0, "{device}: no peak");
+    let triangles = stats["triangles"].as_u64().expect("triangles");
+    match triangles {
+        0 => assert!(stats["host_peak_bytes_per_triangle"].is_null(), "{device}: per triangle without triangles"),
+        n => {
+            let per = stats["host_peak_bytes_per_triangle"].as_f64().expect("host_peak_bytes_per_triangle");
+            assert!((per * n as f64 / peak - 1.0).abs() < 1e-9, "{device}: {per} bytes a triangle of {n}, peak {peak}");
+        }
+    }
+    if let Some(points) = points {
+        let per = stats["host_peak_bytes_per_point"].as_f64().expect("host_peak_bytes_per_point");
+        assert!(
+            (per * points as f64 / peak - 1.0).abs() < 1e-9,
+            "{device}: {per} bytes a point of {points}, peak {peak}"
+        );
+    }
+    (sum, whole)
+}
+
+/// The statistics file `name` in `dir`, parsed.
+pub fn stats_json(dir: &std::path::Path, name: &str) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(dir.join(name)).unwrap()).unwrap()
+}

@@ -15,7 +15,7 @@ use crate::film::INACTIVE_SLOT_BITS;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use wgpu::util::DeviceExt;
 
 /// Test hook: with this environment variable set to N, a target destroys its device
@@ -69,6 +69,9 @@ pub struct GpuTarget {
     pub device_bytes: u64,
     /// Passes started.
     passes_run: u32,
+    /// Bytes mapped from the readback buffers since [`GpuTarget::take_readback_bytes`]
+    /// (atomic: the film is read through `&self`).
+    readback_bytes: AtomicU64,
     /// The test hook's pass count.
     lose_device_after: Option<u32>,
     /// Pixels an adaptive render no longer samples (empty: none).
@@ -324,6 +327,7 @@ impl GpuTarget {
             ray_steps,
             device_bytes,
             passes_run: 0,
+            readback_bytes: AtomicU64::new(0),
             lose_device_after,
             inactive: Vec::new(),
             #[cfg(feature = "testing")]
@@ -434,6 +438,7 @@ impl GpuTarget {
         }
         ctx.submit([encoder.finish()])?;
         let words: Vec<u32> = ctx.read(&self.counters_readback)?;
+        self.readback_bytes.fetch_add(self.counters_readback.size(), Ordering::Relaxed);
         let gpu_seconds = self.timestamps.as_ref().map(|_| {
             let at = (TIMESTAMPS_AT / 4) as usize;
             let tick = |k: usize| words[at + 2 * k] as u64 | (words[at + 2 * k + 1] as u64) << 32;
@@ -471,6 +476,7 @@ impl GpuTarget {
     /// This target's film as last copied to the readback buffer (which may be larger).
     fn read_film_readback(&self) -> Result<Vec<[u32; 4]>> {
         let mut words: Vec<[u32; 4]> = self.dev.ctx.read(&self.film_readback)?;
+        self.readback_bytes.fetch_add(self.film_readback.size(), Ordering::Relaxed);
         words.truncate(self.slots());
         Ok(words)
     }
@@ -501,6 +507,12 @@ impl GpuTarget {
             }
         }
         self.set_film_words(&marked)
+    }
+
+    /// Bytes mapped from the device's readback buffers (films and pass counters) since the
+    /// last call.
+    pub fn take_readback_bytes(&self) -> u64 {
+        self.readback_bytes.swap(0, Ordering::Relaxed)
     }
 
     /// Zeroes the film.
