@@ -12,7 +12,7 @@
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
-use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, standard_error};
+use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, SampleRange, standard_error};
 use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_film_values};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
@@ -613,7 +613,7 @@ impl Accumulation {
             ErrorTarget::RelativeRmse(r) => r * film.image_mean().abs(),
             ErrorTarget::PointStdError(_) => return Ok(None),
         };
-        let Some(intervals) = film.intervals_95(self.max_value) else {
+        let Some(intervals) = film.intervals_95(self.sample_range()) else {
             return Ok(None);
         };
         let mean = film.mean();
@@ -645,6 +645,11 @@ impl Accumulation {
             b if self.settings.replicate_plan().is_some() => b,
             _ => 0,
         }
+    }
+
+    /// What one of this accumulation's samples can be, for its intervals.
+    pub fn sample_range(&self) -> SampleRange {
+        SampleRange::of(self.settings.hemisphere, self.settings.background, self.max_value)
     }
 
     /// Why `target` cannot stop this accumulation, as [`Error::Settings`]: no valid error

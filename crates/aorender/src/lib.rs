@@ -118,7 +118,7 @@ pub use accumulation::{Accumulation, ErrorTarget, FilmLayout, Merged, MergedShar
 pub use bvh::{BuildQuality, BvhLayout};
 pub use device::{BvhOptions, Device, DeviceKind, Setup};
 pub use error::{Error, Result};
-pub use film::{BLOCK_SAMPLES, ErrorEstimator, Film, interval_95, t_quantile_975};
+pub use film::{BLOCK_SAMPLES, ErrorEstimator, Film, SampleRange, interval_95, t_quantile_975};
 pub use gpu::{AdapterInfo, GeometryStorage, Traversal, catching_panics, list_adapters};
 pub use probe::{Probe, ProbeValue, probe_film_bent_normals, probe_film_values};
 pub use render::{
