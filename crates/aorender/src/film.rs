@@ -27,8 +27,13 @@ pub struct Film {
     /// Samples of each pixel, when an adaptive render gave pixels different counts
     /// (`samples` is then the most); empty when every pixel has `samples`.
     pub pixel_samples: Vec<u64>,
-    /// Complete replicates of each pixel, likewise (`replicates` is then the fewest).
+    /// Complete replicates of each pixel, likewise (`replicates` is then the fewest of the
+    /// pixels not `exact`).
     pub pixel_replicates: Vec<u64>,
+    /// Pixels whose value is exact: an adaptive render's background pixels (their camera
+    /// rays see no geometry), stopped after their first replicate. Their standard error is
+    /// 0; empty when there are none.
+    pub exact: Vec<bool>,
 }
 
 /// How a film's error is estimated.
@@ -238,6 +243,7 @@ impl Film {
             replicate_sq: Vec::new(),
             pixel_samples: Vec::new(),
             pixel_replicates: Vec::new(),
+            exact: Vec::new(),
         }
     }
 
@@ -281,9 +287,17 @@ impl Film {
                     }
                     e => e,
                 };
+                if self.is_exact(i) {
+                    return 0.0;
+                }
                 standard_error(e, self.samples_of(i), self.sum[i], self.sum_sq[i], r)
             })
             .collect()
+    }
+
+    /// Whether pixel `i`'s value is exact (`exact`).
+    pub fn is_exact(&self, i: usize) -> bool {
+        self.exact.get(i).copied().unwrap_or(false)
     }
 
     /// Estimated root-mean-square error of the image against its converged value: the
@@ -330,6 +344,9 @@ impl Film {
             (0..mean.len())
                 .map(|i| {
                     let n = self.samples_of(i);
+                    if self.is_exact(i) {
+                        return (mean[i], mean[i]);
+                    }
                     let dof = match estimator {
                         ErrorEstimator::Replicates { .. } => self.replicates_of(i).saturating_sub(1),
                         e => e.degrees_of_freedom(n),
@@ -855,12 +872,29 @@ impl ExactSums {
             replicate_sq: self.replicate_sq.iter().map(|&q| q as f64 * qr).collect(),
             pixel_samples: self.pixel_samples.iter().map(|&n| n as u64).collect(),
             pixel_replicates: self.pixel_replicates.iter().map(|&n| n as u64).collect(),
+            exact: match self.pixel_replicates.iter().any(|&k| k < 2) {
+                true => (0..self.sum.len()).map(|i| self.is_exact(i)).collect(),
+                false => Vec::new(),
+            },
         }
     }
 
-    /// Complete replicates: the fewest of any pixel when counted per pixel.
+    /// Whether pixel `i` was stopped before its second replicate: only a background
+    /// pixel is (every other waits for `MIN_TARGET_REPLICATES`), and its value is exact.
+    fn is_exact(&self, i: usize) -> bool {
+        self.stopped.get(i).copied().unwrap_or(false) && self.pixel_replicates.get(i).is_some_and(|&k| k < 2)
+    }
+
+    /// Complete replicates: the fewest of any pixel when counted per pixel, leaving out
+    /// the exact ones (background pixels stopped after their first replicate), unless
+    /// every pixel is.
     pub fn replicate_count(&self) -> u64 {
-        self.pixel_replicates.iter().min().map_or(self.replicates, |&k| k as u64)
+        let counted = self.pixel_replicates.iter().enumerate().filter(|&(i, _)| !self.is_exact(i));
+        counted
+            .map(|(_, &k)| k)
+            .min()
+            .or(self.pixel_replicates.iter().max().copied())
+            .map_or(self.replicates, |k| k as u64)
     }
 }
 

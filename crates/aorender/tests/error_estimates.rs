@@ -418,6 +418,42 @@ fn adaptive_renders_resume_to_the_same_bits() {
     }
 }
 
+/// Background pixels (whose footprint misses the bunny's boxes: their value is exact)
+/// take one replicate in an adaptive render; no pixel whose rays ever meet the bunny is
+/// among them (its converged value is exactly the background in every one), and they are
+/// most of the background.
+#[test]
+fn background_pixels_of_an_adaptive_render_take_one_replicate() {
+    let mut scene = bunny();
+    (scene.settings.width, scene.settings.height) = (48, 48);
+    let (w, h) = (scene.settings.width, scene.settings.height);
+    let background = aorender::background_pixels(&scene, &scene.camera, w, h, 0.0);
+    let reference = converged(&scene, 1024);
+    let empty: Vec<bool> = reference.sum_sq.iter().map(|&s| s == 0.0).collect();
+    let (clear, missed) = (background.iter().filter(|&&b| b).count(), empty.iter().filter(|&&e| e).count());
+    eprintln!("{clear} of {} pixels clear, {missed} with no sample but the background in the reference", w * h);
+    for i in 0..background.len() {
+        assert!(!background[i] || empty[i], "pixel {i} is clear, but its rays met the bunny");
+    }
+    assert!(clear * 10 >= missed * 7, "{clear} pixels clear of {missed} that saw nothing");
+    let settings = Settings { spp: 4096, seed: 2, replicate: Some(16), ..scene.settings.clone() };
+    let request = ImageRequest { camera: scene.camera, settings, samples: None };
+    for kind in kinds() {
+        let session = session(&scene, &Config { device: kind, ..Default::default() });
+        let mut control = Control { target: Some(ErrorTarget::Rmse(0.008)), adaptive: true, ..Control::default() };
+        let out = session.render(&request).unwrap().complete(&mut control).unwrap();
+        assert_eq!(out.stats.ended_by, "target", "{kind:?}");
+        let film = &out.film;
+        for (i, &b) in background.iter().enumerate() {
+            if b {
+                assert_eq!((film.samples_of(i), film.sum[i]), (16, 0.0), "{kind:?} pixel {i}");
+            } else if !empty[i] {
+                assert!(film.samples_of(i) >= 8 * 16, "{kind:?} pixel {i}: {} samples", film.samples_of(i));
+            }
+        }
+    }
+}
+
 /// Shards of an adaptive render (each deciding on its own samples, and running to the
 /// end of its range when the target is not met there) merge exactly: in any order to the
 /// same bits, each pixel's count the sum of its counts in the shards.
