@@ -378,6 +378,27 @@ mod tests {
     }
 
     #[test]
+    fn score_intervals_are_wilsons_for_proportions_and_the_t_interval_mid_range() {
+        // 18 of 20 samples 1, with the binomial standard error and a normal quantile:
+        // Wilson's interval, [0.6990, 0.9721] (Brown, Cai & DasGupta 2001, eq. 4).
+        let p = 0.9f64;
+        let (lo, hi) = interval_95(p, (p * (1.0 - p) / 20.0).sqrt(), u64::MAX, 20, 1.0);
+        assert!((lo - 0.6990).abs() < 1e-4 && (hi - 0.9721).abs() < 1e-4, "[{lo}, {hi}]");
+        // Samples of 0 or 0.5 (an albedo): the same interval, scaled.
+        let (l2, h2) = interval_95(0.5 * p, 0.5 * (p * (1.0 - p) / 20.0).sqrt(), u64::MAX, 20, 0.5);
+        assert!((l2 - 0.5 * lo).abs() < 1e-12 && (h2 - 0.5 * hi).abs() < 1e-12, "[{l2}, {h2}]");
+        // Mid-range with a small variance: the t interval, to within 0.1 % of its width.
+        let (mean, se) = (0.9, 0.001);
+        let (lo, hi) = interval_95(mean, se, 15, 1000, 2.0);
+        let h = t_quantile_975(15) * se;
+        assert!((lo - (mean - h)).abs() < 1e-3 * h && (hi - (mean + h)).abs() < 1e-3 * h, "[{lo}, {hi}]");
+        // Near an end it leans to the middle and stays inside the range.
+        let (lo, hi) = interval_95(0.97, 0.02, 15, 64, 1.0);
+        let h = t_quantile_975(15) * 0.02;
+        assert!(hi <= 1.0 && lo < 0.97 - h && hi - 0.97 < 0.97 - lo, "[{lo}, {hi}]");
+    }
+
+    #[test]
     fn replicate_error_is_the_spread_of_replicate_means() {
         // Replicates of 4 samples with means 0.25, 0.5, 0.75, 0.5: mean 0.5, their
         // variance (1/16 + 0 + 1/16 + 0) / 3 = 1/24, standard error √(1/24 / 4).
