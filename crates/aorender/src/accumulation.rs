@@ -12,7 +12,7 @@
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
-use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, standard_error};
+use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, SampleRange, standard_error};
 use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_film_values};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
@@ -433,6 +433,10 @@ pub struct Accumulation {
     /// The largest magnitude of a sample (`max_sample_value`), for the intervals of an
     /// adaptive render's decisions (not stored: a resumed render takes its own).
     pub max_value: f64,
+    /// The pixels whose every camera ray misses the geometry ([`crate::background_pixels`]),
+    /// which an adaptive render stops after their first replicate; empty where unknown
+    /// (not stored: a resumed render takes its own).
+    pub background: Vec<bool>,
 }
 
 impl Accumulation {
@@ -467,6 +471,7 @@ impl Accumulation {
             partial: None,
             source: None,
             max_value,
+            background: Vec::new(),
         }
     }
 
@@ -599,34 +604,43 @@ impl Accumulation {
         self.exact.stopped.clone()
     }
 
-    /// An adaptive render's decision after a complete replicate: the pixels still sampled
-    /// whose 95 % interval ([`Film::intervals_95`]) is within 1.96 × `ADAPTIVE_SHARE` of the
-    /// target (the RMSE's value, or its share of the image mean) stop being sampled.
-    /// Returns the new mask when a pixel stopped.
+    /// An adaptive render's decision after a complete replicate: the background pixels
+    /// (`background`, whose value is exact) stop after the first; from the
+    /// `MIN_TARGET_REPLICATES`th on, the pixels still sampled whose 95 % interval
+    /// ([`Film::intervals_95`]) is within 1.96 × `ADAPTIVE_SHARE` of the target (the RMSE's
+    /// value, or its share of the image mean) stop too. Returns the new mask when a pixel
+    /// stopped.
     pub fn adapt(&mut self, target: ErrorTarget) -> Result<Option<Vec<bool>>> {
-        if self.exact.replicate_count() < MIN_TARGET_REPLICATES || self.partial_samples > 0 {
+        let replicates = self.exact.replicate_count();
+        if replicates == 0 || self.partial_samples > 0 || matches!(target, ErrorTarget::PointStdError(_)) {
             return Ok(None);
         }
-        let film = self.film()?;
-        let e = match target {
-            ErrorTarget::Rmse(e) => e,
-            ErrorTarget::RelativeRmse(r) => r * film.image_mean().abs(),
-            ErrorTarget::PointStdError(_) => return Ok(None),
-        };
-        let Some(intervals) = film.intervals_95(self.max_value) else {
-            return Ok(None);
-        };
-        let mean = film.mean();
         let mut mask = self.inactive();
         if mask.is_empty() {
-            mask = vec![false; mean.len()];
+            mask = vec![false; self.exact.sum.len()];
         }
-        let limit = 1.96 * ADAPTIVE_SHARE * e;
         let mut changed = false;
-        for (i, &(lo, hi)) in intervals.iter().enumerate() {
-            if !mask[i] && (hi - mean[i]).max(mean[i] - lo) <= limit {
-                mask[i] = true;
+        for (off, &exact) in mask.iter_mut().zip(&self.background) {
+            if exact && !*off {
+                *off = true;
                 changed = true;
+            }
+        }
+        if replicates >= MIN_TARGET_REPLICATES {
+            let film = self.film()?;
+            let e = match target {
+                ErrorTarget::RelativeRmse(r) => r * film.image_mean().abs(),
+                ErrorTarget::Rmse(e) | ErrorTarget::PointStdError(e) => e,
+            };
+            if let Some(intervals) = film.intervals_95(self.sample_range()) {
+                let mean = film.mean();
+                let limit = 1.96 * ADAPTIVE_SHARE * e;
+                for (i, &(lo, hi)) in intervals.iter().enumerate() {
+                    if !mask[i] && (hi - mean[i]).max(mean[i] - lo) <= limit {
+                        mask[i] = true;
+                        changed = true;
+                    }
+                }
             }
         }
         if !changed {
@@ -645,6 +659,11 @@ impl Accumulation {
             b if self.settings.replicate_plan().is_some() => b,
             _ => 0,
         }
+    }
+
+    /// What one of this accumulation's samples can be, for its intervals.
+    pub fn sample_range(&self) -> SampleRange {
+        SampleRange::of(self.settings.hemisphere, self.settings.background, self.max_value)
     }
 
     /// Why `target` cannot stop this accumulation, as [`Error::Settings`]: no valid error

@@ -27,8 +27,13 @@ pub struct Film {
     /// Samples of each pixel, when an adaptive render gave pixels different counts
     /// (`samples` is then the most); empty when every pixel has `samples`.
     pub pixel_samples: Vec<u64>,
-    /// Complete replicates of each pixel, likewise (`replicates` is then the fewest).
+    /// Complete replicates of each pixel, likewise (`replicates` is then the fewest of the
+    /// pixels not `exact`).
     pub pixel_replicates: Vec<u64>,
+    /// Pixels whose value is exact: an adaptive render's background pixels (their camera
+    /// rays see no geometry), stopped after their first replicate. Their standard error is
+    /// 0; empty when there are none.
+    pub exact: Vec<bool>,
 }
 
 /// How a film's error is estimated.
@@ -106,29 +111,95 @@ pub fn t_quantile_975(dof: u64) -> f64 {
     }
 }
 
-/// A two-sided 95 % confidence interval for the mean of `n` samples of magnitude at most
-/// `max_value`, estimated as `mean` with standard error `std_error` and `dof` degrees of
-/// freedom: `mean` ± t(dof) `std_error` ([`t_quantile_975`]). When every sample was the
-/// same (a zero standard error: every AO ray of a nearly open pixel escaped), the spread
-/// says nothing, and the interval is the Jeffreys bound for a binomial proportion with no
-/// event (Brown, Cai & DasGupta, "Interval estimation for a binomial proportion", 2001):
-/// the samples that would differ have a probability of at most q = χ²₁(0.95) / (2n + 1)
-/// (the Beta(½, n + ½) quantile for large n), one-sided because equal samples sit at an
-/// end of what the pixel's samples can be, and move the mean towards 0 or `max_value` by
-/// at most that share of the distance (samples lie in [min(0, mean), `max_value`]). For
-/// stratified samples the chance that every cell misses an event is at most that of
-/// independent ones (the product of the cells' chances), and scrambled nets are
-/// negatively dependent in the same sense (Wiart, Lemieux & Dong, "On the dependence
-/// structure and quality of scrambled (t, m, s)-nets", 2021).
-pub fn interval_95(mean: f64, std_error: f64, dof: u64, n: u64, max_value: f64) -> (f64, f64) {
-    if std_error > 1e-9 * max_value.abs().max(f64::MIN_POSITIVE) || n == 0 {
-        let h = t_quantile_975(dof) * std_error;
-        return (mean - h, mean + h);
+/// A two-sided 95 % confidence interval for the mean of `n` samples that lie in
+/// [min(0, `mean`), `upper`], estimated as `mean` with standard error `std_error` and `dof`
+/// degrees of freedom.
+///
+/// With a spread, it is Wilson's score interval ("Probable inference, the law of
+/// succession, and statistical inference", JASA 1927) for the mean's share p of the
+/// range, with the effective sample size of Korn & Graubard ("Confidence intervals for
+/// proportions with small expected number of positive counts estimated from survey data",
+/// Survey Methodology 1998): n* = p̂(1 − p̂) / v̂ from the estimated variance v̂ of p̂, and
+/// Student's t quantile for its `dof` ([`t_quantile_975`]). For samples of 0 or the
+/// range's end (the cosine estimators' visibility times an albedo) it is Wilson's interval
+/// itself; for replicates' means or weighted samples n* counts what their spread is
+/// worth. It is the set of p with (p̂ − p)² ≤ t² p (1 − p) / n*: where the Wald interval
+/// p̂ ± t √v̂ takes the variance at p̂, which near the range's ends is too small and
+/// undercovers (Brown, Cai & DasGupta, "Interval estimation for a binomial proportion",
+/// Statistical Science 2001), it takes the variance each candidate p would have, and far
+/// from the ends it is the t interval.
+///
+/// When every sample was the same (a zero standard error: every AO ray of a nearly open
+/// pixel escaped), the spread says nothing, and the interval is the Jeffreys bound for a
+/// binomial proportion with no event (Brown, Cai & DasGupta 2001): the samples that would
+/// differ have a probability of at most q = χ²₁(0.95) / (2n + 1) (the Beta(½, n + ½)
+/// quantile for large n), one-sided because equal samples sit at an end of what the
+/// pixel's samples can be, and move the mean towards 0 or `upper` by at most that share
+/// of the distance. For stratified samples the chance that every cell misses an event is
+/// at most that of independent ones (the product of the cells' chances), and scrambled
+/// nets are negatively dependent in the same sense (Wiart, Lemieux & Dong, "On the
+/// dependence structure and quality of scrambled (t, m, s)-nets", 2021).
+pub fn interval_95(mean: f64, std_error: f64, dof: u64, n: u64, upper: f64) -> (f64, f64) {
+    if n == 0 || !std_error.is_finite() {
+        return (f64::NEG_INFINITY, f64::INFINITY);
+    }
+    if std_error > 1e-9 * upper.abs().max(f64::MIN_POSITIVE) {
+        let t = t_quantile_975(dof);
+        // Samples lie in [min(0, mean), upper]: AO values are not negative, and a
+        // background below them is the least a sample can be.
+        let (lo, hi) = (mean.min(0.0), upper.max(mean));
+        let range = hi - lo;
+        let p = (mean - lo) / range;
+        let v = (std_error / range).powi(2);
+        let spread = p * (1.0 - p);
+        if !(range > 0.0 && spread > 0.0 && spread.is_finite()) {
+            let h = t * std_error;
+            return (mean - h, mean + h);
+        }
+        // k = t² / n*: the score equation's (1 + k) p² − (2p̂ + k) p + p̂² = 0.
+        let k = t * t * v / spread;
+        let centre = (p + 0.5 * k) / (1.0 + k);
+        let half = (k * (spread + 0.25 * k)).sqrt() / (1.0 + k);
+        return (lo + range * (centre - half).max(0.0), lo + range * (centre + half).min(1.0));
     }
     let q = (3.841_458_8 / (2.0 * n as f64 + 1.0)).min(1.0);
-    // Samples lie in [min(0, mean), max_value]: AO values are not negative, and a
-    // background below them is the least a sample can be.
-    (mean - q * mean.max(0.0), mean + q * (max_value - mean).max(0.0))
+    (mean - q * mean.max(0.0), mean + q * (upper - mean).max(0.0))
+}
+
+/// What one sample of a pixel or point can be, for its confidence interval
+/// ([`interval_95`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SampleRange {
+    /// 0 or the albedo of what the camera ray hit, at most this (the cosine estimators,
+    /// whose samples are an albedo times a visibility, with no background): a pixel's
+    /// samples lie in [0, ρ], and ρ = Σv² / Σv once one of them is not 0.
+    Binary(f64),
+    /// Anywhere from min(0, the mean) to this (the uniform estimator's weights
+    /// 2 ρ cos θ, or a background).
+    Bounded(f64),
+}
+
+impl SampleRange {
+    /// The range of a render's samples with `hemisphere`, a `background` and samples of
+    /// magnitude at most `max_value`.
+    pub fn of(hemisphere: crate::Hemisphere, background: f32, max_value: f64) -> SampleRange {
+        match hemisphere {
+            crate::Hemisphere::Cosine | crate::Hemisphere::CosinePolar if background == 0.0 => {
+                SampleRange::Binary(max_value)
+            }
+            _ => SampleRange::Bounded(max_value),
+        }
+    }
+
+    /// The largest value the samples whose sum is `sum` and sum of squares `sum_sq` can
+    /// take: what [`interval_95`] takes as `upper`.
+    pub fn upper(self, sum: f64, sum_sq: f64) -> f64 {
+        match self {
+            // Samples of 0 or ρ have Σv² = ρ Σv.
+            SampleRange::Binary(max) if sum > 0.0 && sum_sq > 0.0 => (sum_sq / sum).min(max),
+            SampleRange::Binary(max) | SampleRange::Bounded(max) => max,
+        }
+    }
 }
 
 /// The standard error of the mean of `n` samples whose sum is `sum`, from `estimator`:
@@ -172,6 +243,7 @@ impl Film {
             replicate_sq: Vec::new(),
             pixel_samples: Vec::new(),
             pixel_replicates: Vec::new(),
+            exact: Vec::new(),
         }
     }
 
@@ -215,9 +287,17 @@ impl Film {
                     }
                     e => e,
                 };
+                if self.is_exact(i) {
+                    return 0.0;
+                }
                 standard_error(e, self.samples_of(i), self.sum[i], self.sum_sq[i], r)
             })
             .collect()
+    }
+
+    /// Whether pixel `i`'s value is exact (`exact`).
+    pub fn is_exact(&self, i: usize) -> bool {
+        self.exact.get(i).copied().unwrap_or(false)
     }
 
     /// Estimated root-mean-square error of the image against its converged value: the
@@ -253,8 +333,8 @@ impl Film {
     }
 
     /// Per-pixel two-sided 95 % confidence intervals of the means ([`interval_95`]), for
-    /// samples of magnitude at most `max_value`; `None` without a valid error estimate.
-    pub fn intervals_95(&self, max_value: f64) -> Option<Vec<(f64, f64)>> {
+    /// samples in `range`; `None` without a valid error estimate.
+    pub fn intervals_95(&self, range: SampleRange) -> Option<Vec<(f64, f64)>> {
         let estimator = self.error_estimator();
         if estimator == ErrorEstimator::None {
             return None;
@@ -264,11 +344,14 @@ impl Film {
             (0..mean.len())
                 .map(|i| {
                     let n = self.samples_of(i);
+                    if self.is_exact(i) {
+                        return (mean[i], mean[i]);
+                    }
                     let dof = match estimator {
                         ErrorEstimator::Replicates { .. } => self.replicates_of(i).saturating_sub(1),
                         e => e.degrees_of_freedom(n),
                     };
-                    interval_95(mean[i], se[i], dof, n, max_value)
+                    interval_95(mean[i], se[i], dof, n, range.upper(self.sum[i], self.sum_sq[i]))
                 })
                 .collect(),
         )
@@ -292,6 +375,27 @@ mod tests {
             assert!((t_quantile_975(dof) - t).abs() < 1e-4, "dof {dof}: {} against {t}", t_quantile_975(dof));
         }
         assert!((t_quantile_975(1 << 30) - 1.959_964).abs() < 1e-6);
+    }
+
+    #[test]
+    fn score_intervals_are_wilsons_for_proportions_and_the_t_interval_mid_range() {
+        // 18 of 20 samples 1, with the binomial standard error and a normal quantile:
+        // Wilson's interval, [0.6990, 0.9721] (Brown, Cai & DasGupta 2001, eq. 4).
+        let p = 0.9f64;
+        let (lo, hi) = interval_95(p, (p * (1.0 - p) / 20.0).sqrt(), u64::MAX, 20, 1.0);
+        assert!((lo - 0.6990).abs() < 1e-4 && (hi - 0.9721).abs() < 1e-4, "[{lo}, {hi}]");
+        // Samples of 0 or 0.5 (an albedo): the same interval, scaled.
+        let (l2, h2) = interval_95(0.5 * p, 0.5 * (p * (1.0 - p) / 20.0).sqrt(), u64::MAX, 20, 0.5);
+        assert!((l2 - 0.5 * lo).abs() < 1e-12 && (h2 - 0.5 * hi).abs() < 1e-12, "[{l2}, {h2}]");
+        // Mid-range with a small variance: the t interval, to within 0.1 % of its width.
+        let (mean, se) = (0.9, 0.001);
+        let (lo, hi) = interval_95(mean, se, 15, 1000, 2.0);
+        let h = t_quantile_975(15) * se;
+        assert!((lo - (mean - h)).abs() < 1e-3 * h && (hi - (mean + h)).abs() < 1e-3 * h, "[{lo}, {hi}]");
+        // Near an end it leans to the middle and stays inside the range.
+        let (lo, hi) = interval_95(0.97, 0.02, 15, 64, 1.0);
+        let h = t_quantile_975(15) * 0.02;
+        assert!(hi <= 1.0 && lo < 0.97 - h && hi - 0.97 < 0.97 - lo, "[{lo}, {hi}]");
     }
 
     #[test]
@@ -789,12 +893,29 @@ impl ExactSums {
             replicate_sq: self.replicate_sq.iter().map(|&q| q as f64 * qr).collect(),
             pixel_samples: self.pixel_samples.iter().map(|&n| n as u64).collect(),
             pixel_replicates: self.pixel_replicates.iter().map(|&n| n as u64).collect(),
+            exact: match self.pixel_replicates.iter().any(|&k| k < 2) {
+                true => (0..self.sum.len()).map(|i| self.is_exact(i)).collect(),
+                false => Vec::new(),
+            },
         }
     }
 
-    /// Complete replicates: the fewest of any pixel when counted per pixel.
+    /// Whether pixel `i` was stopped before its second replicate: only a background
+    /// pixel is (every other waits for `MIN_TARGET_REPLICATES`), and its value is exact.
+    fn is_exact(&self, i: usize) -> bool {
+        self.stopped.get(i).copied().unwrap_or(false) && self.pixel_replicates.get(i).is_some_and(|&k| k < 2)
+    }
+
+    /// Complete replicates: the fewest of any pixel when counted per pixel, leaving out
+    /// the exact ones (background pixels stopped after their first replicate), unless
+    /// every pixel is.
     pub fn replicate_count(&self) -> u64 {
-        self.pixel_replicates.iter().min().map_or(self.replicates, |&k| k as u64)
+        let counted = self.pixel_replicates.iter().enumerate().filter(|&(i, _)| !self.is_exact(i));
+        counted
+            .map(|(_, &k)| k)
+            .min()
+            .or(self.pixel_replicates.iter().max().copied())
+            .map_or(self.replicates, |k| k as u64)
     }
 }
 

@@ -68,6 +68,7 @@ mod device;
 pub mod film;
 #[cfg(not(feature = "testing"))]
 mod film;
+mod footprint;
 #[cfg(feature = "testing")]
 pub mod geometry;
 #[cfg(not(feature = "testing"))]
@@ -118,7 +119,8 @@ pub use accumulation::{Accumulation, ErrorTarget, FilmLayout, Merged, MergedShar
 pub use bvh::{BuildQuality, BvhLayout};
 pub use device::{BvhOptions, Device, DeviceKind, Setup};
 pub use error::{Error, Result};
-pub use film::{BLOCK_SAMPLES, ErrorEstimator, Film, interval_95, t_quantile_975};
+pub use film::{BLOCK_SAMPLES, ErrorEstimator, Film, SampleRange, interval_95, t_quantile_975};
+pub use footprint::background_pixels;
 pub use gpu::{AdapterInfo, GeometryStorage, Traversal, catching_panics, list_adapters};
 pub use probe::{Probe, ProbeValue, probe_film_bent_normals, probe_film_values};
 pub use render::{

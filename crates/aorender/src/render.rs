@@ -380,6 +380,7 @@ impl Render {
             self.passes.load(&block).map_err(|e| saved.error(e.message()))?;
         }
         saved.max_value = self.acc.max_value;
+        saved.background.clone_from(&self.acc.background);
         saved.adapter.clone_from(&self.acc.adapter);
         self.resumed = saved.samples();
         self.acc = saved;

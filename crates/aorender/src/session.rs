@@ -16,6 +16,7 @@ use crate::accumulation::{
 use crate::device::{BvhOptions, Device, Prepared, Setup};
 use crate::error::{Error, Result};
 use crate::film::value_exponent;
+use crate::footprint::background_pixels;
 use crate::probe::{Probe, ProbeValue, checked, lanes_for};
 use crate::render::{Control, PassTimes, Render, RenderInfo};
 use crate::scene::{Camera, LocalFrame, Scene, Settings, round_up};
@@ -249,6 +250,9 @@ impl Session {
             max_value,
         );
         acc.adapter = self.setup.adapter.name.clone();
+        // In the scene's stored coordinates, where its primitives are.
+        let stored = LocalFrame::IDENTITY.camera(&request.camera, self.scene.origin);
+        acc.background = background_pixels(&self.scene, &stored, s.width, s.height, self.frame.surface_shift as f64);
         Ok(Render::new(passes, acc, self.info(target_seconds)))
     }
 

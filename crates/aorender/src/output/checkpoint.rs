@@ -517,6 +517,7 @@ impl Accumulation {
             source: None,
             // The power of two the sums' scale was set from: at least the largest sample.
             max_value: 2f64.powi(sum_exponent - ExactSums::exponents(1.0).0),
+            background: Vec::new(),
         })
     }
 }
