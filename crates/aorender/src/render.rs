@@ -338,7 +338,13 @@ pub struct Render {
     interrupted: bool,
     /// How the last run of passes ended, and the target it had.
     ended: Option<(RunEnd, Option<ErrorTarget>)>,
+    /// Finds the accumulation's background pixels when an adaptive run first needs them:
+    /// a render that is not adaptive never pays for the test.
+    background: Option<BackgroundPixels>,
 }
+
+/// What finds a render's background pixels ([`crate::background_pixels`]).
+pub(crate) type BackgroundPixels = Box<dyn FnOnce() -> Vec<bool> + Send>;
 
 impl Render {
     pub(crate) fn new(passes: Box<dyn Passes>, acc: Accumulation, info: RenderInfo) -> Render {
@@ -351,7 +357,15 @@ impl Render {
             times: PassTimes { gpu_seconds: Some(0.0), ..Default::default() },
             interrupted: false,
             ended: None,
+            background: None,
         }
+    }
+
+    /// The render with `background` to find its background pixels, which an adaptive run
+    /// stops after their first replicate.
+    pub(crate) fn with_background(mut self, background: BackgroundPixels) -> Render {
+        self.background = Some(background);
+        self
     }
 
     /// Continues `saved`, an accumulation of the same scene, settings, device, BVH and
@@ -448,6 +462,9 @@ impl Render {
         }
         if control.adaptive {
             self.acc.check_adaptive(control.target)?;
+            if let Some(find) = self.background.take() {
+                self.acc.background = find();
+            }
         }
         let acc = &mut self.acc;
         let until = (acc.first + samples.min(acc.end - acc.first)).max(acc.next);

@@ -252,8 +252,10 @@ impl Session {
         acc.adapter = self.setup.adapter.name.clone();
         // In the scene's stored coordinates, where its primitives are.
         let stored = LocalFrame::IDENTITY.camera(&request.camera, self.scene.origin);
-        acc.background = background_pixels(&self.scene, &stored, s.width, s.height, self.frame.surface_shift as f64);
-        Ok(Render::new(passes, acc, self.info(target_seconds)))
+        let (scene, shift, (width, height)) =
+            (self.scene.clone(), self.frame.surface_shift as f64, (s.width, s.height));
+        let background = Box::new(move || background_pixels(&scene, &stored, width, height, shift));
+        Ok(Render::new(passes, acc, self.info(target_seconds)).with_background(background))
     }
 
     /// AO at `probes` as a render that runs, saves, resumes and merges like an image: one
