@@ -433,7 +433,7 @@ pub struct Accumulation {
     /// The largest magnitude of a sample (`max_sample_value`), for the intervals of an
     /// adaptive render's decisions (not stored: a resumed render takes its own).
     pub max_value: f64,
-    /// The pixels whose every camera ray misses the geometry ([`crate::background_pixels`]),
+    /// The pixels whose every camera ray misses the geometry ([`crate::footprint::background_pixels`]),
     /// which an adaptive render stops after their first replicate; empty where unknown
     /// (not stored: a resumed render takes its own).
     pub background: Vec<bool>,

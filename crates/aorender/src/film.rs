@@ -182,9 +182,9 @@ pub enum SampleRange {
 impl SampleRange {
     /// The range of a render's samples with `hemisphere`, a `background` and samples of
     /// magnitude at most `max_value`.
-    pub fn of(hemisphere: crate::Hemisphere, background: f32, max_value: f64) -> SampleRange {
+    pub fn of(hemisphere: crate::sampling::Hemisphere, background: f32, max_value: f64) -> SampleRange {
         match hemisphere {
-            crate::Hemisphere::Cosine | crate::Hemisphere::CosinePolar if background == 0.0 => {
+            crate::sampling::Hemisphere::Cosine | crate::sampling::Hemisphere::CosinePolar if background == 0.0 => {
                 SampleRange::Binary(max_value)
             }
             _ => SampleRange::Bounded(max_value),

@@ -343,7 +343,7 @@ pub struct Render {
     background: Option<BackgroundPixels>,
 }
 
-/// What finds a render's background pixels ([`crate::background_pixels`]).
+/// What finds a render's background pixels ([`crate::footprint::background_pixels`]).
 pub(crate) type BackgroundPixels = Box<dyn FnOnce() -> Vec<bool> + Send>;
 
 impl Render {
