@@ -145,7 +145,7 @@ impl SceneArgs {
             None => Scene::default_scene(),
         };
         for w in &scene.warnings {
-            eprintln!("aorender: warning: {w}");
+            crate::say!("aorender: warning: {w}");
         }
         let s = &mut scene.settings;
         if self.max_distance.is_some() {

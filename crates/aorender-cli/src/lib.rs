@@ -3,6 +3,16 @@
 //! signal handling and heap accounting. The binary (`src/main.rs`) parses the command
 //! line and dispatches; the engine is the `aorender` library.
 
+/// Writes a line to standard error as `eprintln!` does, but never panics: where standard
+/// error is closed or full the line is lost and the command's exit status stands.
+#[macro_export]
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use ::std::io::Write as _;
+        let _ = ::std::writeln!(::std::io::stderr(), $($arg)*);
+    }};
+}
+
 pub mod args;
 pub mod bench;
 pub mod commands;

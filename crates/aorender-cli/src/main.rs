@@ -54,7 +54,7 @@ fn main() {
     let result = run();
     memory::write_test_heap_peak();
     if let Err(e) = result {
-        eprintln!("aorender: {e:#}");
+        aorender_cli::say!("aorender: {e:#}");
         std::process::exit(1);
     }
 }
@@ -73,7 +73,7 @@ fn parse() -> Cli {
                 let items: Vec<&str> = lines.take_while(|l| l.starts_with(' ')).map(str::trim).collect();
                 first = format!("{first} {}", items.join(", "));
             }
-            eprintln!("aorender: {first} (see aorender --help)");
+            aorender_cli::say!("aorender: {first} (see aorender --help)");
             std::process::exit(2);
         }
         // --help and --version

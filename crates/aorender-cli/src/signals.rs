@@ -51,7 +51,7 @@ pub fn install(stop: Arc<AtomicBool>) -> Result<()> {
             for signal in signals.forever() {
                 if !FIRST_PASS_DONE.load(Ordering::SeqCst) {
                     aorender::output::remove_temporary_files();
-                    eprintln!(
+                    crate::say!(
                         "aorender: interrupted by {} before the first pass finished (loading the scene, building the \
                          BVH or setting up the device); nothing was written",
                         signal_name(signal)
@@ -60,10 +60,10 @@ pub fn install(stop: Arc<AtomicBool>) -> Result<()> {
                 }
                 if STOP_SIGNAL.compare_exchange(0, signal, Ordering::SeqCst, Ordering::SeqCst).is_ok() {
                     stop.store(true, Ordering::SeqCst);
-                    eprintln!("{}: finishing the current pass (a second signal stops at once)", signal_name(signal));
+                    crate::say!("{}: finishing the current pass (a second signal stops at once)", signal_name(signal));
                 } else {
                     aorender::output::remove_temporary_files();
-                    eprintln!(
+                    crate::say!(
                         "aorender: stopped at once by a second {}; files being written were left as they were",
                         signal_name(signal)
                     );

@@ -451,6 +451,30 @@ fn a_closed_pipe_on_standard_output_ends_quietly_with_141() {
     }
 }
 
+/// A closed standard error loses the command's messages, not its exit status: a command
+/// that fails still exits 1, one that succeeds 0, and neither panics (101).
+#[test]
+fn a_closed_pipe_on_standard_error_keeps_the_exit_status() {
+    let dir = workspace();
+    let failing = vec!["render", "missing.obj", "-o", "m.png", "--device", "cpu"];
+    let cases = printing_commands().into_iter().map(|c| (c, 0)).chain([(failing, 1)]);
+    for (command, status) in cases {
+        let mut fds = [0; 2];
+        assert_eq!(unsafe { libc::pipe2(fds.as_mut_ptr(), libc::O_CLOEXEC) }, 0);
+        let (read, write) = unsafe { (OwnedFd::from_raw_fd(fds[0]), OwnedFd::from_raw_fd(fds[1])) };
+        drop(read);
+        let out = Command::new(env!("CARGO_BIN_EXE_aorender"))
+            .args(&command)
+            .current_dir(dir.path())
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .stdout(Stdio::null())
+            .stderr(Stdio::from(write))
+            .output()
+            .expect("aorender runs");
+        assert_eq!(out.status.code(), Some(status), "{command:?}");
+    }
+}
+
 #[test]
 fn a_full_standard_output_is_one_line_and_status_1() {
     let dir = workspace();

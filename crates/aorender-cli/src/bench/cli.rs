@@ -266,7 +266,7 @@ pub fn command(args: BenchArgs) -> Result<()> {
                 bar.set_message(p.stage.clone());
             }
             // Without a terminal, one line per stage.
-            None if p.stage != last_stage => eprintln!("{}", p.stage),
+            None if p.stage != last_stage => crate::say!("{}", p.stage),
             None => {}
         }
         last_stage.clone_from(&p.stage);
@@ -277,7 +277,7 @@ pub fn command(args: BenchArgs) -> Result<()> {
     }
     write_outputs(&results, &args.out)?;
     crate::output::print(&report::table(&results))?;
-    eprintln!("results and plots in {}", args.out.display());
+    crate::say!("results and plots in {}", args.out.display());
     if !results.failures.is_empty() {
         let names: Vec<&str> = results.failures.iter().map(|f| f.scene.as_str()).collect();
         bail!("{} of {} scenes failed: {}", names.len(), plan.scenes.len(), names.join(", "));

@@ -60,7 +60,7 @@ pub fn run(args: AccuracyArgs) -> Result<()> {
     write_output(&args.output, md.as_bytes())?;
     for r in &reports {
         let pass = r.rows.iter().filter(|row| row.pass()).count();
-        eprintln!("{}: {pass} of {} points pass", r.adapter, r.rows.len());
+        crate::say!("{}: {pass} of {} points pass", r.adapter, r.rows.len());
     }
     Ok(())
 }

@@ -512,7 +512,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
             std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create the directory", dir.display()))?;
         }
         for note in t.asset.write(&t.output, &values, &options)? {
-            eprintln!("note: {}: {note}", t.output.display());
+            crate::say!("note: {}: {note}", t.output.display());
         }
     }
     stats.phases.write_seconds += writing.elapsed().as_secs_f64();
@@ -522,7 +522,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         write_json(path, &json)?;
     }
     let written: Vec<String> = targets.iter().map(|t| t.output.display().to_string()).collect();
-    eprintln!(
+    crate::say!(
         "{}: {} {} × {} samples in {:.2} s ({:.1} M AO rays/s) on {}; mean AO {:.4}; {}",
         written.join(", "),
         stats.points,
@@ -535,7 +535,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         stats.phases.line()
     );
     if plan.unusable > 0 {
-        eprintln!(
+        crate::say!(
             "note: {} {} without a usable normal (unreferenced, or only degenerate faces) got AO {UNUSABLE_VALUE}",
             plan.unusable,
             plural(at)
@@ -609,7 +609,7 @@ fn write_texture_bake(
             });
         }
         for note in target.asset.write_textures(&args.output, &encoded, generated)? {
-            eprintln!("note: {}: {note}", args.output.display());
+            crate::say!("note: {}: {note}", args.output.display());
         }
         if format_of(&args.output) != Some("glTF") {
             written.push(map_path(&args.output, "ao"));
@@ -628,7 +628,7 @@ fn write_texture_bake(
     stats.outputs = written.clone();
     stats.end();
     let written: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
-    eprintln!(
+    crate::say!(
         "{}: {}×{} texture, {} texels × {} points × {} samples in {:.2} s ({:.1} M AO rays/s) on {}; mean AO {:.4}, RMS standard error {:.4}; {}",
         written.join(", "),
         options.width,
@@ -644,13 +644,13 @@ fn write_texture_bake(
         stats.phases.line()
     );
     if counts.overlapping > 0 {
-        eprintln!(
+        crate::say!(
             "note: {} texels are covered by overlapping charts (mirrored or stacked UVs): each holds the mean over the surfaces mapped to it",
             counts.overlapping
         );
     }
     if counts.skipped > 0 {
-        eprintln!(
+        crate::say!(
             "note: {} triangles without texture coordinates at a corner or of zero area in UV space were not baked",
             counts.skipped
         );
@@ -779,7 +779,7 @@ fn trace_blocks(
         if out.stats.interrupted {
             bar.finish();
             let signal = signals::stop_signal();
-            eprintln!(
+            crate::say!(
                 "aorender: interrupted by {} in block {} of {}; nothing was written",
                 signals::signal_name(signal),
                 b + 1,
@@ -832,14 +832,15 @@ fn finish(stats: &BakeStats, written: &[String], checkpoint_path: Option<&Path>)
         if let Some(path) = checkpoint_path {
             message += &format!("; continue with --resume {}", path.display());
         }
-        eprintln!("aorender: {message}");
+        crate::say!("aorender: {message}");
         output::flush()?;
         std::process::exit(128 + signal);
     }
     if stats.samples_per_point < stats.samples_requested {
-        eprintln!(
+        crate::say!(
             "time limit reached after {} of {} samples per point",
-            stats.samples_per_point, stats.samples_requested
+            stats.samples_per_point,
+            stats.samples_requested
         );
     }
     Ok(())
@@ -904,7 +905,7 @@ fn trace(
     let acc = out.accumulation;
     if acc.samples() == 0 {
         let signal = signals::stop_signal();
-        eprintln!(
+        crate::say!(
             "aorender: interrupted by {} before any sample was traced; nothing was written",
             signals::signal_name(signal)
         );

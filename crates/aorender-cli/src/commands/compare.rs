@@ -59,7 +59,7 @@ pub fn command(args: CompareArgs) -> Result<()> {
     let session = Session::new(&args.scene.device()?, scene, &args.scene.bvh())?;
     let mut on_progress = |p: &CompareProgress| {
         if p.render.is_none() {
-            eprintln!(
+            crate::say!(
                 "rendering {}/{} at {} spp ({} of {})",
                 p.hemisphere.name(),
                 p.sampler.name(),
@@ -87,7 +87,7 @@ pub fn command(args: CompareArgs) -> Result<()> {
         );
     }
     output::print(&table)?;
-    eprintln!(
+    crate::say!(
         "{}: {} cells of {}x{} in {:.1} s on {} ({})",
         args.output.display(),
         grid.cells.len(),

@@ -59,7 +59,7 @@ pub fn run(args: MergeArgs) -> Result<()> {
     if let Some(path) = &args.stats {
         write_json(path, &json)?;
     }
-    eprintln!(
+    crate::say!(
         "{}: {}x{}, samples {}..{} from {} shards; mean {:.4}",
         args.output.display(),
         stats.width,
@@ -70,7 +70,7 @@ pub fn run(args: MergeArgs) -> Result<()> {
         stats.image_mean
     );
     if !stats.same_as_single_run {
-        eprintln!(
+        crate::say!(
             "note: the shards come from different adapters, or a shard boundary cuts a replicate of the error \
              estimate (whose square is then in neither shard): the merge is not bit for bit a single render's"
         );

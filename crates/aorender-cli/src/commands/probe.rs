@@ -152,7 +152,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     if let Some(path) = &args.stats {
         write_json(path, &serde_json::to_string_pretty(&stats)?)?;
     }
-    eprintln!(
+    crate::say!(
         "{} probes × {samples} samples in {:.2} s ({:.1} M AO rays/s) on {}; {} on no surface; {line}",
         probes.len(),
         out.seconds,
@@ -161,7 +161,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         located.off_surface()
     );
     if let Some(first) = located.on_surface.iter().position(|&on| !on) {
-        eprintln!(
+        crate::say!(
             "note: {} of {} points (the first on line {} of {}) lie on no surface within the tolerance: \
              their rays start exactly at them (--surface-tolerance D to widen it)",
             located.off_surface(),
@@ -173,7 +173,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     if matches!(settings.sampler, Sampler::Sobol | Sampler::Stratified)
         && settings.sampler.replicate_samples(settings.replicate) == 0
     {
-        eprintln!(
+        crate::say!(
             "note: std_error is the spread of single samples, which overestimates the error of {} points: \
              --replicate N gives a valid one",
             settings.sampler.name()
@@ -181,7 +181,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     }
     if let Some(e) = args.target_error {
         let met = if most <= e { "met" } else { "not met" };
-        eprintln!(
+        crate::say!(
             "error target {e} {met}: the largest standard error is {most:.3e} after {samples} samples ({} checks)",
             stats.phases.checks
         );

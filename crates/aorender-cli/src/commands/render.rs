@@ -188,7 +188,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let st = &out.stats;
     let signal = signals::stop_signal();
     if st.samples_per_pixel == 0 {
-        eprintln!(
+        crate::say!(
             "aorender: interrupted by {} before any sample was rendered; nothing was written",
             signals::signal_name(signal)
         );
@@ -215,7 +215,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         Some(_) => format!(", {} checks", st.checks),
         None => String::new(),
     };
-    eprintln!(
+    crate::say!(
         "{}: {}x{} at {} spp in {:.2} s ({:.1} M rays/s{checks}) on {} ({}); mean {:.4}{copies}; {}",
         args.output.display(),
         st.width,
@@ -231,7 +231,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if let Some(adapter) = resumed_adapter
         && adapter != st.adapter
     {
-        eprintln!(
+        crate::say!(
             "note: the checkpoint was rendered on {adapter} and continued on {}: the sums are exact, but the two \
              adapters' samples may differ in their last bits: not bit for bit an uninterrupted render on either",
             st.adapter
@@ -251,12 +251,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
         if let Some(path) = &checkpoint_path {
             message += &format!("; continue with --resume {}", path.display());
         }
-        eprintln!("aorender: {message}");
+        crate::say!("aorender: {message}");
         output::flush()?;
         std::process::exit(128 + signal);
     }
     if st.ended_by == "target" {
-        eprintln!(
+        crate::say!(
             "error target met after {} of at most {} samples per pixel ({:.1} on average; RMSE bound {:.3e})",
             st.samples_per_pixel,
             st.samples_requested,
@@ -265,12 +265,13 @@ pub fn run(args: RenderArgs) -> Result<()> {
         );
     } else if st.samples_per_pixel < st.samples_requested {
         let why = if target.is_some() && st.ended_by == "time limit" { "; the error target was not met" } else { "" };
-        eprintln!(
+        crate::say!(
             "time limit reached after {} of {} samples per pixel{why}",
-            st.samples_per_pixel, st.samples_requested
+            st.samples_per_pixel,
+            st.samples_requested
         );
     } else if target.is_some() {
-        eprintln!("the error target was not met within {} samples per pixel", st.samples_requested);
+        crate::say!("the error target was not met within {} samples per pixel", st.samples_requested);
     }
     Ok(())
 }
