@@ -14,7 +14,7 @@ use super::asset::{
 };
 use super::gltf_tidy::{self, array};
 use crate::error::{Error, Result};
-use crate::output::{write_output, write_output_with};
+use crate::output::{normalise, write_output, write_output_with};
 use crate::scene::extension;
 use crate::scene::files::relative_file;
 use crate::scene::gltf::{GltfBytes, json_memory, read_buffers, read_gltf, uri_file};
@@ -1075,21 +1075,6 @@ fn comparable(path: &Path) -> PathBuf {
 
 fn same_directory(a: &Path, b: &Path) -> bool {
     comparable(a) == comparable(b)
-}
-
-/// `path` with `.` and `dir/..` removed, without touching the file system.
-fn normalise(path: &Path) -> PathBuf {
-    let mut out = PathBuf::new();
-    for c in path.components() {
-        match c {
-            Component::CurDir => {}
-            Component::ParentDir if matches!(out.components().next_back(), Some(Component::Normal(_))) => {
-                out.pop();
-            }
-            c => out.push(c),
-        }
-    }
-    out
 }
 
 /// Rewrites the relative URIs of buffers and images so that from `to` they name the

@@ -29,4 +29,5 @@ pub use checkpoint::{MAGIC, VERSION};
 pub use image::{
     FLOAT_IMAGE_EXTENSIONS, IMAGE_EXTENSIONS, encode, linear_to_srgb, linear_to_srgb8, write_error_image, write_image,
 };
+pub(crate) use policy::normalise;
 pub use policy::{Destination, FilePlan, OutputRules, destination, same_file, write_output, write_output_with};

@@ -102,7 +102,7 @@ fn resolve_missing(p: &Path) -> (PathBuf, bool) {
 
 /// `path` with `.` and `dir/..` removed, without the file system (for paths under a
 /// directory that does not exist yet).
-fn normalise(path: &Path) -> PathBuf {
+pub(crate) fn normalise(path: &Path) -> PathBuf {
     let mut out = PathBuf::new();
     for c in path.components() {
         match c {
