@@ -17,6 +17,7 @@ var<private> dispatch: Dispatch;
 fn load_constants() {
     frame = frame_binding;
     dispatch = dispatch_binding;
+    runtime_one = frame.one;
 }
 // Bindings 2 and 3, and 8 and up, hold the BVH nodes and the primitives, split into
 // chunks that each fit one binding: the composer generates them with load_node and

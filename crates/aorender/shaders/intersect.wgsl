@@ -10,13 +10,27 @@
 // intersect_triangle in src/geometry.rs (whose comment has the full argument), operation
 // for operation and in the same order, so the two agree bit for bit where the basic
 // operations are IEEE. A shared edge's edge function is computed from the same sheared
-// vertices with its operands swapped, so neighbours see exactly opposite values (this
-// needs a*b - c*d kept as two rounded products, as lavapipe does). There is no f64
+// vertices with its operands swapped, so neighbours see exactly opposite values. That
+// needs a*b - c*d kept as two rounded products, which a compiler that fuses one of them
+// into the subtraction breaks (NVIDIA's does: rays leaked through shared edges of a
+// closed mesh on an H200); every product here goes through `unfused`. There is no f64
 // fallback for edge functions that round to zero: rounding is monotone, so an f32 edge
 // function has the right sign or is 0, and a 0 counts as either sign. That keeps the
 // test conservative (a ray on an edge or vertex hits every triangle there) without f64,
 // which most adapters lack. det == 0 (all three zero: edge-on, or a repeated vertex) is
 // a miss, and so is a t within pbrt-v4's bound on its rounding error.
+
+// 1.0 as the kernel reads it at run time (`Frame.one`, or the test probe's parameter);
+// zero until the entry point sets it, so a kernel that forgets misses every triangle.
+var<private> runtime_one: f32;
+
+// The product a, rounded on its own: the compiler cannot drop a * runtime_one (it cannot
+// know the value is 1), and a product cannot fuse into another product, so a sum of
+// unfused products rounds each product as written (naga's SPIR-V has no NoContraction).
+fn unfused(a: f32) -> f32 {
+    return a * runtime_one;
+}
+
 fn intersect_triangle(o: vec3f, d: vec3f, t_min: f32, t_max: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> f32 {
     return triangle_test(o, d, t_min, t_max, v0, v1, v2).x;
 }
@@ -77,16 +91,16 @@ fn triangle_test_sheared(op: vec3f, sh: Shear, t_min: f32, t_max: f32, v0: vec3f
     let b = permute_axes(v1, sh.k) - op;
     let c = permute_axes(v2, sh.k) - op;
     // Sheared to the ray's frame: the ray is the z axis.
-    let ax = a.x - sx * a.z;
-    let ay = a.y - sy * a.z;
-    let bx = b.x - sx * b.z;
-    let by = b.y - sy * b.z;
-    let cx = c.x - sx * c.z;
-    let cy = c.y - sy * c.z;
+    let ax = a.x - unfused(sx * a.z);
+    let ay = a.y - unfused(sy * a.z);
+    let bx = b.x - unfused(sx * b.z);
+    let by = b.y - unfused(sy * b.z);
+    let cx = c.x - unfused(sx * c.z);
+    let cy = c.y - unfused(sy * c.z);
     // Scaled barycentrics: twice the signed areas seen from the ray.
-    let u = cx * by - cy * bx;
-    let v = ax * cy - ay * cx;
-    let w = bx * ay - by * ax;
+    let u = unfused(cx * by) - unfused(cy * bx);
+    let v = unfused(ax * cy) - unfused(ay * cx);
+    let w = unfused(bx * ay) - unfused(by * ax);
     let miss = vec4f(INF, u, v, w);
     if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0)) {
         return miss;
@@ -98,7 +112,7 @@ fn triangle_test_sheared(op: vec3f, sh: Shear, t_min: f32, t_max: f32, v0: vec3f
     let az = sz * a.z;
     let bz = sz * b.z;
     let cz = sz * c.z;
-    let t = (u * az + v * bz + w * cz) / det;
+    let t = (unfused(u * az) + unfused(v * bz) + unfused(w * cz)) / det;
     if (!(t > t_min && t < t_max)) {
         return miss;
     }

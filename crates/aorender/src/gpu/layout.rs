@@ -85,8 +85,10 @@ gpu_struct! {
         pub first_row: u32 = "u32",
         /// e, 2^e bounding every sample: sums in quanta of 2^(e − 54), squares of 2^(2e − 54).
         pub value_exponent: i32 = "i32",
+        /// 1.0, read rather than known by the kernel, so products stay unfused (intersect.wgsl).
+        pub one: f32 = "f32",
         /// Padding to 16 bytes.
-        pub _pad: [u32; 2] = "array<u32, 2>",
+        pub _pad: u32 = "u32",
     }
 }
 
@@ -168,7 +170,8 @@ impl FrameUniforms {
             first_point: 0,
             first_row: 0,
             value_exponent,
-            _pad: [0; 2],
+            one: 1.0,
+            _pad: 0,
         }
     }
 
@@ -203,7 +206,8 @@ impl FrameUniforms {
             first_point: 0,
             first_row: 0,
             value_exponent,
-            _pad: [0; 2],
+            one: 1.0,
+            _pad: 0,
         }
     }
 }

@@ -10,7 +10,7 @@
 struct Params {
     triangle_count: u32,
     count: u32, // rays x triangles
-    _pad0: u32,
+    one: f32, // 1.0, for intersect.wgsl's `runtime_one`
     _pad1: u32,
 }
 
@@ -30,6 +30,7 @@ fn intersect(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups)
     if (i >= params.count) {
         return;
     }
+    runtime_one = params.one;
     let r = i / params.triangle_count;
     let k = i % params.triangle_count;
     let od = rays[2u * r];
