@@ -3,7 +3,8 @@
 //! - The WGSL `intersect_triangle` (run through `tests/kernels/intersect_probe.wgsl`, one
 //!   ray–triangle pair per invocation) gives the same hits and distances as the Rust one on
 //!   rays aimed at the shared vertices and edges of closed meshes, and on random and
-//!   degenerate triangles; on the adapter too no ray leaks out of a closed mesh.
+//!   degenerate triangles, where the adapter rounds as the CPU does (lavapipe); on every
+//!   adapter no ray leaks out of a closed mesh.
 //! - Inside a closed icosphere mesh and a closed box mesh every pixel is exactly 0 on the
 //!   CPU and on the GPU: no camera or AO ray leaks through a shared edge or vertex.
 //! - Zero-area triangles, repeated vertices and slivers load, never produce NaN, and the
@@ -395,9 +396,16 @@ fn wgsl_intersection_matches_rust_and_is_watertight() {
     let gpu = probe.run(&rays, &triangles);
     compare(&rays, &triangles, &gpu, &mut parity);
     eprintln!("random rays and triangles: {parity:?}");
-    for p in [&aimed, &parity] {
-        assert_eq!(p.hit_mismatches, 0, "hit on one side only: {:?}", p.first_mismatch);
-        assert!(p.max_ulps <= 1, "t differs by {} ulps: {:?}", p.max_ulps, p.first_mismatch);
+    // Hits and distances agree with the CPU's where the adapter rounds as the CPU does (a
+    // CPU adapter: lavapipe). A GPU's division need not be correctly rounded (Vulkan allows
+    // 2.5 ulp), so there the ray's shear differs from the CPU's in its last bits, and with
+    // it distances and hits on edges: the figures above. Watertightness, asserted above,
+    // holds on every adapter, since every triangle a ray meets sees the same shear.
+    if gpu_adapter().ctx.description.device_type == "Cpu" {
+        for p in [&aimed, &parity] {
+            assert_eq!(p.hit_mismatches, 0, "hit on one side only: {:?}", p.first_mismatch);
+            assert!(p.max_ulps <= 1, "t differs by {} ulps: {:?}", p.max_ulps, p.first_mismatch);
+        }
     }
     assert!(aimed.hits > 10_000 && parity.hits > 1_000, "too few hits to compare");
 }
