@@ -5,6 +5,7 @@ use super::{Plan, Progress, Results, ScenePlan, plot, report};
 use crate::args::{hemisphere_parser, sampler_parser};
 use anyhow::{Context, Result, bail};
 use aorender::output::{FilePlan, OutputRules};
+use aorender::scene::MAX_IMAGE_SIDE;
 use aorender::{Hemisphere, Sampler, Scene};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -111,9 +112,9 @@ pub fn plan(args: &BenchArgs, command: String) -> Result<Plan> {
         bail!("invalid option: --reference-spp must be at least 2, got {r}");
     }
     if let Some(s) = args.size
-        && !(1..=16384).contains(&s)
+        && !(1..=MAX_IMAGE_SIDE).contains(&s)
     {
-        bail!("invalid option: --size must be 1 to 16384, got {s}");
+        bail!("invalid option: --size must be 1 to {MAX_IMAGE_SIDE}, got {s}");
     }
     let (list, scaling_spp, resolutions) =
         if args.quick { (QUICK, 4, vec![16, 32, 64]) } else { (FULL, 8, vec![64, 128, 256, 512]) };

@@ -72,8 +72,8 @@ use std::path::Path;
 pub const MAGIC: [u8; 8] = *b"AOCKPT\r\n";
 /// The format version this build writes (it reads 1 and 2 as well).
 pub const VERSION: u32 = 3;
-/// The most film slots a checkpoint holds: those of the largest image, 16384 × 16384.
-const MAX_SLOTS: u64 = 16384 * 16384;
+/// The most film slots a checkpoint holds: those of the largest image.
+const MAX_SLOTS: u64 = crate::scene::MAX_IMAGE_SIDE as u64 * crate::scene::MAX_IMAGE_SIDE as u64;
 /// Longest adapter name stored.
 const MAX_ADAPTER_NAME: usize = 4096;
 /// Flag: the blocks follow the absolute grid of [`BLOCK_SAMPLES`] (cleared when a render
