@@ -12,7 +12,8 @@
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
-use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, SampleRange, standard_error};
+use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, SampleRange, rmse_bound, standard_error};
+use crate::gpu::stats::{CheckQuery, CheckSums};
 use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_film_values};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
@@ -746,6 +747,57 @@ impl Accumulation {
         })
     }
 
+    /// How a device reduces this image's sums for a check of its target, when every pixel
+    /// has the same samples: from the replicates where they are taken.
+    pub fn check_query(&self) -> CheckQuery {
+        let s = &self.settings;
+        let replicates = s.replicate_plan().map(|_| (s.replicate, self.exact.replicates));
+        CheckQuery { samples: self.samples() as u64, replicates }
+    }
+
+    /// Complete replicates the target's estimate has (samples, for independent ones).
+    pub fn target_replicates(&self) -> u64 {
+        match self.settings.replicate {
+            1 => self.settings.samples_in(self.first..self.next),
+            _ => self.exact.replicates,
+        }
+    }
+
+    /// Whether `sums`, a device's reduction of this image's exact sums (every pixel with
+    /// the same samples, none in a block in progress), meet `target`: the rule of
+    /// [`Accumulation::target_met`], with Σv, Σv² and the image's mean from `sums`.
+    pub fn target_met_by(&self, target: ErrorTarget, sums: &CheckSums) -> bool {
+        if self.target_replicates() < MIN_TARGET_REPLICATES || sums.pixels == 0 {
+            return false;
+        }
+        let dof = self.settings.error_estimator(self.exact.replicates).degrees_of_freedom(self.samples() as u64);
+        let Some(bound) = rmse_bound(sums.variance, sums.variance_sq, sums.pixels, dof) else {
+            return false;
+        };
+        match target {
+            ErrorTarget::Rmse(e) => bound <= e,
+            ErrorTarget::RelativeRmse(r) => bound <= r * (sums.mean / sums.pixels as f64).abs(),
+            ErrorTarget::PointStdError(_) => false,
+        }
+    }
+
+    /// Whether the samples of rounds `rounds`, the block just finished, are one whole
+    /// replicate of every group, whose square is to be added.
+    pub fn whole_replicate(&self, rounds: std::ops::Range<u32>) -> bool {
+        let Some(plan) = self.settings.replicate_plan() else {
+            return false;
+        };
+        // A point's samples in a full take: a round is a sample of an image, lanes samples
+        // of a point of a probe film.
+        let full = match self.settings.layout {
+            FilmLayout::Probes => plan.take as u64 * self.settings.width as u64,
+            FilmLayout::Image | FilmLayout::BentProbes => plan.take as u64,
+        };
+        rounds.start.is_multiple_of(plan.take)
+            && rounds.end - rounds.start == plan.take
+            && self.settings.samples_in(rounds) == full
+    }
+
     /// Rounds between two takes of the device's sums: a replicate's, or a block's.
     pub fn take_rounds(&self) -> u32 {
         self.settings.replicate_plan().map_or(BLOCK_SAMPLES, |p| p.take.min(BLOCK_SAMPLES))
@@ -764,16 +816,7 @@ impl Accumulation {
         let Some(plan) = self.settings.replicate_plan() else {
             return Ok(());
         };
-        // A point's samples in a full take: a round is a sample of an image, lanes samples
-        // of a point of a probe film.
-        let full = match self.settings.layout {
-            FilmLayout::Probes => plan.take as u64 * self.settings.width as u64,
-            FilmLayout::Image | FilmLayout::BentProbes => plan.take as u64,
-        };
-        let whole = rounds.start.is_multiple_of(plan.take)
-            && rounds.end - rounds.start == plan.take
-            && self.settings.samples_in(rounds.clone()) == full;
-        if !whole {
+        if !self.whole_replicate(rounds) {
             return Ok(());
         }
         let mut sums = Vec::with_capacity(plan.groups * plan.per_take);
