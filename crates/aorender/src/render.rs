@@ -61,8 +61,8 @@ pub struct Control<'a> {
     pub save_interval: f64,
     /// How passes are sized.
     pub sizing: PassSizing,
-    /// Stop once the error estimate meets this target (checked after every replicate,
-    /// or every `TARGET_CHECK_SAMPLES` independent samples).
+    /// Stop once the error estimate meets this target (checked at the ends of replicates,
+    /// or of stretches of `TARGET_CHECK_SAMPLES` independent samples, where [`check_due`]).
     pub target: Option<ErrorTarget>,
     /// With an image's target: after each complete replicate, stop sampling the pixels
     /// whose own error is already within the target (`Accumulation::adapt`), so that
@@ -792,6 +792,28 @@ impl Render {
 }
 
 impl Render {
+    /// The device's reduction of the image-level sums of the stopping rule over the
+    /// samples held (all folded first), for tests that hold it against the host's; `None`
+    /// where the device does not keep the sums or no pass has run.
+    #[cfg(feature = "testing")]
+    pub fn device_check_sums(&mut self) -> Result<Option<crate::gpu::stats::CheckSums>> {
+        if !self.on_device {
+            return Ok(None);
+        }
+        if self.acc.partial_samples > 0 {
+            // Independent samples only: a replicate cut here would lose its square.
+            assert!(self.acc.settings.replicate_plan().is_none(), "a replicate in progress");
+            self.passes.fold(false)?;
+            self.acc.partial_samples = 0;
+        }
+        let exponents = (self.acc.exact.sum_exponent, self.acc.exact.sq_exponent);
+        let (sums, bad) = self.passes.check(self.acc.check_query(), exponents)?;
+        match bad {
+            Some(slot) => Err(out_of_range(&self.acc, slot)),
+            None => Ok(Some(sums)),
+        }
+    }
+
     /// Reads the device's exact sums into the accumulation, where the device keeps them.
     fn sync(&mut self) -> Result<()> {
         if self.on_device {
