@@ -625,7 +625,7 @@ impl Passes for GpuChunks {
         let (mut total, mut bad, mut start) = (CheckSums::default(), None, 0u32);
         for (target, slots) in &mut self.targets {
             let (sums, b) = target.check(query, exponents)?;
-            total = total.add(sums);
+            total = total + sums;
             bad = bad.or(b.map(|b| b + start));
             start += *slots as u32;
         }

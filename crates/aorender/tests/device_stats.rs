@@ -111,7 +111,7 @@ fn target_renders_resume_to_the_same_bits() {
             let whole = session.render(&request).unwrap().complete(&mut control()).unwrap();
             assert_eq!(whole.stats.ended_by, "target", "{what}");
             let spp = whole.stats.samples_per_pixel;
-            assert!(spp >= 8 * 16 && spp < 1 << 14, "{what}: stopped at {spp}");
+            assert!((8 * 16..1 << 14).contains(&spp), "{what}: stopped at {spp}");
             let mut first = session.render(&request).unwrap();
             let stop_at = spp - 21;
             first.run_to(stop_at, &mut Control { sizing: PassSizing::Fixed(5), ..control() }).unwrap();
@@ -125,4 +125,20 @@ fn target_renders_resume_to_the_same_bits() {
             assert!(out.accumulation.exact == whole.accumulation.exact, "{what}");
         }
     }
+}
+
+/// The checks of a target come after every stretch (replicate) up to the 32nd, then at
+/// most a sixteenth of the stretches apart and at least a thirty-second: a render that
+/// meets its target after k stretches stops within k / 16 more, and one of k stretches
+/// checks about 16 log2(k / 16) times.
+#[test]
+fn target_checks_are_spaced_by_a_sixteenth_of_the_render() {
+    let due: Vec<u64> = (1..=1u64 << 16).filter(|&k| aorender::render::check_due(k)).collect();
+    assert!((1..=32).all(|k| due.contains(&k)), "not every stretch up to 32 is checked");
+    for pair in due.windows(2) {
+        let (a, b) = (pair[0], pair[1]);
+        assert!(b - a <= (a / 16).max(1), "checks at {a} and {b}: more than a sixteenth apart");
+        assert!(a < 32 || (b - a) * 32 >= a, "checks at {a} and {b}: closer than a thirty-second");
+    }
+    assert!(due.len() <= 16 * 13, "{} checks in 2^16 stretches", due.len());
 }

@@ -119,9 +119,11 @@ pub struct CheckSums {
     pub pixels: u64,
 }
 
-impl CheckSums {
+impl std::ops::Add for CheckSums {
+    type Output = CheckSums;
+
     /// The sums of `self` and `other` (bands of one image).
-    pub fn add(self, other: CheckSums) -> CheckSums {
+    fn add(self, other: CheckSums) -> CheckSums {
         CheckSums {
             variance: self.variance + other.variance,
             variance_sq: self.variance_sq + other.variance_sq,
