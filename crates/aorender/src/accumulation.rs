@@ -643,7 +643,7 @@ impl Accumulation {
     /// An adaptive render's decision after a complete replicate: the background pixels
     /// (`background`, whose value is exact) stop after the first; from the
     /// `MIN_TARGET_REPLICATES`th on, a pixel still sampled stops once it has the replicates
-    /// an allocation in proportion to its standard deviation gives it ([`allocate`]),
+    /// an allocation in proportion to its standard deviation gives it (`allocate`),
     /// unless that would stop every pixel before the image's RMSE bound meets the target.
     /// Returns the new mask when a pixel stopped.
     pub fn adapt(&mut self, target: ErrorTarget) -> Result<Option<Vec<bool>>> {

@@ -62,7 +62,7 @@ pub struct Control<'a> {
     /// How passes are sized.
     pub sizing: PassSizing,
     /// Stop once the error estimate meets this target (checked at the ends of replicates,
-    /// or of stretches of `TARGET_CHECK_SAMPLES` independent samples, where [`check_due`]).
+    /// or of stretches of `TARGET_CHECK_SAMPLES` independent samples, where `check_due` says).
     pub target: Option<ErrorTarget>,
     /// With an image's target: after each complete replicate, stop sampling the pixels
     /// whose own error is already within the target (`Accumulation::adapt`), so that
