@@ -182,8 +182,10 @@ fn reduce(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) 
     }
     stats_shared[local] = x;
     reduce_shared(local);
-    if (local == 0u) {
-        stats_partial[group.y * stats_params.row_groups + group.x] = vec4f(stats_shared[0], 0.0);
+    // The last row of the dispatch may have workgroups past the slots' last.
+    let g = group.y * stats_params.row_groups + group.x;
+    if (local == 0u && g < stats_params.groups) {
+        stats_partial[g] = vec4f(stats_shared[0], 0.0);
     }
 }
 
