@@ -12,7 +12,8 @@
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
-use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, SampleRange, standard_error};
+use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, SampleRange, rmse_bound, standard_error};
+use crate::gpu::stats::{CheckQuery, CheckSums};
 use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_film_values};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
@@ -142,16 +143,51 @@ impl SampleSettings {
 }
 
 /// Samples between two checks of an [`ErrorTarget`] when every sample is a replicate of
-/// its own (the independent sampler); otherwise the checks come after every replicate.
+/// its own (the independent sampler); otherwise the checks come at the ends of replicates
+/// (`render::check_due` says which).
 pub const TARGET_CHECK_SAMPLES: u32 = 16;
 /// Replicates an estimate needs before a target can stop a render: seven degrees of
 /// freedom at least.
 pub const MIN_TARGET_REPLICATES: u64 = 8;
 
-/// The share of an adaptive render's target within which a pixel's own 95 % interval
-/// (in units of 1.96 standard errors) must lie for it to stop being sampled: below 1, so
-/// that the pixels still sampled bring the image's RMSE bound under the target.
+/// The share of an adaptive render's target its allocation aims at (`allocate`): below 1,
+/// so that the image's RMSE bound, above the estimate, meets the target when the pixels
+/// have the replicates allocated to them.
 pub const ADAPTIVE_SHARE: f64 = 0.9;
+
+/// Stops (in `mask`) the pixels of `film` that have the replicates an allocation for an
+/// RMSE of `e` gives them, returning whether one stopped. For a mean square error
+/// (1/P) Σ σᵢ² / kᵢ at a given total of replicates, the best kᵢ is in proportion to σᵢ,
+/// the standard deviation of pixel i's replicate means: kᵢ = σᵢ Σσ / (P e′²) gives an
+/// error of e′, and saves mean(σ²) / mean(σ)² of the replicates of uniform sampling.
+/// σᵢ is taken from the pixel's 95 % interval (`intervals`, Wilson's score interval
+/// where the samples are nearly binary) where that is wider than its standard error: a
+/// pixel whose samples happen to be nearly equal is not taken for a pixel without error.
+/// e′ is `ADAPTIVE_SHARE` of `e` over the ratio of the film's RMSE bound to its estimate.
+fn allocate(film: &Film, intervals: &[(f64, f64)], e: f64, mask: &mut [bool]) -> bool {
+    let se = film.std_error();
+    let sigma: Vec<f64> = (0..se.len())
+        .map(|i| {
+            let (lo, hi) = intervals[i];
+            let s = se[i].max((hi - lo) / (2.0 * 1.96));
+            if film.is_exact(i) || !s.is_finite() { 0.0 } else { s * (film.replicates_of(i) as f64).sqrt() }
+        })
+        .collect();
+    let inflation = match (film.rmse_bound(), film.rmse_estimate()) {
+        (Some(b), Some(r)) if r > 0.0 => b / r,
+        _ => 1.0,
+    };
+    let e_alloc = ADAPTIVE_SHARE * e / inflation;
+    let per_sigma = sigma.iter().sum::<f64>() / (sigma.len() as f64 * e_alloc * e_alloc);
+    let mut changed = false;
+    for (i, off) in mask.iter_mut().enumerate() {
+        if !*off && film.replicates_of(i) as f64 >= sigma[i] * per_sigma {
+            *off = true;
+            changed = true;
+        }
+    }
+    changed
+}
 
 /// An accuracy to stop at.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -606,10 +642,10 @@ impl Accumulation {
 
     /// An adaptive render's decision after a complete replicate: the background pixels
     /// (`background`, whose value is exact) stop after the first; from the
-    /// `MIN_TARGET_REPLICATES`th on, the pixels still sampled whose 95 % interval
-    /// ([`Film::intervals_95`]) is within 1.96 × `ADAPTIVE_SHARE` of the target (the RMSE's
-    /// value, or its share of the image mean) stop too. Returns the new mask when a pixel
-    /// stopped.
+    /// `MIN_TARGET_REPLICATES`th on, a pixel still sampled stops once it has the replicates
+    /// an allocation in proportion to its standard deviation gives it (`allocate`),
+    /// unless that would stop every pixel before the image's RMSE bound meets the target.
+    /// Returns the new mask when a pixel stopped.
     pub fn adapt(&mut self, target: ErrorTarget) -> Result<Option<Vec<bool>>> {
         let replicates = self.exact.replicate_count();
         if replicates == 0 || self.partial_samples > 0 || matches!(target, ErrorTarget::PointStdError(_)) {
@@ -633,13 +669,13 @@ impl Accumulation {
                 ErrorTarget::Rmse(e) | ErrorTarget::PointStdError(e) => e,
             };
             if let Some(intervals) = film.intervals_95(self.sample_range()) {
-                let mean = film.mean();
-                let limit = 1.96 * ADAPTIVE_SHARE * e;
-                for (i, &(lo, hi)) in intervals.iter().enumerate() {
-                    if !mask[i] && (hi - mean[i]).max(mean[i] - lo) <= limit {
-                        mask[i] = true;
-                        changed = true;
-                    }
+                let before = mask.clone();
+                let stopped = allocate(&film, &intervals, e, &mut mask);
+                // The bound is of these sums: where it is not met yet, the pixels go on.
+                if stopped && mask.iter().all(|&off| off) && film.rmse_bound().is_none_or(|b| b > e) {
+                    mask = before;
+                } else {
+                    changed |= stopped;
                 }
             }
         }
@@ -746,6 +782,57 @@ impl Accumulation {
         })
     }
 
+    /// How a device reduces this image's sums for a check of its target, when every pixel
+    /// has the same samples: from the replicates where they are taken.
+    pub fn check_query(&self) -> CheckQuery {
+        let s = &self.settings;
+        let replicates = s.replicate_plan().map(|_| (s.replicate, self.exact.replicates));
+        CheckQuery { samples: self.samples() as u64, replicates }
+    }
+
+    /// Complete replicates the target's estimate has (samples, for independent ones).
+    pub fn target_replicates(&self) -> u64 {
+        match self.settings.replicate {
+            1 => self.settings.samples_in(self.first..self.next),
+            _ => self.exact.replicates,
+        }
+    }
+
+    /// Whether `sums`, a device's reduction of this image's exact sums (every pixel with
+    /// the same samples, none in a block in progress), meet `target`: the rule of
+    /// [`Accumulation::target_met`], with Σv, Σv² and the image's mean from `sums`.
+    pub fn target_met_by(&self, target: ErrorTarget, sums: &CheckSums) -> bool {
+        if self.target_replicates() < MIN_TARGET_REPLICATES || sums.pixels == 0 {
+            return false;
+        }
+        let dof = self.settings.error_estimator(self.exact.replicates).degrees_of_freedom(self.samples() as u64);
+        let Some(bound) = rmse_bound(sums.variance, sums.variance_sq, sums.pixels, dof) else {
+            return false;
+        };
+        match target {
+            ErrorTarget::Rmse(e) => bound <= e,
+            ErrorTarget::RelativeRmse(r) => bound <= r * (sums.mean / sums.pixels as f64).abs(),
+            ErrorTarget::PointStdError(_) => false,
+        }
+    }
+
+    /// Whether the samples of rounds `rounds`, the block just finished, are one whole
+    /// replicate of every group, whose square is to be added.
+    pub fn whole_replicate(&self, rounds: std::ops::Range<u32>) -> bool {
+        let Some(plan) = self.settings.replicate_plan() else {
+            return false;
+        };
+        // A point's samples in a full take: a round is a sample of an image, lanes samples
+        // of a point of a probe film.
+        let full = match self.settings.layout {
+            FilmLayout::Probes => plan.take as u64 * self.settings.width as u64,
+            FilmLayout::Image | FilmLayout::BentProbes => plan.take as u64,
+        };
+        rounds.start.is_multiple_of(plan.take)
+            && rounds.end - rounds.start == plan.take
+            && self.settings.samples_in(rounds) == full
+    }
+
     /// Rounds between two takes of the device's sums: a replicate's, or a block's.
     pub fn take_rounds(&self) -> u32 {
         self.settings.replicate_plan().map_or(BLOCK_SAMPLES, |p| p.take.min(BLOCK_SAMPLES))
@@ -764,16 +851,7 @@ impl Accumulation {
         let Some(plan) = self.settings.replicate_plan() else {
             return Ok(());
         };
-        // A point's samples in a full take: a round is a sample of an image, lanes samples
-        // of a point of a probe film.
-        let full = match self.settings.layout {
-            FilmLayout::Probes => plan.take as u64 * self.settings.width as u64,
-            FilmLayout::Image | FilmLayout::BentProbes => plan.take as u64,
-        };
-        let whole = rounds.start.is_multiple_of(plan.take)
-            && rounds.end - rounds.start == plan.take
-            && self.settings.samples_in(rounds.clone()) == full;
-        if !whole {
+        if !self.whole_replicate(rounds) {
             return Ok(());
         }
         let mut sums = Vec::with_capacity(plan.groups * plan.per_take);

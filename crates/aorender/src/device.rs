@@ -7,7 +7,8 @@ use crate::bvh::ploc::cwbvh_depth;
 use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::{Error, Result};
-use crate::film::{BlockSums, INACTIVE_SLOT_BITS};
+use crate::film::{BlockSums, ExactSums, INACTIVE_SLOT_BITS};
+use crate::gpu::stats::{CheckQuery, CheckSums};
 use crate::gpu::{
     AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal,
 };
@@ -429,6 +430,43 @@ pub(crate) trait Passes {
     /// mask samples every slot). Their sums read back as empty. Called while the block
     /// holds no samples: right after a take, or before a checkpoint's block is loaded.
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()>;
+    /// Whether the device can keep the exact sums itself ([`Passes::fold`]): a GPU's
+    /// image film. The CPU reference's exact sums are in host memory already.
+    fn keeps_sums(&self) -> bool {
+        false
+    }
+    /// Replaces the device's exact sums with `exact`'s.
+    fn write_sums(&mut self, _exact: &ExactSums) -> Result<()> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+    /// Adds the block to the device's exact sums, leaving the block empty; `replicate`:
+    /// the block is one whole replicate, whose square is added to the replicates' squares.
+    fn fold(&mut self, _replicate: bool) -> Result<()> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+    /// The image-level sums of the stopping rule over the device's exact sums, and the
+    /// first slot that received a sample out of range.
+    fn check(&mut self, _query: CheckQuery, _exponents: (i32, i32)) -> Result<(CheckSums, Option<u32>)> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+    /// Reads the device's exact sums into `exact` (the replicates' squares too where
+    /// `replicates`); returns the first slot that received a sample out of range.
+    fn read_sums(&mut self, _exact: &mut ExactSums, _replicates: bool) -> Result<Option<u32>> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+}
+
+/// The slots `range` of `exact`: its sums (and replicates' squares, where it has them).
+fn sums_part(exact: &ExactSums, range: std::ops::Range<usize>) -> ExactSums {
+    ExactSums {
+        sum: exact.sum[range.clone()].to_vec(),
+        sum_sq: exact.sum_sq[range.clone()].to_vec(),
+        replicate_sq: exact.replicate_sq.get(range).map_or_else(Vec::new, <[_]>::to_vec),
+        pixel_samples: Vec::new(),
+        pixel_replicates: Vec::new(),
+        stopped: Vec::new(),
+        ..*exact
+    }
 }
 
 impl Passes for GpuTarget {
@@ -461,7 +499,27 @@ impl Passes for GpuTarget {
     }
 
     fn device_bytes(&self) -> u64 {
-        self.device_bytes
+        self.all_device_bytes()
+    }
+
+    fn keeps_sums(&self) -> bool {
+        GpuTarget::keeps_sums(self)
+    }
+
+    fn write_sums(&mut self, exact: &ExactSums) -> Result<()> {
+        GpuTarget::write_sums(self, exact)
+    }
+
+    fn fold(&mut self, replicate: bool) -> Result<()> {
+        GpuTarget::fold(self, replicate)
+    }
+
+    fn check(&mut self, query: CheckQuery, exponents: (i32, i32)) -> Result<(CheckSums, Option<u32>)> {
+        GpuTarget::check(self, query, exponents)
+    }
+
+    fn read_sums(&mut self, exact: &mut ExactSums, replicates: bool) -> Result<Option<u32>> {
+        GpuTarget::read_sums(self, exact, replicates)
     }
 
     fn take_readback_bytes(&mut self) -> u64 {
@@ -543,7 +601,55 @@ impl Passes for GpuChunks {
     }
 
     fn device_bytes(&self) -> u64 {
-        self.targets.iter().map(|(t, _)| t.device_bytes).sum()
+        self.targets.iter().map(|(t, _)| t.all_device_bytes()).sum()
+    }
+
+    fn keeps_sums(&self) -> bool {
+        self.targets.iter().all(|(t, _)| t.keeps_sums())
+    }
+
+    fn write_sums(&mut self, exact: &ExactSums) -> Result<()> {
+        let mut start = 0;
+        for (target, slots) in &mut self.targets {
+            target.write_sums(&sums_part(exact, start..start + *slots))?;
+            start += *slots;
+        }
+        Ok(())
+    }
+
+    fn fold(&mut self, replicate: bool) -> Result<()> {
+        self.targets.iter_mut().try_for_each(|(t, _)| t.fold(replicate))
+    }
+
+    fn check(&mut self, query: CheckQuery, exponents: (i32, i32)) -> Result<(CheckSums, Option<u32>)> {
+        let (mut total, mut bad, mut start) = (CheckSums::default(), None, 0u32);
+        for (target, slots) in &mut self.targets {
+            let (sums, b) = target.check(query, exponents)?;
+            total = total + sums;
+            bad = bad.or(b.map(|b| b + start));
+            start += *slots as u32;
+        }
+        Ok((total, bad))
+    }
+
+    fn read_sums(&mut self, exact: &mut ExactSums, replicates: bool) -> Result<Option<u32>> {
+        let (mut bad, mut start) = (None, 0usize);
+        if replicates && exact.replicate_sq.len() != exact.sum.len() {
+            exact.replicate_sq = vec![0; exact.sum.len()];
+        }
+        for (target, slots) in &mut self.targets {
+            let range = start..start + *slots;
+            let mut part = sums_part(exact, range.clone());
+            let b = target.read_sums(&mut part, replicates)?;
+            exact.sum[range.clone()].copy_from_slice(&part.sum);
+            exact.sum_sq[range.clone()].copy_from_slice(&part.sum_sq);
+            if replicates {
+                exact.replicate_sq[range].copy_from_slice(&part.replicate_sq);
+            }
+            bad = bad.or(b.map(|b| b + start as u32));
+            start += *slots;
+        }
+        Ok(bad)
     }
 
     fn take_readback_bytes(&mut self) -> u64 {

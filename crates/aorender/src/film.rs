@@ -228,6 +228,22 @@ pub fn standard_error(estimator: ErrorEstimator, n: u64, sum: f64, sum_sq: f64, 
     }
 }
 
+/// The one-sided 99 % upper bound of [`Film::rmse_bound`] on the realised RMSE of an image
+/// of `pixels` pixels whose variances of the mean v sum to `sum` (Σv) and `sum_sq` (Σv²),
+/// estimated with `dof` degrees of freedom; `None` when Σv is not finite.
+pub fn rmse_bound(sum: f64, sum_sq: f64, pixels: u64, dof: u64) -> Option<f64> {
+    let rmse = (sum / pixels as f64).sqrt();
+    if !rmse.is_finite() {
+        return None;
+    }
+    if sum_sq == 0.0 {
+        return Some(rmse);
+    }
+    let p_eff = sum * sum / sum_sq;
+    let d = dof.max(1) as f64;
+    Some(rmse * (1.0 + 2.326 * ((1.0 + 1.0 / d) / (2.0 * p_eff)).sqrt()))
+}
+
 impl Film {
     /// An empty accumulation.
     pub fn new(width: u32, height: u32) -> Film {
@@ -321,15 +337,11 @@ impl Film {
     /// stopped by it meet their target in well over 95 % of seeds). What a render that stops
     /// at an error target (`Control::target`) compares with the target.
     pub fn rmse_bound(&self) -> Option<f64> {
-        let rmse = self.rmse_estimate()?;
+        self.rmse_estimate()?;
         let v: Vec<f64> = self.std_error().iter().map(|e| e * e).collect();
         let (sum, sum_sq) = (v.iter().sum::<f64>(), v.iter().map(|x| x * x).sum::<f64>());
-        if sum_sq == 0.0 {
-            return Some(rmse);
-        }
-        let p_eff = sum * sum / sum_sq;
-        let d = self.error_estimator().degrees_of_freedom(self.samples).max(1) as f64;
-        Some(rmse * (1.0 + 2.326 * ((1.0 + 1.0 / d) / (2.0 * p_eff)).sqrt()))
+        let d = self.error_estimator().degrees_of_freedom(self.samples);
+        rmse_bound(sum, sum_sq, v.len() as u64, d)
     }
 
     /// Per-pixel two-sided 95 % confidence intervals of the means ([`interval_95`]), for

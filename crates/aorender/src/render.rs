@@ -4,7 +4,7 @@
 //! exact sums of the [`Accumulation`], which is handed to a save callback every few
 //! seconds. Every render, comparison cell, benchmark run and probe request runs here.
 
-use crate::accumulation::{Accumulation, ErrorTarget, FilmLayout};
+use crate::accumulation::{Accumulation, ErrorTarget, FilmLayout, MIN_TARGET_REPLICATES};
 use crate::device::{Passes, Setup};
 use crate::error::Result;
 use crate::film::Film;
@@ -61,8 +61,8 @@ pub struct Control<'a> {
     pub save_interval: f64,
     /// How passes are sized.
     pub sizing: PassSizing,
-    /// Stop once the error estimate meets this target (checked after every replicate,
-    /// or every `TARGET_CHECK_SAMPLES` independent samples).
+    /// Stop once the error estimate meets this target (checked at the ends of replicates,
+    /// or of stretches of `TARGET_CHECK_SAMPLES` independent samples, where `check_due` says).
     pub target: Option<ErrorTarget>,
     /// With an image's target: after each complete replicate, stop sampling the pixels
     /// whose own error is already within the target (`Accumulation::adapt`), so that
@@ -341,6 +341,9 @@ pub struct Render {
     /// Finds the accumulation's background pixels when an adaptive run first needs them:
     /// a render that is not adaptive never pays for the test.
     background: Option<BackgroundPixels>,
+    /// Whether the device holds the exact sums (`Passes::fold`): the accumulation's are
+    /// then those of the last [`Render::sync`].
+    on_device: bool,
 }
 
 /// What finds a render's background pixels ([`crate::footprint::background_pixels`]).
@@ -358,6 +361,7 @@ impl Render {
             interrupted: false,
             ended: None,
             background: None,
+            on_device: false,
         }
     }
 
@@ -398,6 +402,7 @@ impl Render {
         saved.adapter.clone_from(&self.acc.adapter);
         self.resumed = saved.samples();
         self.acc = saved;
+        self.on_device = false;
         Ok(())
     }
 
@@ -409,6 +414,7 @@ impl Render {
             self.passes.take()?;
         }
         self.passes.take_readback_bytes();
+        self.on_device = false;
         let acc = &mut self.acc;
         acc.exact.clear();
         (acc.next, acc.partial_samples, acc.on_grid) = (acc.first, 0, true);
@@ -466,6 +472,19 @@ impl Render {
                 self.acc.background = find();
             }
         }
+        // The device keeps the exact sums of an image whose pixels all take every sample;
+        // an adaptive run decides on every pixel's own sums, on the host.
+        let device_sums = self.passes.keeps_sums()
+            && !control.adaptive
+            && self.acc.settings.layout == FilmLayout::Image
+            && self.acc.exact.pixel_samples.is_empty();
+        if device_sums && !self.on_device {
+            self.passes.write_sums(&self.acc.exact)?;
+            self.on_device = true;
+        } else if !device_sums {
+            self.sync()?;
+            self.on_device = false;
+        }
         let acc = &mut self.acc;
         let until = (acc.first + samples.min(acc.end - acc.first)).max(acc.next);
         let pixels = acc.settings.width as u64 * acc.settings.height as u64;
@@ -516,7 +535,14 @@ impl Render {
             acc.partial_samples += count;
             acc.passes += 1;
             passes += 1;
-            if acc.next == block_end {
+            if acc.next == block_end && device_sums {
+                let t = Instant::now();
+                let whole = acc.whole_replicate(acc.next - acc.partial_samples..acc.next);
+                self.passes.fold(whole)?;
+                acc.exact.replicates += whole as u64;
+                acc.partial_samples = 0;
+                self.times.host_stats_seconds += t.elapsed().as_secs_f64();
+            } else if acc.next == block_end {
                 let t = Instant::now();
                 let block = self.passes.take()?;
                 self.times.readback_seconds += t.elapsed().as_secs_f64();
@@ -557,6 +583,9 @@ impl Render {
                     || last_save.elapsed().as_secs_f64() >= control.save_interval.max(10.0 * save_seconds))
             {
                 let t = Instant::now();
+                if device_sums {
+                    sync_sums(self.passes.as_mut(), acc)?;
+                }
                 acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
                 save(acc)?;
                 acc.partial = None;
@@ -564,9 +593,34 @@ impl Render {
                 self.times.checkpoint_seconds += save_seconds;
                 last_save = Instant::now();
             }
-            if let (Some(target), Some(c)) = (control.target, check)
-                && acc.next.is_multiple_of(c)
+            let due = check.filter(|&c| acc.next.is_multiple_of(c) && check_due(((acc.next - acc.first) / c) as u64));
+            if let (Some(target), Some(_)) = (control.target, due)
+                && device_sums
             {
+                if acc.target_replicates() >= MIN_TARGET_REPLICATES {
+                    let t = Instant::now();
+                    // A stretch of independent samples is folded whole: no replicate's
+                    // square is cut.
+                    if acc.partial_samples > 0 {
+                        self.passes.fold(false)?;
+                        acc.partial_samples = 0;
+                    }
+                    let exponents = (acc.exact.sum_exponent, acc.exact.sq_exponent);
+                    let (sums, bad) = self.passes.check(acc.check_query(), exponents)?;
+                    self.times.readback_seconds += t.elapsed().as_secs_f64();
+                    if let Some(slot) = bad {
+                        return Err(out_of_range(acc, slot));
+                    }
+                    let t = Instant::now();
+                    let met = acc.target_met_by(target, &sums);
+                    self.times.host_stats_seconds += t.elapsed().as_secs_f64();
+                    self.times.checks += 1;
+                    if met {
+                        end = RunEnd::TargetMet;
+                        break;
+                    }
+                }
+            } else if let (Some(target), Some(_)) = (control.target, due) {
                 let t = Instant::now();
                 acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
                 self.times.readback_seconds += t.elapsed().as_secs_f64();
@@ -587,6 +641,9 @@ impl Render {
             && let Some(save) = control.save.as_mut()
         {
             let t = Instant::now();
+            if device_sums {
+                sync_sums(self.passes.as_mut(), acc)?;
+            }
             acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
             save(acc)?;
             acc.partial = None;
@@ -605,8 +662,9 @@ impl Render {
 
     /// The accumulation as it stands, its block in progress read back from the device.
     pub fn accumulation(&mut self) -> Result<Accumulation> {
-        let mut acc = self.acc.clone();
         let t = Instant::now();
+        self.sync()?;
+        let mut acc = self.acc.clone();
         acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
         self.times.readback_seconds += t.elapsed().as_secs_f64();
         self.times.readback_bytes += self.passes.take_readback_bytes();
@@ -625,6 +683,7 @@ impl Render {
         // goes before the film is made: the exact sums are the largest thing a request
         // holds (a bake's millions of points).
         let t = Instant::now();
+        self.sync()?;
         let partial = if self.acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
         let mut times = self.times;
         times.readback_seconds += t.elapsed().as_secs_f64();
@@ -730,6 +789,72 @@ impl Render {
         };
         Ok(RenderOutput { film, stats, accumulation })
     }
+}
+
+impl Render {
+    /// The device's reduction of the image-level sums of the stopping rule over the
+    /// samples held (all folded first), for tests that hold it against the host's; `None`
+    /// where the device does not keep the sums or no pass has run.
+    #[cfg(feature = "testing")]
+    pub fn device_check_sums(&mut self) -> Result<Option<crate::gpu::stats::CheckSums>> {
+        if !self.on_device {
+            return Ok(None);
+        }
+        if self.acc.partial_samples > 0 {
+            // Independent samples only: a replicate cut here would lose its square.
+            assert!(self.acc.settings.replicate_plan().is_none(), "a replicate in progress");
+            self.passes.fold(false)?;
+            self.acc.partial_samples = 0;
+        }
+        let exponents = (self.acc.exact.sum_exponent, self.acc.exact.sq_exponent);
+        let (sums, bad) = self.passes.check(self.acc.check_query(), exponents)?;
+        match bad {
+            Some(slot) => Err(out_of_range(&self.acc, slot)),
+            None => Ok(Some(sums)),
+        }
+    }
+
+    /// Reads the device's exact sums into the accumulation, where the device keeps them.
+    fn sync(&mut self) -> Result<()> {
+        if self.on_device {
+            sync_sums(self.passes.as_mut(), &mut self.acc)?;
+        }
+        Ok(())
+    }
+}
+
+/// Reads the exact sums `passes` keeps into `acc` (with the replicates' squares once it
+/// has any).
+fn sync_sums(passes: &mut dyn Passes, acc: &mut Accumulation) -> Result<()> {
+    let replicates = acc.exact.replicates > 0 || !acc.exact.replicate_sq.is_empty();
+    match passes.read_sums(&mut acc.exact, replicates)? {
+        Some(slot) => Err(out_of_range(acc, slot)),
+        None => Ok(()),
+    }
+}
+
+/// The error of a block that held a sample out of range at film slot `slot`, as the
+/// host's exact sums report it.
+fn out_of_range(acc: &Accumulation, slot: u32) -> crate::error::Error {
+    let w = acc.settings.width.max(1);
+    acc.error(format!(
+        "pixel ({}, {}): a sample was not finite or larger than the scene's albedos and background allow",
+        slot % w,
+        slot / w
+    ))
+}
+
+/// Whether a check of an error target is due after `stretches` stretches between two
+/// checks (replicates, or `TARGET_CHECK_SAMPLES` independent samples): after every one up
+/// to 32, then after every 2^j-th from 32 × 2^j on, so that the samples taken past the
+/// stretch where the target was met are at most a sixteenth of the render and the checks
+/// grow with the logarithm of its length. A function of the sample count alone: a
+/// resumed render checks where the uninterrupted one did.
+pub fn check_due(stretches: u64) -> bool {
+    let step = (stretches / 16).max(1);
+    // The largest power of two at most `step`.
+    let step = 1u64 << (63 - step.leading_zeros());
+    stretches.is_multiple_of(step)
 }
 
 /// `bytes` per item, for `items` of them (`None` for none).

@@ -32,7 +32,8 @@ pub struct RenderArgs {
     #[arg(long)]
     spp: Option<u32>,
     /// Stop once the image's root-mean-square error against its converged value is at
-    /// most E, with 99 % confidence (checked after every replicate).
+    /// most E, with 99 % confidence (checked after every replicate up to the 32nd, then
+    /// at most a sixteenth of the samples apart).
     #[arg(long, value_name = "E", conflicts_with = "target_relative_error")]
     target_error: Option<f64>,
     /// Stop once that error is at most R times the image's mean.

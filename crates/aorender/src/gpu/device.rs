@@ -3,6 +3,7 @@
 
 use super::context::GpuContext;
 use super::pipeline::Pipelines;
+use super::stats::StatsPipelines;
 use crate::error::Result;
 
 /// An adapter's context and its compiled pipelines (dropped before the context, whose
@@ -10,6 +11,8 @@ use crate::error::Result;
 pub struct GpuDevice {
     /// Pipelines compiled on it so far.
     pub pipelines: Pipelines,
+    /// The statistics kernels, compiled when a render first keeps its sums on the device.
+    stats: std::sync::Mutex<Option<StatsPipelines>>,
     /// The adapter, device and queue.
     pub ctx: GpuContext,
 }
@@ -17,7 +20,16 @@ pub struct GpuDevice {
 impl GpuDevice {
     /// Wraps an opened context (after any test limits were set on it).
     pub fn new(ctx: GpuContext) -> GpuDevice {
-        GpuDevice { pipelines: Pipelines::default(), ctx }
+        GpuDevice { pipelines: Pipelines::default(), ctx, stats: Default::default() }
+    }
+
+    /// The statistics kernels (`stats.wgsl`), compiled on first use.
+    pub fn stats_pipelines(&self) -> Result<StatsPipelines> {
+        let mut cached = self.stats.lock().unwrap_or_else(|e| e.into_inner());
+        if cached.is_none() {
+            *cached = Some(StatsPipelines::new(&self.ctx)?);
+        }
+        Ok(cached.clone().expect("compiled above"))
     }
 
     /// Opens the best adapter, or the first whose name contains `name_filter`

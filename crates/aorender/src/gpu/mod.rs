@@ -15,6 +15,7 @@ pub mod fault;
 pub mod layout;
 pub mod pipeline;
 pub mod shaders;
+pub mod stats;
 pub mod target;
 pub mod upload;
 

@@ -16,6 +16,7 @@ pub const FILES: &[(&str, &str)] = &[
     ("per_lane.wgsl", include_str!("../../shaders/per_lane.wgsl")),
     ("sampler.wgsl", include_str!("../../shaders/sampler.wgsl")),
     ("sampling.wgsl", include_str!("../../shaders/sampling.wgsl")),
+    ("stats.wgsl", include_str!("../../shaders/stats.wgsl")),
     ("sums.wgsl", include_str!("../../shaders/sums.wgsl")),
     ("trace.wgsl", include_str!("../../shaders/trace.wgsl")),
     ("trace_common.wgsl", include_str!("../../shaders/trace_common.wgsl")),

@@ -9,9 +9,10 @@ use super::layout::{
     FRAME, FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE, WORKGROUP_SIZE,
 };
 use super::pipeline::{Kernel, PipelineKey};
+use super::stats::{CheckQuery, CheckSums, DeviceSums};
 use super::upload::{GpuScene, storage_buffer};
 use crate::error::{Error, Result};
-use crate::film::INACTIVE_SLOT_BITS;
+use crate::film::{ExactSums, INACTIVE_SLOT_BITS};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use std::sync::Arc;
@@ -79,6 +80,9 @@ pub struct GpuTarget {
     /// The bound 2^e of the samples, which sets the film's quanta (for `read_film`).
     #[cfg(feature = "testing")]
     value_exponent: i32,
+    /// The film's exact sums on the device, made when a render first folds a block into
+    /// them.
+    sums: Option<DeviceSums>,
     /// The scene's file, for messages.
     source: std::path::PathBuf,
     /// The adapter: last, so that its device outlives the resources above.
@@ -332,6 +336,7 @@ impl GpuTarget {
             inactive: Vec::new(),
             #[cfg(feature = "testing")]
             value_exponent,
+            sums: None,
             source: scene.source.clone(),
             dev: dev.clone(),
         })
@@ -513,6 +518,54 @@ impl GpuTarget {
     /// last call.
     pub fn take_readback_bytes(&self) -> u64 {
         self.readback_bytes.swap(0, Ordering::Relaxed)
+    }
+
+    /// Whether the device can keep this target's exact sums (an image's film).
+    pub fn keeps_sums(&self) -> bool {
+        self.kernel == Kernel::Image
+    }
+
+    /// The exact sums on the device, made (zero) on first use.
+    fn device_sums(&mut self) -> Result<&DeviceSums> {
+        if self.sums.is_none() {
+            let pipelines = self.dev.stats_pipelines()?;
+            let sums = DeviceSums::new(&self.dev.ctx, pipelines, &self.film, self.slots() as u32)?;
+            self.sums = Some(sums);
+        }
+        Ok(self.sums.as_ref().expect("made above"))
+    }
+
+    /// Bytes of device memory of the target with its exact sums.
+    pub fn all_device_bytes(&self) -> u64 {
+        self.device_bytes + self.sums.as_ref().map_or(0, |s| s.device_bytes)
+    }
+
+    /// Replaces the device's exact sums with `exact`'s.
+    pub fn write_sums(&mut self, exact: &ExactSums) -> Result<()> {
+        self.device_sums()?;
+        self.sums.as_ref().expect("made above").write(&self.dev.ctx, exact)
+    }
+
+    /// Folds the film's block into the device's exact sums and empties the film (`replicate`:
+    /// the block is one whole replicate, whose square is added).
+    pub fn fold(&mut self, replicate: bool) -> Result<()> {
+        self.device_sums()?;
+        self.sums.as_ref().expect("made above").fold(&self.dev.ctx, replicate)
+    }
+
+    /// The image-level sums of the stopping rule over the device's exact sums, and the
+    /// first slot that received a sample out of range.
+    pub fn check(&mut self, query: CheckQuery, exponents: (i32, i32)) -> Result<(CheckSums, Option<u32>)> {
+        self.device_sums()?;
+        let sums = self.sums.as_ref().expect("made above");
+        sums.check(&self.dev.ctx, query, exponents, &self.readback_bytes)
+    }
+
+    /// Reads the device's exact sums into `exact` ([`DeviceSums::read`]).
+    pub fn read_sums(&mut self, exact: &mut ExactSums, replicates: bool) -> Result<Option<u32>> {
+        self.device_sums()?;
+        let sums = self.sums.as_ref().expect("made above");
+        sums.read(&self.dev.ctx, &self.film_readback, exact, replicates, &self.readback_bytes)
     }
 
     /// Zeroes the film.

@@ -1,0 +1,361 @@
+//! A film's exact sums kept on the device (`shaders/stats.wgsl`): each finished block of
+//! samples is folded into them there, a replicate's square with it, and a check of an
+//! error target reduces the image-level sums of the stopping rule on the device and reads
+//! back 20 bytes rather than the film. The sums are read (`DeviceSums::read`) at
+//! checkpoints and at the end, into the host's [`ExactSums`], bit for bit the integers
+//! the host would have added.
+
+use super::context::GpuContext;
+use super::shaders::{FILES, compose_with};
+use crate::error::{Error, Result};
+use crate::film::{ExactSums, REPLICATE_SQ_SHIFT};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Invocations of a workgroup of the statistics kernels (`stats.wgsl`).
+const STATS_WORKGROUP: u32 = 256;
+/// Bytes of the uniforms (`StatsParams`).
+const PARAMS_BYTES: u64 = 48;
+/// Bytes a check reads back: the total (Σv, Σv², Σ mean, 0) and the status word.
+const CHECK_BYTES: u64 = 32;
+
+/// The statistics kernels of one adapter, compiled once.
+#[derive(Clone, Debug)]
+pub struct StatsPipelines {
+    layout: wgpu::BindGroupLayout,
+    fold: wgpu::ComputePipeline,
+    reduce: wgpu::ComputePipeline,
+    reduce_groups: wgpu::ComputePipeline,
+}
+
+impl StatsPipelines {
+    /// Compiles `stats.wgsl`'s three entry points.
+    pub fn new(ctx: &GpuContext) -> Result<StatsPipelines> {
+        let lookup = |n: &str| FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t);
+        let source = compose_with("stats.wgsl", &lookup)?;
+        let device = &ctx.device;
+        let entry = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
+            count: None,
+        };
+        let storage = wgpu::BufferBindingType::Storage { read_only: false };
+        let mut entries: Vec<_> = (0..4).map(|b| entry(b, storage)).collect();
+        entries.push(entry(4, wgpu::BufferBindingType::Uniform));
+        entries.extend((5..7).map(|b| entry(b, storage)));
+        let layout = device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("stats"), entries: &entries });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("stats.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("stats"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let pipeline = |name: &str| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(name),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(name),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let pipelines = StatsPipelines {
+            fold: pipeline("fold"),
+            reduce: pipeline("reduce"),
+            reduce_groups: pipeline("reduce_groups"),
+            layout,
+        };
+        ctx.take_error()?;
+        Ok(pipelines)
+    }
+}
+
+/// The uniforms of `stats.wgsl` (`StatsParams`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+struct StatsParams {
+    slots: u32,
+    groups: u32,
+    replicate: u32,
+    row_groups: u32,
+    n: f32,
+    k: f32,
+    b: f32,
+    _pad: f32,
+    sum_exponent: i32,
+    square_exponent: i32,
+    replicate_exponent: i32,
+    _pad2: i32,
+}
+const _: () = assert!(std::mem::size_of::<StatsParams>() as u64 == PARAMS_BYTES);
+
+/// How a check estimates each pixel's variance of the mean.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CheckQuery {
+    /// Samples per pixel.
+    pub samples: u64,
+    /// `Some((b, k))`: from `k` complete replicates of `b` samples; `None`: from the
+    /// spread of independent samples.
+    pub replicates: Option<(u32, u64)>,
+}
+
+/// The image-level sums of the stopping rule, over every pixel: Σv, Σv² and Σ mean, v a
+/// pixel's variance of the mean (`film::standard_error` squared), each pixel's in f32 and
+/// summed in f32 in a fixed tree, so the same on the same adapter for the same sums.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CheckSums {
+    /// Σv.
+    pub variance: f64,
+    /// Σv².
+    pub variance_sq: f64,
+    /// Σ of the pixels' means.
+    pub mean: f64,
+    /// Pixels summed.
+    pub pixels: u64,
+}
+
+impl std::ops::Add for CheckSums {
+    type Output = CheckSums;
+
+    /// The sums of `self` and `other` (bands of one image).
+    fn add(self, other: CheckSums) -> CheckSums {
+        CheckSums {
+            variance: self.variance + other.variance,
+            variance_sq: self.variance_sq + other.variance_sq,
+            mean: self.mean + other.mean,
+            pixels: self.pixels + other.pixels,
+        }
+    }
+}
+
+/// A film's exact sums on the device, with the buffers its checks reduce into.
+pub struct DeviceSums {
+    pipelines: StatsPipelines,
+    bind_group: wgpu::BindGroup,
+    /// Σv, Σv² and the replicates' Σ (Σv)², 128-bit words a slot.
+    sums: [wgpu::Buffer; 3],
+    params: wgpu::Buffer,
+    partial: wgpu::Buffer,
+    status: wgpu::Buffer,
+    readback: wgpu::Buffer,
+    slots: u32,
+    /// Workgroups of a dispatch over the slots, and of one row of it.
+    groups: u32,
+    row_groups: u32,
+    /// Bytes allocated.
+    pub device_bytes: u64,
+}
+
+impl DeviceSums {
+    /// Zero sums for the `slots` slots of `film`.
+    pub fn new(ctx: &GpuContext, pipelines: StatsPipelines, film: &wgpu::Buffer, slots: u32) -> Result<DeviceSums> {
+        let device = &ctx.device;
+        let bytes = slots as u64 * 16;
+        ctx.check_size("exact sums", bytes)?;
+        let buffer = |label: &str, size: u64, usage: wgpu::BufferUsages| {
+            device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: false })
+        };
+        let copy = wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let sums = ["sums", "squares", "replicate squares"]
+            .map(|l| buffer(l, bytes.max(16), wgpu::BufferUsages::STORAGE | copy));
+        let groups = slots.div_ceil(STATS_WORKGROUP).max(1);
+        let row_groups = groups.min(device.limits().max_compute_workgroups_per_dimension);
+        let params = buffer("stats params", PARAMS_BYTES, wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST);
+        let partial = buffer("stats partial sums", (groups as u64 + 1) * 16, wgpu::BufferUsages::STORAGE | copy);
+        let status = buffer("stats status", 16, wgpu::BufferUsages::STORAGE | copy);
+        let readback =
+            buffer("stats readback", CHECK_BYTES, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
+        fn bind(binding: u32, b: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+            wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }
+        }
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("stats"),
+            layout: &pipelines.layout,
+            entries: &[
+                bind(0, film),
+                bind(1, &sums[0]),
+                bind(2, &sums[1]),
+                bind(3, &sums[2]),
+                bind(4, &params),
+                bind(5, &partial),
+                bind(6, &status),
+            ],
+        });
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") });
+        for b in sums.iter().chain([&status]) {
+            encoder.clear_buffer(b, 0, None);
+        }
+        ctx.submit([encoder.finish()])?;
+        let device_bytes =
+            [&sums[0], &sums[1], &sums[2], &params, &partial, &status, &readback].into_iter().map(|b| b.size()).sum();
+        Ok(DeviceSums {
+            pipelines,
+            bind_group,
+            sums,
+            params,
+            partial,
+            status,
+            readback,
+            slots,
+            groups,
+            row_groups,
+            device_bytes,
+        })
+    }
+
+    /// Runs `pipeline` over the slots (or one workgroup for `None` slots) with `params`.
+    fn dispatch(
+        &self,
+        ctx: &GpuContext,
+        pipeline: &wgpu::ComputePipeline,
+        params: StatsParams,
+        whole: bool,
+    ) -> wgpu::CommandEncoder {
+        ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") });
+        {
+            let mut pass = encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("stats"), timestamp_writes: None });
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, &self.bind_group, &[]);
+            if whole {
+                pass.dispatch_workgroups(self.row_groups, self.groups.div_ceil(self.row_groups), 1);
+            } else {
+                pass.dispatch_workgroups(1, 1, 1);
+            }
+        }
+        encoder
+    }
+
+    fn params(&self) -> StatsParams {
+        StatsParams { slots: self.slots, groups: self.groups, row_groups: self.row_groups, ..Default::default() }
+    }
+
+    /// Adds the film's block to the sums and empties the film; with `replicate`, the
+    /// block is one whole replicate and its square is added to the replicates' squares.
+    pub fn fold(&self, ctx: &GpuContext, replicate: bool) -> Result<()> {
+        let params = StatsParams { replicate: replicate as u32, ..self.params() };
+        let encoder = self.dispatch(ctx, &self.pipelines.fold, params, true);
+        ctx.submit([encoder.finish()])
+    }
+
+    /// The image-level sums of the stopping rule for the sums held (`exponents`: those
+    /// of the quanta of Σv and Σv², [`ExactSums`]'s); reads back [`CHECK_BYTES`].
+    pub fn check(
+        &self,
+        ctx: &GpuContext,
+        query: CheckQuery,
+        exponents: (i32, i32),
+        readback_bytes: &AtomicU64,
+    ) -> Result<(CheckSums, Option<u32>)> {
+        let (b, k) = query.replicates.unwrap_or((1, 0));
+        let params = StatsParams {
+            replicate: query.replicates.is_some() as u32,
+            n: query.samples as f32,
+            k: k as f32,
+            b: b as f32,
+            sum_exponent: exponents.0,
+            square_exponent: exponents.1,
+            replicate_exponent: exponents.1 + REPLICATE_SQ_SHIFT,
+            ..self.params()
+        };
+        let mut encoder = self.dispatch(ctx, &self.pipelines.reduce, params, true);
+        {
+            let mut pass = encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("stats"), timestamp_writes: None });
+            pass.set_pipeline(&self.pipelines.reduce_groups);
+            pass.set_bind_group(0, &self.bind_group, &[]);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+        encoder.copy_buffer_to_buffer(&self.partial, self.groups as u64 * 16, &self.readback, 0, Some(16));
+        encoder.copy_buffer_to_buffer(&self.status, 0, &self.readback, 16, Some(16));
+        ctx.submit([encoder.finish()])?;
+        let words: Vec<u32> = ctx.read(&self.readback)?;
+        readback_bytes.fetch_add(CHECK_BYTES, Ordering::Relaxed);
+        let f = |i: usize| f32::from_bits(words[i]) as f64;
+        let sums = CheckSums { variance: f(0), variance_sq: f(1), mean: f(2), pixels: self.slots as u64 };
+        Ok((sums, bad_slot(words[4])))
+    }
+
+    /// Replaces `exact`'s Σv, Σv² and (where `replicates`) the replicates' squares with
+    /// the device's, read through `staging` (a readback buffer of at least 16 bytes a
+    /// slot: the film's); returns the first slot whose block held a sample out of range.
+    pub fn read(
+        &self,
+        ctx: &GpuContext,
+        staging: &wgpu::Buffer,
+        exact: &mut ExactSums,
+        replicates: bool,
+        readback_bytes: &AtomicU64,
+    ) -> Result<Option<u32>> {
+        let n = self.slots as usize;
+        if exact.sum.len() != n {
+            return Err(Error::Gpu(format!("{} device sums read into sums of {} pixels", n, exact.sum.len())));
+        }
+        let bytes = self.slots as u64 * 16;
+        let wide =
+            |w: &[u32; 4]| (w[0] as u128 | (w[1] as u128) << 32 | (w[2] as u128) << 64 | (w[3] as u128) << 96) as i128;
+        if replicates && exact.replicate_sq.len() != n {
+            exact.replicate_sq = vec![0; n];
+        }
+        let targets: Vec<&mut Vec<i128>> = match replicates {
+            true => vec![&mut exact.sum, &mut exact.sum_sq, &mut exact.replicate_sq],
+            false => vec![&mut exact.sum, &mut exact.sum_sq],
+        };
+        for (source, dst) in self.sums.iter().zip(targets) {
+            let mut encoder =
+                ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sums") });
+            encoder.copy_buffer_to_buffer(source, 0, staging, 0, Some(bytes));
+            ctx.submit([encoder.finish()])?;
+            let words: Vec<[u32; 4]> = ctx.read(staging)?;
+            readback_bytes.fetch_add(staging.size(), Ordering::Relaxed);
+            dst.iter_mut().zip(&words[..n]).for_each(|(d, w)| *d = wide(w));
+        }
+        self.status(ctx, readback_bytes)
+    }
+
+    /// The first slot whose block held a sample out of range, if any.
+    fn status(&self, ctx: &GpuContext, readback_bytes: &AtomicU64) -> Result<Option<u32>> {
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("status") });
+        encoder.copy_buffer_to_buffer(&self.status, 0, &self.readback, 16, Some(16));
+        ctx.submit([encoder.finish()])?;
+        let words: Vec<u32> = ctx.read(&self.readback)?;
+        readback_bytes.fetch_add(CHECK_BYTES, Ordering::Relaxed);
+        Ok(bad_slot(words[4]))
+    }
+
+    /// Replaces the device's sums with `exact`'s (the replicates' squares zero where it
+    /// has none).
+    pub fn write(&self, ctx: &GpuContext, exact: &ExactSums) -> Result<()> {
+        let n = self.slots as usize;
+        if exact.sum.len() != n {
+            return Err(Error::Gpu(format!("sums of {} pixels written to device sums of {n}", exact.sum.len())));
+        }
+        let words = |v: &[i128]| -> Vec<[u32; 4]> {
+            let mut out: Vec<[u32; 4]> = v
+                .iter()
+                .map(|&x| x as u128)
+                .map(|x| [x as u32, (x >> 32) as u32, (x >> 64) as u32, (x >> 96) as u32])
+                .collect();
+            out.resize(n, [0; 4]);
+            out
+        };
+        ctx.queue.write_buffer(&self.sums[0], 0, bytemuck::cast_slice(&words(&exact.sum)));
+        ctx.queue.write_buffer(&self.sums[1], 0, bytemuck::cast_slice(&words(&exact.sum_sq)));
+        ctx.queue.write_buffer(&self.sums[2], 0, bytemuck::cast_slice(&words(&exact.replicate_sq)));
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("status") });
+        encoder.clear_buffer(&self.status, 0, None);
+        ctx.submit([encoder.finish()])?;
+        ctx.wait()
+    }
+}
+
+/// The slot a status word names (`stats.wgsl`'s `stats_status`), if any.
+fn bad_slot(word: u32) -> Option<u32> {
+    (word != 0).then(|| u32::MAX - word)
+}

@@ -1,0 +1,144 @@
+//! The statistics a GPU keeps on the device: the exact sums it folds its blocks and
+//! replicates into are the CPU reference's integers bit for bit, the image-level sums its
+//! checks reduce are the host's within their f32 rounding, and target renders resumed
+//! from a checkpoint end with the uninterrupted render's bits.
+
+mod common;
+
+use aorender::{Accumulation, Control, DeviceKind, ErrorTarget, ImageRequest, PassSizing, Sampler, Scene, Settings};
+use common::{Config, gpu_available, repo, session};
+
+/// The bunny, framed bare, at `w`×`h` with AO rays of at most 0.05.
+fn bunny(w: u32, h: u32) -> Scene {
+    let mut scene = Scene::load(&repo().join("scenes/bunny.obj")).unwrap_or_else(|e| panic!("{e}"));
+    (scene.settings.width, scene.settings.height) = (w, h);
+    scene.settings.max_distance = Some(0.05);
+    scene
+}
+
+/// The devices a test runs on: the CPU reference, and the GPU where there is one.
+fn kinds() -> Vec<DeviceKind> {
+    let mut k = vec![DeviceKind::Cpu];
+    if gpu_available() {
+        k.push(DeviceKind::Gpu);
+    }
+    k
+}
+
+/// On an image whose pixel count is no multiple of a workgroup, for independent samples
+/// and replicates of Sobol and stratified points, with samples past a block and a
+/// replicate cut short at the end: the GPU's exact sums (folded on the device) are the
+/// CPU reference's (added on the host) integer for integer, and the device's Σv, Σv² and
+/// Σ mean agree with the host's f64 ones within the f32 rounding of each pixel's terms.
+#[test]
+fn device_sums_are_the_host_sums_and_checks_reduce_them() {
+    if !gpu_available() {
+        eprintln!("no GPU adapter: nothing to compare");
+        return;
+    }
+    let scene = bunny(29, 23);
+    let cpu = session(&scene, &Config::cpu());
+    let gpu = session(&scene, &Config { device: DeviceKind::Gpu, ..Default::default() });
+    for (sampler, replicate, spp) in
+        [(Sampler::Independent, None, 261), (Sampler::Sobol, Some(4), 46), (Sampler::Stratified, Some(16), 272)]
+    {
+        let what = format!("{} in replicates of {replicate:?}, {spp} spp", sampler.name());
+        let settings = Settings { sampler, replicate, spp, seed: 7, ..scene.settings.clone() };
+        let request = ImageRequest { camera: scene.camera, settings, samples: None };
+        let reference = cpu.render(&request).unwrap().complete(&mut Control::default()).unwrap();
+        let mut render = gpu.render(&request).unwrap();
+        render.run(&mut Control { sizing: PassSizing::Fixed(7), ..Control::default() }).unwrap();
+        let sums = render.device_check_sums().unwrap().expect("the GPU keeps an image's sums");
+        let out = render.finish().unwrap();
+        assert!(out.accumulation.exact == reference.accumulation.exact, "{what}: the device's integers differ");
+        assert!(out.film == reference.film, "{what}: the films differ");
+
+        // The host's sums, and a bound on the f32 rounding of each pixel's terms: its
+        // two terms (the replicates' or samples' second moment and k m² or n m²) are
+        // each within a few ulps, 2^-21 of their size.
+        let film = &out.film;
+        let (mean, se) = (film.mean(), film.std_error());
+        let n = film.samples as f64;
+        let (mut v_sum, mut v_sq, mut tolerance) = (0.0, 0.0, 0.0);
+        for i in 0..mean.len() {
+            let v = se[i] * se[i];
+            let terms = match replicate {
+                Some(b) => {
+                    let (b, k) = (b as f64, film.replicates as f64);
+                    (film.replicate_sq[i] / (b * b) + k * mean[i] * mean[i]) / (k - 1.0) * b / n
+                }
+                None => (film.sum_sq[i] + n * mean[i] * mean[i]) / (n - 1.0) / n,
+            };
+            let t = terms * 2f64.powi(-21);
+            (v_sum, v_sq, tolerance) = (v_sum + v, v_sq + v * v, tolerance + t);
+        }
+        let means: f64 = mean.iter().sum();
+        eprintln!(
+            "{what}: Σv {:.6e} on the device, {v_sum:.6e} on the host (tolerance {tolerance:.1e}); Σ mean {:.6} and {means:.6}",
+            sums.variance, sums.mean
+        );
+        assert_eq!(sums.pixels, mean.len() as u64, "{what}");
+        assert!(tolerance < 1e-3 * v_sum, "{what}: a tolerance of {tolerance} cannot tell Σv = {v_sum} apart");
+        assert!((sums.variance - v_sum).abs() <= tolerance, "{what}: Σv {} against {v_sum}", sums.variance);
+        let sq_tolerance = 2.0 * tolerance * se.iter().map(|e| e * e).fold(0.0, f64::max) + 1e-4 * v_sq;
+        assert!((sums.variance_sq - v_sq).abs() <= sq_tolerance, "{what}: Σv² {} against {v_sq}", sums.variance_sq);
+        assert!((sums.mean - means).abs() <= 1e-5 * means, "{what}: Σ mean {} against {means}", sums.mean);
+    }
+}
+
+/// The bytes of `acc` as a checkpoint file, read back.
+fn through_checkpoint(acc: &Accumulation) -> Accumulation {
+    let dir = common::temp_dir();
+    let path = dir.path().join("c.ck");
+    acc.write(&path).unwrap();
+    Accumulation::from_bytes(&std::fs::read(&path).unwrap()).unwrap()
+}
+
+/// A render with an error target stopped part-way (inside a replicate, past several
+/// checks), saved and resumed stops at the same sample and ends with the uninterrupted
+/// render's bits, on the CPU reference and on the GPU (whose sums and checks are on the
+/// device), for independent samples and Sobol replicates.
+#[test]
+fn target_renders_resume_to_the_same_bits() {
+    let scene = bunny(24, 24);
+    for kind in kinds() {
+        let session = session(&scene, &Config { device: kind, ..Default::default() });
+        for (sampler, replicate) in [(Sampler::Independent, None), (Sampler::Sobol, Some(16))] {
+            let what = format!("{kind:?} {}", sampler.name());
+            let settings = Settings { sampler, replicate, spp: 1 << 14, seed: 4, ..scene.settings.clone() };
+            let request = ImageRequest { camera: scene.camera, settings, samples: None };
+            let control = || Control { target: Some(ErrorTarget::Rmse(0.01)), ..Control::default() };
+            let whole = session.render(&request).unwrap().complete(&mut control()).unwrap();
+            assert_eq!(whole.stats.ended_by, "target", "{what}");
+            let spp = whole.stats.samples_per_pixel;
+            assert!((8 * 16..1 << 14).contains(&spp), "{what}: stopped at {spp}");
+            let mut first = session.render(&request).unwrap();
+            let stop_at = spp - 21;
+            first.run_to(stop_at, &mut Control { sizing: PassSizing::Fixed(5), ..control() }).unwrap();
+            assert_eq!(first.samples(), stop_at, "{what}: the target stopped the first part");
+            let saved = through_checkpoint(&first.accumulation().unwrap());
+            let mut resumed = session.render(&request).unwrap();
+            resumed.resume(saved).unwrap();
+            let out = resumed.complete(&mut control()).unwrap();
+            assert_eq!(out.stats.samples_per_pixel, spp, "{what}");
+            assert!(out.film == whole.film, "{what}: the resumed render differs from the whole one");
+            assert!(out.accumulation.exact == whole.accumulation.exact, "{what}");
+        }
+    }
+}
+
+/// The checks of a target come after every stretch (replicate) up to the 32nd, then at
+/// most a sixteenth of the stretches apart and at least a thirty-second: a render that
+/// meets its target after k stretches stops within k / 16 more, and one of k stretches
+/// checks about 16 log2(k / 16) times.
+#[test]
+fn target_checks_are_spaced_by_a_sixteenth_of_the_render() {
+    let due: Vec<u64> = (1..=1u64 << 16).filter(|&k| aorender::render::check_due(k)).collect();
+    assert!((1..=32).all(|k| due.contains(&k)), "not every stretch up to 32 is checked");
+    for pair in due.windows(2) {
+        let (a, b) = (pair[0], pair[1]);
+        assert!(b - a <= (a / 16).max(1), "checks at {a} and {b}: more than a sixteenth apart");
+        assert!(a < 32 || (b - a) * 32 >= a, "checks at {a} and {b}: closer than a thirty-second");
+    }
+    assert!(due.len() <= 16 * 13, "{} checks in 2^16 stretches", due.len());
+}
