@@ -210,3 +210,81 @@ fn next_float_up(x: vec3f) -> vec3f {
     let bits = bitcast<vec3u>(v);
     return bitcast<vec3f>(select(bits - vec3u(1u), bits + vec3u(1u), v >= vec3f(0.0)));
 }
+
+// A sampled AO direction (world space) and the sample's value where it escapes or is
+// blocked: the integrand kept apart from the distribution (src/sky.rs).
+struct SkySample {
+    w: vec3f,
+    open: f32,
+    blocked: f32,
+}
+
+// E(beta) / E_h of an unoccluded plane under the overcast sky, black ground.
+fn overcast_plane(cos_beta: f32) -> f32 {
+    let c = clamp(cos_beta, -1.0, 1.0);
+    let beta = acos(c);
+    let s = safe_sqrt(1.0 - c * c);
+    return (3.0 * PI * (1.0 + c) + 8.0 * ((PI - beta) * c + s)) / (14.0 * PI);
+}
+
+// The overcast sky's radiance at z = cos(theta_z) above the horizon, L_z = 1.
+fn overcast_radiance(z: f32) -> f32 {
+    return (1.0 + 2.0 * max(z, 0.0)) / 3.0;
+}
+
+// A sample of the overcast sky about the unit normal n (sky: SKY_*, up: the unit zenith).
+// The twin of sample_overcast in src/sky.rs.
+fn sample_overcast(sky: u32, normalise: u32, up: vec3f, ground_albedo: f32, hemisphere: u32, n: vec3f, u: vec2f) -> SkySample {
+    let c = clamp(dot(n, up), -1.0, 1.0);
+    // Irradiances over E_h = 7 pi / 9 (L_z = 1): the sky's, the ground's, their sum.
+    let e_sky = overcast_plane(c);
+    let ground = ground_albedo * (7.0 / 9.0);
+    let e_ground = ground_albedo * 0.5 * (1.0 - c);
+    let e_total = e_sky + e_ground;
+    var scale = 9.0 / (7.0 * PI);
+    var closed = e_total;
+    if (normalise == SKY_NORMALISE_SURFACE) {
+        scale = select(0.0, 9.0 / (7.0 * PI * e_total), e_total > 0.0);
+        closed = select(0.0, 1.0, e_total > 0.0);
+    }
+    if (sky == SKY_WEIGHTED) {
+        let w_local = sample_hemisphere(hemisphere, u);
+        let w = local_to_world(w_local, n);
+        let z = dot(w, up);
+        let radiance = select(ground, overcast_radiance(z), z > 0.0);
+        return SkySample(w, PI * radiance * hemisphere_weight(hemisphere, w_local) * scale, 0.0);
+    }
+    // The sky's share of the directions: 1 over a black ground.
+    let a = select(1.0, e_sky / e_total, e_ground > 0.0);
+    // t1: -up in the tangent plane; any tangent where n is parallel to up.
+    let v = c * n - up;
+    let len = length(v);
+    let t1 = select(orthonormal_basis(n)[0], v / len, len > 1e-6);
+    let t2 = cross(n, t1);
+    let d = sample_uniform_disk_concentric(u);
+    let s = safe_sqrt(1.0 - d.y * d.y);
+    let split = -s + 2.0 * a * s;
+    let upper = a > 0.0 && (a >= 1.0 || d.x <= split);
+    // The disk's row [-s, s] squeezed onto the sky's [-s, c s] and the ground's [c s, s].
+    var x: f32;
+    var f_over_p: f32;
+    if (upper) {
+        let k = (1.0 + c) / (2.0 * a);
+        x = -s + (d.x + s) * k;
+        f_over_p = PI * k;
+    } else {
+        let k = (1.0 - c) / (2.0 * (1.0 - a));
+        x = c * s + (d.x - split) * k;
+        f_over_p = PI * k * ground;
+    }
+    let h = safe_sqrt(1.0 - x * x - d.y * d.y);
+    let w = x * t1 + d.y * t2 + h * n;
+    if (upper) {
+        f_over_p = f_over_p * overcast_radiance(dot(w, up));
+    }
+    let value = f_over_p * scale;
+    if (sky == SKY_CONTROL_VARIATE) {
+        return SkySample(w, closed, closed - value);
+    }
+    return SkySample(w, value, 0.0);
+}

@@ -9,7 +9,7 @@
 //! request with its own settings.
 
 use crate::args::{
-    SceneArgs, SizeArgs, check_output_extension, hemisphere_parser, invalid_option, sampler_parser, write_json,
+    SceneArgs, SizeArgs, SkyArgs, check_output_extension, hemisphere_parser, invalid_option, sampler_parser, write_json,
 };
 use crate::output;
 use anyhow::{Result, anyhow};
@@ -40,6 +40,9 @@ pub struct CompareArgs {
     /// Write the statistics of every cell as JSON.
     #[arg(long)]
     stats: Option<PathBuf>,
+    /// The sky of every cell.
+    #[command(flatten)]
+    sky: SkyArgs,
 }
 
 pub fn command(args: CompareArgs) -> Result<()> {
@@ -51,6 +54,7 @@ pub fn command(args: CompareArgs) -> Result<()> {
     }
     let mut scene = args.scene.load()?;
     args.size.apply(&mut scene);
+    args.sky.apply(&mut scene)?;
     validate(&args.spp, &args.hemisphere, &args.sampler).map_err(|m| anyhow!("invalid option: {m}"))?;
     scene.settings.spp = args.spp.iter().copied().max().unwrap_or(1);
     scene.settings.validate().map_err(invalid_option)?;
