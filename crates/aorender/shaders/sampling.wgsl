@@ -220,11 +220,26 @@ struct SkySample {
 }
 
 // E(beta) / E_h of an unoccluded plane under the overcast sky, black ground.
+// beta from acos_poly: the platform's acos is 1e-5 off on lavapipe.
 fn overcast_plane(cos_beta: f32) -> f32 {
     let c = clamp(cos_beta, -1.0, 1.0);
-    let beta = acos(c);
+    let a = acos_poly(abs(c));
+    let pi_minus_beta = select(a, PI - a, c >= 0.0);
     let s = safe_sqrt(1.0 - c * c);
-    return (3.0 * PI * (1.0 + c) + 8.0 * ((PI - beta) * c + s)) / (14.0 * PI);
+    return (3.0 * PI * (1.0 + c) + 8.0 * (pi_minus_beta * c + s)) / (14.0 * PI);
+}
+
+// acos x for x in [0, 1] (Abramowitz & Stegun 4.4.46).
+fn acos_poly(x: f32) -> f32 {
+    var p = -0.0012624911;
+    p = p * x + 0.0066700901;
+    p = p * x - 0.0170881256;
+    p = p * x + 0.0308918810;
+    p = p * x - 0.0501743046;
+    p = p * x + 0.0889789874;
+    p = p * x - 0.2145988016;
+    p = p * x + 1.5707963050;
+    return safe_sqrt(1.0 - x) * p;
 }
 
 // The overcast sky's radiance at z = cos(theta_z) above the horizon, L_z = 1.
