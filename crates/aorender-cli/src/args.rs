@@ -362,7 +362,7 @@ pub fn parse_up(text: &str) -> Result<Vec3, String> {
     };
     let number = |t: &str| t.trim().parse::<f32>().map_err(|e| format!("'{t}' in '{text}' is not a number: {e}"));
     let v = Vec3::new(number(x)?, number(y)?, number(z)?);
-    if !v.is_finite() || v == Vec3::ZERO || !v.normalize().is_finite() {
+    if !v.is_finite() || v == Vec3::ZERO {
         return Err(format!("'{text}' must be finite and non-zero"));
     }
     Ok(v)

@@ -277,22 +277,26 @@ fn sample_overcast(sky: u32, normalise: u32, up: vec3f, ground_albedo: f32, hemi
     let t1 = select(orthonormal_basis(n)[0], v / len, len > 1e-6);
     let t2 = cross(n, t1);
     let d = sample_uniform_disk_concentric(u);
-    let s = safe_sqrt(1.0 - d.y * d.y);
+    let s = safe_sqrt((1.0 - d.y) * (1.0 + d.y));
     let split = -s + 2.0 * a * s;
     let upper = a > 0.0 && (a >= 1.0 || d.x <= split);
-    // The disk's row [-s, s] squeezed onto the sky's [-s, c s] and the ground's [c s, s].
+    // The disk's row [-s, s] squeezed onto the sky's [-s, c s] and the ground's [c s, s];
+    // the height from (s - x)(s + x), s + x exact at the limb.
     var x: f32;
+    var s_plus_x: f32;
     var f_over_p: f32;
     if (upper) {
         let k = (1.0 + c) / (2.0 * a);
-        x = -s + (d.x + s) * k;
+        s_plus_x = (d.x + s) * k;
+        x = s_plus_x - s;
         f_over_p = PI * k;
     } else {
         let k = (1.0 - c) / (2.0 * (1.0 - a));
         x = c * s + (d.x - split) * k;
+        s_plus_x = x + s;
         f_over_p = PI * k * ground;
     }
-    let h = safe_sqrt(1.0 - x * x - d.y * d.y);
+    let h = safe_sqrt((s - x) * s_plus_x);
     let w = x * t1 + d.y * t2 + h * n;
     if (upper) {
         f_over_p = f_over_p * overcast_radiance(dot(w, up));

@@ -163,15 +163,16 @@ impl Sky {
         )
     }
 
-    /// The unit zenith.
+    /// The unit zenith (scaled by its largest component first, so that a huge or tiny
+    /// vector normalises without overflow).
     pub fn unit_up(&self) -> Vec3 {
-        self.up.normalize()
+        (self.up / self.up.abs().max_element()).normalize()
     }
 
     /// Checks the up vector and the ground albedo, and that the overcast sky's options
     /// are not given with the uniform sky: a one-line message naming the option.
     pub fn validate(&self) -> Result<(), String> {
-        if !self.up.is_finite() || self.up == Vec3::ZERO || !self.up.normalize().is_finite() {
+        if !self.up.is_finite() || self.up == Vec3::ZERO || !self.unit_up().is_finite() {
             return Err(format!(
                 "up vector must be finite and non-zero, got {},{},{}",
                 self.up.x, self.up.y, self.up.z
@@ -310,19 +311,23 @@ pub fn sample_overcast(
     let t1 = if len > 1e-6 { v / len } else { orthonormal_basis(n).0 };
     let t2 = n.cross(t1);
     let d = sample_uniform_disk_concentric(u);
-    let s = safe_sqrt(1.0 - d.y * d.y);
+    let s = safe_sqrt((1.0 - d.y) * (1.0 + d.y));
     let split = -s + 2.0 * a * s;
     let upper = a > 0.0 && (a >= 1.0 || d.x <= split);
     // Squeeze the disk's row [−s, s] onto the sky's [−s, c s] (x ≤ split) and the ground's
-    // [c s, s]: uniform on the projected disk in each part, so p ∝ cos θ there.
-    let (x, f_over_p) = if upper {
+    // [c s, s]: uniform on the projected disk in each part, so p ∝ cos θ there. The height
+    // is √((s − x)(s + x)) with s + x kept exact at the limb, not √(1 − x² − y²), whose
+    // rounding there would tip directions below the horizon.
+    let (x, s_plus_x, f_over_p) = if upper {
         let k = (1.0 + c) / (2.0 * a);
-        (-s + (d.x + s) * k, PI * k)
+        let s_plus_x = (d.x + s) * k;
+        (s_plus_x - s, s_plus_x, PI * k)
     } else {
         let k = (1.0 - c) / (2.0 * (1.0 - a));
-        (c * s + (d.x - split) * k, PI * k * ground)
+        let x = c * s + (d.x - split) * k;
+        (x, x + s, PI * k * ground)
     };
-    let h = safe_sqrt(1.0 - x * x - d.y * d.y);
+    let h = safe_sqrt((s - x) * s_plus_x);
     let w = x * t1 + d.y * t2 + h * n;
     let f_over_p = if upper { f_over_p * overcast_radiance(w.dot(up)) } else { f_over_p };
     let value = f_over_p * scale;
@@ -360,7 +365,17 @@ mod tests {
     fn acos_poly_is_acos() {
         for i in 0..=10_000 {
             let x = i as f32 / 10_000.0;
-            assert!((acos_poly(x) as f64 - (x as f64).acos()).abs() < 2e-7, "{x}");
+            // 2e-8 from the polynomial, then a few f32 roundings of values up to π/2.
+            assert!((acos_poly(x) as f64 - (x as f64).acos()).abs() < 4e-7, "{x}");
+        }
+    }
+
+    #[test]
+    fn huge_and_tiny_up_vectors_normalise() {
+        for up in [Vec3::splat(1e30), Vec3::new(1e-45, 0.0, 0.0), Vec3::new(0.0, 3.0, 4.0)] {
+            let sky = Sky { model: SkyModel::Overcast, up, ..Sky::default() };
+            assert_eq!(sky.validate(), Ok(()));
+            assert!((sky.unit_up().length() - 1.0).abs() < 1e-6, "{up}");
         }
     }
 
@@ -372,6 +387,7 @@ mod tests {
             (Sky { up: Vec3::ZERO, ..ok }, "up vector"),
             (Sky { up: Vec3::new(f32::NAN, 1.0, 0.0), ..ok }, "up vector"),
             (Sky { up: Vec3::new(f32::INFINITY, 1.0, 0.0), ..ok }, "up vector"),
+            (Sky { up: Vec3::new(0.0, -0.0, 0.0), ..ok }, "up vector"),
             (Sky { ground_albedo: 1.5, ..ok }, "ground albedo"),
             (Sky { ground_albedo: f32::NAN, ..ok }, "ground albedo"),
             (Sky { ground_albedo: -0.1, ..ok }, "ground albedo"),

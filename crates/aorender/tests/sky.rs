@@ -7,10 +7,10 @@
 mod common;
 use aorender::closed_form::agrees;
 use aorender::sky::{overcast_plane_f64, overcast_radiance};
+use aorender::{BvhOptions, scene::Sphere};
 use aorender::{
     Device, Hemisphere, Probe, ProbeValue, Sampler, Scene, Session, Settings, Sky, SkyModel, SkyNormalise, SkySampling,
 };
-use aorender::{BvhOptions, scene::Sphere};
 use common::{gpu_available, gpu_device};
 use glam::Vec3;
 
