@@ -298,7 +298,7 @@ pub struct SkyArgs {
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_up, allow_negative_numbers = true)]
     pub up: Option<Vec3>,
     /// Albedo of the ground below the overcast sky's horizon, in [0, 1] (default 0: black).
-    #[arg(long, value_parser = parse_ground_albedo)]
+    #[arg(long, value_parser = parse_ground_albedo, allow_negative_numbers = true)]
     pub ground_albedo: Option<f32>,
     /// How the overcast sky is sampled: horizon (directions ∝ cos θ above the horizon),
     /// control-variate (those, exact where unoccluded) or weighted (--hemisphere's with
