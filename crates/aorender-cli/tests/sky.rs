@@ -92,3 +92,43 @@ fn checkpoints_record_the_sky_resume_and_merge_to_the_single_runs_bits() {
     assert!(!mixed.status.success() && stderr.contains("sky"), "{stderr}");
     assert!(!d.join("mixed.pfm").exists());
 }
+
+#[test]
+fn compare_records_the_sky_of_its_cells() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let args = [
+        "compare",
+        "--device",
+        "cpu",
+        "--width",
+        "16",
+        "--height",
+        "12",
+        "--spp",
+        "1,4",
+        "--sky",
+        "overcast",
+        "--sky-sampling",
+        "control-variate",
+        "-o",
+        "grid.png",
+        "--stats",
+        "grid.json",
+    ];
+    let out = aorender(&args, d);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("grid.json")).unwrap()).unwrap();
+    let sky = stats["sky"].as_str().expect("a sky");
+    assert!(sky.starts_with("overcast") && sky.contains("control-variate sampling"), "{sky}");
+    let uniform = aorender(
+        &[
+            "compare", "--device", "cpu", "--width", "16", "--height", "12", "--spp", "1", "-o", "u.png", "--stats",
+            "u.json",
+        ],
+        d,
+    );
+    assert!(uniform.status.success());
+    let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("u.json")).unwrap()).unwrap();
+    assert_eq!(stats["sky"], "uniform");
+}
