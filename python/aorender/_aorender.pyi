@@ -31,6 +31,7 @@ def ambient_occlusion(
     max_distance: Optional[float] = None,
     seed: int = 0,
     replicate: Optional[int] = None,
+    sky: Union[None, str, Dict[str, Any]] = None,
     surface_tolerance: Optional[float] = None,
     device: str = "auto",
 ) -> Values:
@@ -85,6 +86,7 @@ class Scene:
         max_distance: Optional[float] = None,
         seed: int = 0,
         replicate: Optional[int] = None,
+        sky: Union[None, str, Dict[str, Any]] = None,
         surface_tolerance: Optional[float] = None,
         device: str = "auto",
     ) -> Values:
@@ -101,6 +103,7 @@ class Scene:
         seed: int = 0,
         max_distance: Optional[float] = None,
         replicate: Optional[int] = None,
+        sky: Union[None, str, Dict[str, Any]] = None,
         background: float = 0.0,
         device: str = "auto",
     ) -> Tuple[npt.NDArray[np.float32], Dict[str, Any]]:
@@ -115,6 +118,7 @@ class Scene:
         seed: int = 0,
         max_distance: Optional[float] = None,
         replicate: Optional[int] = None,
+        sky: Union[None, str, Dict[str, Any]] = None,
         device: str = "auto",
         output: Union[None, str, "os.PathLike[str]"] = None,
         std_error: bool = False,

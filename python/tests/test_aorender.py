@@ -421,6 +421,29 @@ def test_cosine_weighted_ao_is_not_libigls_unweighted_visibility():
         assert abs(ao[0] - (1 - math.cos(math.pi / 4))) > 20 * err[0]
 
 
+def test_overcast_sky_at_the_floor_of_an_open_cylinder():
+    """The floor's centre of an open cylinder of radius 1 and height 1 sees the sky within
+    45° of the zenith: under the overcast sky E/E_h = 6/7 [sin²45°/2 + 2 (1 − cos³45°)/3]
+    (docs/sampling.md), 0.584, against 0.5 under the uniform sky."""
+    k = 256
+    t = np.linspace(0, 2 * math.pi, k, endpoint=False)
+    ring0 = np.stack([np.cos(t), np.zeros(k), np.sin(t)], 1)
+    V = np.vstack([ring0, ring0 + [0, 1, 0]])
+    F = np.array([t for i in range(k) for t in ((i, (i + 1) % k, k + i), ((i + 1) % k, k + (i + 1) % k, k + i))])
+    P, N = np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]])
+    a = math.pi / 4
+    expected = 6 / 7 * (math.sin(a) ** 2 / 2 + 2 * (1 - math.cos(a) ** 3) / 3)
+    for sky in ("overcast", {"model": "overcast", "sampling": "control-variate", "up": (0, 2, 0)}):
+        ao, err = aorender.ambient_occlusion(V, F, P, N, 1 << 14, sky=sky, device="cpu")
+        # 1e-3 for the 256-sided polygon standing in for the cylinder.
+        assert abs(ao[0] - expected) <= 4 * err[0] + 1e-3, (sky, ao, err)
+        assert abs(ao[0] - 0.5) > 20 * err[0]
+    for bad, message in (("x", "unknown sky"), ({"model": "overcast", "up": (0, 0, 0)}, "up vector"),
+                         ({"model": "overcast", "ground_albedo": 2.0}, "ground albedo"), ({"colour": 1}, "unknown sky key")):
+        with pytest.raises(ValueError, match=message):
+            aorender.ambient_occlusion(V, F, P, N, 16, sky=bad, device="cpu")
+
+
 def test_bake_defaults_are_the_commands(cli, repo, tmp_path):
     """Scene.bake and `aorender bake` with their defaults (sampler, hemisphere, seed) trace the same samples."""
     out = tmp_path / "b.ply"

@@ -4,10 +4,11 @@
 use anyhow::{Result, bail};
 use aorender::{
     Accumulation, BuildQuality, BvhLayout, BvhOptions, Device, DeviceKind, GeometryStorage, Hemisphere, LoadOptions,
-    ReadLimits, Sampler, Scene, Traversal,
+    ReadLimits, Sampler, Scene, SkyModel, SkyNormalise, SkySampling, Traversal,
 };
 use clap::ValueEnum;
 use clap::builder::TypedValueParser as _;
+use glam::Vec3;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
@@ -263,6 +264,9 @@ pub struct SamplingArgs {
     /// replicates unless batched (16 with --adaptive). With --resume, the checkpoint's.
     #[arg(long, value_name = "N")]
     pub replicate: Option<u32>,
+    /// The sky.
+    #[command(flatten)]
+    pub sky: SkyArgs,
 }
 
 impl SamplingArgs {
@@ -278,8 +282,99 @@ impl SamplingArgs {
         if self.replicate.is_some() {
             s.replicate = self.replicate;
         }
+        self.sky.apply(scene)
+    }
+}
+
+/// The sky options of `render`, `probe`, `bake` and `compare`.
+#[derive(clap::Args)]
+pub struct SkyArgs {
+    /// The sky: uniform (classic AO) or overcast (the CIE standard overcast sky, three
+    /// times brighter at the zenith than at the horizon) (default: the scene's, else uniform).
+    #[arg(long, value_parser = named_parser(SkyModel::ALL.map(SkyModel::name), SkyModel::from_name))]
+    pub sky: Option<SkyModel>,
+    /// The zenith of the overcast sky, X,Y,Z in the scene's coordinates (default: the
+    /// scene's, else 0,1,0, glTF's +Y).
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_up, allow_negative_numbers = true)]
+    pub up: Option<Vec3>,
+    /// Albedo of the ground below the overcast sky's horizon, in [0, 1] (default 0: black).
+    #[arg(long, value_parser = parse_ground_albedo, allow_negative_numbers = true)]
+    pub ground_albedo: Option<f32>,
+    /// How the overcast sky is sampled: horizon (directions ∝ cos θ above the horizon),
+    /// control-variate (those, exact where unoccluded) or weighted (--hemisphere's with
+    /// the sky as a weight) (default horizon).
+    #[arg(long, value_parser = named_parser(SkySampling::ALL.map(SkySampling::name), SkySampling::from_name))]
+    pub sky_sampling: Option<SkySampling>,
+    /// What the overcast sky's values are divided by: horizontal (an unoccluded upward
+    /// surface renders its albedo, sides darker) or surface (every unoccluded point renders
+    /// its albedo, as in classic AO) (default horizontal).
+    #[arg(long, value_parser = named_parser(SkyNormalise::ALL.map(SkyNormalise::name), SkyNormalise::from_name))]
+    pub sky_normalise: Option<SkyNormalise>,
+}
+
+impl SkyArgs {
+    /// The scene's settings with the sky options applied and the sampling checked: an
+    /// overcast sky's option given with the uniform sky is refused, naming it.
+    pub fn apply(&self, scene: &mut Scene) -> Result<()> {
+        let s = &mut scene.settings;
+        if let Some(m) = self.sky {
+            s.sky.model = m;
+        }
+        if let Some(up) = self.up {
+            s.sky.up = up;
+        }
+        if let Some(a) = self.ground_albedo {
+            s.sky.ground_albedo = a;
+        }
+        if let Some(m) = self.sky_sampling {
+            s.sky.sampling = m;
+        }
+        if let Some(n) = self.sky_normalise {
+            s.sky.normalise = n;
+        }
+        if s.sky.is_uniform() {
+            let given = [
+                (self.sky_normalise.is_some(), "--sky-normalise"),
+                (self.sky_sampling.is_some(), "--sky-sampling"),
+                (self.ground_albedo.is_some(), "--ground-albedo"),
+            ];
+            if let Some((_, name)) = given.into_iter().find(|g| g.0) {
+                bail!("invalid option: {name} needs --sky overcast");
+            }
+        }
         s.validate_sampling().map_err(invalid_option)
     }
+}
+
+/// A parser of the names `names`, mapped by `from_name`.
+fn named_parser<T: Clone + Send + Sync + 'static>(
+    names: impl IntoIterator<Item = &'static str>,
+    from_name: fn(&str) -> Option<T>,
+) -> impl clap::builder::TypedValueParser<Value = T> {
+    clap::builder::PossibleValuesParser::new(names).map(move |name: String| from_name(&name).expect("a listed name"))
+}
+
+/// `--up X,Y,Z`: three finite numbers, not all zero.
+pub fn parse_up(text: &str) -> Result<Vec3, String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    let [x, y, z] = parts[..] else {
+        return Err(format!("expected X,Y,Z, got '{text}'"));
+    };
+    let number = |t: &str| t.trim().parse::<f32>().map_err(|e| format!("'{t}' in '{text}' is not a number: {e}"));
+    let v = Vec3::new(number(x)?, number(y)?, number(z)?);
+    if !v.is_finite() || v == Vec3::ZERO {
+        return Err(format!("'{text}' must be finite and non-zero"));
+    }
+    Ok(v)
+}
+
+/// `--ground-albedo`: a number in [0, 1].
+pub fn parse_ground_albedo(text: &str) -> Result<f32, String> {
+    let a: f32 = text.trim().parse().map_err(|e| format!("'{text}' is not a number: {e}"))?;
+    if !(0.0..=1.0).contains(&a) {
+        return Err(format!("{text} is outside [0, 1]"));
+    }
+    Ok(a)
 }
 
 /// How a long run is bounded, saved, continued and split: the options of `render` and

@@ -69,6 +69,7 @@ fn compare_writes_grid_and_stats() {
         width: 64,
         height: 32,
         seed: 0,
+        sky: "uniform".into(),
         adapter: String::new(),
         backend: String::new(),
         total_seconds: 0.0,

@@ -2,9 +2,12 @@
 //! engine's errors as Python exceptions, and work run with the GIL released that a
 //! KeyboardInterrupt stops after the current pass.
 
-use aorender::{Control, Device, DeviceKind, Hemisphere, Progress, Sampler, Settings};
+use aorender::{
+    Control, Device, DeviceKind, Hemisphere, Progress, Sampler, Settings, Sky, SkyModel, SkyNormalise, SkySampling,
+};
 use pyo3::exceptions::{PyMemoryError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -58,6 +61,7 @@ pub fn settings(
     seed: u32,
     max_distance: Option<f64>,
     replicate: Option<u32>,
+    sky: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Settings> {
     let names =
         |all: &mut dyn Iterator<Item = &'static str>| all.map(|n| format!("'{n}'")).collect::<Vec<_>>().join(", ");
@@ -84,10 +88,68 @@ pub fn settings(
         seed,
         max_distance: max_distance.map(|d| d as f32),
         replicate,
+        sky: parse_sky(sky)?,
         ..Settings::default()
     };
     settings.validate_sampling().map_err(to_py)?;
     Ok(settings)
+}
+
+/// The `sky` keyword: None (classic AO), a sky's name ("uniform", "overcast"), or a dict
+/// with "model" and any of "up" (3 numbers, +Y by default), "ground_albedo", "sampling"
+/// and "normalise", named as on the command line.
+pub fn parse_sky(sky: Option<&Bound<'_, PyAny>>) -> PyResult<Sky> {
+    let Some(sky) = sky.filter(|s| !s.is_none()) else {
+        return Ok(Sky::default());
+    };
+    fn named<T>(what: &str, name: &str, from_name: fn(&str) -> Option<T>, all: &[&str]) -> PyResult<T> {
+        from_name(name).ok_or_else(|| {
+            let all: Vec<String> = all.iter().map(|n| format!("'{n}'")).collect();
+            PyValueError::new_err(format!("unknown {what} '{name}': expected one of {}", all.join(", ")))
+        })
+    }
+    let models = SkyModel::ALL.map(SkyModel::name);
+    if let Ok(name) = sky.extract::<String>() {
+        let model = named("sky", &name, SkyModel::from_name, &models)?;
+        return Ok(Sky { model, ..Sky::default() });
+    }
+    let dict = sky.downcast::<PyDict>().map_err(|_| {
+        PyValueError::new_err(
+            "sky must be None, a sky's name or a dict with 'model', 'up', 'ground_albedo', 'sampling', 'normalise'",
+        )
+    })?;
+    let mut out = Sky::default();
+    for (key, value) in dict.iter() {
+        let key: String = key.extract()?;
+        let text =
+            || value.extract::<String>().map_err(|_| PyValueError::new_err(format!("sky['{key}'] must be a string")));
+        match key.as_str() {
+            "model" => out.model = named("sky", &text()?, SkyModel::from_name, &models)?,
+            "sampling" => {
+                out.sampling =
+                    named("sky sampling", &text()?, SkySampling::from_name, &SkySampling::ALL.map(SkySampling::name))?
+            }
+            "normalise" => {
+                out.normalise = named(
+                    "sky normalisation",
+                    &text()?,
+                    SkyNormalise::from_name,
+                    &SkyNormalise::ALL.map(SkyNormalise::name),
+                )?
+            }
+            "up" => {
+                let [x, y, z]: [f32; 3] =
+                    value.extract().map_err(|_| PyValueError::new_err("sky['up'] must be three numbers (x, y, z)"))?;
+                out.up = glam::Vec3::new(x, y, z);
+            }
+            "ground_albedo" => {
+                out.ground_albedo =
+                    value.extract().map_err(|_| PyValueError::new_err("sky['ground_albedo'] must be a number"))?
+            }
+            _ => return Err(PyValueError::new_err(format!("unknown sky key '{key}'"))),
+        }
+    }
+    Ok(out)
 }
 
 /// Runs `work` with the GIL released, under a [`Control`] whose progress callback takes

@@ -12,7 +12,7 @@ use pyo3::prelude::*;
 use scene::PyScene;
 
 /// ambient_occlusion(V, F, P, N, samples=256, *, hemisphere="cosine", sampler="independent",
-/// max_distance=None, seed=0, replicate=None, surface_tolerance=None, device="auto") -> (ao, std_error)
+/// max_distance=None, seed=0, replicate=None, sky=None, surface_tolerance=None, device="auto") -> (ao, std_error)
 ///
 /// Ambient occlusion of the triangle mesh (V, F) at the points P about the normals N.
 ///
@@ -49,6 +49,10 @@ use scene::PyScene;
 /// as it stands for "independent"). seed: the random numbers' seed; the same seed,
 /// samples and device give the same values as `aorender probe --seed`. device: "auto" (the
 /// best GPU adapter, else the CPU reference), "gpu", "cpu", or part of an adapter's name.
+/// sky: None or "uniform" (the AO above), "overcast" (the CIE overcast sky about +Y), or a
+/// dict with "model", "up" (x, y, z), "ground_albedo", "sampling" ("horizon",
+/// "control-variate", "weighted") and "normalise" ("horizontal", "surface"), as
+/// `aorender render --sky` takes them.
 ///
 /// Each point is taken on the surface it lies on: the nearest triangle within
 /// surface_tolerance (a distance; None, the default, is 2**-18 of the largest coordinate
@@ -65,7 +69,7 @@ use scene::PyScene;
 /// the current pass and raises KeyboardInterrupt. Bad input raises ValueError before any
 /// work; a device failure raises RuntimeError.
 #[pyfunction]
-#[pyo3(signature = (V, F, P, N, samples = 256, *, hemisphere = "cosine", sampler = "independent", max_distance = None, seed = 0, replicate = None, surface_tolerance = None, device = "auto"))]
+#[pyo3(signature = (V, F, P, N, samples = 256, *, hemisphere = "cosine", sampler = "independent", max_distance = None, seed = 0, replicate = None, sky = None, surface_tolerance = None, device = "auto"))]
 #[allow(non_snake_case, clippy::too_many_arguments)]
 fn ambient_occlusion<'py>(
     py: Python<'py>,
@@ -79,6 +83,7 @@ fn ambient_occlusion<'py>(
     max_distance: Option<f64>,
     seed: u32,
     replicate: Option<u32>,
+    sky: Option<&Bound<'py, PyAny>>,
     surface_tolerance: Option<f64>,
     device: &str,
 ) -> PyResult<scene::Values<'py>> {
@@ -86,7 +91,7 @@ fn ambient_occlusion<'py>(
     let v = arrays::vec3s(py, V, "V")?;
     let f = arrays::faces(py, F, "F", v.len())?;
     let probes = scene::probes(py, P, N, samples, glam::DVec3::ZERO)?;
-    let settings = engine::settings(hemisphere, sampler, seed, max_distance, replicate)?;
+    let settings = engine::settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
     let tolerance = scene::tolerance(surface_tolerance)?;
     let scene = PyScene::of_arrays("arrays", v, f)
         .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("V, F: {}", e.value(py))))?;

@@ -274,7 +274,7 @@ impl PyScene {
     /// AO at the points P (k, 3) about the normals N (k, 3) (any length but zero), with
     /// `samples` rays each: float64 arrays of k values, 1 fully open, and their standard
     /// errors. See `aorender.ambient_occlusion` for the estimator and its arguments.
-    #[pyo3(signature = (P, N, samples = 256, *, hemisphere = "cosine", sampler = "independent", max_distance = None, seed = 0, replicate = None, surface_tolerance = None, device = "auto"))]
+    #[pyo3(signature = (P, N, samples = 256, *, hemisphere = "cosine", sampler = "independent", max_distance = None, seed = 0, replicate = None, sky = None, surface_tolerance = None, device = "auto"))]
     #[allow(non_snake_case, clippy::too_many_arguments)]
     fn ambient_occlusion<'py>(
         &self,
@@ -287,11 +287,12 @@ impl PyScene {
         max_distance: Option<f64>,
         seed: u32,
         replicate: Option<u32>,
+        sky: Option<&Bound<'py, PyAny>>,
         surface_tolerance: Option<f64>,
         device: &str,
     ) -> PyResult<Values<'py>> {
         let probes = probes(py, P, N, samples, self.scene.origin)?;
-        let settings = settings(hemisphere, sampler, seed, max_distance, replicate)?;
+        let settings = settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
         let tolerance = tolerance(surface_tolerance)?;
         self.probe(py, &probes, samples, &settings, tolerance, device)
     }
@@ -305,7 +306,7 @@ impl PyScene {
     /// `aorender render --stats` writes them (a dict). `camera` is a dict of any of eye,
     /// look_at, up (3 numbers each) and fov (vertical, degrees) or ortho_height; keys left
     /// out keep the scene's camera (a mesh's, the automatic framing).
-    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, background = 0.0, device = "auto"))]
+    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, sky = None, background = 0.0, device = "auto"))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -319,10 +320,11 @@ impl PyScene {
         seed: u32,
         max_distance: Option<f64>,
         replicate: Option<u32>,
+        sky: Option<&Bound<'py, PyAny>>,
         background: f64,
         device: &str,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        let sampling = settings(hemisphere, sampler, seed, max_distance, replicate)?;
+        let sampling = settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
         let settings = Settings { width, height, spp, background: background as f32, ..sampling };
         settings.validate().map_err(to_py)?;
         let camera = match camera {
@@ -356,7 +358,7 @@ impl PyScene {
     ///
     /// For a loaded scene, `output` writes the files as `aorender bake -o output` does: a
     /// mesh file of the input's format for a mesh file, a directory for a scene file.
-    #[pyo3(signature = (samples = 256, *, at = "vertices", hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, device = "auto", output = None, std_error = false, colors = false, overwrite = false))]
+    #[pyo3(signature = (samples = 256, *, at = "vertices", hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, sky = None, device = "auto", output = None, std_error = false, colors = false, overwrite = false))]
     #[allow(clippy::too_many_arguments)]
     fn bake<'py>(
         &self,
@@ -368,13 +370,14 @@ impl PyScene {
         seed: u32,
         max_distance: Option<f64>,
         replicate: Option<u32>,
+        sky: Option<&Bound<'py, PyAny>>,
         device: &str,
         output: Option<PathBuf>,
         std_error: bool,
         colors: bool,
         overwrite: bool,
     ) -> PyResult<Values<'py>> {
-        let settings = settings(hemisphere, sampler, seed, max_distance, replicate)?;
+        let settings = settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
         let at = match at {
             "vertices" => BakeAt::Vertices,
             "faces" => BakeAt::Faces,

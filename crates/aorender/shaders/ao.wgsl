@@ -17,10 +17,12 @@ var<workgroup> workgroup_counters: array<atomic<u32>, COUNTER_COUNT>;
 // AO rays of this invocation, added to workgroup_counters once at its end.
 var<private> ao_rays: u32 = 0u;
 
-// The render's point sampler (SAMPLER_*) and hemisphere mapping (HEMISPHERE_*), set per
-// pipeline by src/gpu/pipeline.rs, so that only the chosen one is compiled in.
+// The render's point sampler (SAMPLER_*), hemisphere mapping (HEMISPHERE_*) and sky
+// (SKY_*), set per pipeline by src/gpu/pipeline.rs, so that only the chosen one is
+// compiled in.
 override SAMPLER: u32;
 override HEMISPHERE: u32;
+override SKY: u32;
 
 fn camera_ray(pixel: vec2f) -> array<vec3f, 2> {
     let sx = 2.0 * pixel.x / f32(frame.width) - 1.0;
@@ -32,16 +34,27 @@ fn camera_ray(pixel: vec2f) -> array<vec3f, 2> {
 }
 
 // The AO ray from p with normal n, p within `error` of its surface along n, for
-// hemisphere numbers u; w_local is its direction in the local frame (z = n).
+// hemisphere numbers u; open and blocked are the sample's value where it escapes or not.
 struct AoRay {
     o: vec3f,
     d: vec3f,
-    w_local: vec3f,
+    open: f32,
+    blocked: f32,
+}
+
+// The sky's direction and values for numbers u about the unit normal n: the hemisphere's
+// own weight for the uniform sky (classic AO), else the overcast sky's.
+fn sky_sample(n: vec3f, u: vec2f) -> SkySample {
+    if (SKY == SKY_UNIFORM) {
+        let w_local = sample_hemisphere(HEMISPHERE, u);
+        return SkySample(local_to_world(w_local, n), hemisphere_weight(HEMISPHERE, w_local), 0.0);
+    }
+    return sample_overcast(SKY, frame.sky_normalise, frame.sky_up, frame.ground_albedo, HEMISPHERE, n, u);
 }
 
 fn ao_ray(p: vec3f, n: vec3f, error: f32, u: vec2f) -> AoRay {
-    let w_local = sample_hemisphere(HEMISPHERE, u);
-    return AoRay(offset_ray_origin(p, n, error), local_to_world(w_local, n), w_local);
+    let s = sky_sample(n, u);
+    return AoRay(offset_ray_origin(p, n, error), s.w, s.open, s.blocked);
 }
 
 // The AO ray of probe q for hemisphere numbers u: about its normal, from its position
@@ -49,11 +62,11 @@ fn ao_ray(p: vec3f, n: vec3f, error: f32, u: vec2f) -> AoRay {
 // it has none), a direction below the surface mirrored above it. The twin of
 // CpuTracer::probe_ray.
 fn probe_ray(q: ProbePoint, u: vec2f) -> AoRay {
-    let w_local = sample_hemisphere(HEMISPHERE, u);
+    let s = sky_sample(q.normal, u);
     let g = q.surface_normal;
     let off = select(g, q.normal, all(g == vec3f(0.0)));
-    let d = above_surface(local_to_world(w_local, q.normal), g);
-    return AoRay(offset_ray_origin(q.position, off, q.error), d, w_local);
+    let d = above_surface(s.w, g);
+    return AoRay(offset_ray_origin(q.position, off, q.error), d, s.open, s.blocked);
 }
 
 // The first hit of an AO ray within the maximum distance, counted; nothing where the lane
@@ -63,12 +76,12 @@ fn trace_ao(ray: AoRay, live: bool) -> Hit {
     return trace(ray.o, ray.d, select(0.0, frame.max_distance, live), true);
 }
 
-// The hemisphere estimate of an AO ray that found `shadow`: 0 or cos(theta) / (pi pdf).
-fn ao_estimate(shadow: Hit, w_local: vec3f) -> f32 {
+// The estimate of an AO ray that found `shadow`: its value where blocked or where open.
+fn ao_estimate(shadow: Hit, open: f32, blocked: f32) -> f32 {
     if (shadow.kind != HIT_NONE) {
-        return 0.0;
+        return blocked;
     }
-    return hemisphere_weight(HEMISPHERE, w_local);
+    return open;
 }
 
 // Where a camera ray hit, and the albedo there.
@@ -113,13 +126,14 @@ fn shade_sample(px: vec2u, u: vec4f, live: bool) -> f32 {
     var t_max = select(0.0, INF, live);
     var is_ao_ray = false;
     var albedo = 0.0;
-    var w_local = vec3f(0.0);
+    var open = 0.0;
+    var blocked = 0.0;
     var value = frame.background;
     loop {
         let hit = trace(o, d, t_max, is_ao_ray);
         if (is_ao_ray) {
             if (t_max > 0.0) {
-                value = albedo * ao_estimate(hit, w_local);
+                value = albedo * ao_estimate(hit, open, blocked);
             }
             break;
         }
@@ -135,7 +149,8 @@ fn shade_sample(px: vec2u, u: vec4f, live: bool) -> f32 {
             ao_rays += 1u;
             o = ray.o;
             d = ray.d;
-            w_local = ray.w_local;
+            open = ray.open;
+            blocked = ray.blocked;
             t_max = frame.max_distance;
         }
         if (!rays_left(t_max > 0.0)) {
@@ -233,7 +248,7 @@ fn probe_sample(
         }
         let u = sample_point_uniforms(SAMPLER, frame.first_point + point, 0u, index, frame.seed, frame.strata, frame.replicate);
         let ray = probe_ray(q, u.zw);
-        let value = ao_estimate(trace_ao(ray, live), ray.w_local);
+        let value = ao_estimate(trace_ao(ray, live), ray.open, ray.blocked);
         if (live) {
             acc = accumulate(acc, value);
         }
@@ -282,7 +297,7 @@ fn probe_bent_sample(
             atomicAdd(&workgroup_counters[COUNTER_TRUNCATED], 1u);
         } else if (live) {
             let e = frame.value_exponent;
-            ao = add_sample(ao, ao_estimate(shadow, ray.w_local), e);
+            ao = add_sample(ao, ao_estimate(shadow, ray.open, ray.blocked), e);
             bx = add_sample(bx, open.x, e);
             by = add_sample(by, open.y, e);
             bz = add_sample(bz, open.z, e);

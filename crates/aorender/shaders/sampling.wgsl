@@ -210,3 +210,100 @@ fn next_float_up(x: vec3f) -> vec3f {
     let bits = bitcast<vec3u>(v);
     return bitcast<vec3f>(select(bits - vec3u(1u), bits + vec3u(1u), v >= vec3f(0.0)));
 }
+
+// A sampled AO direction (world space) and the sample's value where it escapes or is
+// blocked: the integrand kept apart from the distribution (src/sky.rs).
+struct SkySample {
+    w: vec3f,
+    open: f32,
+    blocked: f32,
+}
+
+// E(beta) / E_h of an unoccluded plane under the overcast sky, black ground.
+// beta from acos_poly: the platform's acos is 1e-5 off on lavapipe.
+fn overcast_plane(cos_beta: f32) -> f32 {
+    let c = clamp(cos_beta, -1.0, 1.0);
+    let a = acos_poly(abs(c));
+    let pi_minus_beta = select(a, PI - a, c >= 0.0);
+    let s = safe_sqrt(1.0 - c * c);
+    return (3.0 * PI * (1.0 + c) + 8.0 * (pi_minus_beta * c + s)) / (14.0 * PI);
+}
+
+// acos x for x in [0, 1] (Abramowitz & Stegun 4.4.46).
+fn acos_poly(x: f32) -> f32 {
+    var p = -0.0012624911;
+    p = p * x + 0.0066700901;
+    p = p * x - 0.0170881256;
+    p = p * x + 0.0308918810;
+    p = p * x - 0.0501743046;
+    p = p * x + 0.0889789874;
+    p = p * x - 0.2145988016;
+    p = p * x + 1.5707963050;
+    return safe_sqrt(1.0 - x) * p;
+}
+
+// The overcast sky's radiance at z = cos(theta_z) above the horizon, L_z = 1.
+fn overcast_radiance(z: f32) -> f32 {
+    return (1.0 + 2.0 * max(z, 0.0)) / 3.0;
+}
+
+// A sample of the overcast sky about the unit normal n (sky: SKY_*, up: the unit zenith).
+// The twin of sample_overcast in src/sky.rs.
+fn sample_overcast(sky: u32, normalise: u32, up: vec3f, ground_albedo: f32, hemisphere: u32, n: vec3f, u: vec2f) -> SkySample {
+    let c = clamp(dot(n, up), -1.0, 1.0);
+    // Irradiances over E_h = 7 pi / 9 (L_z = 1): the sky's, the ground's, their sum.
+    let e_sky = overcast_plane(c);
+    let ground = ground_albedo * (7.0 / 9.0);
+    let e_ground = ground_albedo * 0.5 * (1.0 - c);
+    let e_total = e_sky + e_ground;
+    var scale = 9.0 / (7.0 * PI);
+    var closed = e_total;
+    if (normalise == SKY_NORMALISE_SURFACE) {
+        scale = select(0.0, 9.0 / (7.0 * PI * e_total), e_total > 0.0);
+        closed = select(0.0, 1.0, e_total > 0.0);
+    }
+    if (sky == SKY_WEIGHTED) {
+        let w_local = sample_hemisphere(hemisphere, u);
+        let w = local_to_world(w_local, n);
+        let z = dot(w, up);
+        let radiance = select(ground, overcast_radiance(z), z > 0.0);
+        return SkySample(w, PI * radiance * hemisphere_weight(hemisphere, w_local) * scale, 0.0);
+    }
+    // The sky's share of the directions: 1 over a black ground.
+    let a = select(1.0, e_sky / e_total, e_ground > 0.0);
+    // t1: -up in the tangent plane; any tangent where n is parallel to up.
+    let v = c * n - up;
+    let len = length(v);
+    let t1 = select(orthonormal_basis(n)[0], v / len, len > 1e-6);
+    let t2 = cross(n, t1);
+    let d = sample_uniform_disk_concentric(u);
+    let s = safe_sqrt((1.0 - d.y) * (1.0 + d.y));
+    let split = -s + 2.0 * a * s;
+    let upper = a > 0.0 && (a >= 1.0 || d.x <= split);
+    // The disk's row [-s, s] squeezed onto the sky's [-s, c s] and the ground's [c s, s];
+    // the height from (s - x)(s + x), s + x exact at the limb.
+    var x: f32;
+    var s_plus_x: f32;
+    var f_over_p: f32;
+    if (upper) {
+        let k = (1.0 + c) / (2.0 * a);
+        s_plus_x = (d.x + s) * k;
+        x = s_plus_x - s;
+        f_over_p = PI * k;
+    } else {
+        let k = (1.0 - c) / (2.0 * (1.0 - a));
+        x = c * s + (d.x - split) * k;
+        s_plus_x = x + s;
+        f_over_p = PI * k * ground;
+    }
+    let h = safe_sqrt((s - x) * s_plus_x);
+    let w = x * t1 + d.y * t2 + h * n;
+    if (upper) {
+        f_over_p = f_over_p * overcast_radiance(dot(w, up));
+    }
+    let value = f_over_p * scale;
+    if (sky == SKY_CONTROL_VARIATE) {
+        return SkySample(w, closed, closed - value);
+    }
+    return SkySample(w, value, 0.0);
+}

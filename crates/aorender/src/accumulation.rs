@@ -18,6 +18,7 @@ use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_fi
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::{Camera, Projection, Scene, Settings};
+use crate::sky::Sky;
 use glam::Vec3;
 use std::path::PathBuf;
 
@@ -50,6 +51,8 @@ pub struct SampleSettings {
     pub background: f32,
     /// Seed.
     pub seed: u32,
+    /// The sky and its sampling.
+    pub sky: Sky,
 }
 
 impl SampleSettings {
@@ -75,6 +78,7 @@ impl SampleSettings {
             max_distance: s.max_distance,
             background: s.background,
             seed: s.seed,
+            sky: s.sky,
         }
     }
 
@@ -102,6 +106,7 @@ impl SampleSettings {
             max_distance: settings.max_distance,
             background: settings.background,
             seed: settings.seed,
+            sky: settings.sky,
         }
     }
 
@@ -119,6 +124,7 @@ impl SampleSettings {
         check(&mut d, "seed", self.seed.to_string(), other.seed.to_string());
         check(&mut d, "hemisphere", self.hemisphere.name().into(), other.hemisphere.name().into());
         check(&mut d, "sampler", self.sampler.name().into(), other.sampler.name().into());
+        check(&mut d, "sky", self.sky.describe(), other.sky.describe());
         if self.strata != other.strata {
             d.push(format!(
                 "samples per pixel {} ({}×{} strata), not {} ({}×{} strata)",
@@ -410,12 +416,22 @@ pub fn probes_hash(geometry: &[u8; 32], probes: &[Probe]) -> [u8; 32] {
 
 /// The largest magnitude of a probe sample: a hemisphere weight, at most 2 (the uniform
 /// hemisphere's 2 cos θ).
+// Classic AO's bounds, which the tests use; requests take the sky's (`Sky::max_weight`).
+#[cfg_attr(not(feature = "testing"), allow(dead_code))]
 pub const MAX_PROBE_SAMPLE: f64 = 2.0;
 
 /// The largest magnitude a sample of `scene` can take with background `background`:
 /// twice the largest albedo (the uniform hemisphere's weight 2 cos θ is at most 2), or
 /// the background's.
+#[cfg_attr(not(feature = "testing"), allow(dead_code))]
 pub fn max_sample_value(scene: &Scene, background: f32) -> f64 {
+    max_image_sample(scene, background, &Sky::default())
+}
+
+/// The largest magnitude a sample of `scene` can take with background `background` under
+/// `sky`: the largest albedo times the sky's largest weight ([`Sky::max_weight`]), or the
+/// background's.
+pub fn max_image_sample(scene: &Scene, background: f32, sky: &Sky) -> f64 {
     let albedo = scene
         .triangles
         .iter()
@@ -424,7 +440,7 @@ pub fn max_sample_value(scene: &Scene, background: f32) -> f64 {
         .chain(scene.instances.iter().map(|i| i.albedo))
         .chain(scene.planes.iter().map(|p| p.albedo))
         .fold(0.0f64, |m, a| m.max(a as f64));
-    (2.0 * albedo).max((background as f64).abs())
+    (sky.max_weight() * albedo).max((background as f64).abs())
 }
 
 /// The accumulation of a render: the samples `first .. next` of every pixel, what they
@@ -532,7 +548,7 @@ impl Accumulation {
             bvh.quality,
             samples.start,
             samples.end,
-            max_sample_value(scene, settings.background),
+            max_image_sample(scene, settings.background, &settings.sky),
         )
     }
 
@@ -559,7 +575,8 @@ impl Accumulation {
         let hash = probes_hash(&geometry_hash(scene), &checked(probes)?);
         let (slots, film) = if bent_normals { (4, FilmLayout::BentProbes) } else { (1, FilmLayout::Probes) };
         let settings = SampleSettings::probes(hash, film, slots, probes.len() as u32, spp, settings);
-        Ok(Accumulation::new(settings, kind, layout, bvh.quality, samples.start, samples.end, MAX_PROBE_SAMPLE))
+        let max_value = settings.sky.max_weight();
+        Ok(Accumulation::new(settings, kind, layout, bvh.quality, samples.start, samples.end, max_value))
     }
 
     /// The estimate at each probe of an accumulation of `Session::probe_render`: mean and
@@ -699,7 +716,11 @@ impl Accumulation {
 
     /// What one of this accumulation's samples can be, for its intervals.
     pub fn sample_range(&self) -> SampleRange {
-        SampleRange::of(self.settings.hemisphere, self.settings.background, self.max_value)
+        if self.settings.sky.is_uniform() {
+            SampleRange::of(self.settings.hemisphere, self.settings.background, self.max_value)
+        } else {
+            SampleRange::Bounded(self.max_value)
+        }
     }
 
     /// Why `target` cannot stop this accumulation, as [`Error::Settings`]: no valid error

@@ -114,6 +114,7 @@ pub mod error;
 pub mod host_memory;
 pub mod output;
 pub mod scene;
+pub mod sky;
 
 pub use accumulation::{Accumulation, ErrorTarget, FilmLayout, Merged, MergedShard, SampleSettings, merge, scene_hash};
 pub use bvh::{BuildQuality, BvhLayout};
@@ -130,4 +131,5 @@ pub use sampler::Sampler;
 pub use sampling::Hemisphere;
 pub use scene::{Camera, LoadOptions, Projection, ReadLimits, Scene, Settings};
 pub use session::{ImageRequest, ProbeOutput, Session};
+pub use sky::{Sky, SkyModel, SkyNormalise, SkySampling};
 pub use surface::{Located, RELATIVE_TOLERANCE, SurfaceTolerance};

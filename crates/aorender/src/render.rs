@@ -202,6 +202,8 @@ pub struct RenderStats {
     pub driver: String,
     /// Hemisphere distribution.
     pub hemisphere: String,
+    /// The sky and its sampling (`Sky::describe`).
+    pub sky: String,
     /// 2-D point sampler of the hemisphere and pixel numbers.
     pub sampler: String,
     /// Random seed.
@@ -745,6 +747,7 @@ impl Render {
             device_type: setup.adapter.device_type.clone(),
             driver: setup.adapter.driver.clone(),
             hemisphere: s.hemisphere.name().into(),
+            sky: s.sky.describe(),
             sampler: s.sampler.name().into(),
             seed: s.seed,
             bvh_layout: setup.bvh_layout.name().into(),

@@ -10,8 +10,7 @@
 //! [`Scene::origin`], which is zero unless a loader placed the scene far away.
 
 use crate::accumulation::{
-    Accumulation, FilmLayout, MAX_PROBE_SAMPLE, SampleSettings, geometry_hash, max_sample_value, probes_hash,
-    scene_hash,
+    Accumulation, FilmLayout, SampleSettings, geometry_hash, max_image_sample, probes_hash, scene_hash,
 };
 use crate::device::{BvhOptions, Device, Prepared, Setup};
 use crate::error::{Error, Result};
@@ -236,7 +235,7 @@ impl Session {
         let what = format!("a {}x{} image", s.width, s.height);
         self.check_film_budget(what, s.width as u64 * s.height as u64, s.replicate_samples() >= 2)?;
         let start = Instant::now();
-        let max_value = max_sample_value(&self.scene, s.background);
+        let max_value = max_image_sample(&self.scene, s.background, &s.sky);
         let passes = self.prepared.image(&camera, s, value_exponent(max_value))?;
         let target_seconds = start.elapsed().as_secs_f64();
         let settings = SampleSettings::with_hash(self.scene_hash(&request.camera), s);
@@ -314,7 +313,7 @@ impl Session {
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * slots as u64, settings.replicate_samples() >= 2)?;
         let start = Instant::now();
-        let e = value_exponent(MAX_PROBE_SAMPLE);
+        let e = value_exponent(settings.sky.max_weight());
         let local = self.local_probes(&probes);
         let passes = self.prepared.probes(&local, first_point, slots, spp, settings, bent_normals, e)?;
         drop(local);
@@ -339,7 +338,7 @@ impl Session {
             self.options.quality,
             range.start,
             range.end,
-            MAX_PROBE_SAMPLE,
+            settings.sky.max_weight(),
         );
         acc.adapter = self.setup.adapter.name.clone();
         Ok(Render::new(passes, acc, self.info(target_seconds)))
@@ -378,7 +377,7 @@ impl Session {
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * lanes as u64, settings.replicate_samples() >= 2)?;
         let rounds = samples.div_ceil(lanes);
-        let e = value_exponent(MAX_PROBE_SAMPLE);
+        let e = value_exponent(settings.sky.max_weight());
         let start = Instant::now();
         let passes = self.prepared.probes(&self.local_probes(probes), 0, lanes, samples, settings, false, e)?;
         let pipeline_seconds = start.elapsed().as_secs_f64();
@@ -393,7 +392,7 @@ impl Session {
             self.options.quality,
             0,
             rounds,
-            MAX_PROBE_SAMPLE,
+            settings.sky.max_weight(),
         );
         let mut render = Render::new(passes, acc, self.info(pipeline_seconds));
         render.run(control)?;

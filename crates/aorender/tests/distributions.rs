@@ -284,7 +284,7 @@ type ProbeOut = [[f32; 4]; 2];
 
 impl Probe {
     fn new() -> Probe {
-        Probe(TestKernel::new(PROBE_NAME, PROBE, &["warp", "pdf_at", "points"], 1))
+        Probe(TestKernel::new(PROBE_NAME, PROBE, &["warp", "pdf_at", "points", "sky"], 1))
     }
 
     /// Runs entry point `entry` once per input with the uniforms (`id`, `seed`,
@@ -322,7 +322,7 @@ fn chi2_salt(h: Hemisphere) -> u32 {
 #[test]
 fn probe_kernel_validates() {
     let module = kernel::validate(PROBE_NAME, &kernel::compose(PROBE_NAME, PROBE));
-    for name in ["warp", "pdf_at", "points"] {
+    for name in ["warp", "pdf_at", "points", "sky"] {
         assert!(module.entry_points.iter().any(|e| e.name == name), "entry point {name} missing");
     }
 }
@@ -669,4 +669,58 @@ fn wgsl_point_samplers_match_rust() {
         out_of_tolerance.len(),
         out_of_tolerance[..out_of_tolerance.len().min(40)].join("\n")
     );
+}
+
+/// `sample_overcast` in WGSL against Rust on the same numbers: every sky sampling, both
+/// normalisations, a black and a grey ground, normals from the zenith to the nadir.
+#[test]
+fn wgsl_overcast_sky_matches_rust() {
+    use aorender::sky::{Sky, SkyModel, SkyNormalise, SkySampling, sample_overcast};
+    if !common::gpu_available() {
+        return;
+    }
+    let probe = Probe::new();
+    let us = random_points(4096, 0x5c00);
+    let mut failures = Vec::new();
+    let mut checks = 0;
+    for sampling in SkySampling::ALL {
+        for normalise in SkyNormalise::ALL {
+            for ground in [0.0f32, 0.5] {
+                let sky =
+                    Sky { model: SkyModel::Overcast, sampling, normalise, ground_albedo: ground, ..Sky::default() };
+                if sky.validate().is_err() {
+                    continue;
+                }
+                let (id, code) = (sky.shader_id(), normalise.code() as u32);
+                let normals: Vec<Vec3> = (0..us.len())
+                    .map(|k| {
+                        let beta = (k % 37) as f32 / 36.0 * std::f32::consts::PI;
+                        Vec3::new(beta.sin(), beta.cos(), 0.0)
+                    })
+                    .collect();
+                let inputs: Vec<[u32; 4]> = us
+                    .iter()
+                    .zip(&normals)
+                    .map(|(u, n)| [u.x.to_bits(), u.y.to_bits(), n.x.to_bits(), n.y.to_bits()])
+                    .collect();
+                let gpu = probe.run("sky", id, code, ground.to_bits(), &inputs);
+                for ((&u, &n), [a, b]) in us.iter().zip(&normals).zip(gpu) {
+                    checks += 1;
+                    let cpu = sample_overcast(id, code, Vec3::Y, ground, Hemisphere::Cosine, n, u);
+                    let dw = (Vec3::new(a[0], a[1], a[2]) - cpu.w).abs().max_element();
+                    let dv = (a[3] - cpu.open).abs().max((b[0] - cpu.blocked).abs());
+                    // acos_poly and the square roots in f32 on both sides; the values are at most 6.
+                    if !(dw <= 1e-5 && dv <= 1e-5) && failures.len() < 20 {
+                        failures.push(format!(
+                            "{} {} ground {ground} n {n} u {u}: wgsl {a:?} {b:?}, rust {cpu:?}",
+                            sampling.name(),
+                            normalise.name()
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    assert!(checks > 40_000, "only {checks} checks");
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
 }

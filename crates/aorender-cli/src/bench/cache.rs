@@ -22,8 +22,8 @@ pub struct ReferenceSampling {
 /// The cache key of `scene`'s reference: a BLAKE3 hash, in hex, of the crate version,
 /// the image size, distance limit and background, `sampling`, and the scene's geometry and
 /// camera (`aorender::scene_hash`: every float by its bits, so the mesh files' contents as
-/// loaded). The scene's own spp, hemisphere, sampler and seed do not enter: every unbiased
-/// configuration converges to the same image.
+/// loaded), and an overcast sky. The scene's own spp, hemisphere, sampler, sky sampling and
+/// seed do not enter: every unbiased configuration converges to the same image.
 pub fn key(scene: &Scene, sampling: ReferenceSampling) -> String {
     let mut h = blake3::Hasher::new();
     h.update(MAGIC);
@@ -33,6 +33,15 @@ pub fn key(scene: &Scene, sampling: ReferenceSampling) -> String {
     h.update(&s.height.to_le_bytes());
     h.update(&s.max_distance.map_or(u32::MAX, f32::to_bits).to_le_bytes());
     h.update(&s.background.to_bits().to_le_bytes());
+    // The overcast sky changes the image (its sampling does not); the uniform sky keeps the
+    // keys it had before there were skies.
+    if !s.sky.is_uniform() {
+        let k = &s.sky;
+        h.update(&[k.model.code(), k.normalise.code()]);
+        for v in k.up.to_array().into_iter().chain([k.ground_albedo]) {
+            h.update(&v.to_bits().to_le_bytes());
+        }
+    }
     h.update(&sampling.samples.to_le_bytes());
     h.update(&sampling.seed.to_le_bytes());
     h.update(&scene_hash(scene, &scene.camera));
@@ -193,6 +202,15 @@ mod tests {
         same.settings.sampler = aorender::Sampler::Sobol;
         same.settings.hemisphere = aorender::Hemisphere::Uniform;
         assert_eq!(key(&same, sampling), k);
+        let overcast = aorender::Sky { model: aorender::SkyModel::Overcast, ..aorender::Sky::default() };
+        let mut sky = base.clone();
+        sky.settings.sky = overcast;
+        let ks = key(&sky, sampling);
+        assert_ne!(ks, k, "the sky changes the image");
+        sky.settings.sky.sampling = aorender::SkySampling::ControlVariate;
+        assert_eq!(key(&sky, sampling), ks, "the sky's sampling does not");
+        sky.settings.sky.ground_albedo = 0.5;
+        assert_ne!(key(&sky, sampling), ks, "the ground does");
         let mut changes: Vec<Scene> = Vec::new();
         let mut s = base.clone();
         s.spheres[0].radius = f32::from_bits(s.spheres[0].radius.to_bits() + 1);

@@ -174,6 +174,8 @@ struct BakeStats {
     setup_seconds: f64,
     adapter: String,
     hemisphere: &'static str,
+    /// The sky and its sampling.
+    sky: String,
     sampler: &'static str,
     seed: u32,
     max_distance: Option<f32>,
@@ -394,6 +396,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         setup_seconds: 0.0,
         adapter: String::new(),
         hemisphere: settings.hemisphere.name(),
+        sky: settings.sky.describe(),
         sampler: settings.sampler.name(),
         seed: settings.seed,
         max_distance: settings.max_distance,

@@ -9,7 +9,7 @@
 //! request with its own settings.
 
 use crate::args::{
-    SceneArgs, SizeArgs, check_output_extension, hemisphere_parser, invalid_option, sampler_parser, write_json,
+    SceneArgs, SizeArgs, SkyArgs, check_output_extension, hemisphere_parser, invalid_option, sampler_parser, write_json,
 };
 use crate::output;
 use anyhow::{Result, anyhow};
@@ -40,6 +40,9 @@ pub struct CompareArgs {
     /// Write the statistics of every cell as JSON.
     #[arg(long)]
     stats: Option<PathBuf>,
+    /// The sky of every cell.
+    #[command(flatten)]
+    sky: SkyArgs,
 }
 
 pub fn command(args: CompareArgs) -> Result<()> {
@@ -51,6 +54,7 @@ pub fn command(args: CompareArgs) -> Result<()> {
     }
     let mut scene = args.scene.load()?;
     args.size.apply(&mut scene);
+    args.sky.apply(&mut scene)?;
     validate(&args.spp, &args.hemisphere, &args.sampler).map_err(|m| anyhow!("invalid option: {m}"))?;
     scene.settings.spp = args.spp.iter().copied().max().unwrap_or(1);
     scene.settings.validate().map_err(invalid_option)?;
@@ -184,6 +188,8 @@ pub struct Comparison {
     pub height: u32,
     /// Random seed shared by all cells.
     pub seed: u32,
+    /// The sky of every cell (`Sky::describe`).
+    pub sky: String,
     /// Adapter name ("cpu" for the reference).
     pub adapter: String,
     /// wgpu backend, or "cpu".
@@ -275,6 +281,7 @@ pub fn run(
         width: scene.settings.width,
         height: scene.settings.height,
         seed: scene.settings.seed,
+        sky: scene.settings.sky.describe(),
         adapter,
         backend,
         total_seconds: start.elapsed().as_secs_f64(),
@@ -288,7 +295,12 @@ pub fn run(
 impl Comparison {
     /// The labelled grid: title, "N spp" column labels, hemisphere and sampler row labels.
     pub fn image(&self) -> GrayImage {
-        let title = format!("{}  {}x{}  seed {}", self.scene, self.width, self.height, self.seed);
+        let mut title = format!("{}  {}x{}  seed {}", self.scene, self.width, self.height, self.seed);
+        if self.sky != "uniform" {
+            // The model and its sampling; the rest is in the statistics.
+            let sampling = self.sky.split(", ").find(|p| p.ends_with(" sampling")).unwrap_or("");
+            title += &format!("  overcast sky, {sampling}");
+        }
         let columns: Vec<String> = self.spps.iter().map(|n| format!("{n} spp")).collect();
         let rows: Vec<Vec<String>> =
             self.rows.iter().map(|(s, h)| vec![h.name().to_string(), s.name().to_string()]).collect();

@@ -56,6 +56,8 @@ struct ProbeStats {
     phases: Phases,
     adapter: String,
     hemisphere: &'static str,
+    /// The sky and its sampling.
+    sky: String,
     sampler: &'static str,
     seed: u32,
     triangles: usize,
@@ -141,6 +143,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         phases,
         adapter: out.adapter.clone(),
         hemisphere: settings.hemisphere.name(),
+        sky: settings.sky.describe(),
         sampler: settings.sampler.name(),
         seed: settings.seed,
         triangles,

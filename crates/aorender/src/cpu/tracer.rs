@@ -11,8 +11,9 @@ use crate::geometry::{
 };
 use crate::probe::Probe;
 use crate::sampler::PointSampler;
-use crate::sampling::{above_surface, local_to_world, offset_ray_origin};
+use crate::sampling::{above_surface, offset_ray_origin};
 use crate::scene::{Camera, RayGen, Scene, Settings};
+use crate::sky::SkySample;
 use glam::{Vec3, Vec3A};
 use obvhs::cwbvh::CwBvh;
 use obvhs::ray::{Ray, RayHit};
@@ -256,33 +257,33 @@ impl CpuTracer {
     /// AO value at a surface point `p` with normal `n`, within `error` of its surface along
     /// `n`, for hemisphere numbers `u`: a camera hit's, in `shaders/ao.wgsl`'s `shade_sample`.
     pub fn ao_at(&self, p: Vec3, n: Vec3, error: f32, u: glam::Vec2, settings: &Settings) -> f32 {
-        let w_local = settings.hemisphere.sample(u);
-        self.estimate(offset_ray_origin(p, n, error), local_to_world(w_local, n), w_local, settings).0
+        let sample = settings.sky.sample(settings.hemisphere, n, u);
+        self.estimate(offset_ray_origin(p, n, error), sample.w, &sample, settings).0
     }
 
-    /// The AO ray of `probe` for hemisphere numbers `u` (origin, direction, local
-    /// direction): about its normal, from its position pushed off its surface along the
+    /// The AO ray of `probe` for hemisphere numbers `u` (origin, direction, and the sky's
+    /// sample): about its normal, from its position pushed off its surface along the
     /// surface's normal (its normal where it has none), a direction below the surface
     /// mirrored above it. The twin of `probe_ray` in `shaders/ao.wgsl`.
-    pub fn probe_ray(probe: &Probe, u: glam::Vec2, settings: &Settings) -> (Vec3, Vec3, Vec3) {
-        let w_local = settings.hemisphere.sample(u);
+    pub fn probe_ray(probe: &Probe, u: glam::Vec2, settings: &Settings) -> (Vec3, Vec3, SkySample) {
+        let sample = settings.sky.sample(settings.hemisphere, probe.normal, u);
         let g = probe.surface_normal;
         let off = if g == Vec3::ZERO { probe.normal } else { g };
-        let w = above_surface(local_to_world(w_local, probe.normal), g);
-        (offset_ray_origin(probe.position, off, probe.error), w, w_local)
+        let w = above_surface(sample.w, g);
+        (offset_ray_origin(probe.position, off, probe.error), w, sample)
     }
 
     /// The estimate of one sample of `probe` and, when its ray escaped, its world direction.
     pub fn probe_sample(&self, probe: &Probe, u: glam::Vec2, settings: &Settings) -> (f32, Option<Vec3>) {
-        let (o, w, w_local) = Self::probe_ray(probe, u, settings);
-        self.estimate(o, w, w_local, settings)
+        let (o, w, sample) = Self::probe_ray(probe, u, settings);
+        self.estimate(o, w, &sample, settings)
     }
 
-    /// The hemisphere estimate of the AO ray from `o` along `w` (local direction `w_local`)
-    /// and, when it escaped, `w`.
-    fn estimate(&self, o: Vec3, w: Vec3, w_local: Vec3, settings: &Settings) -> (f32, Option<Vec3>) {
+    /// The estimate of the AO ray from `o` along `w` (the sky's `sample`) and, when it
+    /// escaped, `w`.
+    fn estimate(&self, o: Vec3, w: Vec3, sample: &SkySample, settings: &Settings) -> (f32, Option<Vec3>) {
         let t_max = settings.max_distance.unwrap_or(f32::MAX);
-        if self.occluded(o, w, t_max) { (0.0, None) } else { (settings.hemisphere.weight(w_local), Some(w)) }
+        if self.occluded(o, w, t_max) { (sample.blocked, None) } else { (sample.open, Some(w)) }
     }
 
     /// Adds samples `first .. first + count` (of `samples`) of every probe to `sums`,

@@ -13,6 +13,7 @@ use crate::sampler::Sampler;
 use crate::sampler::{ONE_MINUS_EPSILON, PERMUTE_WALK_LIMIT, SOBOL_SCRAMBLE_SALT, SOBOL_SHUFFLE_SALT, STRATA_SALT};
 use crate::sampling::Hemisphere;
 use crate::scene::{Camera, Settings};
+use crate::sky::{SKY_UNIFORM, SkyNormalise, SkySampling};
 
 /// Workgroup size of the AO kernel: an 8 × 8 tile of pixels (ao.wgsl `tile_pixel` lays
 /// them out for that size).
@@ -85,10 +86,18 @@ gpu_struct! {
         pub first_row: u32 = "u32",
         /// e, 2^e bounding every sample: sums in quanta of 2^(e − 54), squares of 2^(2e − 54).
         pub value_exponent: i32 = "i32",
+        /// The sky's `SKY` constant (`Sky::shader_id`), which the pipeline is specialised for.
+        pub sky: u32 = "u32",
+        /// The overcast sky's normalisation (`SKY_NORMALISE_*`).
+        pub sky_normalise: u32 = "u32",
+        /// The unit zenith.
+        pub sky_up: [f32; 3] = "vec3f",
+        /// Albedo of the ground below the horizon.
+        pub ground_albedo: f32 = "f32",
         /// 1.0, read rather than known by the kernel, so products stay unfused (intersect.wgsl).
         pub one: f32 = "f32",
         /// Padding to 16 bytes.
-        pub _pad: u32 = "u32",
+        pub _pad: [u32; 3] = "array<u32, 3>",
     }
 }
 
@@ -170,8 +179,12 @@ impl FrameUniforms {
             first_point: 0,
             first_row: 0,
             value_exponent,
+            sky: s.sky.shader_id(),
+            sky_normalise: s.sky.normalise.code() as u32,
+            sky_up: s.sky.unit_up().to_array(),
+            ground_albedo: s.sky.ground_albedo,
             one: 1.0,
-            _pad: 0,
+            _pad: [0; 3],
         }
     }
 
@@ -206,8 +219,12 @@ impl FrameUniforms {
             first_point: 0,
             first_row: 0,
             value_exponent,
+            sky: settings.sky.shader_id(),
+            sky_normalise: settings.sky.normalise.code() as u32,
+            sky_up: settings.sky.unit_up().to_array(),
+            ground_albedo: settings.sky.ground_albedo,
             one: 1.0,
-            _pad: 0,
+            _pad: [0; 3],
         }
     }
 }
@@ -254,6 +271,11 @@ pub fn constants() -> Vec<Constant> {
         U32("HEMISPHERE_UNIFORM", Hemisphere::Uniform.shader_id()),
         U32("HEMISPHERE_COSINE", Hemisphere::Cosine.shader_id()),
         U32("HEMISPHERE_COSINE_POLAR", Hemisphere::CosinePolar.shader_id()),
+        U32("SKY_UNIFORM", SKY_UNIFORM),
+        U32("SKY_HORIZON", 1 + SkySampling::Horizon.code() as u32),
+        U32("SKY_CONTROL_VARIATE", 1 + SkySampling::ControlVariate.code() as u32),
+        U32("SKY_WEIGHTED", 1 + SkySampling::Weighted.code() as u32),
+        U32("SKY_NORMALISE_SURFACE", SkyNormalise::Surface.code() as u32),
         U32("SAMPLER_INDEPENDENT", Sampler::Independent.shader_id()),
         U32("SAMPLER_STRATIFIED", Sampler::Stratified.shader_id()),
         U32("SAMPLER_GRID", Sampler::Grid.shader_id()),

@@ -62,6 +62,8 @@ pub struct PipelineKey {
     pub sampler: Sampler,
     /// `HEMISPHERE`.
     pub hemisphere: Hemisphere,
+    /// `SKY` (`Sky::shader_id`).
+    pub sky: u32,
     /// `STACK_SIZE`.
     pub stack_size: u32,
     /// `CPU_LANES`.
@@ -70,7 +72,7 @@ pub struct PipelineKey {
 
 impl PipelineKey {
     /// The override constants' values.
-    fn constants(&self) -> [(&'static str, f64); 7] {
+    fn constants(&self) -> [(&'static str, f64); 8] {
         let flag = |b: bool| if b { 1.0 } else { 0.0 };
         [
             ("HAS_INSTANCES", flag(self.instances)),
@@ -80,6 +82,7 @@ impl PipelineKey {
             ("CPU_LANES", flag(self.cpu_lanes)),
             ("SAMPLER", self.sampler.shader_id() as f64),
             ("HEMISPHERE", self.hemisphere.shader_id() as f64),
+            ("SKY", self.sky as f64),
         ]
     }
 }

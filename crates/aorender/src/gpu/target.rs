@@ -173,7 +173,7 @@ impl GpuTarget {
     ) -> Result<GpuTarget> {
         let ctx = &dev.ctx;
         let device = &ctx.device;
-        let (width, height) = (frame.width, rows);
+        let (width, height, sky) = (frame.width, rows, frame.sky);
         #[cfg(feature = "testing")]
         let value_exponent = frame.value_exponent;
         let frame = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -247,6 +247,7 @@ impl GpuTarget {
             planes: scene.has_planes,
             sampler,
             hemisphere,
+            sky,
             stack_size: scene.stack_size,
             cpu_lanes: ctx.cpu_lanes(),
         };

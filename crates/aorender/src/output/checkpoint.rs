@@ -9,7 +9,7 @@
 //! accumulations of disjoint sample ranges (`accumulation::merge`) is exact integer
 //! addition.
 //!
-//! File layout (version 3; versions 1 and 2 are read too), every number little-endian:
+//! File layout (version 4; versions 1 to 3 are read too), every number little-endian:
 //!
 //! | bytes | field |
 //! |---|---|
@@ -23,7 +23,8 @@
 //! | 4 × 4 | first sample, end of the range, next sample, samples of the block in progress (u32) |
 //! | 8 + 4 + 8 | AO rays (u64), passes (u32), render seconds (f64) |
 //! | 4 + n | adapter name: length (u32, at most 4096), UTF-8 |
-//! | 4 + 4 | samples per replicate (u32); film layout code (u8), three zero bytes |
+//! | 4 + 4 | samples per replicate (u32); film layout, sky, sky sampling and sky normalisation codes (u8; version 2 and 3: the film layout, then three zero bytes, the uniform sky) |
+//! | 4 × 4 | version 4: the sky's up vector, ground albedo (f32) |
 //! | 8 + 4 | complete replicates (u64), groups of replicate sums (u32, 0 for none) |
 //! | 32 × pixels | exact sums: Σv for every pixel, then Σv² (i128) |
 //! | 16 × groups | Σ of the squares of complete replicates' sums, per group (i128) |
@@ -47,6 +48,9 @@
 //! | BVH layout | 0 BVH2, 1 CWBVH |
 //! | BVH quality | 0 fastest, 1 fast, 2 medium, 3 slow |
 //! | film layout | 0 image, 1 probes, 2 probes with bent normals |
+//! | sky | 0 uniform, 1 overcast |
+//! | sky sampling | 0 horizon, 1 control-variate, 2 weighted |
+//! | sky normalisation | 0 horizontal, 1 surface |
 //!
 //! A version 1 file has none of the replicate fields: it is an image whose samples are
 //! one replicate (independent ones: replicates of one sample each). Versions 1 and 2
@@ -65,13 +69,14 @@ use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::ReadLimits;
 use crate::scene::input::vec_bytes;
+use crate::sky::{Sky, SkyModel, SkyNormalise, SkySampling};
 use std::io::{Read, Write};
 use std::path::Path;
 
 /// The first bytes of a checkpoint file.
 pub const MAGIC: [u8; 8] = *b"AOCKPT\r\n";
 /// The format version this build writes (it reads 1 and 2 as well).
-pub const VERSION: u32 = 3;
+pub const VERSION: u32 = 4;
 /// The most film slots a checkpoint holds: those of the largest image.
 const MAX_SLOTS: u64 = crate::scene::MAX_IMAGE_SIDE as u64 * crate::scene::MAX_IMAGE_SIDE as u64;
 /// Longest adapter name stored.
@@ -223,7 +228,10 @@ impl Accumulation {
         w.write_all(&(name.len() as u32).to_le_bytes())?;
         w.write_all(name)?;
         w.write_all(&s.replicate.to_le_bytes())?;
-        w.write_all(&[film_code(s.layout), 0, 0, 0])?;
+        w.write_all(&[film_code(s.layout), s.sky.model.code(), s.sky.sampling.code(), s.sky.normalise.code()])?;
+        for v in s.sky.up.to_array().into_iter().chain([s.sky.ground_albedo]) {
+            w.write_all(&v.to_le_bytes())?;
+        }
         w.write_all(&self.exact.replicates.to_le_bytes())?;
         w.write_all(&(self.exact.replicate_sq.len() as u32).to_le_bytes())?;
         let mut buf = Vec::with_capacity(1 << 16);
@@ -306,7 +314,7 @@ impl Accumulation {
     fn from_stream(stream: &mut dyn Read, len: u64, limits: &ReadLimits) -> Result<Accumulation, Invalid> {
         // The fixed fields (through the adapter name's length), the name at most, and the
         // replicate fields after it.
-        const FIXED_HEADER: usize = 8 + 4 + 32 + 16 + 8 + 12 + 12 + 16 + 20 + 4 + 20;
+        const FIXED_HEADER: usize = 8 + 4 + 32 + 16 + 8 + 12 + 12 + 16 + 20 + 4 + 20 + 16;
         let mut head = Vec::new();
         stream
             .take((FIXED_HEADER + MAX_ADAPTER_NAME) as u64)
@@ -346,14 +354,24 @@ impl Accumulation {
             return Err(format!("adapter name of {name_len} bytes (at most {MAX_ADAPTER_NAME})").into());
         }
         let adapter = String::from_utf8(r.take(name_len)?.to_vec()).map_err(|_| "adapter name is not UTF-8")?;
+        let mut sky = Sky::default();
         let (replicate, layout, replicates, groups) = if version == 1 {
             (if sampler == Sampler::Independent { 1 } else { 0 }, FilmLayout::Image, 0, 0)
         } else {
             let replicate = r.u32()?;
             let codes = r.take(4)?;
             let layout = film_of(codes[0]).ok_or_else(|| invalid("film layout", codes[0]))?;
-            if codes[1..] != [0, 0, 0] {
+            if version < 4 && codes[1..] != [0, 0, 0] {
                 return Err("invalid reserved bytes".into());
+            }
+            if version >= 4 {
+                sky.model = SkyModel::from_code(codes[1]).ok_or_else(|| invalid("sky", codes[1]))?;
+                sky.sampling = SkySampling::from_code(codes[2]).ok_or_else(|| invalid("sky sampling", codes[2]))?;
+                sky.normalise =
+                    SkyNormalise::from_code(codes[3]).ok_or_else(|| invalid("sky normalisation", codes[3]))?;
+                sky.up = glam::Vec3::new(r.f32()?, r.f32()?, r.f32()?);
+                sky.ground_albedo = r.f32()?;
+                sky.validate().map_err(|e| Invalid(format!("invalid sky: {e}")))?;
             }
             (replicate, layout, r.u64()?, r.u32()?)
         };
@@ -499,6 +517,7 @@ impl Accumulation {
                 max_distance: (has_max_distance == 1).then_some(max_distance),
                 background,
                 seed,
+                sky,
             },
             device,
             bvh_layout,

@@ -19,6 +19,7 @@ use crate::error::{Error, Result};
 use crate::geometry::Plane;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
+use crate::sky::{Sky, SkyModel, SkyNormalise, SkySampling};
 use glam::{DMat4, DVec3, Mat4, Vec3};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -74,6 +75,8 @@ struct SceneFile {
     image: ImageSection,
     #[serde(default)]
     sampling: SamplingSection,
+    #[serde(default)]
+    sky: SkySection,
     camera: CameraSection,
     #[serde(default, rename = "object")]
     objects: Vec<Object>,
@@ -96,6 +99,16 @@ struct SamplingSection {
     max_distance: Option<f32>,
     seed: Option<u32>,
     replicate: Option<u32>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct SkySection {
+    model: Option<SkyModel>,
+    up: Option<[f32; 3]>,
+    ground_albedo: Option<f32>,
+    sampling: Option<SkySampling>,
+    normalise: Option<SkyNormalise>,
 }
 
 #[derive(Deserialize)]
@@ -293,6 +306,16 @@ pub(super) fn parse_scene(
         max_distance: file.sampling.max_distance,
         seed: file.sampling.seed.unwrap_or(defaults.seed),
         replicate: file.sampling.replicate,
+        sky: {
+            let (d, k) = (defaults.sky, &file.sky);
+            Sky {
+                model: k.model.unwrap_or(d.model),
+                up: k.up.map_or(d.up, Vec3::from),
+                ground_albedo: k.ground_albedo.unwrap_or(d.ground_albedo),
+                sampling: k.sampling.unwrap_or(d.sampling),
+                normalise: k.normalise.unwrap_or(d.normalise),
+            }
+        },
     };
     settings.validate().map_err(|e| err(e.message()))?;
 

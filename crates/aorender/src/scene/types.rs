@@ -6,6 +6,7 @@ use crate::error::{Error, Result};
 use crate::geometry::{AffineRows, InverseAffine, Plane};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
+use crate::sky::Sky;
 use glam::{DVec3, Mat4, Vec3};
 use std::path::PathBuf;
 
@@ -127,6 +128,8 @@ pub struct Settings {
     /// for the sampler's default (one replicate of every sample for `stratified` and
     /// `sobol`: no valid error estimate).
     pub replicate: Option<u32>,
+    /// The sky an AO ray that escapes sees (classic AO by default).
+    pub sky: Sky,
 }
 
 impl Default for Settings {
@@ -141,6 +144,7 @@ impl Default for Settings {
             background: 0.0,
             seed: 0,
             replicate: None,
+            sky: Sky::default(),
         }
     }
 }
@@ -179,8 +183,9 @@ impl Settings {
     }
 
     /// Checks what AO at a point depends on besides the hemisphere, sampler and seed (the
-    /// maximum distance and the replicate size), leaving the image's settings aside.
+    /// maximum distance, the replicate size and the sky), leaving the image's settings aside.
     pub fn validate_sampling(&self) -> Result<()> {
+        self.sky.validate().map_err(Error::settings)?;
         if let Some(r) = self.replicate {
             self.sampler.check_replicate(r).map_err(Error::settings)?;
         }

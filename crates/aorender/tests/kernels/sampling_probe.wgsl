@@ -63,3 +63,20 @@ fn points(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) gr
     outputs[2u * i] = sample_point_uniforms(params.id, v.x, v.y, v.z, params.seed, params.strata, v.w);
     outputs[2u * i + 1u] = vec4f(0.0);
 }
+
+// Input (bits of u1, u2, n.x, n.y): numbers and a unit normal (n.z = 0) under the zenith
+// +Y; params.id is the SKY_* id, params.seed the normalisation, params.strata the bits of
+// the ground albedo. Output (direction, value where open), (value where blocked, 0, 0, 0).
+@compute @workgroup_size(64)
+fn sky(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups) groups: vec3u) {
+    let i = probe_index(gid, groups);
+    if (i >= params.count) {
+        return;
+    }
+    let u = bitcast<vec2f>(inputs[i].xy);
+    let n = vec3f(bitcast<vec2f>(inputs[i].zw), 0.0);
+    let ground = bitcast<f32>(params.strata);
+    let s = sample_overcast(params.id, params.seed, vec3f(0.0, 1.0, 0.0), ground, HEMISPHERE_COSINE, n, u);
+    outputs[2u * i] = vec4f(s.w, s.open);
+    outputs[2u * i + 1u] = vec4f(s.blocked, 0.0, 0.0, 0.0);
+}
