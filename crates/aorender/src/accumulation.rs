@@ -718,6 +718,8 @@ impl Accumulation {
     pub fn sample_range(&self) -> SampleRange {
         if self.settings.sky.is_uniform() {
             SampleRange::of(self.settings.hemisphere, self.settings.background, self.max_value)
+        } else if self.settings.sky.sampling == crate::sky::SkySampling::ControlVariate {
+            SampleRange::Signed(self.max_value)
         } else {
             SampleRange::Bounded(self.max_value)
         }

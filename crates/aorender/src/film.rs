@@ -140,14 +140,19 @@ pub fn t_quantile_975(dof: u64) -> f64 {
 /// nets are negatively dependent in the same sense (Wiart, Lemieux & Dong, "On the
 /// dependence structure and quality of scrambled (t, m, s)-nets", 2021).
 pub fn interval_95(mean: f64, std_error: f64, dof: u64, n: u64, upper: f64) -> (f64, f64) {
+    // Samples lie in [min(0, mean), upper]: AO values are not negative, and a background
+    // below them is the least a sample can be.
+    interval_95_within(mean, std_error, dof, n, mean.min(0.0), upper)
+}
+
+/// [`interval_95`] for samples that lie in [`lower`, `upper`].
+pub fn interval_95_within(mean: f64, std_error: f64, dof: u64, n: u64, lower: f64, upper: f64) -> (f64, f64) {
     if n == 0 || !std_error.is_finite() {
         return (f64::NEG_INFINITY, f64::INFINITY);
     }
     if std_error > 1e-9 * upper.abs().max(f64::MIN_POSITIVE) {
         let t = t_quantile_975(dof);
-        // Samples lie in [min(0, mean), upper]: AO values are not negative, and a
-        // background below them is the least a sample can be.
-        let (lo, hi) = (mean.min(0.0), upper.max(mean));
+        let (lo, hi) = (lower.min(mean), upper.max(mean));
         let range = hi - lo;
         let p = (mean - lo) / range;
         let v = (std_error / range).powi(2);
@@ -177,6 +182,9 @@ pub enum SampleRange {
     /// Anywhere from min(0, the mean) to this (the uniform estimator's weights
     /// 2 ρ cos θ, or a background).
     Bounded(f64),
+    /// Anywhere from minus this to this (the overcast sky's control variate, whose
+    /// samples are the open value less a weight where the ray is blocked).
+    Signed(f64),
 }
 
 impl SampleRange {
@@ -197,7 +205,15 @@ impl SampleRange {
         match self {
             // Samples of 0 or ρ have Σv² = ρ Σv.
             SampleRange::Binary(max) if sum > 0.0 && sum_sq > 0.0 => (sum_sq / sum).min(max),
-            SampleRange::Binary(max) | SampleRange::Bounded(max) => max,
+            SampleRange::Binary(max) | SampleRange::Bounded(max) | SampleRange::Signed(max) => max,
+        }
+    }
+
+    /// The smallest value the samples whose mean is `mean` can take.
+    pub fn lower(self, mean: f64) -> f64 {
+        match self {
+            SampleRange::Binary(_) | SampleRange::Bounded(_) => mean.min(0.0),
+            SampleRange::Signed(max) => -max,
         }
     }
 }
@@ -363,7 +379,8 @@ impl Film {
                         ErrorEstimator::Replicates { .. } => self.replicates_of(i).saturating_sub(1),
                         e => e.degrees_of_freedom(n),
                     };
-                    interval_95(mean[i], se[i], dof, n, range.upper(self.sum[i], self.sum_sq[i]))
+                    let upper = range.upper(self.sum[i], self.sum_sq[i]);
+                    interval_95_within(mean[i], se[i], dof, n, range.lower(mean[i]), upper)
                 })
                 .collect(),
         )
