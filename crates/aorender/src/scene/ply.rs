@@ -571,9 +571,23 @@ fn read_ply(path: &Path, meter: &mut Meter, fast: bool) -> Result<IndexedMesh> {
                         |line| ascii_axes(&layout, line).map(|p| PlyVertex { p }),
                         |i, v: PlyVertex, meter| push_vertex(path, positions, i, v.p, meter),
                     )?,
-                    Some(layout) => read_binary(path, &mut input, def, &layout, meter, |i, element, meter| {
-                        push_vertex(path, positions, i, layout.axes_of(element), meter)
-                    })?,
+                    Some(layout) => read_binary(
+                        path,
+                        &mut input,
+                        def,
+                        &layout,
+                        meter,
+                        positions,
+                        |positions, i, bytes, most, meter| {
+                            let mut k = i;
+                            layout.axes_run(bytes, most, |p| {
+                                push_vertex(path, positions, k, p, meter)?;
+                                k += 1;
+                                Ok(())
+                            })
+                        },
+                        |positions, i, element, meter| push_vertex(path, positions, i, layout.axes_of(element), meter),
+                    )?,
                     None => read_elements(
                         path,
                         &mut input,
@@ -606,10 +620,25 @@ fn read_ply(path: &Path, meter: &mut Meter, fast: bool) -> Result<IndexedMesh> {
                         },
                         |i, f, meter| push(triangles, i, f, meter),
                     )?,
-                    Some(layout) => read_binary(path, &mut input, def, &layout, meter, |i, element, meter| {
-                        let count = layout.index_count(element);
-                        push_face(path, triangles, vertex_count, i, count, |k| layout.index(element, k), meter)
-                    })?,
+                    Some(layout) => read_binary(
+                        path,
+                        &mut input,
+                        def,
+                        &layout,
+                        meter,
+                        triangles,
+                        |triangles, _, bytes, most, meter| {
+                            layout.triangle_run(bytes, most, vertex_count, |t| {
+                                make_room(triangles, meter, path)?;
+                                triangles.push(t);
+                                Ok(())
+                            })
+                        },
+                        |triangles, i, element, meter| {
+                            let count = layout.index_count(element);
+                            push_face(path, triangles, vertex_count, i, count, |k| layout.index(element, k), meter)
+                        },
+                    )?,
                     None => read_elements(
                         path,
                         &mut input,
@@ -623,7 +652,16 @@ fn read_ply(path: &Path, meter: &mut Meter, fast: bool) -> Result<IndexedMesh> {
             }
             _ if skip_elements(path, &mut input, encoding, def)? => {}
             _ => match Layout::new(def, encoding, Keep::Nothing).filter(|_| fast && encoding != Encoding::Ascii) {
-                Some(layout) => read_binary(path, &mut input, def, &layout, meter, |_, _, _| Ok(()))?,
+                Some(layout) => read_binary(
+                    path,
+                    &mut input,
+                    def,
+                    &layout,
+                    meter,
+                    &mut (),
+                    |_, _, _, _, _| Ok((0, 0)),
+                    |_, _, _, _| Ok(()),
+                )?,
                 None => read_elements(path, &mut input, encoding, def, meter, |_| None, |_, _: Skipped, _| Ok(()))?,
             },
         }
@@ -633,15 +671,21 @@ fn read_ply(path: &Path, meter: &mut Meter, fast: bool) -> Result<IndexedMesh> {
 }
 
 /// Appends vertex `i` at `p`, refused when a coordinate is not finite.
-#[inline]
+#[inline(always)]
 fn push_vertex(path: &Path, positions: &mut Vec<Vec3>, i: usize, p: [f32; 3], meter: &mut Meter) -> Result<()> {
     let p = Vec3::from(p);
-    if let Some(c) = non_finite_coordinate(p) {
-        return Err(Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})")));
+    if !p.is_finite() {
+        return Err(non_finite_vertex(path, i, p));
     }
     make_room(positions, meter, path)?;
     positions.push(p);
     Ok(())
+}
+
+#[cold]
+fn non_finite_vertex(path: &Path, i: usize, p: Vec3) -> Error {
+    let c = non_finite_coordinate(p).unwrap_or_default();
+    Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})"))
 }
 
 /// Appends face `i`, its `n` vertex indices given by `index`, as a triangle fan; refused

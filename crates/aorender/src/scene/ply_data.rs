@@ -246,6 +246,74 @@ impl Layout {
     }
 }
 
+impl Layout {
+    /// Decodes the coordinates of the whole elements at the start of `bytes`, at most
+    /// `most` of them, passing each to `f`; the number decoded and the bytes they took.
+    /// Takes every whole element
+    /// of a layout without lists (`float` coordinates, the layout most writers use, read
+    /// with the byte order converted in place), none of a layout with lists.
+    #[inline]
+    pub(super) fn axes_run(
+        &self,
+        bytes: &[u8],
+        most: usize,
+        mut f: impl FnMut([f32; 3]) -> Result<()>,
+    ) -> Result<(usize, usize)> {
+        let Some(stride) = self.stride else {
+            return Ok((0, 0));
+        };
+        let n = (bytes.len() / stride).min(most);
+        let mut elements = bytes[..n * stride].chunks_exact(stride);
+        let offsets = self.axes.map(|(offset, _)| offset);
+        let floats = self.axes.iter().all(|&(_, t)| t == Ty::F32);
+        let at = |e: &[u8], o: usize| [e[o], e[o + 1], e[o + 2], e[o + 3]];
+        match (floats, self.big_endian) {
+            (true, false) => elements.try_for_each(|e| f(offsets.map(|o| f32::from_le_bytes(at(e, o)))))?,
+            (true, true) => elements.try_for_each(|e| f(offsets.map(|o| f32::from_be_bytes(at(e, o)))))?,
+            _ => elements.try_for_each(|e| f(self.axes_of(e)))?,
+        }
+        Ok((n, n * stride))
+    }
+
+    /// Decodes the faces at the start of `bytes` while each is a whole plain triangle: an
+    /// element of nothing but a `uchar` count of 3 and `int` or `uint` indices, each below
+    /// `vertex_count`; at most `most` of them, each passed to `f`. The number decoded and
+    /// the bytes they took: any other face (a polygon, an index out of range, one cut off
+    /// by the end of `bytes`) is left to the element-at-a-time path, which also words
+    /// its errors.
+    #[inline]
+    pub(super) fn triangle_run(
+        &self,
+        bytes: &[u8],
+        most: usize,
+        vertex_count: usize,
+        mut f: impl FnMut([u32; 3]) -> Result<()>,
+    ) -> Result<(usize, usize)> {
+        const SIZE: usize = 13;
+        let plain = self.fields.len() == 1
+            && self.list_field == 0
+            && matches!(self.list, (0, Ty::U8, Ty::I32 | Ty::U32))
+            && i32::try_from(vertex_count).is_ok();
+        if !plain {
+            return Ok((0, 0));
+        }
+        // Below `vertex_count` as `u32`: an `int` index read as `u32` is negative when it
+        // is at least 2³¹, above any count that fits an `int`.
+        let bound = vertex_count as u32;
+        let big = self.big_endian;
+        let mut n = 0;
+        for e in bytes.chunks_exact(SIZE).take(most) {
+            let v = [u32_at(&e[1..], big), u32_at(&e[5..], big), u32_at(&e[9..], big)];
+            if e[0] != 3 || v[0] >= bound || v[1] >= bound || v[2] >= bound {
+                break;
+            }
+            f(v)?;
+            n += 1;
+        }
+        Ok((n, n * SIZE))
+    }
+}
+
 /// How much of an element the bytes at hand hold.
 enum Measure {
     /// The element takes this many bytes.
@@ -306,17 +374,22 @@ fn room(layout: &Layout, meter: &Meter) -> usize {
     }
 }
 
-/// Reads the `def.count` binary elements of `layout`, passing each element's bytes with
-/// its number to `each`, in order. Whole elements are taken from the input's buffer as
-/// it stands; one that spans buffers is gathered first. The input is left just after the
-/// last element.
-pub(super) fn read_binary(
+/// Reads the `def.count` binary elements of `layout`, in order, into `sink`: runs of
+/// them, a block of the input's buffer at a time, by `run` (given the number of the
+/// first, the bytes at hand and the most elements it may take; it returns the elements
+/// and the bytes it took, which may be none), and every element it leaves, its bytes with
+/// its number, by `each`. Whole elements are taken from the input's buffer as it stands; one that spans
+/// buffers is gathered first. The input is left just after the last element.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn read_binary<S>(
     path: &Path,
     input: &mut Input,
     def: &ElementDef,
     layout: &Layout,
     meter: &mut Meter,
-    mut each: impl FnMut(usize, &[u8], &mut Meter) -> Result<()>,
+    sink: &mut S,
+    mut run: impl FnMut(&mut S, usize, &[u8], usize, &mut Meter) -> Result<(usize, usize)>,
+    mut each: impl FnMut(&mut S, usize, &[u8], &mut Meter) -> Result<()>,
 ) -> Result<()> {
     let mut i = 0;
     let mut gathered: Vec<u8> = Vec::new();
@@ -331,17 +404,28 @@ pub(super) fn read_binary(
         let mut at = 0;
         if let Some(stride) = layout.stride {
             let whole = ((buf.len() / stride) as u64).min((def.count - i) as u64) as usize;
-            for element in buf[..whole * stride].chunks_exact(stride) {
-                each(i, element, meter)?;
-                i += 1;
+            while at < whole * stride {
+                let (n, bytes) = run(sink, i, &buf[at..whole * stride], whole - at / stride, meter)?;
+                i += n;
+                at += bytes;
+                if let Some(element) = buf[..whole * stride].get(at..at + stride).filter(|_| n == 0) {
+                    each(sink, i, element, meter)?;
+                    i += 1;
+                    at += stride;
+                }
             }
-            at = whole * stride;
         } else {
             while i < def.count {
+                let (n, bytes) = run(sink, i, &buf[at..], def.count - i, meter)?;
+                if n > 0 {
+                    i += n;
+                    at += bytes;
+                    continue;
+                }
                 match layout.measure(&buf[at..]) {
                     Measure::Whole(n) if n > room(layout, meter) => return Err(cut_off(path, def, i, meter)),
                     Measure::Whole(n) => {
-                        each(i, &buf[at..at + n], meter)?;
+                        each(sink, i, &buf[at..at + n], meter)?;
                         at += n;
                         i += 1;
                     }
@@ -364,7 +448,7 @@ pub(super) fn read_binary(
             match layout.measure(&gathered) {
                 Measure::Whole(n) if n > most => return Err(cut_off(path, def, i, meter)),
                 Measure::Whole(n) => {
-                    each(i, &gathered[..n], meter)?;
+                    each(sink, i, &gathered[..n], meter)?;
                     i += 1;
                     break;
                 }
