@@ -400,3 +400,43 @@ fn plain_binary_runs_give_way_to_polygons_bad_indices_and_bad_coordinates_as_bef
     }
     assert_eq!(differences, 14);
 }
+
+#[test]
+fn ascii_blocks_read_in_parallel_fail_where_and_as_the_line_at_a_time_reader_fails() {
+    let limits = ReadLimits::with_memory(1 << 30);
+    let dragon = agree(&root().join("scenes/dragon_vrip_res2.ply.gz"), &limits).unwrap();
+    let (nv, nf) = (dragon.0.len(), dragon.1.len());
+    let text = String::from_utf8(write_ply(&dragon, "ascii", Layout::Plain)).unwrap();
+    let header = text.find("end_header\n").unwrap() + 11;
+    let lines: Vec<&str> = text[header..].lines().collect();
+    assert_eq!(lines.len(), nv + nf);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ascii.ply");
+    let long = "0 ".repeat(40_000);
+    // (line of the data, its replacement, whether the file still reads): lines the fast
+    // path refuses (a hexagon, many blanks), values the grammar refuses, a coordinate past
+    // f32, indices out of range, a line longer than the line limit; in the first block,
+    // past a block's end (1 MiB a thread) and at the last line.
+    let edits: [(usize, &str, bool); 9] = [
+        (nv + 5, "6 0 1 2 3 4 5", true),
+        (nv / 2, "  0.5\t\t0.25   0.125  ", true),
+        (3, "0.5 0.25 nan", false),
+        (nv - 1, "1e39 0 0", false),
+        (nv + nf / 2, "3 0 1 -1", false),
+        (nv + nf - 1, &format!("3 0 1 {nv}"), false),
+        (nv + nf / 3, "3 0 1 2x", false),
+        (nv / 3, "0.5 0.25", false),
+        (nv + nf / 4, &long, false),
+    ];
+    let pools = [1, 3].map(|n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap());
+    for (k, (at, line, reads)) in edits.iter().enumerate() {
+        let mut edited = lines.clone();
+        edited[*at] = line;
+        std::fs::write(&path, format!("{}{}\n", &text[..header], edited.join("\n"))).unwrap();
+        let limits = ReadLimits::with_memory(1 << 30).with_line_bytes(1 << 16);
+        for pool in &pools {
+            let result = pool.install(|| agree(&path, &limits));
+            assert_eq!(result.is_ok(), *reads, "edit {k}: {:?}", result.map(|_| ()));
+        }
+    }
+}

@@ -475,24 +475,47 @@ pub(super) fn read_binary<S>(
     Ok(())
 }
 
-/// The tokens of an ASCII data line, when the whole line is what the PLY grammar reads
-/// (numbers `[-+]?[0-9]+(.[0-9]+)?([eE][-+]?[0-9]+)?` separated by spaces or tabs, one
-/// line break at most) and there are at most `N` of them; `None` otherwise.
-fn ascii_tokens<'a, const N: usize>(line: &'a [u8], tokens: &mut [&'a [u8]; N]) -> Option<usize> {
-    let line = line
-        .strip_suffix(b"\r\n")
-        .or_else(|| line.strip_suffix(b"\n"))
-        .or_else(|| line.strip_suffix(b"\r"))
-        .unwrap_or(line);
-    let mut n = 0;
-    for token in line.split(|&b| b == b' ' || b == b'\t').filter(|t| !t.is_empty()) {
-        if !is_number(token) || n == N {
-            return None;
-        }
-        tokens[n] = token;
-        n += 1;
+/// The tokens of an ASCII data line, one at a time: numbers of the PLY grammar
+/// (`[-+]?[0-9]+(.[0-9]+)?([eE][-+]?[0-9]+)?`) separated by spaces or tabs, one line
+/// break at most, [`MAX_TOKENS`] at most. A line is plain when every token is such a
+/// number ([`Tokens::finish`] checks those left).
+struct Tokens<'a> {
+    rest: &'a [u8],
+    taken: usize,
+}
+
+impl<'a> Tokens<'a> {
+    fn new(line: &'a [u8]) -> Tokens<'a> {
+        let line = line
+            .strip_suffix(b"\r\n")
+            .or_else(|| line.strip_suffix(b"\n"))
+            .or_else(|| line.strip_suffix(b"\r"))
+            .unwrap_or(line);
+        Tokens { rest: line, taken: 0 }
     }
-    Some(n)
+
+    /// The next token; `None` at the end of the line, and for a token that is no number
+    /// or one past [`MAX_TOKENS`] (the line is then not plain).
+    #[inline]
+    fn next(&mut self) -> Option<&'a [u8]> {
+        let start = self.rest.iter().position(|&b| b != b' ' && b != b'\t')?;
+        let rest = &self.rest[start..];
+        let end = rest.iter().position(|&b| b == b' ' || b == b'\t').unwrap_or(rest.len());
+        let (token, after) = rest.split_at(end);
+        self.rest = after;
+        self.taken += 1;
+        (self.taken <= MAX_TOKENS && is_number(token)).then_some(token)
+    }
+
+    /// True when the tokens left are plain too.
+    fn finish(mut self) -> bool {
+        while self.rest.iter().any(|&b| b != b' ' && b != b'\t') {
+            if self.next().is_none() {
+                return false;
+            }
+        }
+        true
+    }
 }
 
 /// `[-+]?[0-9]+(.[0-9]+)?([eE][-+]?[0-9]+)?`, the PLY grammar's number.
@@ -573,16 +596,13 @@ const MAX_TOKENS: usize = 32;
 /// where the line is not plain (the general reader then reads it, or says what is
 /// wrong with it).
 pub(super) fn ascii_axes(layout: &Layout, line: &[u8]) -> Option<[f32; 3]> {
-    let mut tokens = [&[][..]; MAX_TOKENS];
-    let n = ascii_tokens(line, &mut tokens)?;
-    let mut next = 0;
+    let mut tokens = Tokens::new(line);
     let mut p = [0f32; 3];
     let mut seen = 0;
     for (k, field) in layout.fields.iter().enumerate() {
         match *field {
             Field::Scalar(t) => {
-                let token = *tokens[..n].get(next)?;
-                next += 1;
+                let token = tokens.next()?;
                 if let Some(axis) = layout.axis_fields.iter().position(|&f| f == k) {
                     p[axis] = ascii_value(token, t)?;
                     seen += 1;
@@ -590,60 +610,45 @@ pub(super) fn ascii_axes(layout: &Layout, line: &[u8]) -> Option<[f32; 3]> {
                     return None;
                 }
             }
-            Field::List(count, item) => {
-                next = ascii_list(&tokens[..n], next, count, item, |_| Some(()))?;
-            }
+            Field::List(count, item) => ascii_list(&mut tokens, count, item, |_| Some(()))?,
         }
     }
-    (seen == 3).then_some(p)
+    (seen == 3 && tokens.finish()).then_some(p)
 }
 
-/// Reads the list whose count is token `next`, each item through `item_fn`; the token
-/// after it.
-fn ascii_list(
-    tokens: &[&[u8]],
-    next: usize,
-    count: Ty,
-    item: Ty,
-    mut item_fn: impl FnMut(&[u8]) -> Option<()>,
-) -> Option<usize> {
+/// Reads the list whose count is the next token, each item through `item_fn`.
+fn ascii_list(tokens: &mut Tokens, count: Ty, item: Ty, mut item_fn: impl FnMut(&[u8]) -> Option<()>) -> Option<()> {
     // The general reader parses a list's count as `usize` whatever its declared type.
     let _ = count;
-    let n = usize::try_from(ascii_int(tokens.get(next)?, Ty::U32)?).ok()?;
-    let items = tokens.get(next + 1..next + 1 + n)?;
-    for token in items {
+    let n = ascii_int(tokens.next()?, Ty::U32)?;
+    for _ in 0..n {
+        let token = tokens.next()?;
         if !ascii_valid(token, item) {
             return None;
         }
         item_fn(token)?;
     }
-    Some(next + 1 + n)
+    Some(())
 }
 
 /// The index list of an ASCII face line, appended to `indices`, as the general reader
 /// reads it; `false` where the line is not plain.
 pub(super) fn ascii_indices(layout: &Layout, line: &[u8], indices: &mut Vec<i64>) -> bool {
-    let mut tokens = [&[][..]; MAX_TOKENS];
-    let Some(n) = ascii_tokens(line, &mut tokens) else {
-        return false;
-    };
-    let tokens = &tokens[..n];
-    let mut next = 0;
+    let mut tokens = Tokens::new(line);
     for (k, field) in layout.fields.iter().enumerate() {
         let step = match *field {
-            Field::Scalar(t) => tokens.get(next).filter(|token| ascii_valid(token, t)).map(|_| next + 1),
-            Field::List(count, item) if k == layout.list_field => ascii_list(tokens, next, count, item, |token| {
+            Field::Scalar(t) => tokens.next().filter(|token| ascii_valid(token, t)).map(|_| ()),
+            Field::List(count, item) if k == layout.list_field => ascii_list(&mut tokens, count, item, |token| {
                 indices.push(ascii_int(token, item)?);
                 Some(())
             }),
-            Field::List(count, item) => ascii_list(tokens, next, count, item, |_| Some(())),
+            Field::List(count, item) => ascii_list(&mut tokens, count, item, |_| Some(())),
         };
-        match step {
-            Some(after) => next = after,
-            None => return false,
+        if step.is_none() {
+            return false;
         }
     }
-    true
+    tokens.finish()
 }
 
 #[cfg(test)]
