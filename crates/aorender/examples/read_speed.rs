@@ -1,5 +1,6 @@
-//! Reading speed of the PLY readers: each file given is read by the element-at-a-time
-//! reader and by the bulk readers in turn, `ROUNDS` times (default 5), and the median
+//! Reading speed of the mesh readers: each PLY file given is read by the element-at-a-time
+//! reader and by the bulk readers in turn (any other mesh file, such as OBJ, by its one
+//! reader, with the triangles placed, in the bulk column), `ROUNDS` times (default 5), and the median
 //! speed of each is printed in MB/s of the file's bytes (compressed bytes for `.gz`): of
 //! wall time, and of CPU time (user and system, all threads: the speed per core, which a
 //! machine shared with other work changes less than the wall time).
@@ -8,7 +9,7 @@
 //!
 //! `cargo run --release -p aorender --features testing --example read_speed -- FILE.ply [FILE.ply.gz ...]`
 
-use aorender::scene::{ReadLimits, read_ply_mesh};
+use aorender::scene::{ReadLimits, load_mesh, read_ply_mesh};
 use std::time::Instant;
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -37,21 +38,26 @@ fn main() -> anyhow::Result<()> {
     for arg in std::env::args().skip(1) {
         let path = std::path::Path::new(&arg);
         let mb = std::fs::metadata(path)?.len() as f64 / 1e6;
+        let ply = arg.ends_with(".ply") || arg.ends_with(".ply.gz");
         let mut times = [[Vec::new(), Vec::new()], [Vec::new(), Vec::new()]];
         for _ in 0..rounds {
             for fast in [false, true] {
-                if !fast && bulk_only {
+                if !fast && (bulk_only || !ply) {
                     continue;
                 }
                 let (start, cpu) = (Instant::now(), cpu_seconds());
-                let mesh = read_ply_mesh(path, &limits, fast)?;
+                let triangles = if ply {
+                    read_ply_mesh(path, &limits, fast)?.1.len()
+                } else {
+                    load_mesh(path, 1.0, &glam::Mat4::IDENTITY)?.len()
+                };
                 times[fast as usize][0].push(start.elapsed().as_secs_f64());
                 times[fast as usize][1].push(cpu_seconds() - cpu);
-                anyhow::ensure!(!mesh.1.is_empty(), "{arg}: no triangles");
+                anyhow::ensure!(triangles > 0, "{arg}: no triangles");
             }
         }
         anyhow::ensure!(
-            bulk_only || read_ply_mesh(path, &limits, false)? == read_ply_mesh(path, &limits, true)?,
+            bulk_only || !ply || read_ply_mesh(path, &limits, false)? == read_ply_mesh(path, &limits, true)?,
             "{arg}: meshes differ"
         );
         let speeds = times.map(
