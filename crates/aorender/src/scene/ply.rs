@@ -295,6 +295,30 @@ fn read_ascii_blocks<T: Send, E: PropertyAccess>(
         let earlier = input.stream_error().map(str::to_string);
         let mut failure = None;
         while i + ends.len() - 1 < def.count && block.len() < target {
+            // The whole lines in the input's buffer at once; a line that spans buffers, one
+            // too long and the end of the data by `read_line`, which words their errors.
+            let want = def.count - i - (ends.len() - 1);
+            let longest = input.limits().line_bytes();
+            let (taken, lines) = match input.fill_buf() {
+                Ok(buf) => {
+                    let (mut taken, mut lines) = (0, 0);
+                    for end in memchr::memchr_iter(b'\n', buf) {
+                        if lines == want || end + 1 - taken > longest {
+                            break;
+                        }
+                        block.extend_from_slice(&buf[taken..=end]);
+                        ends.push(block.len());
+                        (taken, lines) = (end + 1, lines + 1);
+                    }
+                    (taken, lines)
+                }
+                Err(_) => (0, 0),
+            };
+            if lines > 0 {
+                input.consume(taken);
+                input.count_lines(lines as u64);
+                continue;
+            }
             match input.read_line(&mut block) {
                 Ok(0) => {
                     failure = Some(ParseError::from(std::io::Error::from(ErrorKind::UnexpectedEof)));
