@@ -256,10 +256,12 @@ fn element_error(
     Error::scene(path, message)
 }
 
-/// Bytes of ASCII lines each of rayon's threads parses per block: blocks of lines are read
-/// in turn, parsed in parallel and taken in order, so that memory stays bounded (a
-/// block and what it parses to) whatever the file's counts.
+/// Bytes and lines of ASCII lines each of rayon's threads parses per block at most: blocks
+/// of lines are read in turn, parsed in parallel and taken in order, so that memory stays
+/// bounded (a block and what it parses to, however short its lines) whatever the file's
+/// counts.
 const ASCII_BLOCK_BYTES: usize = 1 << 20;
+const ASCII_BLOCK_LINES: usize = 1 << 16;
 
 /// An ASCII element as [`read_ascii_blocks`] gives it.
 enum Parsed<T, E> {
@@ -285,7 +287,8 @@ fn read_ascii_blocks<T: Send, E: PropertyAccess>(
 ) -> Result<()> {
     use rayon::prelude::*;
     let parser = Parser::<E>::new();
-    let target = ASCII_BLOCK_BYTES.saturating_mul(rayon::current_num_threads().max(1));
+    let threads = rayon::current_num_threads().max(1);
+    let (target, most) = (ASCII_BLOCK_BYTES.saturating_mul(threads), ASCII_BLOCK_LINES.saturating_mul(threads));
     let (mut block, mut ends) = (Vec::new(), vec![0usize]);
     let mut i = 0;
     while i < def.count {
@@ -294,10 +297,10 @@ fn read_ascii_blocks<T: Send, E: PropertyAccess>(
         // The stream's error as it stood before the block's reads, for its lines' messages.
         let earlier = input.stream_error().map(str::to_string);
         let mut failure = None;
-        while i + ends.len() - 1 < def.count && block.len() < target {
+        while i + ends.len() - 1 < def.count && block.len() < target && ends.len() - 1 < most {
             // The whole lines in the input's buffer at once; a line that spans buffers, one
             // too long and the end of the data by `read_line`, which words their errors.
-            let want = def.count - i - (ends.len() - 1);
+            let want = (def.count - i).min(most) - (ends.len() - 1);
             let longest = input.limits().line_bytes();
             let (taken, lines) = match input.fill_buf() {
                 Ok(buf) => {
