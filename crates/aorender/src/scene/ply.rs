@@ -6,8 +6,8 @@
 //! put in without `comment`) is skipped with a warning.
 //!
 //! The header is read here ([`read_header`], shared with the bake), the vertices and faces
-//! in bulk where their layout allows ([`super::ply_data`]), other elements one at a time by
-//! the crate; this module owns the storage, so the counts in the header never
+//! in bulk where their layout allows ([`super::ply_data`]; ASCII ones a block of lines at
+//! a time, parsed on rayon's threads), other elements one at a time by the crate; this module owns the storage, so the counts in the header never
 //! size an allocation beyond what the rest of the file could hold (see
 //! [`Input::remaining_bound`]).
 

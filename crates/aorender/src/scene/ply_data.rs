@@ -1,7 +1,9 @@
 //! PLY element data read in bulk: binary elements decoded straight from the input's
 //! buffer, whole buffers of them at a time (byte order converted as each value is
-//! read), and ASCII lines parsed without the general parser's per-value allocations, the
-//! numbers by `fast-float2`.
+//! read), the common layouts (`float` coordinates, plain triangles) in runs without
+//! measuring each element, and ASCII lines parsed without the general parser's per-value
+//! allocations, the numbers by `fast-float2` (on rayon's threads, a block of lines at a
+//! time, in `ply.rs`).
 //!
 //! The fast paths read what `ply-rs-bw` reads and give the same values and the same
 //! errors: a binary element is measured first (its lists' counts read), then passed whole
@@ -249,9 +251,9 @@ impl Layout {
 impl Layout {
     /// Decodes the coordinates of the whole elements at the start of `bytes`, at most
     /// `most` of them, passing each to `f`; the number decoded and the bytes they took.
-    /// Takes every whole element
-    /// of a layout without lists (`float` coordinates, the layout most writers use, read
-    /// with the byte order converted in place), none of a layout with lists.
+    /// Takes every whole element of a layout without lists (`float` coordinates, the
+    /// layout most writers use, read with the byte order converted in place), none of a
+    /// layout with lists.
     #[inline]
     pub(super) fn axes_run(
         &self,
@@ -297,8 +299,8 @@ impl Layout {
         if !plain {
             return Ok((0, 0));
         }
-        // Below `vertex_count` as `u32`: an `int` index read as `u32` is negative when it
-        // is at least 2³¹, above any count that fits an `int`.
+        // Below `vertex_count` as `u32`: a negative `int` index read as `u32` is at least
+        // 2³¹, above any count that fits an `int`.
         let bound = vertex_count as u32;
         let big = self.big_endian;
         let mut n = 0;
@@ -378,8 +380,9 @@ fn room(layout: &Layout, meter: &Meter) -> usize {
 /// them, a block of the input's buffer at a time, by `run` (given the number of the
 /// first, the bytes at hand and the most elements it may take; it returns the elements
 /// and the bytes it took, which may be none), and every element it leaves, its bytes with
-/// its number, by `each`. Whole elements are taken from the input's buffer as it stands; one that spans
-/// buffers is gathered first. The input is left just after the last element.
+/// its number, by `each`. Whole elements are taken from the input's buffer as it stands;
+/// one that spans buffers is gathered first. The input is left just after the last
+/// element.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn read_binary<S>(
     path: &Path,
@@ -408,8 +411,9 @@ pub(super) fn read_binary<S>(
                 let (n, bytes) = run(sink, i, &buf[at..whole * stride], whole - at / stride, meter)?;
                 i += n;
                 at += bytes;
-                if let Some(element) = buf[..whole * stride].get(at..at + stride).filter(|_| n == 0) {
-                    each(sink, i, element, meter)?;
+                if n == 0 {
+                    // `at` is a whole number of elements short of `whole * stride`.
+                    each(sink, i, &buf[at..at + stride], meter)?;
                     i += 1;
                     at += stride;
                 }
@@ -698,6 +702,60 @@ mod tests {
              property list uchar int vertex_index\nend_header\n",
         );
         assert!(Layout::new(&h.elements["face"], h.encoding, Keep::IndexList("vertex_indices", &names)).is_none());
+    }
+
+    #[test]
+    fn runs_take_plain_elements_and_stop_at_the_first_other() {
+        let h = header(
+            "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty uchar red\n\
+             property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n",
+        );
+        let names = ["vertex_indices", "vertex_index"];
+        let face = Layout::new(&h.elements["face"], h.encoding, Keep::IndexList("vertex_indices", &names)).unwrap();
+        let triangle = |count: u8, v: [i32; 3]| {
+            let mut e = vec![count];
+            v.iter().for_each(|i| e.extend_from_slice(&i.to_le_bytes()));
+            e
+        };
+        let mut faces = [triangle(3, [0, 1, 2]), triangle(3, [2, 1, 0]), triangle(3, [0, 1, 3])].concat();
+        let run = |bytes: &[u8], most: usize| {
+            let mut seen = Vec::new();
+            let taken = face
+                .triangle_run(bytes, most, 4, |t| {
+                    seen.push(t);
+                    Ok(())
+                })
+                .unwrap();
+            (taken, seen)
+        };
+        assert_eq!(run(&faces, 9), ((3, 39), vec![[0, 1, 2], [2, 1, 0], [0, 1, 3]]));
+        assert_eq!(run(&faces, 2).0, (2, 26));
+        assert_eq!(run(&faces[..38], 9).0, (2, 26), "a face cut off");
+        faces[26] = 4;
+        assert_eq!(run(&faces, 9).0, (2, 26), "a quad");
+        for bad in [4, -1] {
+            faces[26..].copy_from_slice(&triangle(3, [0, bad, 1]));
+            assert_eq!(run(&faces, 9).0, (2, 26), "index {bad}");
+        }
+        let vertex = Layout::new(&h.elements["vertex"], h.encoding, Keep::Axes).unwrap();
+        let mut bytes = Vec::new();
+        for k in 0..3u8 {
+            let k = f32::from(k);
+            [k, 0.5].iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+            bytes.insert(bytes.len() - 4, 7);
+            bytes.extend_from_slice(&(-k).to_le_bytes());
+        }
+        let mut seen = Vec::new();
+        assert_eq!(
+            vertex
+                .axes_run(&bytes[..38], 9, |p| {
+                    seen.push(p);
+                    Ok(())
+                })
+                .unwrap(),
+            (2, 26)
+        );
+        assert_eq!(seen, [[0.0, 0.5, -0.0], [1.0, 0.5, -1.0]]);
     }
 
     #[test]
