@@ -1,11 +1,15 @@
-//! Reading speed of the PLY readers: each file given is read by the element-at-a-time
-//! reader and by the bulk readers in turn, `ROUNDS` times (default 5), and the median
-//! speed of each is printed in MB/s of the file's bytes (compressed bytes for `.gz`).
+//! Reading speed of the mesh readers: each PLY file given is read by the element-at-a-time
+//! reader and by the bulk readers in turn (any other mesh file, such as OBJ, by its one
+//! reader, with the triangles placed, in the bulk column), `ROUNDS` times (default 5), and the median
+//! speed of each is printed in MB/s of the file's bytes (compressed bytes for `.gz`): of
+//! wall time, and of CPU time (user and system, all threads: the speed per core, which a
+//! machine shared with other work changes less than the wall time).
 //! A measurement, not a test: it asserts only that both readers give the same mesh.
+//! `READERS=bulk` times the bulk readers alone (for a profiler).
 //!
-//! `cargo run --release -p aorender --example read_speed -- FILE.ply [FILE.ply.gz ...]`
+//! `cargo run --release -p aorender --features testing --example read_speed -- FILE.ply [FILE.ply.gz ...]`
 
-use aorender::scene::{ReadLimits, read_ply_mesh};
+use aorender::scene::{ReadLimits, load_mesh, read_ply_mesh};
 use std::time::Instant;
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -13,30 +17,57 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// CPU seconds (user and system) this process has taken so far, all threads.
+fn cpu_seconds() -> f64 {
+    let mut usage = std::mem::MaybeUninit::<libc::rusage>::zeroed();
+    // SAFETY: getrusage fills the struct it is given; RUSAGE_SELF is always valid.
+    let usage = unsafe {
+        libc::getrusage(libc::RUSAGE_SELF, usage.as_mut_ptr());
+        usage.assume_init()
+    };
+    let seconds = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    seconds(usage.ru_utime) + seconds(usage.ru_stime)
+}
+
 fn main() -> anyhow::Result<()> {
     let rounds: usize = std::env::var("ROUNDS").ok().and_then(|r| r.parse().ok()).unwrap_or(5);
     let limits = ReadLimits::from_env()?;
-    println!("| file | MB | element at a time, MB/s | bulk, MB/s | speed-up |");
+    let bulk_only = std::env::var("READERS").is_ok_and(|r| r == "bulk");
+    println!("| file | MB | element at a time, MB/s (per CPU second) | bulk, MB/s (per CPU second) | speed-up |");
     println!("|---|---|---|---|---|");
     for arg in std::env::args().skip(1) {
         let path = std::path::Path::new(&arg);
         let mb = std::fs::metadata(path)?.len() as f64 / 1e6;
-        let (mut reference, mut bulk) = (Vec::new(), Vec::new());
+        let ply = arg.ends_with(".ply") || arg.ends_with(".ply.gz");
+        let mut times = [[Vec::new(), Vec::new()], [Vec::new(), Vec::new()]];
         for _ in 0..rounds {
-            for (fast, times) in [(false, &mut reference), (true, &mut bulk)] {
-                let start = Instant::now();
-                let mesh = read_ply_mesh(path, &limits, fast)?;
-                times.push(start.elapsed().as_secs_f64());
-                anyhow::ensure!(!mesh.1.is_empty(), "{arg}: no triangles");
+            for fast in [false, true] {
+                if !fast && (bulk_only || !ply) {
+                    continue;
+                }
+                let (start, cpu) = (Instant::now(), cpu_seconds());
+                let triangles = if ply {
+                    read_ply_mesh(path, &limits, fast)?.1.len()
+                } else {
+                    load_mesh(path, 1.0, &glam::Mat4::IDENTITY)?.len()
+                };
+                times[fast as usize][0].push(start.elapsed().as_secs_f64());
+                times[fast as usize][1].push(cpu_seconds() - cpu);
+                anyhow::ensure!(triangles > 0, "{arg}: no triangles");
             }
         }
         anyhow::ensure!(
-            read_ply_mesh(path, &limits, false)? == read_ply_mesh(path, &limits, true)?,
+            bulk_only || !ply || read_ply_mesh(path, &limits, false)? == read_ply_mesh(path, &limits, true)?,
             "{arg}: meshes differ"
         );
-        let (r, b) = (median(reference), median(bulk));
+        let speeds = times.map(
+            |[wall, cpu]| {
+                if wall.is_empty() { [f64::NAN; 2] } else { [mb / median(wall), mb / median(cpu)] }
+            },
+        );
+        let [[r, rc], [b, bc]] = speeds;
         let name = path.file_name().map_or(arg.clone(), |n| n.to_string_lossy().to_string());
-        println!("| {name} | {mb:.1} | {:.0} | {:.0} | {:.1}× |", mb / r, mb / b, r / b);
+        println!("| {name} | {mb:.1} | {r:.0} ({rc:.0}) | {b:.0} ({bc:.0}) | {:.1}× |", b / r);
     }
     Ok(())
 }

@@ -350,3 +350,93 @@ fn endless_input_fails_as_before() {
         println!("case {k}: {}", messages[1]);
     }
 }
+
+#[test]
+fn plain_binary_runs_give_way_to_polygons_bad_indices_and_bad_coordinates_as_before() {
+    let limits = ReadLimits::with_memory(1 << 30);
+    let dragon = agree(&root().join("scenes/dragon_vrip_res4.ply.gz"), &limits).unwrap();
+    let (nv, nf) = (dragon.0.len(), dragon.1.len());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("plain.ply");
+    let mut differences = 0;
+    for format in ["binary_little_endian", "binary_big_endian"] {
+        let bytes = write_ply(&dragon, format, Layout::Plain);
+        let header = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        let word = |v: u32| if format == "binary_big_endian" { v.to_be_bytes() } else { v.to_le_bytes() };
+        let face = |k: usize| header + nv * 12 + k * 13;
+        // (byte offset, bytes written there): a face's count of 4 and of 2 (the faces after
+        // it misread), an index of -1, of the vertex count and past `int`'s range as
+        // `uint`, a NaN and an infinite coordinate, in the middle of a buffer and at the
+        // last face.
+        let edits: Vec<(usize, Vec<u8>)> = vec![
+            (face(nf / 2), vec![4]),
+            (face(nf / 3), vec![2]),
+            (face(nf / 2) + 5, word(u32::MAX).to_vec()),
+            (face(nf - 1) + 9, word(nv as u32).to_vec()),
+            (face(7) + 1, word(1 << 31).to_vec()),
+            (header + 12 * (nv / 2) + 4, word(f32::NAN.to_bits()).to_vec()),
+            (header + 12 * (nv - 1) + 8, word(f32::INFINITY.to_bits()).to_vec()),
+        ];
+        for (at, patch) in edits {
+            let mut bad = bytes.clone();
+            bad[at..at + patch.len()].copy_from_slice(&patch);
+            std::fs::write(&path, &bad).unwrap();
+            let message = agree(&path, &limits).map(|_| ()).unwrap_err();
+            assert!(message.contains("plain.ply"), "{format}: {message}");
+            differences += 1;
+        }
+        // A quad every 1000 faces (its fourth corner the next face's first), read whole.
+        let mut quads = bytes[..face(0)].to_vec();
+        for (k, t) in dragon.1.iter().enumerate() {
+            let quad = k % 1000 == 999 && k + 1 < nf;
+            quads.push(if quad { 4 } else { 3 });
+            for &i in t.iter().chain(quad.then(|| &dragon.1[k + 1][0])) {
+                quads.extend_from_slice(&word(i));
+            }
+        }
+        std::fs::write(&path, &quads).unwrap();
+        let mesh = agree(&path, &limits).unwrap_or_else(|e| panic!("{format}: {e}"));
+        assert_eq!(mesh.1.len(), nf + (nf - 1) / 1000, "{format}");
+    }
+    assert_eq!(differences, 14);
+}
+
+#[test]
+fn ascii_blocks_read_in_parallel_fail_where_and_as_the_line_at_a_time_reader_fails() {
+    let limits = ReadLimits::with_memory(1 << 30);
+    let dragon = agree(&root().join("scenes/dragon_vrip_res2.ply.gz"), &limits).unwrap();
+    let (nv, nf) = (dragon.0.len(), dragon.1.len());
+    let text = String::from_utf8(write_ply(&dragon, "ascii", Layout::Plain)).unwrap();
+    let header = text.find("end_header\n").unwrap() + 11;
+    let lines: Vec<&str> = text[header..].lines().collect();
+    assert_eq!(lines.len(), nv + nf);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ascii.ply");
+    let long = "0 ".repeat(40_000);
+    // (line of the data, its replacement, whether the file still reads): lines the fast
+    // path refuses (a hexagon, many blanks), values the grammar refuses, a coordinate past
+    // f32, indices out of range, a line longer than the line limit; in the first block,
+    // past a block's end (1 MiB a thread) and at the last line.
+    let edits: [(usize, &str, bool); 9] = [
+        (nv + 5, "6 0 1 2 3 4 5", true),
+        (nv / 2, "  0.5\t\t0.25   0.125  ", true),
+        (3, "0.5 0.25 nan", false),
+        (nv - 1, "1e39 0 0", false),
+        (nv + nf / 2, "3 0 1 -1", false),
+        (nv + nf - 1, &format!("3 0 1 {nv}"), false),
+        (nv + nf / 3, "3 0 1 2x", false),
+        (nv / 3, "0.5 0.25", false),
+        (nv + nf / 4, &long, false),
+    ];
+    let pools = [1, 3].map(|n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap());
+    for (k, (at, line, reads)) in edits.iter().enumerate() {
+        let mut edited = lines.clone();
+        edited[*at] = line;
+        std::fs::write(&path, format!("{}{}\n", &text[..header], edited.join("\n"))).unwrap();
+        let limits = ReadLimits::with_memory(1 << 30).with_line_bytes(1 << 16);
+        for pool in &pools {
+            let result = pool.install(|| agree(&path, &limits));
+            assert_eq!(result.is_ok(), *reads, "edit {k}: {:?}", result.map(|_| ()));
+        }
+    }
+}

@@ -2,9 +2,11 @@
 //! (32-bit float, linear), and of their standard errors (`.exr`, `.pfm`), written
 //! atomically.
 
-use super::policy::write_output;
+use super::policy::{write_output, write_output_with};
 use crate::error::{Error, Result};
 use crate::film::{ErrorEstimator, Film};
+use rayon::prelude::*;
+use std::io::Write;
 use std::path::Path;
 
 /// The image formats, by extension.
@@ -13,7 +15,7 @@ pub const IMAGE_EXTENSIONS: [&str; 3] = ["png", "exr", "pfm"];
 /// Writes the image; the extension picks the format: `.png` (8-bit sRGB-encoded,
 /// values clamped to [0, 1]), `.exr` or `.pfm` (32-bit float, linear).
 pub fn write_image(film: &Film, path: &Path) -> Result<()> {
-    let mean: Vec<f32> = film.mean().into_iter().map(|v| v as f32).collect();
+    let mean: Vec<f32> = film.mean().into_par_iter().map(|v| v as f32).collect();
     write_values(&mean, film.width, film.height, path)
 }
 
@@ -30,7 +32,7 @@ pub fn write_error_image(film: &Film, path: &Path) -> Result<()> {
     }
     let se: Vec<f32> = match film.error_estimator() {
         ErrorEstimator::None => vec![f32::INFINITY; film.sum.len()],
-        _ => film.std_error().into_iter().map(|v| v as f32).collect(),
+        _ => film.std_error().into_par_iter().map(|v| v as f32).collect(),
     };
     write_values(&se, film.width, film.height, path)
 }
@@ -42,17 +44,17 @@ fn write_values(values: &[f32], w: u32, h: u32, path: &Path) -> Result<()> {
     let mean = values;
     let bytes = match ext.as_str() {
         "png" => {
-            let px: Vec<u8> = mean.iter().map(|&v| linear_to_srgb8(v)).collect();
+            let px: Vec<u8> = mean.par_iter().map(|&v| linear_to_srgb8(v)).collect();
             let img = image::GrayImage::from_raw(w, h, px).expect("buffer matches size");
             encode(image::DynamicImage::ImageLuma8(img), image::ImageFormat::Png).map_err(|e| out_err(e.to_string()))?
         }
         "exr" => {
-            let rgb: Vec<f32> = mean.iter().flat_map(|&v| [v, v, v]).collect();
+            let rgb: Vec<f32> = mean.par_iter().flat_map_iter(|&v| [v, v, v]).collect();
             let img = image::Rgb32FImage::from_raw(w, h, rgb).expect("buffer matches size");
             encode(image::DynamicImage::ImageRgb32F(img), image::ImageFormat::OpenExr)
                 .map_err(|e| out_err(e.to_string()))?
         }
-        "pfm" => pfm_bytes(w, h, mean),
+        "pfm" => return write_output_with(path, &mut |out| write_pfm(out, w, h, mean)),
         "" => return Err(out_err("no file extension: expected .png, .exr or .pfm".into())),
         e => return Err(out_err(format!("unsupported image format '.{e}': expected .png, .exr or .pfm"))),
     };
@@ -77,13 +79,36 @@ pub fn encode(img: image::DynamicImage, format: image::ImageFormat) -> Result<Ve
     Ok(buf.into_inner())
 }
 
-/// Greyscale PFM ("Pf"): little-endian (scale -1), rows bottom to top.
-fn pfm_bytes(w: u32, h: u32, v: &[f32]) -> Vec<u8> {
-    let mut out = format!("Pf\n{w} {h}\n-1.0\n").into_bytes();
+/// Greyscale PFM ("Pf"): little-endian (scale -1), rows bottom to top, streamed a row at
+/// a time.
+fn write_pfm(out: &mut dyn Write, w: u32, h: u32, v: &[f32]) -> std::io::Result<()> {
+    write!(out, "Pf\n{w} {h}\n-1.0\n")?;
+    let mut bytes = Vec::with_capacity(w as usize * 4);
     for row in v.chunks_exact(w as usize).rev() {
-        for x in row {
-            out.extend_from_slice(&x.to_le_bytes());
-        }
+        bytes.clear();
+        bytes.extend(row.iter().flat_map(|x| x.to_le_bytes()));
+        out.write_all(&bytes)?;
     }
-    out
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pfm_rows_go_bottom_to_top_in_little_endian_after_the_header() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("film.pfm");
+        let mut film = Film::new(3, 2);
+        film.samples = 2;
+        film.sum = vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0];
+        write_image(&film, &path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let header = b"Pf\n3 2\n-1.0\n";
+        assert_eq!(&bytes[..header.len()], header);
+        let values: Vec<f32> =
+            bytes[header.len()..].chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+        assert_eq!(values, [1.5, 2.0, 2.5, 0.0, 0.5, 1.0]);
+    }
 }

@@ -6,8 +6,8 @@
 //! put in without `comment`) is skipped with a warning.
 //!
 //! The header is read here ([`read_header`], shared with the bake), the vertices and faces
-//! in bulk where their layout allows ([`super::ply_data`]), other elements one at a time by
-//! the crate; this module owns the storage, so the counts in the header never
+//! in bulk where their layout allows ([`super::ply_data`]; ASCII ones a block of lines at
+//! a time, parsed on rayon's threads), other elements one at a time by the crate; this module owns the storage, so the counts in the header never
 //! size an allocation beyond what the rest of the file could hold (see
 //! [`Input::remaining_bound`]).
 
@@ -200,13 +200,7 @@ fn read_elements<E: PropertyAccess>(
                     Ok(0) => Err(ParseError::from(std::io::Error::from(ErrorKind::UnexpectedEof))),
                     Ok(_) => match fast(&line) {
                         Some(element) => Ok(element),
-                        None => match std::str::from_utf8(&line) {
-                            Ok(text) => parser.read_ascii_element(text, def),
-                            Err(_) => Err(ParseError::from(std::io::Error::new(
-                                ErrorKind::InvalidData,
-                                "stream did not contain valid UTF-8",
-                            ))),
-                        },
+                        None => read_ascii_line(&parser, &line, def),
                     },
                     Err(e) => Err(ParseError::from(e)),
                 }
@@ -218,20 +212,148 @@ fn read_elements<E: PropertyAccess>(
         if cut {
             input.set_limit(None);
         }
-        let element = element.map_err(|e| {
-            let what = format!("{} {i} of {}", def.name, def.count);
-            let message = if let Some(stream) = input.stream_error() {
-                format!("{what}: {stream}")
-            } else if cut_off && e.kind() == ErrorKind::UnexpectedEof {
-                format!("{what}: its lists: {}", meter.exceeded_message())
-            } else if e.kind() == ErrorKind::UnexpectedEof {
-                format!("unexpected end of file in {what}")
-            } else {
-                format!("{what}: {}", one_line(&e.to_string()))
-            };
-            Error::scene(path, message)
-        })?;
+        let element = element.map_err(|e| element_error(path, input.stream_error(), def, i, cut_off, meter, &e))?;
         each(i, element, meter)?;
+    }
+    Ok(())
+}
+
+/// An ASCII line of `def` read by the general reader.
+fn read_ascii_line<E: PropertyAccess>(
+    parser: &Parser<E>,
+    line: &[u8],
+    def: &ElementDef,
+) -> std::result::Result<E, ParseError> {
+    match std::str::from_utf8(line) {
+        Ok(text) => parser.read_ascii_element(text, def),
+        Err(_) => {
+            Err(ParseError::from(std::io::Error::new(ErrorKind::InvalidData, "stream did not contain valid UTF-8")))
+        }
+    }
+}
+
+/// The error of element `i` of `def` whose read failed with `e`: the stream's own error
+/// when it had one, the budget when its lists were `cut_off` by it.
+fn element_error(
+    path: &Path,
+    stream: Option<&str>,
+    def: &ElementDef,
+    i: usize,
+    cut_off: bool,
+    meter: &Meter,
+    e: &ParseError,
+) -> Error {
+    let what = format!("{} {i} of {}", def.name, def.count);
+    let message = if let Some(stream) = stream {
+        format!("{what}: {stream}")
+    } else if cut_off && e.kind() == ErrorKind::UnexpectedEof {
+        format!("{what}: its lists: {}", meter.exceeded_message())
+    } else if e.kind() == ErrorKind::UnexpectedEof {
+        format!("unexpected end of file in {what}")
+    } else {
+        format!("{what}: {}", one_line(&e.to_string()))
+    };
+    Error::scene(path, message)
+}
+
+/// Bytes and lines of ASCII lines each of rayon's threads parses per block at most: blocks
+/// of lines are read in turn, parsed in parallel and taken in order, so that memory stays
+/// bounded (a block and what it parses to, however short its lines) whatever the file's
+/// counts.
+const ASCII_BLOCK_BYTES: usize = 1 << 20;
+const ASCII_BLOCK_LINES: usize = 1 << 16;
+
+/// An ASCII element as [`read_ascii_blocks`] gives it.
+enum Parsed<T, E> {
+    /// Parsed by the fast path.
+    Fast(T),
+    /// Read by the general reader (a line the fast path does not take as it stands).
+    General(E),
+}
+
+/// Reads the `def.count` ASCII lines of `def` a block at a time, each block's lines
+/// parsed by `fast` on rayon's threads, then passed with their numbers to `each` in
+/// order; a line `fast` does not take is read by the general reader, which also says
+/// what is wrong with it. Gives what [`read_elements`] gives, error for error: a read that
+/// fails (the end of the file, a line too long, the stream's error) is reported after the
+/// lines before it are taken.
+fn read_ascii_blocks<T: Send, E: PropertyAccess>(
+    path: &Path,
+    input: &mut Input,
+    def: &ElementDef,
+    meter: &mut Meter,
+    fast: impl Fn(&[u8], &mut Vec<i64>) -> Option<T> + Sync,
+    mut each: impl FnMut(usize, Parsed<T, E>, &mut Meter) -> Result<()>,
+) -> Result<()> {
+    use rayon::prelude::*;
+    let parser = Parser::<E>::new();
+    let threads = rayon::current_num_threads().max(1);
+    let (target, most) = (ASCII_BLOCK_BYTES.saturating_mul(threads), ASCII_BLOCK_LINES.saturating_mul(threads));
+    let (mut block, mut ends) = (Vec::new(), vec![0usize]);
+    let mut i = 0;
+    while i < def.count {
+        block.clear();
+        ends.truncate(1);
+        // The stream's error as it stood before the block's reads, for its lines' messages.
+        let earlier = input.stream_error().map(str::to_string);
+        let mut failure = None;
+        while i + ends.len() - 1 < def.count && block.len() < target && ends.len() - 1 < most {
+            // The whole lines in the input's buffer at once; a line that spans buffers, one
+            // too long and the end of the data by `read_line`, which words their errors.
+            let want = (def.count - i).min(most) - (ends.len() - 1);
+            let longest = input.limits().line_bytes();
+            let (taken, lines) = match input.fill_buf() {
+                Ok(buf) => {
+                    let (mut taken, mut lines) = (0, 0);
+                    for end in memchr::memchr_iter(b'\n', buf) {
+                        if lines == want || end + 1 - taken > longest {
+                            break;
+                        }
+                        block.extend_from_slice(&buf[taken..=end]);
+                        ends.push(block.len());
+                        (taken, lines) = (end + 1, lines + 1);
+                    }
+                    (taken, lines)
+                }
+                Err(_) => (0, 0),
+            };
+            if lines > 0 {
+                input.consume(taken);
+                input.count_lines(lines as u64);
+                continue;
+            }
+            match input.read_line(&mut block) {
+                Ok(0) => {
+                    failure = Some(ParseError::from(std::io::Error::from(ErrorKind::UnexpectedEof)));
+                    break;
+                }
+                Ok(_) => ends.push(block.len()),
+                Err(e) => {
+                    failure = Some(ParseError::from(e));
+                    break;
+                }
+            }
+        }
+        let line = |k: usize| &block[ends[k]..ends[k + 1]];
+        let parsed: Vec<Option<T>> = (0..ends.len() - 1)
+            .into_par_iter()
+            .with_min_len(1024)
+            .map_init(Vec::new, |scratch, k| fast(line(k), scratch))
+            .collect();
+        for (k, element) in parsed.into_iter().enumerate() {
+            let element = match element {
+                Some(t) => Parsed::Fast(t),
+                None => match read_ascii_line(&parser, line(k), def) {
+                    Ok(e) => Parsed::General(e),
+                    Err(e) => return Err(element_error(path, earlier.as_deref(), def, i, false, meter, &e)),
+                },
+            };
+            each(i, element, meter)?;
+            i += 1;
+        }
+        if let Some(e) = failure {
+            return Err(element_error(path, input.stream_error(), def, i, false, meter, &e));
+        }
     }
     Ok(())
 }
@@ -562,18 +684,37 @@ fn read_ply(path: &Path, meter: &mut Meter, fast: bool) -> Result<IndexedMesh> {
                 reserve(path, &mut mesh.positions, n, meter, "vertices")?;
                 let positions = &mut mesh.positions;
                 match Layout::new(def, encoding, Keep::Axes).filter(|_| fast) {
-                    Some(layout) if encoding == Encoding::Ascii => read_elements(
+                    Some(layout) if encoding == Encoding::Ascii => read_ascii_blocks(
                         path,
                         &mut input,
-                        encoding,
                         def,
                         meter,
-                        |line| ascii_axes(&layout, line).map(|p| PlyVertex { p }),
-                        |i, v: PlyVertex, meter| push_vertex(path, positions, i, v.p, meter),
+                        |line, _| ascii_axes(&layout, line),
+                        |i, v: Parsed<[f32; 3], PlyVertex>, meter| {
+                            let p = match v {
+                                Parsed::Fast(p) => p,
+                                Parsed::General(v) => v.p,
+                            };
+                            push_vertex(path, positions, i, p, meter)
+                        },
                     )?,
-                    Some(layout) => read_binary(path, &mut input, def, &layout, meter, |i, element, meter| {
-                        push_vertex(path, positions, i, layout.axes_of(element), meter)
-                    })?,
+                    Some(layout) => read_binary(
+                        path,
+                        &mut input,
+                        def,
+                        &layout,
+                        meter,
+                        positions,
+                        |positions, i, bytes, most, meter| {
+                            let mut k = i;
+                            layout.axes_run(bytes, most, |p| {
+                                push_vertex(path, positions, k, p, meter)?;
+                                k += 1;
+                                Ok(())
+                            })
+                        },
+                        |positions, i, element, meter| push_vertex(path, positions, i, layout.axes_of(element), meter),
+                    )?,
                     None => read_elements(
                         path,
                         &mut input,
@@ -594,22 +735,47 @@ fn read_ply(path: &Path, meter: &mut Meter, fast: bool) -> Result<IndexedMesh> {
                     push_face(path, triangles, vertex_count, i, f.indices.len(), |k| f.indices[k], meter)
                 };
                 match Layout::new(def, encoding, keep).filter(|_| fast) {
-                    Some(layout) if encoding == Encoding::Ascii => read_elements(
+                    Some(layout) if encoding == Encoding::Ascii => read_ascii_blocks(
                         path,
                         &mut input,
-                        encoding,
                         def,
                         meter,
-                        |line| {
-                            let mut indices = Vec::with_capacity(3);
-                            ascii_indices(&layout, line, &mut indices).then_some(PlyFace { indices })
+                        |line, scratch| {
+                            // Triangles and quads inline; a longer polygon by the general reader.
+                            scratch.clear();
+                            let plain = ascii_indices(&layout, line, scratch) && scratch.len() <= 4;
+                            plain.then(|| {
+                                let mut corners = [0i64; 4];
+                                corners[..scratch.len()].copy_from_slice(scratch);
+                                (corners, scratch.len())
+                            })
                         },
-                        |i, f, meter| push(triangles, i, f, meter),
+                        |i, f: Parsed<([i64; 4], usize), PlyFace>, meter| match f {
+                            Parsed::Fast((corners, n)) => {
+                                push_face(path, triangles, vertex_count, i, n, |k| corners[k], meter)
+                            }
+                            Parsed::General(f) => push(triangles, i, f, meter),
+                        },
                     )?,
-                    Some(layout) => read_binary(path, &mut input, def, &layout, meter, |i, element, meter| {
-                        let count = layout.index_count(element);
-                        push_face(path, triangles, vertex_count, i, count, |k| layout.index(element, k), meter)
-                    })?,
+                    Some(layout) => read_binary(
+                        path,
+                        &mut input,
+                        def,
+                        &layout,
+                        meter,
+                        triangles,
+                        |triangles, _, bytes, most, meter| {
+                            layout.triangle_run(bytes, most, vertex_count, |t| {
+                                make_room(triangles, meter, path)?;
+                                triangles.push(t);
+                                Ok(())
+                            })
+                        },
+                        |triangles, i, element, meter| {
+                            let count = layout.index_count(element);
+                            push_face(path, triangles, vertex_count, i, count, |k| layout.index(element, k), meter)
+                        },
+                    )?,
                     None => read_elements(
                         path,
                         &mut input,
@@ -623,7 +789,16 @@ fn read_ply(path: &Path, meter: &mut Meter, fast: bool) -> Result<IndexedMesh> {
             }
             _ if skip_elements(path, &mut input, encoding, def)? => {}
             _ => match Layout::new(def, encoding, Keep::Nothing).filter(|_| fast && encoding != Encoding::Ascii) {
-                Some(layout) => read_binary(path, &mut input, def, &layout, meter, |_, _, _| Ok(()))?,
+                Some(layout) => read_binary(
+                    path,
+                    &mut input,
+                    def,
+                    &layout,
+                    meter,
+                    &mut (),
+                    |_, _, _, _, _| Ok((0, 0)),
+                    |_, _, _, _| Ok(()),
+                )?,
                 None => read_elements(path, &mut input, encoding, def, meter, |_| None, |_, _: Skipped, _| Ok(()))?,
             },
         }
@@ -633,15 +808,21 @@ fn read_ply(path: &Path, meter: &mut Meter, fast: bool) -> Result<IndexedMesh> {
 }
 
 /// Appends vertex `i` at `p`, refused when a coordinate is not finite.
-#[inline]
+#[inline(always)]
 fn push_vertex(path: &Path, positions: &mut Vec<Vec3>, i: usize, p: [f32; 3], meter: &mut Meter) -> Result<()> {
     let p = Vec3::from(p);
-    if let Some(c) = non_finite_coordinate(p) {
-        return Err(Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})")));
+    if !p.is_finite() {
+        return Err(non_finite_vertex(path, i, p));
     }
     make_room(positions, meter, path)?;
     positions.push(p);
     Ok(())
+}
+
+#[cold]
+fn non_finite_vertex(path: &Path, i: usize, p: Vec3) -> Error {
+    let c = non_finite_coordinate(p).unwrap_or_default();
+    Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})"))
 }
 
 /// Appends face `i`, its `n` vertex indices given by `index`, as a triangle fan; refused

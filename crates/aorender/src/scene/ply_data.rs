@@ -1,7 +1,9 @@
 //! PLY element data read in bulk: binary elements decoded straight from the input's
 //! buffer, whole buffers of them at a time (byte order converted as each value is
-//! read), and ASCII lines parsed without the general parser's per-value allocations, the
-//! numbers by `fast-float2`.
+//! read), the common layouts (`float` coordinates, plain triangles) in runs without
+//! measuring each element, and ASCII lines parsed without the general parser's per-value
+//! allocations, the numbers by `fast-float2` (on rayon's threads, a block of lines at a
+//! time, in `ply.rs`).
 //!
 //! The fast paths read what `ply-rs-bw` reads and give the same values and the same
 //! errors: a binary element is measured first (its lists' counts read), then passed whole
@@ -246,6 +248,74 @@ impl Layout {
     }
 }
 
+impl Layout {
+    /// Decodes the coordinates of the whole elements at the start of `bytes`, at most
+    /// `most` of them, passing each to `f`; the number decoded and the bytes they took.
+    /// Takes every whole element of a layout without lists (`float` coordinates, the
+    /// layout most writers use, read with the byte order converted in place), none of a
+    /// layout with lists.
+    #[inline]
+    pub(super) fn axes_run(
+        &self,
+        bytes: &[u8],
+        most: usize,
+        mut f: impl FnMut([f32; 3]) -> Result<()>,
+    ) -> Result<(usize, usize)> {
+        let Some(stride) = self.stride else {
+            return Ok((0, 0));
+        };
+        let n = (bytes.len() / stride).min(most);
+        let mut elements = bytes[..n * stride].chunks_exact(stride);
+        let offsets = self.axes.map(|(offset, _)| offset);
+        let floats = self.axes.iter().all(|&(_, t)| t == Ty::F32);
+        let at = |e: &[u8], o: usize| [e[o], e[o + 1], e[o + 2], e[o + 3]];
+        match (floats, self.big_endian) {
+            (true, false) => elements.try_for_each(|e| f(offsets.map(|o| f32::from_le_bytes(at(e, o)))))?,
+            (true, true) => elements.try_for_each(|e| f(offsets.map(|o| f32::from_be_bytes(at(e, o)))))?,
+            _ => elements.try_for_each(|e| f(self.axes_of(e)))?,
+        }
+        Ok((n, n * stride))
+    }
+
+    /// Decodes the faces at the start of `bytes` while each is a whole plain triangle: an
+    /// element of nothing but a `uchar` count of 3 and `int` or `uint` indices, each below
+    /// `vertex_count`; at most `most` of them, each passed to `f`. The number decoded and
+    /// the bytes they took: any other face (a polygon, an index out of range, one cut off
+    /// by the end of `bytes`) is left to the element-at-a-time path, which also words
+    /// its errors.
+    #[inline]
+    pub(super) fn triangle_run(
+        &self,
+        bytes: &[u8],
+        most: usize,
+        vertex_count: usize,
+        mut f: impl FnMut([u32; 3]) -> Result<()>,
+    ) -> Result<(usize, usize)> {
+        const SIZE: usize = 13;
+        let plain = self.fields.len() == 1
+            && self.list_field == 0
+            && matches!(self.list, (0, Ty::U8, Ty::I32 | Ty::U32))
+            && i32::try_from(vertex_count).is_ok();
+        if !plain {
+            return Ok((0, 0));
+        }
+        // Below `vertex_count` as `u32`: a negative `int` index read as `u32` is at least
+        // 2³¹, above any count that fits an `int`.
+        let bound = vertex_count as u32;
+        let big = self.big_endian;
+        let mut n = 0;
+        for e in bytes.chunks_exact(SIZE).take(most) {
+            let v = [u32_at(&e[1..], big), u32_at(&e[5..], big), u32_at(&e[9..], big)];
+            if e[0] != 3 || v[0] >= bound || v[1] >= bound || v[2] >= bound {
+                break;
+            }
+            f(v)?;
+            n += 1;
+        }
+        Ok((n, n * SIZE))
+    }
+}
+
 /// How much of an element the bytes at hand hold.
 enum Measure {
     /// The element takes this many bytes.
@@ -306,17 +376,23 @@ fn room(layout: &Layout, meter: &Meter) -> usize {
     }
 }
 
-/// Reads the `def.count` binary elements of `layout`, passing each element's bytes with
-/// its number to `each`, in order. Whole elements are taken from the input's buffer as
-/// it stands; one that spans buffers is gathered first. The input is left just after the
-/// last element.
-pub(super) fn read_binary(
+/// Reads the `def.count` binary elements of `layout`, in order, into `sink`: runs of
+/// them, a block of the input's buffer at a time, by `run` (given the number of the
+/// first, the bytes at hand and the most elements it may take; it returns the elements
+/// and the bytes it took, which may be none), and every element it leaves, its bytes with
+/// its number, by `each`. Whole elements are taken from the input's buffer as it stands;
+/// one that spans buffers is gathered first. The input is left just after the last
+/// element.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn read_binary<S>(
     path: &Path,
     input: &mut Input,
     def: &ElementDef,
     layout: &Layout,
     meter: &mut Meter,
-    mut each: impl FnMut(usize, &[u8], &mut Meter) -> Result<()>,
+    sink: &mut S,
+    mut run: impl FnMut(&mut S, usize, &[u8], usize, &mut Meter) -> Result<(usize, usize)>,
+    mut each: impl FnMut(&mut S, usize, &[u8], &mut Meter) -> Result<()>,
 ) -> Result<()> {
     let mut i = 0;
     let mut gathered: Vec<u8> = Vec::new();
@@ -331,17 +407,29 @@ pub(super) fn read_binary(
         let mut at = 0;
         if let Some(stride) = layout.stride {
             let whole = ((buf.len() / stride) as u64).min((def.count - i) as u64) as usize;
-            for element in buf[..whole * stride].chunks_exact(stride) {
-                each(i, element, meter)?;
-                i += 1;
+            while at < whole * stride {
+                let (n, bytes) = run(sink, i, &buf[at..whole * stride], whole - at / stride, meter)?;
+                i += n;
+                at += bytes;
+                if n == 0 {
+                    // `at` is a whole number of elements short of `whole * stride`.
+                    each(sink, i, &buf[at..at + stride], meter)?;
+                    i += 1;
+                    at += stride;
+                }
             }
-            at = whole * stride;
         } else {
             while i < def.count {
+                let (n, bytes) = run(sink, i, &buf[at..], def.count - i, meter)?;
+                if n > 0 {
+                    i += n;
+                    at += bytes;
+                    continue;
+                }
                 match layout.measure(&buf[at..]) {
                     Measure::Whole(n) if n > room(layout, meter) => return Err(cut_off(path, def, i, meter)),
                     Measure::Whole(n) => {
-                        each(i, &buf[at..at + n], meter)?;
+                        each(sink, i, &buf[at..at + n], meter)?;
                         at += n;
                         i += 1;
                     }
@@ -364,7 +452,7 @@ pub(super) fn read_binary(
             match layout.measure(&gathered) {
                 Measure::Whole(n) if n > most => return Err(cut_off(path, def, i, meter)),
                 Measure::Whole(n) => {
-                    each(i, &gathered[..n], meter)?;
+                    each(sink, i, &gathered[..n], meter)?;
                     i += 1;
                     break;
                 }
@@ -391,24 +479,47 @@ pub(super) fn read_binary(
     Ok(())
 }
 
-/// The tokens of an ASCII data line, when the whole line is what the PLY grammar reads
-/// (numbers `[-+]?[0-9]+(.[0-9]+)?([eE][-+]?[0-9]+)?` separated by spaces or tabs, one
-/// line break at most) and there are at most `N` of them; `None` otherwise.
-fn ascii_tokens<'a, const N: usize>(line: &'a [u8], tokens: &mut [&'a [u8]; N]) -> Option<usize> {
-    let line = line
-        .strip_suffix(b"\r\n")
-        .or_else(|| line.strip_suffix(b"\n"))
-        .or_else(|| line.strip_suffix(b"\r"))
-        .unwrap_or(line);
-    let mut n = 0;
-    for token in line.split(|&b| b == b' ' || b == b'\t').filter(|t| !t.is_empty()) {
-        if !is_number(token) || n == N {
-            return None;
-        }
-        tokens[n] = token;
-        n += 1;
+/// The tokens of an ASCII data line, one at a time: numbers of the PLY grammar
+/// (`[-+]?[0-9]+(.[0-9]+)?([eE][-+]?[0-9]+)?`) separated by spaces or tabs, one line
+/// break at most, [`MAX_TOKENS`] at most. A line is plain when every token is such a
+/// number ([`Tokens::finish`] checks those left).
+struct Tokens<'a> {
+    rest: &'a [u8],
+    taken: usize,
+}
+
+impl<'a> Tokens<'a> {
+    fn new(line: &'a [u8]) -> Tokens<'a> {
+        let line = line
+            .strip_suffix(b"\r\n")
+            .or_else(|| line.strip_suffix(b"\n"))
+            .or_else(|| line.strip_suffix(b"\r"))
+            .unwrap_or(line);
+        Tokens { rest: line, taken: 0 }
     }
-    Some(n)
+
+    /// The next token; `None` at the end of the line, and for a token that is no number
+    /// or one past [`MAX_TOKENS`] (the line is then not plain).
+    #[inline]
+    fn next(&mut self) -> Option<&'a [u8]> {
+        let start = self.rest.iter().position(|&b| b != b' ' && b != b'\t')?;
+        let rest = &self.rest[start..];
+        let end = rest.iter().position(|&b| b == b' ' || b == b'\t').unwrap_or(rest.len());
+        let (token, after) = rest.split_at(end);
+        self.rest = after;
+        self.taken += 1;
+        (self.taken <= MAX_TOKENS && is_number(token)).then_some(token)
+    }
+
+    /// True when the tokens left are plain too.
+    fn finish(mut self) -> bool {
+        while self.rest.iter().any(|&b| b != b' ' && b != b'\t') {
+            if self.next().is_none() {
+                return false;
+            }
+        }
+        true
+    }
 }
 
 /// `[-+]?[0-9]+(.[0-9]+)?([eE][-+]?[0-9]+)?`, the PLY grammar's number.
@@ -489,16 +600,13 @@ const MAX_TOKENS: usize = 32;
 /// where the line is not plain (the general reader then reads it, or says what is
 /// wrong with it).
 pub(super) fn ascii_axes(layout: &Layout, line: &[u8]) -> Option<[f32; 3]> {
-    let mut tokens = [&[][..]; MAX_TOKENS];
-    let n = ascii_tokens(line, &mut tokens)?;
-    let mut next = 0;
+    let mut tokens = Tokens::new(line);
     let mut p = [0f32; 3];
     let mut seen = 0;
     for (k, field) in layout.fields.iter().enumerate() {
         match *field {
             Field::Scalar(t) => {
-                let token = *tokens[..n].get(next)?;
-                next += 1;
+                let token = tokens.next()?;
                 if let Some(axis) = layout.axis_fields.iter().position(|&f| f == k) {
                     p[axis] = ascii_value(token, t)?;
                     seen += 1;
@@ -506,60 +614,45 @@ pub(super) fn ascii_axes(layout: &Layout, line: &[u8]) -> Option<[f32; 3]> {
                     return None;
                 }
             }
-            Field::List(count, item) => {
-                next = ascii_list(&tokens[..n], next, count, item, |_| Some(()))?;
-            }
+            Field::List(count, item) => ascii_list(&mut tokens, count, item, |_| Some(()))?,
         }
     }
-    (seen == 3).then_some(p)
+    (seen == 3 && tokens.finish()).then_some(p)
 }
 
-/// Reads the list whose count is token `next`, each item through `item_fn`; the token
-/// after it.
-fn ascii_list(
-    tokens: &[&[u8]],
-    next: usize,
-    count: Ty,
-    item: Ty,
-    mut item_fn: impl FnMut(&[u8]) -> Option<()>,
-) -> Option<usize> {
+/// Reads the list whose count is the next token, each item through `item_fn`.
+fn ascii_list(tokens: &mut Tokens, count: Ty, item: Ty, mut item_fn: impl FnMut(&[u8]) -> Option<()>) -> Option<()> {
     // The general reader parses a list's count as `usize` whatever its declared type.
     let _ = count;
-    let n = usize::try_from(ascii_int(tokens.get(next)?, Ty::U32)?).ok()?;
-    let items = tokens.get(next + 1..next + 1 + n)?;
-    for token in items {
+    let n = ascii_int(tokens.next()?, Ty::U32)?;
+    for _ in 0..n {
+        let token = tokens.next()?;
         if !ascii_valid(token, item) {
             return None;
         }
         item_fn(token)?;
     }
-    Some(next + 1 + n)
+    Some(())
 }
 
 /// The index list of an ASCII face line, appended to `indices`, as the general reader
 /// reads it; `false` where the line is not plain.
 pub(super) fn ascii_indices(layout: &Layout, line: &[u8], indices: &mut Vec<i64>) -> bool {
-    let mut tokens = [&[][..]; MAX_TOKENS];
-    let Some(n) = ascii_tokens(line, &mut tokens) else {
-        return false;
-    };
-    let tokens = &tokens[..n];
-    let mut next = 0;
+    let mut tokens = Tokens::new(line);
     for (k, field) in layout.fields.iter().enumerate() {
         let step = match *field {
-            Field::Scalar(t) => tokens.get(next).filter(|token| ascii_valid(token, t)).map(|_| next + 1),
-            Field::List(count, item) if k == layout.list_field => ascii_list(tokens, next, count, item, |token| {
+            Field::Scalar(t) => tokens.next().filter(|token| ascii_valid(token, t)).map(|_| ()),
+            Field::List(count, item) if k == layout.list_field => ascii_list(&mut tokens, count, item, |token| {
                 indices.push(ascii_int(token, item)?);
                 Some(())
             }),
-            Field::List(count, item) => ascii_list(tokens, next, count, item, |_| Some(())),
+            Field::List(count, item) => ascii_list(&mut tokens, count, item, |_| Some(())),
         };
-        match step {
-            Some(after) => next = after,
-            None => return false,
+        if step.is_none() {
+            return false;
         }
     }
-    true
+    tokens.finish()
 }
 
 #[cfg(test)]
@@ -609,6 +702,60 @@ mod tests {
              property list uchar int vertex_index\nend_header\n",
         );
         assert!(Layout::new(&h.elements["face"], h.encoding, Keep::IndexList("vertex_indices", &names)).is_none());
+    }
+
+    #[test]
+    fn runs_take_plain_elements_and_stop_at_the_first_other() {
+        let h = header(
+            "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty uchar red\n\
+             property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n",
+        );
+        let names = ["vertex_indices", "vertex_index"];
+        let face = Layout::new(&h.elements["face"], h.encoding, Keep::IndexList("vertex_indices", &names)).unwrap();
+        let triangle = |count: u8, v: [i32; 3]| {
+            let mut e = vec![count];
+            v.iter().for_each(|i| e.extend_from_slice(&i.to_le_bytes()));
+            e
+        };
+        let mut faces = [triangle(3, [0, 1, 2]), triangle(3, [2, 1, 0]), triangle(3, [0, 1, 3])].concat();
+        let run = |bytes: &[u8], most: usize| {
+            let mut seen = Vec::new();
+            let taken = face
+                .triangle_run(bytes, most, 4, |t| {
+                    seen.push(t);
+                    Ok(())
+                })
+                .unwrap();
+            (taken, seen)
+        };
+        assert_eq!(run(&faces, 9), ((3, 39), vec![[0, 1, 2], [2, 1, 0], [0, 1, 3]]));
+        assert_eq!(run(&faces, 2).0, (2, 26));
+        assert_eq!(run(&faces[..38], 9).0, (2, 26), "a face cut off");
+        faces[26] = 4;
+        assert_eq!(run(&faces, 9).0, (2, 26), "a quad");
+        for bad in [4, -1] {
+            faces[26..].copy_from_slice(&triangle(3, [0, bad, 1]));
+            assert_eq!(run(&faces, 9).0, (2, 26), "index {bad}");
+        }
+        let vertex = Layout::new(&h.elements["vertex"], h.encoding, Keep::Axes).unwrap();
+        let mut bytes = Vec::new();
+        for k in 0..3u8 {
+            let k = f32::from(k);
+            [k, 0.5].iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+            bytes.insert(bytes.len() - 4, 7);
+            bytes.extend_from_slice(&(-k).to_le_bytes());
+        }
+        let mut seen = Vec::new();
+        assert_eq!(
+            vertex
+                .axes_run(&bytes[..38], 9, |p| {
+                    seen.push(p);
+                    Ok(())
+                })
+                .unwrap(),
+            (2, 26)
+        );
+        assert_eq!(seen, [[0.0, 0.5, -0.0], [1.0, 0.5, -1.0]]);
     }
 
     #[test]
