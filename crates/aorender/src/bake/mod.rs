@@ -10,6 +10,7 @@
 mod asset;
 pub(crate) mod gltf;
 mod gltf_tidy;
+mod job;
 pub(crate) mod obj;
 mod plan;
 pub(crate) mod ply;
@@ -19,6 +20,10 @@ mod unwrap;
 pub use asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureFiles, TextureMap, UvSet, WriteOptions,
     map_path,
+};
+pub use job::{
+    Bake, BakeRequest, BakeTarget, BakeTrace, Baked, GenerateUvs, GeneratedReport, TextureReport, TextureRequest,
+    Written, is_map, sibling, singular,
 };
 pub use plan::{BakePlan, Placement, UNUSABLE_VALUE};
 pub use texture::{
