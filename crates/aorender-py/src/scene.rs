@@ -506,7 +506,11 @@ impl PyScene {
                 let expected = bake.expected(session.scene(), session.device().kind(), &BvhOptions::default())?;
                 bake.merge(&shards, &expected)
             })
-            .map_err(to_py)?
+            .map_err(|e| match e {
+                // Shards that are not this bake's, or not all of it: the caller's input.
+                aorender::Error::Checkpoint { .. } => PyValueError::new_err(e.to_string()),
+                e => to_py(e),
+            })?
         };
         let samples_done = trace.samples;
         let baked = py.allow_threads(|| bake.finish(trace)).map_err(to_py)?;
@@ -561,7 +565,9 @@ fn texture_request(
         "refuse" => UvWrap::Refuse,
         "repeat" => UvWrap::Repeat,
         _ => {
-            return Err(PyValueError::new_err(format!("uv_wrap must be 'file', 'refuse' or 'repeat', got '{uv_wrap}'")));
+            return Err(PyValueError::new_err(format!(
+                "uv_wrap must be 'file', 'refuse' or 'repeat', got '{uv_wrap}'"
+            )));
         }
     };
     let generate_uvs = match generate_uvs {
