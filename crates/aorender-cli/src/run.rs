@@ -62,7 +62,6 @@ pub fn traced<T>(rc: RunControl, work: impl FnOnce(&mut Control) -> aorender::Re
             _ => e.into(),
         }
     })?;
-    drop(control);
     bar.finish();
     Ok(out)
 }

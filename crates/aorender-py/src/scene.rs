@@ -526,7 +526,7 @@ impl PyScene {
         if is_texture {
             let json = serde_json::to_string(&written.texture)
                 .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
-            return Ok(py.import("json")?.call_method1("loads", (json,))?);
+            return py.import("json")?.call_method1("loads", (json,));
         }
         let values = &baked.values;
         let ao = values.iter().flat_map(|b| b.ao.iter().map(|&v| v as f64)).collect();

@@ -8,8 +8,8 @@ use crate::run::{self, RunControl};
 use crate::{memory, output, signals};
 use anyhow::{Result, anyhow, bail};
 use aorender::bake::{
-    Bake, BakeAt, BakeRequest, GenerateUvs, TextureOptions, TextureReport, TextureRequest, UNUSABLE_VALUE, UvWrap,
-    check_output, is_map, sibling,
+    Bake, BakeAt, BakeRequest, BakeTrace, GenerateUvs, TextureOptions, TextureReport, TextureRequest, UNUSABLE_VALUE,
+    UvWrap, check_output, is_map, sibling,
 };
 use aorender::output::{FilePlan, OutputRules};
 use aorender::{Accumulation, Device, ReadLimits, Session};
@@ -150,6 +150,73 @@ struct BakeStats {
 }
 
 impl BakeStats {
+    /// The figures known once the bake is planned.
+    fn new(input: &std::path::Path, bake: &Bake, settings: &aorender::Settings, load_seconds: f64) -> BakeStats {
+        let range = bake.request().range();
+        let at = bake.request().at;
+        BakeStats {
+            input: input.to_path_buf(),
+            outputs: bake.targets().iter().map(|t| t.output.clone()).collect(),
+            at: at.name(),
+            meshes: bake.mesh_count(),
+            points: bake.points(),
+            points_traced: bake.probes().len(),
+            points_without_normal: bake.plan().unusable,
+            unusable_value: UNUSABLE_VALUE,
+            file_normals: bake.plan().file_normals,
+            samples_per_point: 0,
+            samples_requested: range.end - range.start,
+            first_sample: range.start,
+            samples_resumed: 0,
+            interrupted: false,
+            ao_rays: 0,
+            render_seconds: 0.0,
+            rays_per_second: 0.0,
+            phases: Phases { load_seconds, ..Phases::default() },
+            duplicates_dropped: 0,
+            setup_seconds: 0.0,
+            adapter: String::new(),
+            hemisphere: settings.hemisphere.name(),
+            sampler: settings.sampler.name(),
+            seed: settings.seed,
+            max_distance: settings.max_distance,
+            mean_ao: 0.0,
+            triangles: 0,
+            host_peak_bytes: 0,
+            host_peak_bytes_per_triangle: None,
+            host_peak_bytes_per_point: None,
+            heap_peak_bytes: None,
+            texture: None,
+        }
+    }
+
+    /// Adds what tracing (or merging) gave.
+    fn add_trace(&mut self, trace: &BakeTrace, bake: &Bake) {
+        self.samples_per_point = trace.samples;
+        self.samples_resumed = trace.samples_resumed;
+        self.interrupted = trace.interrupted;
+        self.points_traced = trace.points_traced(bake);
+        self.ao_rays = trace.rays;
+        self.render_seconds = trace.seconds;
+        if !trace.renders.is_empty() {
+            self.rays_per_second = trace.rays as f64 / trace.seconds.max(1e-9);
+        }
+        self.adapter = trace.adapter.clone();
+        self.phases.host_stats_seconds += trace.host_seconds;
+        for r in &trace.renders {
+            self.phases.add_render(r);
+            self.setup_seconds += r.setup_seconds;
+        }
+        if let Some(last) = trace.renders.last() {
+            self.phases.bvh_build_seconds = last.bvh_build_seconds;
+            // The session's upload is once, not once a block.
+            self.phases.upload_seconds = last.upload_seconds;
+            if bake.blocks() == 1 {
+                self.duplicates_dropped = last.duplicates_dropped;
+            }
+        }
+    }
+
     /// Fills in the figures known once everything is written: the peaks and the process's
     /// seconds.
     fn end(&mut self) {
@@ -217,43 +284,10 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let settings = scene.settings.clone();
     let bvh = args.scene.bvh();
     let kind = args.scene.device.kind();
-    let range = request.range();
     let at = request.at;
 
-    let mut stats = BakeStats {
-        input: input.clone(),
-        outputs: bake.targets().iter().map(|t| t.output.clone()).collect(),
-        at: at.name(),
-        meshes: bake.mesh_count(),
-        points: bake.points(),
-        points_traced: bake.probes().len(),
-        points_without_normal: bake.plan().unusable,
-        unusable_value: UNUSABLE_VALUE,
-        file_normals: bake.plan().file_normals,
-        samples_per_point: 0,
-        samples_requested: range.end - range.start,
-        first_sample: range.start,
-        samples_resumed: 0,
-        interrupted: false,
-        ao_rays: 0,
-        render_seconds: 0.0,
-        rays_per_second: 0.0,
-        phases: Phases { load_seconds, ..Phases::default() },
-        duplicates_dropped: 0,
-        setup_seconds: 0.0,
-        adapter: String::new(),
-        hemisphere: settings.hemisphere.name(),
-        sampler: settings.sampler.name(),
-        seed: settings.seed,
-        max_distance: settings.max_distance,
-        mean_ao: 0.0,
-        triangles: scene.world_triangle_count(),
-        host_peak_bytes: 0,
-        host_peak_bytes_per_triangle: None,
-        host_peak_bytes_per_point: None,
-        heap_peak_bytes: None,
-        texture: None,
-    };
+    let mut stats = BakeStats::new(&input, &bake, &settings, load_seconds);
+    stats.triangles = scene.world_triangle_count();
 
     // The sums: from the shards', or traced.
     let trace = if args.merge.is_empty() {
@@ -305,29 +339,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
         drop(scene);
         bake.merge(&shards, &expected)?
     };
-    stats.samples_per_point = trace.samples;
-    stats.samples_resumed = trace.samples_resumed;
-    stats.interrupted = trace.interrupted;
-    stats.points_traced = trace.points_traced(&bake);
-    stats.ao_rays = trace.rays;
-    stats.render_seconds = trace.seconds;
-    if !trace.renders.is_empty() {
-        stats.rays_per_second = trace.rays as f64 / trace.seconds.max(1e-9);
-    }
-    stats.adapter = trace.adapter.clone();
-    stats.phases.host_stats_seconds += trace.host_seconds;
-    for r in &trace.renders {
-        stats.phases.add_render(r);
-        stats.setup_seconds += r.setup_seconds;
-    }
-    if let Some(last) = trace.renders.last() {
-        stats.phases.bvh_build_seconds = last.bvh_build_seconds;
-        // The session's upload is once, not once a block.
-        stats.phases.upload_seconds = last.upload_seconds;
-        if bake.blocks() == 1 {
-            stats.duplicates_dropped = last.duplicates_dropped;
-        }
-    }
+    stats.add_trace(&trace, &bake);
 
     let start = Instant::now();
     let baked = bake.finish(trace)?;

@@ -359,7 +359,7 @@ impl Bake {
     fn plan_texture(&mut self, texture: TextureRequest, files: &mut FilePlan, is_scene: bool) -> Result<()> {
         let input = self.input.clone();
         let output = self.request.output.clone().unwrap_or_default();
-        let mut options = texture.options.clone();
+        let mut options = texture.options;
         let generated = self.generated_uvs(&texture, &output, &mut options)?;
         let target = &self.targets[0];
         let mut meshes = target.asset.meshes().to_vec();
