@@ -541,3 +541,21 @@ def test_ray_shards_merge_into_the_bake_in_one_piece(ray_module, repo, tmp_path)
     assert part.read_bytes() != whole.read_bytes()
     with pytest.raises(ValueError, match="not all 0..12"):
         aorender.Scene.load(mesh).bake(12, device="cpu", merge=shards[:2], output=tmp_path / "short.obj")
+
+
+def test_render_shards_merge_into_the_render_in_one_piece(repo, tmp_path):
+    scene = aorender.Scene.load(repo / "scenes" / "bunny.obj")
+    whole, _ = scene.render(24, 16, 8, device="cpu")
+    shards = []
+    for k, r in enumerate([(0, 3), (3, 8)]):
+        path = tmp_path / f"render-{k}.ckpt"
+        part, _ = scene.render(24, 16, 8, device="cpu", sample_range=r, checkpoint=path)
+        assert not np.array_equal(part, whole)
+        shards.append(path)
+    merged, stats = scene.render(24, 16, 8, device="cpu", merge=shards)
+    assert np.array_equal(merged, whole) and merged.dtype == whole.dtype
+    assert stats["samples_per_pixel"] == 8 and stats["shards"] == 2
+    with pytest.raises(ValueError, match="not all 0..8"):
+        scene.render(24, 16, 8, device="cpu", merge=shards[1:])
+    with pytest.raises(ValueError, match="another render"):
+        scene.render(24, 16, 8, device="cpu", seed=3, merge=shards)

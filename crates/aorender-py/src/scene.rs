@@ -302,7 +302,13 @@ impl PyScene {
     /// `aorender render --stats` writes them (a dict). `camera` is a dict of any of eye,
     /// look_at, up (3 numbers each) and fov (vertical, degrees) or ortho_height; keys left
     /// out keep the scene's camera (a mesh's, the automatic framing).
-    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, background = 0.0, device = "auto"))]
+    ///
+    /// Scale-out, as `aorender render --sample-range` and `aorender merge`:
+    /// `sample_range=(start, end)` renders only those sample indices of the `spp` (a
+    /// shard) and `checkpoint=PATH` saves its exact sums; `merge=[PATH, ...]` renders
+    /// nothing and returns the image of such shards' sums added exactly (all of 0..spp):
+    /// the same floats as the render in one piece.
+    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, background = 0.0, device = "auto", sample_range = None, checkpoint = None, merge = None))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -318,6 +324,9 @@ impl PyScene {
         replicate: Option<u32>,
         background: f64,
         device: &str,
+        sample_range: Option<(u32, u32)>,
+        checkpoint: Option<PathBuf>,
+        merge: Option<Vec<PathBuf>>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
         let sampling = settings(hemisphere, sampler, seed, max_distance, replicate)?;
         let settings = Settings { width, height, spp, background: background as f32, ..sampling };
@@ -326,11 +335,53 @@ impl PyScene {
             Some(d) => camera_from(d, self.scene.camera)?,
             None => self.scene.camera,
         };
+        let samples = match sample_range {
+            Some((a, b)) if a >= b || b > spp => {
+                return Err(PyValueError::new_err(format!(
+                    "sample_range ({a}, {b}) must be a non-empty range of sample indices within 0..{spp}"
+                )));
+            }
+            Some((a, b)) => Some(a..b),
+            None => None,
+        };
+        let merge = merge.unwrap_or_default();
+        if !merge.is_empty() && (samples.is_some() || checkpoint.is_some()) {
+            return Err(PyValueError::new_err(
+                "merge renders from finished shards: it takes no sample_range or checkpoint",
+            ));
+        }
         let session = self.session(py, device)?;
-        let request = ImageRequest { camera, settings, samples: None };
+        if !merge.is_empty() {
+            let kind = session.device().kind();
+            let (film, stats) =
+                py.allow_threads(|| merged_image(&self.scene, &camera, &settings, kind, &merge, &self.limits))?;
+            let pixels: Vec<f32> = film.mean().into_iter().map(|m| m as f32).collect();
+            let image = PyArray1::from_vec(py, pixels).reshape([height as usize, width as usize])?;
+            let stats = py.import("json")?.call_method1("loads", (stats.to_string(),))?;
+            return Ok((image.into_any(), stats));
+        }
+        let request = ImageRequest { camera, settings, samples };
         let rendered = interruptible(py, |control| {
             let mut render = session.render(&request)?;
-            render.run(control)?;
+            let Some(path) = &checkpoint else {
+                render.run(control)?;
+                return render.finish();
+            };
+            // The shard's sums saved as it goes and when its run ends.
+            let mut save = |acc: &aorender::Accumulation| acc.write(path);
+            let mut outer = control.progress.as_deref_mut();
+            let mut progress = |p: &aorender::Progress| {
+                if let Some(f) = outer.as_deref_mut() {
+                    f(p)
+                }
+            };
+            let mut inner = Control {
+                stop: control.stop,
+                progress: Some(&mut progress),
+                save: Some(&mut save),
+                ..Control::default()
+            };
+            render.run(&mut inner)?;
             render.finish()
         })?;
         let pixels: Vec<f32> = rendered.film.mean().into_iter().map(|m| m as f32).collect();
@@ -587,4 +638,56 @@ fn texture_request(
     options.validate().map_err(|e| PyValueError::new_err(format!("texture: {}", e.message())))?;
     let memory_bytes = aorender::host_memory::memory_available().unwrap_or(u64::MAX);
     Ok(TextureRequest { options, generate_uvs, bit_depth, memory_bytes })
+}
+
+/// The film of shards' checkpoints of one image (`scene` seen by `camera` with
+/// `settings`), their sums added exactly, and its figures; every sample of 0..spp must be
+/// there.
+fn merged_image(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &Settings,
+    kind: aorender::DeviceKind,
+    paths: &[PathBuf],
+    limits: &ReadLimits,
+) -> PyResult<(aorender::Film, serde_json::Value)> {
+    let value_error = |e: aorender::Error| match e {
+        aorender::Error::Checkpoint { .. } => PyValueError::new_err(e.to_string()),
+        e => to_py(e),
+    };
+    let mut shards = Vec::with_capacity(paths.len());
+    let mut held = 0;
+    for path in paths {
+        let shard = aorender::Accumulation::read_with(path, &limits.after(held)).map_err(value_error)?;
+        held += shard.memory_bytes();
+        shards.push((path.clone(), shard));
+    }
+    let expected =
+        aorender::Accumulation::image(scene, camera, settings, 0..settings.spp, kind, &BvhOptions::default());
+    let diff = shards[0].1.settings.differences(&expected.settings);
+    if !diff.is_empty() {
+        return Err(PyValueError::new_err(format!(
+            "{}: holds samples of another render: {} (checkpoint's value first)",
+            shards[0].0.display(),
+            diff.join("; ")
+        )));
+    }
+    let merged = aorender::merge(&shards).map_err(value_error)?;
+    if merged.first != 0 || merged.end != settings.spp {
+        return Err(PyValueError::new_err(format!(
+            "{}: the shards hold samples {}..{}, not all 0..{} of spp {}",
+            shards[0].0.display(),
+            merged.first,
+            merged.end,
+            settings.spp,
+            settings.spp
+        )));
+    }
+    let adapters: Vec<String> = merged.shards.iter().map(|s| s.adapter.clone()).collect();
+    let stats = serde_json::json!({
+        "samples_per_pixel": merged.end - merged.first,
+        "shards": merged.shards.len(),
+        "adapter": adapters.join(", "),
+    });
+    Ok((merged.film, stats))
 }
