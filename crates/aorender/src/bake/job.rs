@@ -4,13 +4,18 @@
 //! written back ([`Bake::write`]). The command line and the Python module map their
 //! options onto a [`BakeRequest`] and do nothing else of the bake.
 
-use super::{
-    Asset, AssetMesh, BakeAt, BakePlan, BakedTexture, BakedValues, Coverage, GeneratedUvs, Placement, TextureFiles,
-    TextureLayout, TextureMap, TextureOptions, TexturePlan, TextureStats, TextureTarget, UvWrap, WriteOptions,
-    bytes_per_point, check_output, format_of, generate_uvs, map_path, output_path, plan_companions, plan_output,
-    read_object,
+use super::asset::{
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureFiles, TextureMap, WriteOptions, map_path,
 };
+use super::files::{check_output, format_of, output_path, plan_companions, plan_output, read_object};
+use super::plan::{BakePlan, Placement};
+use super::texture::{
+    BakedTexture, Coverage, TextureLayout, TextureOptions, TexturePlan, TextureStats, TextureTarget, UvWrap,
+    bytes_per_point,
+};
+use super::unwrap::generate_uvs;
 use crate::accumulation::{Accumulation, merge};
+use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
 use crate::film::Film;
 use crate::output::{FilePlan, write_output};
@@ -18,7 +23,6 @@ use crate::probe::{Probe, probe_film_bent_normals, probe_film_values};
 use crate::render::{Control, Progress, RenderStats};
 use crate::scene::{MeshObject, ReadLimits, Scene, Settings};
 use crate::session::Session;
-use crate::{BvhOptions, DeviceKind};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
