@@ -4,6 +4,7 @@ seed, and on bad input. Monte Carlo checks allow 4 standard errors; seeds are fi
 import json
 import math
 import os
+import pathlib
 import signal
 import subprocess
 import threading
@@ -494,3 +495,90 @@ def test_replicates_give_sobol_a_valid_standard_error(sphere_scene):
     assert np.all(np.abs(ao - expected) <= 5 * se + 1e-12), (ao, expected, se)
     with pytest.raises(ValueError, match="power of two"):
         scene.ambient_occlusion(P, N, 256, replicate=3, device="cpu")
+
+
+def test_bake_writes_every_option_of_the_command(cli, repo, tmp_path):
+    """Bent normals and standard errors into PLY, from Python and from the command: the
+    same bytes."""
+    mesh = repo / "scenes" / "dragon_vrip_res4.ply.gz"
+    ours, theirs = tmp_path / "py.ply", tmp_path / "cli.ply"
+    ao, err, bent = aorender.Scene.load(mesh).bake(
+        8, device="cpu", output=ours, std_error=True, bent_normals=True, colors=True
+    )
+    subprocess.run(
+        [str(cli), "bake", str(mesh), "-o", str(theirs), "--samples", "8", "--device", "cpu",
+         "--std-error", "--bent-normals", "--colors"],
+        check=True, capture_output=True,
+    )
+    assert ours.read_bytes() == theirs.read_bytes()
+    assert bent.shape == (len(ao), 3) and len(err) == len(ao)
+    used = err > 0
+    assert np.allclose(np.linalg.norm(bent[used], axis=1), 1, atol=1e-5)
+
+
+def test_texture_bake_writes_the_commands_files(cli, repo, tmp_path):
+    mesh = repo / "scenes" / "bunny.obj"
+    ours, theirs = tmp_path / "py" / "bunny.obj", tmp_path / "cli" / "bunny.obj"
+    report = aorender.Scene.load(mesh).bake(4, device="cpu", output=ours, texture=128, bent_normals=True)
+    subprocess.run(
+        [str(cli), "bake", str(mesh), "-o", str(theirs), "--samples", "4", "--device", "cpu",
+         "--texture", "128", "--bent-normals"],
+        check=True, capture_output=True,
+    )
+    for name in ["bunny.obj", "bunny_ao.png", "bunny_bent_normals.png"]:
+        assert (ours.parent / name).read_bytes() == (theirs.parent / name).read_bytes(), name
+    assert report["width"] == 128 and report["maps"][0]["covered_texels"] > 0
+    with pytest.raises(ValueError, match="sample_range"):
+        aorender.Scene.load(mesh).bake(4, device="cpu", sample_range=(2, 9))
+
+
+@pytest.fixture(scope="module")
+def ray_module():
+    """Ray, started locally with two CPUs; outside CI a missing Ray skips the test loudly."""
+    if os.environ.get("CI"):
+        import ray
+    else:
+        ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_ray_shards_merge_into_the_bake_in_one_piece(ray_module, repo, tmp_path):
+    """The documented Ray example: a bake's sample ranges on Ray tasks, merged, give the
+    bytes of the bake traced in one piece."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("ray_bake", repo / "examples" / "python" / "ray_bake.py")
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    mesh = repo / "scenes" / "bunny.obj"
+    merged, whole = tmp_path / "merged.obj", tmp_path / "whole.obj"
+    shards = example.sharded_bake(mesh, merged, 12, 3, tmp_path, device="cpu")
+    assert len(shards) == 3 and all(pathlib.Path(s).is_file() for s in shards)
+    ao, _ = aorender.Scene.load(mesh).bake(12, output=whole, device="cpu")
+    assert merged.read_bytes() == whole.read_bytes()
+    # A shard alone is not the bake: the comparison can fail.
+    part = tmp_path / "part.obj"
+    aorender.Scene.load(mesh).bake(12, device="cpu", output=part, sample_range=(0, 4))
+    assert part.read_bytes() != whole.read_bytes()
+    with pytest.raises(ValueError, match="not all 0..12"):
+        aorender.Scene.load(mesh).bake(12, device="cpu", merge=shards[:2], output=tmp_path / "short.obj")
+
+
+def test_render_shards_merge_into_the_render_in_one_piece(repo, tmp_path):
+    scene = aorender.Scene.load(repo / "scenes" / "bunny.obj")
+    whole, _ = scene.render(24, 16, 8, device="cpu")
+    shards = []
+    for k, r in enumerate([(0, 3), (3, 8)]):
+        path = tmp_path / f"render-{k}.ckpt"
+        part, _ = scene.render(24, 16, 8, device="cpu", sample_range=r, checkpoint=path)
+        assert not np.array_equal(part, whole)
+        shards.append(path)
+    merged, stats = scene.render(24, 16, 8, device="cpu", merge=shards)
+    assert np.array_equal(merged, whole) and merged.dtype == whole.dtype
+    assert stats["samples_per_pixel"] == 8 and stats["shards"] == 2
+    with pytest.raises(ValueError, match="not all 0..8"):
+        scene.render(24, 16, 8, device="cpu", merge=shards[1:])
+    with pytest.raises(ValueError, match="another render"):
+        scene.render(24, 16, 8, device="cpu", seed=3, merge=shards)

@@ -19,4 +19,5 @@ pub mod commands;
 pub mod memory;
 pub mod output;
 pub mod phases;
+pub mod run;
 pub mod signals;

@@ -3,17 +3,14 @@
 
 use crate::arrays::{faces, out, relative_vec3s, vec3s};
 use crate::engine::{device, interruptible, settings, to_py};
-use aorender::bake::{
-    Asset, AssetMesh, BakeAt, BakePlan, Placement, WriteOptions, check_output, output_path, plan_companions,
-    plan_output, read_object,
-};
-use aorender::output::FilePlan;
-use aorender::scene::{MeshObject, mesh_triangles};
+use aorender::bake::{AssetMesh, Bake, BakeAt, BakeRequest, GenerateUvs, TextureOptions, TextureRequest, UvWrap};
+use aorender::output::{FilePlan, OutputRules};
+use aorender::scene::mesh_triangles;
 use aorender::{
-    BvhOptions, Camera, ImageRequest, LoadOptions, Probe, Projection, ReadLimits, Scene, Session, Settings,
+    BvhOptions, Camera, Control, ImageRequest, LoadOptions, Probe, Projection, ReadLimits, Scene, Session, Settings,
     SurfaceTolerance,
 };
-use glam::{DVec3, Mat4, Vec3};
+use glam::{DVec3, Vec3};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::exceptions::{PyUserWarning, PyValueError};
 use pyo3::prelude::*;
@@ -306,7 +303,13 @@ impl PyScene {
     /// `aorender render --stats` writes them (a dict). `camera` is a dict of any of eye,
     /// look_at, up (3 numbers each) and fov (vertical, degrees) or ortho_height; keys left
     /// out keep the scene's camera (a mesh's, the automatic framing).
-    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, sky = None, background = 0.0, device = "auto"))]
+    ///
+    /// Scale-out, as `aorender render --sample-range` and `aorender merge`:
+    /// `sample_range=(start, end)` renders only those sample indices of the `spp` (a
+    /// shard) and `checkpoint=PATH` saves its exact sums; `merge=[PATH, ...]` renders
+    /// nothing and returns the image of such shards' sums added exactly (all of 0..spp):
+    /// the same floats as the render in one piece.
+    #[pyo3(signature = (width, height, spp, *, camera = None, hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, sky = None, background = 0.0, device = "auto", sample_range = None, checkpoint = None, merge = None))]
     #[allow(clippy::too_many_arguments)]
     fn render<'py>(
         &self,
@@ -323,6 +326,9 @@ impl PyScene {
         sky: Option<&Bound<'py, PyAny>>,
         background: f64,
         device: &str,
+        sample_range: Option<(u32, u32)>,
+        checkpoint: Option<PathBuf>,
+        merge: Option<Vec<PathBuf>>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
         let sampling = settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
         let settings = Settings { width, height, spp, background: background as f32, ..sampling };
@@ -331,11 +337,53 @@ impl PyScene {
             Some(d) => camera_from(d, self.scene.camera)?,
             None => self.scene.camera,
         };
+        let samples = match sample_range {
+            Some((a, b)) if a >= b || b > spp => {
+                return Err(PyValueError::new_err(format!(
+                    "sample_range ({a}, {b}) must be a non-empty range of sample indices within 0..{spp}"
+                )));
+            }
+            Some((a, b)) => Some(a..b),
+            None => None,
+        };
+        let merge = merge.unwrap_or_default();
+        if !merge.is_empty() && (samples.is_some() || checkpoint.is_some()) {
+            return Err(PyValueError::new_err(
+                "merge renders from finished shards: it takes no sample_range or checkpoint",
+            ));
+        }
         let session = self.session(py, device)?;
-        let request = ImageRequest { camera, settings, samples: None };
+        if !merge.is_empty() {
+            let kind = session.device().kind();
+            let (film, stats) =
+                py.allow_threads(|| merged_image(&self.scene, &camera, &settings, kind, &merge, &self.limits))?;
+            let pixels: Vec<f32> = film.mean().into_iter().map(|m| m as f32).collect();
+            let image = PyArray1::from_vec(py, pixels).reshape([height as usize, width as usize])?;
+            let stats = py.import("json")?.call_method1("loads", (stats.to_string(),))?;
+            return Ok((image.into_any(), stats));
+        }
+        let request = ImageRequest { camera, settings, samples };
         let rendered = interruptible(py, |control| {
             let mut render = session.render(&request)?;
-            render.run(control)?;
+            let Some(path) = &checkpoint else {
+                render.run(control)?;
+                return render.finish();
+            };
+            // The shard's sums saved as it goes and when its run ends.
+            let mut save = |acc: &aorender::Accumulation| acc.write(path);
+            let mut outer = control.progress.as_deref_mut();
+            let mut progress = |p: &aorender::Progress| {
+                if let Some(f) = outer.as_deref_mut() {
+                    f(p)
+                }
+            };
+            let mut inner = Control {
+                stop: control.stop,
+                progress: Some(&mut progress),
+                save: Some(&mut save),
+                ..Control::default()
+            };
+            render.run(&mut inner)?;
             render.finish()
         })?;
         let pixels: Vec<f32> = rendered.film.mean().into_iter().map(|m| m as f32).collect();
@@ -348,17 +396,34 @@ impl PyScene {
 
     /// s.bake(samples=256, *, at="vertices", hemisphere="cosine", sampler="independent", seed=0,
     /// max_distance=None, replicate=None, device="auto", output=None, std_error=False, colors=False,
-    /// overwrite=False) -> (ao, std_error)
+    /// overwrite=False, bent_normals=False, texture=None, uv_set=0, padding=4, bit_depth=8,
+    /// texel_points=4, uv_wrap="file", generate_uvs="auto", sample_range=None, checkpoint=None,
+    /// merge=None) -> (ao, std_error) or (ao, std_error, bent_normals)
     ///
     /// AO baked at every vertex (about its area-weighted normal, or the file's normal
     /// where it has one) or at every face's centroid (`at="faces"`) of the scene's own
     /// meshes, as `aorender bake` computes it: float64 arrays, one entry per vertex (face)
     /// of each mesh, the meshes in order (a from_arrays scene: the rows of V). A vertex no
-    /// face of non-zero area uses gets 1 with standard error 0.
+    /// face of non-zero area uses gets 1 with standard error 0. With `bent_normals=True` a
+    /// third array (n, 3) holds the bent normals (the mean direction of the rays that
+    /// escaped, normalised), from the same rays.
     ///
     /// For a loaded scene, `output` writes the files as `aorender bake -o output` does: a
-    /// mesh file of the input's format for a mesh file, a directory for a scene file.
-    #[pyo3(signature = (samples = 256, *, at = "vertices", hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, sky = None, device = "auto", output = None, std_error = false, colors = false, overwrite = false))]
+    /// mesh file of the input's format for a mesh file, a directory for a scene file;
+    /// `std_error`, `colors` and `bent_normals` add those attributes to it.
+    ///
+    /// `texture=SIZE` (N or (W, H) texels) bakes into a texture instead, written as
+    /// `aorender bake --texture` writes it into `output` (a .png or .exr map, or a glTF/GLB
+    /// mesh referencing it; for OBJ and PLY the map beside the mesh); `uv_set`, `padding`,
+    /// `bit_depth`, `texel_points`, `uv_wrap` ("file", "refuse", "repeat") and
+    /// `generate_uvs` ("auto", "always", "never") are the command's options. It returns
+    /// the figures of the texture (a dict) instead of arrays.
+    ///
+    /// Scale-out: `sample_range=(start, end)` traces only those sample indices of the
+    /// `samples` (a shard), and `checkpoint=PATH` saves the shard's exact sums there;
+    /// `merge=[PATH, ...]` traces nothing and bakes from such shards, whose sums are added
+    /// exactly: the shards of one bake, merged, give the bytes of the bake in one piece.
+    #[pyo3(signature = (samples = 256, *, at = "vertices", hemisphere = "cosine", sampler = "independent", seed = 0, max_distance = None, replicate = None, sky = None, device = "auto", output = None, std_error = false, colors = false, overwrite = false, bent_normals = false, texture = None, uv_set = 0, padding = 4, bit_depth = 8, texel_points = 4, uv_wrap = "file", generate_uvs = "auto", sample_range = None, checkpoint = None, merge = None))]
     #[allow(clippy::too_many_arguments)]
     fn bake<'py>(
         &self,
@@ -376,8 +441,20 @@ impl PyScene {
         std_error: bool,
         colors: bool,
         overwrite: bool,
-    ) -> PyResult<Values<'py>> {
+        bent_normals: bool,
+        texture: Option<&Bound<'py, PyAny>>,
+        uv_set: u32,
+        padding: u32,
+        bit_depth: u8,
+        texel_points: u32,
+        uv_wrap: &str,
+        generate_uvs: &str,
+        sample_range: Option<(u32, u32)>,
+        checkpoint: Option<PathBuf>,
+        merge: Option<Vec<PathBuf>>,
+    ) -> PyResult<Bound<'py, PyAny>> {
         let settings = settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
+        let value_error = |e: aorender::Error| PyValueError::new_err(e.to_string());
         let at = match at {
             "vertices" => BakeAt::Vertices,
             "faces" => BakeAt::Faces,
@@ -386,92 +463,234 @@ impl PyScene {
         if samples == 0 {
             return Err(PyValueError::new_err("samples must be at least 1"));
         }
-        // The meshes: the arrays, or each mesh object's file (each read once).
-        let mut targets: Vec<(MeshObject, Arc<dyn Asset>)> = Vec::new();
-        if self.arrays.is_none() {
-            if self.scene.mesh_objects.is_empty() {
+        let sample_range = match sample_range {
+            Some((a, b)) if a >= b || b > samples => {
                 return Err(PyValueError::new_err(format!(
-                    "{}: the scene has no mesh objects to bake",
-                    self.scene.name
+                    "sample_range ({a}, {b}) must be a non-empty range of sample indices within 0..{samples}"
                 )));
             }
-            for object in &self.scene.mesh_objects {
-                let asset = match targets.iter().find(|(o, _)| o.path == object.path) {
-                    Some((_, a)) => a.clone(),
-                    None => Arc::from(py.allow_threads(|| read_object(object, &self.limits)).map_err(to_py)?),
-                };
-                targets.push((object.clone(), asset));
-            }
-        } else if output.is_some() {
+            Some((a, b)) => Some(a..b),
+            None => None,
+        };
+        let merge = merge.unwrap_or_default();
+        if !merge.is_empty() && (sample_range.is_some() || checkpoint.is_some()) {
             return Err(PyValueError::new_err(
-                "a scene made from arrays has no file to write back to: use the returned arrays",
+                "merge bakes from finished shards: it takes no sample_range or checkpoint",
             ));
         }
-        let plan = match &self.arrays {
-            Some(mesh) => BakePlan::new([(mesh, Placement { to_world: Mat4::IDENTITY, instanced: false })], at),
-            None => {
-                BakePlan::new(targets.iter().flat_map(|(o, a)| a.meshes().iter().map(|m| (m, Placement::of(o)))), at)
-            }
+        let texture = match texture {
+            Some(size) => Some(texture_request(size, uv_set, padding, bit_depth, texel_points, uv_wrap, generate_uvs)?),
+            None => None,
         };
-        if plan.probes.is_empty() {
-            return Err(PyValueError::new_err(format!("{}: nothing has a usable normal to bake", self.scene.name)));
+        if texture.is_some() && (std_error || colors || at == BakeAt::Faces) {
+            return Err(PyValueError::new_err(
+                "std_error, colors and at='faces' are for vertex and face bakes, not texture bakes",
+            ));
         }
-        // Outputs checked before tracing.
-        let outputs: Vec<PathBuf> = match (&output, &self.source) {
-            (Some(output), Some(source)) => {
-                let is_scene = source.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-                let objects = &self.scene.mesh_objects;
-                let mut outputs = Vec::new();
-                // No output onto a file the scene reads or onto another output.
+        let is_texture = texture.is_some();
+        let request = BakeRequest {
+            at,
+            samples,
+            sample_range,
+            bent_normals,
+            std_error,
+            colors,
+            output: output.clone(),
+            output_name: "output".to_string(),
+            overwrite,
+            texture,
+            one_film: checkpoint.is_some() || !merge.is_empty(),
+            limits: self.limits.clone(),
+            settings: Some(settings),
+        };
+        // Planned, and every output checked, before any ray.
+        let bake = match (&self.arrays, &self.source) {
+            (Some(mesh), _) => Bake::of_mesh(&self.scene, mesh, &request).map_err(value_error)?,
+            (None, source) => {
+                let input = source.clone().unwrap_or_else(|| PathBuf::from(&self.scene.name));
                 let mut files = FilePlan::new();
-                files.scene(source);
-                let value_error = |e: aorender::Error| PyValueError::new_err(e.to_string());
-                for (object, asset) in &targets {
-                    let path = output_path(objects, object, is_scene, output);
-                    check_output(&object.path, &path, overwrite).map_err(value_error)?;
-                    plan_output(&mut files, object, &path, is_scene, overwrite, "output").map_err(value_error)?;
-                    plan_companions(&mut files, object, &**asset, (&path, "output"), is_scene, None)
-                        .map_err(value_error)?;
-                    outputs.push(path);
+                files.scene(&input);
+                for path in &merge {
+                    files.input(path, "a checkpoint merge adds");
                 }
-                outputs
+                if let Some(path) = &checkpoint {
+                    files.output_with(path, "checkpoint", OutputRules::default()).map_err(value_error)?;
+                }
+                if let (Some(path), false) =
+                    (&output, input.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml")))
+                {
+                    let rules = OutputRules { replacing: overwrite.then_some(input.as_path()), new_directories: true };
+                    files.output_with(path, "output", rules).map_err(value_error)?;
+                }
+                py.allow_threads(|| Bake::new(&self.scene, &input, &request, &mut files)).map_err(value_error)?
             }
-            _ => Vec::new(),
         };
         let session = self.session(py, device)?;
-        let values = interruptible(py, |control| {
-            let mut render = session.probe_render(&plan.probes, samples, None, &settings, false)?;
-            render.run(control)?;
-            render.finish()?.accumulation.probe_values()
-        })?;
-        let baked = plan.values(&values, None);
-        if !outputs.is_empty() {
-            let options = WriteOptions { at, std_error, colors };
-            let mut rest = baked.as_slice();
-            for ((_, asset), path) in targets.iter().zip(&outputs) {
-                let (mine, others) = rest.split_at(asset.meshes().len());
-                rest = others;
-                if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-                    std::fs::create_dir_all(dir).map_err(|e| {
-                        pyo3::exceptions::PyOSError::new_err(format!(
-                            "{}: cannot create the directory: {e}",
-                            dir.display()
-                        ))
-                    })?;
+        let trace = if merge.is_empty() {
+            let save_to = checkpoint.clone();
+            interruptible(py, |control| {
+                let Some(path) = &save_to else {
+                    return session.bake(&bake, None, control);
+                };
+                // The shard's sums saved when its run ends (finished or stopped).
+                let mut save = |acc: &aorender::Accumulation| acc.write(path);
+                let mut outer = control.progress.as_deref_mut();
+                let mut progress = |p: &aorender::Progress| {
+                    if let Some(f) = outer.as_deref_mut() {
+                        f(p)
+                    }
+                };
+                let mut inner = Control {
+                    stop: control.stop,
+                    progress: Some(&mut progress),
+                    save: Some(&mut save),
+                    ..Control::default()
+                };
+                session.bake(&bake, None, &mut inner)
+            })?
+        } else {
+            py.allow_threads(|| {
+                let mut shards = Vec::with_capacity(merge.len());
+                let mut held = 0;
+                for path in &merge {
+                    let shard = aorender::Accumulation::read_with(path, &self.limits.after(held))?;
+                    held += shard.memory_bytes();
+                    shards.push((path.clone(), shard));
                 }
-                let notes = py.allow_threads(|| asset.write(path, mine, &options)).map_err(to_py)?;
-                for note in notes {
-                    PyErr::warn(
-                        py,
-                        &py.get_type::<PyUserWarning>(),
-                        &std::ffi::CString::new(format!("{}: {note}", path.display()))?,
-                        1,
-                    )?;
-                }
-            }
+                let expected = bake.expected(session.scene(), session.device().kind(), &BvhOptions::default())?;
+                bake.merge(&shards, &expected)
+            })
+            .map_err(|e| match e {
+                // Shards that are not this bake's, or not all of it: the caller's input.
+                aorender::Error::Checkpoint { .. } => PyValueError::new_err(e.to_string()),
+                e => to_py(e),
+            })?
+        };
+        let samples_done = trace.samples;
+        let baked = py.allow_threads(|| bake.finish(trace)).map_err(to_py)?;
+        let written = py.allow_threads(|| bake.write(&baked, samples_done)).map_err(to_py)?;
+        for (path, note) in &written.notes {
+            PyErr::warn(
+                py,
+                &py.get_type::<PyUserWarning>(),
+                &std::ffi::CString::new(format!("{}: {note}", path.display()))?,
+                1,
+            )?;
         }
-        let ao = baked.iter().flat_map(|b| b.ao.iter().map(|&v| v as f64)).collect();
-        let se = baked.iter().flat_map(|b| b.std_error.iter().map(|&v| v as f64)).collect();
-        Ok((out(py, ao), out(py, se)))
+        if is_texture {
+            let json = serde_json::to_string(&written.texture)
+                .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+            return py.import("json")?.call_method1("loads", (json,));
+        }
+        let values = &baked.values;
+        let ao = values.iter().flat_map(|b| b.ao.iter().map(|&v| v as f64)).collect();
+        let se = values.iter().flat_map(|b| b.std_error.iter().map(|&v| v as f64)).collect();
+        if !bent_normals {
+            return Ok((out(py, ao), out(py, se)).into_pyobject(py)?.into_any());
+        }
+        let bent: Vec<f64> = values
+            .iter()
+            .flat_map(|b| b.bent_normals.iter().flatten().flat_map(|n| n.to_array().map(f64::from)))
+            .collect();
+        let rows = bent.len() / 3;
+        let bent = PyArray1::from_vec(py, bent).reshape([rows, 3])?;
+        Ok((out(py, ao), out(py, se), bent).into_pyobject(py)?.into_any())
     }
+}
+
+/// The texture options of [`PyScene::bake`]: `size` is N or (W, H).
+fn texture_request(
+    size: &Bound<'_, PyAny>,
+    uv_set: u32,
+    padding: u32,
+    bit_depth: u8,
+    points: u32,
+    uv_wrap: &str,
+    generate_uvs: &str,
+) -> PyResult<TextureRequest> {
+    let (width, height) = match size.extract::<u32>() {
+        Ok(n) => (n, n),
+        Err(_) => size
+            .extract::<(u32, u32)>()
+            .map_err(|_| PyValueError::new_err("texture must be a size in texels: N or (W, H)"))?,
+    };
+    let wrap = match uv_wrap {
+        "file" => UvWrap::File,
+        "refuse" => UvWrap::Refuse,
+        "repeat" => UvWrap::Repeat,
+        _ => {
+            return Err(PyValueError::new_err(format!(
+                "uv_wrap must be 'file', 'refuse' or 'repeat', got '{uv_wrap}'"
+            )));
+        }
+    };
+    let generate_uvs = match generate_uvs {
+        "auto" => GenerateUvs::Auto,
+        "always" => GenerateUvs::Always,
+        "never" => GenerateUvs::Never,
+        _ => {
+            return Err(PyValueError::new_err(format!(
+                "generate_uvs must be 'auto', 'always' or 'never', got '{generate_uvs}'"
+            )));
+        }
+    };
+    if bit_depth != 8 && bit_depth != 16 {
+        return Err(PyValueError::new_err(format!("bit_depth must be 8 or 16, got {bit_depth}")));
+    }
+    let options = TextureOptions { width, height, uv_set, points, padding, wrap, seed: 0 };
+    options.validate().map_err(|e| PyValueError::new_err(format!("texture: {}", e.message())))?;
+    let memory_bytes = aorender::host_memory::memory_available().unwrap_or(u64::MAX);
+    Ok(TextureRequest { options, generate_uvs, bit_depth, memory_bytes })
+}
+
+/// The film of shards' checkpoints of one image (`scene` seen by `camera` with
+/// `settings`), their sums added exactly, and its figures; every sample of 0..spp must be
+/// there.
+fn merged_image(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &Settings,
+    kind: aorender::DeviceKind,
+    paths: &[PathBuf],
+    limits: &ReadLimits,
+) -> PyResult<(aorender::Film, serde_json::Value)> {
+    let value_error = |e: aorender::Error| match e {
+        aorender::Error::Checkpoint { .. } => PyValueError::new_err(e.to_string()),
+        e => to_py(e),
+    };
+    let mut shards = Vec::with_capacity(paths.len());
+    let mut held = 0;
+    for path in paths {
+        let shard = aorender::Accumulation::read_with(path, &limits.after(held)).map_err(value_error)?;
+        held += shard.memory_bytes();
+        shards.push((path.clone(), shard));
+    }
+    let expected =
+        aorender::Accumulation::image(scene, camera, settings, 0..settings.spp, kind, &BvhOptions::default());
+    let diff = shards[0].1.settings.differences(&expected.settings);
+    if !diff.is_empty() {
+        return Err(PyValueError::new_err(format!(
+            "{}: holds samples of another render: {} (checkpoint's value first)",
+            shards[0].0.display(),
+            diff.join("; ")
+        )));
+    }
+    let merged = aorender::merge(&shards).map_err(value_error)?;
+    if merged.first != 0 || merged.end != settings.spp {
+        return Err(PyValueError::new_err(format!(
+            "{}: the shards hold samples {}..{}, not all 0..{} of spp {}",
+            shards[0].0.display(),
+            merged.first,
+            merged.end,
+            settings.spp,
+            settings.spp
+        )));
+    }
+    let adapters: Vec<String> = merged.shards.iter().map(|s| s.adapter.clone()).collect();
+    let stats = serde_json::json!({
+        "samples_per_pixel": merged.end - merged.first,
+        "shards": merged.shards.len(),
+        "adapter": adapters.join(", "),
+    });
+    Ok((merged.film, stats))
 }

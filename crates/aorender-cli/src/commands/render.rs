@@ -3,10 +3,11 @@
 
 use crate::args::{RunArgs, SamplingArgs, SceneArgs, SizeArgs, check_output_extension, invalid_option, write_json};
 use crate::phases::{self, Phases};
+use crate::run::{self, RunControl};
 use crate::{memory, output, signals};
 use anyhow::{Result, bail};
 use aorender::output::{FLOAT_IMAGE_EXTENSIONS, FilePlan, IMAGE_EXTENSIONS, write_error_image, write_image};
-use aorender::{Accumulation, Control, Device, ErrorTarget, ImageRequest, Progress, Sampler, Session};
+use aorender::{Accumulation, Device, ErrorTarget, ImageRequest, Sampler, Session};
 
 /// Samples per pixel a render with an error target takes at most, unless --spp says.
 const TARGET_SPP_CAP: u32 = 65536;
@@ -134,26 +135,17 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
 
-    let bar = signals::PassProgress::new(scene.settings.spp, "spp");
-    let mut on_progress = |p: &Progress| bar.update(p);
-    let mut save_to = |acc: &Accumulation| -> aorender::Result<()> {
-        match &checkpoint_path {
-            Some(path) => acc.write(path),
-            None => Ok(()),
-        }
-    };
-    let mut control = Control {
-        stop: Some(&stop),
-        time_limit: args.run.time_limit,
-        progress: Some(&mut on_progress),
-        save: if checkpoint_path.is_some() { Some(&mut save_to) } else { None },
-        save_interval: args.run.checkpoint_interval,
+    let mut adapter_seconds = 0.0;
+    let rc = RunControl {
+        stop: &stop,
+        run: &args.run,
+        checkpoint: checkpoint_path.as_deref(),
+        total: scene.settings.spp,
+        unit: "spp",
         target,
         adaptive: args.adaptive,
-        ..Control::default()
     };
-    let mut adapter_seconds = 0.0;
-    let rendered = (|| {
+    let mut out = run::traced(rc, |control| {
         let opening = std::time::Instant::now();
         let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
         adapter_seconds = opening.elapsed().as_secs_f64();
@@ -166,34 +158,15 @@ pub fn run(args: RenderArgs) -> Result<()> {
         if let Some(acc) = resume {
             render.resume(acc)?;
         }
-        render.run(&mut control)?;
+        render.run(control)?;
         render.finish()
-    })();
-    let mut out = rendered.map_err(|e| {
-        // The adapter failed (setting up or mid-render): the last checkpoint saved before
-        // it is whole.
-        let adapter_failed = matches!(e, aorender::Error::DeviceLost { .. } | aorender::Error::OutOfMemory { .. });
-        match &checkpoint_path {
-            Some(path) if adapter_failed && path.exists() => anyhow::anyhow!(
-                "{e}; the last checkpoint, {}, is intact: continue with --resume {}",
-                path.display(),
-                path.display()
-            ),
-            _ => e.into(),
-        }
     })?;
     out.stats.load_seconds = load_seconds;
     out.stats.adapter_seconds = adapter_seconds;
     out.stats.heap_peak_bytes = memory::heap_peak_bytes();
-    bar.finish();
     let st = &out.stats;
-    let signal = signals::stop_signal();
     if st.samples_per_pixel == 0 {
-        crate::say!(
-            "aorender: interrupted by {} before any sample was rendered; nothing was written",
-            signals::signal_name(signal)
-        );
-        std::process::exit(128 + signal);
+        run::exit_before_any_sample("rendered");
     }
     let writing = std::time::Instant::now();
     write_image(&out.film, &args.output)?;
@@ -242,19 +215,13 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if st.interrupted {
         let mut written = vec![args.output.display().to_string()];
         written.extend(args.run.stats.as_ref().map(|p| p.display().to_string()));
-        let mut message = format!(
-            "interrupted by {} after {} of {} samples per pixel; {} hold them",
-            signals::signal_name(signal),
+        let done = format!(
+            "{} of {} samples per pixel; {} hold them",
             st.samples_per_pixel,
             st.samples_requested,
             written.join(" and ")
         );
-        if let Some(path) = &checkpoint_path {
-            message += &format!("; continue with --resume {}", path.display());
-        }
-        crate::say!("aorender: {message}");
-        output::flush()?;
-        std::process::exit(128 + signal);
+        return run::exit_interrupted(&done, checkpoint_path.as_deref());
     }
     if st.ended_by == "target" {
         crate::say!(

@@ -1,0 +1,128 @@
+//! The files of a bake: reading a mesh file for baking, the format a name says, where
+//! each object's bake is written, and the output policy's checks before any work.
+
+use super::asset::{Asset, TextureFiles};
+use crate::error::{Error, Result};
+use crate::output::{FilePlan, OutputRules};
+use crate::scene::{LoadOptions, MeshObject, ReadLimits};
+use std::path::{Path, PathBuf};
+
+/// Reads a mesh file (`.ply`, `.obj`, `.gltf`, `.glb`, each optionally gzipped) for baking,
+/// within the read budget of [`LoadOptions::from_env`], external glTF URIs refused.
+pub fn read_asset(path: &Path) -> Result<Box<dyn Asset>> {
+    read_asset_with(path, &LoadOptions::from_env()?)
+}
+
+/// [`read_asset`] within the read budget of `options`, following glTF URIs as it allows.
+pub fn read_asset_with(path: &Path, options: &LoadOptions) -> Result<Box<dyn Asset>> {
+    match crate::scene::extension(path).as_str() {
+        "ply" => Ok(Box::new(super::ply::PlyAsset::read_with(path, options)?)),
+        "obj" => Ok(Box::new(super::obj::ObjAsset::read_with(path, options)?)),
+        "gltf" | "glb" => Ok(Box::new(super::gltf::GltfAsset::read_with(path, options)?)),
+        ext => Err(Error::scene(path, format!("cannot bake into '.{ext}' files: expected .ply, .obj, .gltf or .glb"))),
+    }
+}
+
+/// The mesh file of a scene's mesh object read for baking as the scene read it (its glTF
+/// URIs followed where the scene allowed them), within `limits`.
+pub fn read_object(object: &MeshObject, limits: &ReadLimits) -> Result<Box<dyn Asset>> {
+    let options = LoadOptions { limits: limits.clone(), allow_external_uris: object.allow_external_uris };
+    read_asset_with(&object.path, &options)
+}
+
+/// The format a file name says, with or without `.gz`: `PLY`, `OBJ` or `glTF` (`.gltf`
+/// and `.glb` alike); `None` for another.
+pub fn format_of(path: &Path) -> Option<&'static str> {
+    let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
+    let name = name.strip_suffix(".gz").unwrap_or(&name);
+    match name.rsplit_once('.')?.1 {
+        "ply" => Some("PLY"),
+        "obj" => Some("OBJ"),
+        "gltf" | "glb" => Some("glTF"),
+        _ => None,
+    }
+}
+
+/// Where a bake writes mesh object `object` of `objects`: `output` itself for a mesh
+/// file; for a scene file, the directory `output` under the mesh file's name, with the
+/// object's number added (`NAME-N.EXT`) when other objects place the same file.
+pub fn output_path(objects: &[MeshObject], object: &MeshObject, is_scene: bool, output: &Path) -> PathBuf {
+    if !is_scene {
+        return output.to_path_buf();
+    }
+    let name = object.path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    if objects.iter().filter(|o| o.path == object.path).count() == 1 {
+        return output.join(name);
+    }
+    match name.split_once('.') {
+        Some((stem, ext)) => output.join(format!("{stem}-{}.{ext}", object.number)),
+        None => output.join(format!("{name}-{}", object.number)),
+    }
+}
+
+/// Enters in `plan` the file a bake of `object` writes, `output`, given by `option` (`-o`
+/// on the command line): its role is `option` for a mesh file's bake, `the bake of
+/// object N (option)` for a scene's; it may replace the object's own mesh file only when
+/// `overwrite`. A file in directories still to be made
+/// is allowed: the bake makes them. The files written beside it follow with
+/// [`plan_companions`].
+pub fn plan_output(
+    plan: &mut FilePlan,
+    object: &MeshObject,
+    output: &Path,
+    is_scene: bool,
+    overwrite: bool,
+    option: &str,
+) -> Result<()> {
+    let replacing = overwrite.then_some(object.path.as_path());
+    plan.output_with(output, &output_role(object, is_scene, option), OutputRules { replacing, new_directories: true })?;
+    Ok(())
+}
+
+/// Enters in `plan` the files a bake of `object` (read into `asset`) writes beside
+/// `output` ([`Asset::companion_files`], `texture` as there), named as in [`plan_output`].
+pub fn plan_companions(
+    plan: &mut FilePlan,
+    object: &MeshObject,
+    asset: &dyn Asset,
+    (output, option): (&Path, &str),
+    is_scene: bool,
+    texture: Option<&TextureFiles>,
+) -> Result<()> {
+    let role = output_role(object, is_scene, option);
+    for (file, what) in asset.companion_files(output, texture) {
+        let rules = OutputRules { new_directories: true, ..OutputRules::default() };
+        plan.output_with(&file, &format!("{what} beside {role}"), rules)?;
+    }
+    Ok(())
+}
+
+fn output_role(object: &MeshObject, is_scene: bool, option: &str) -> String {
+    if is_scene { format!("the bake of object {} ({option})", object.number) } else { option.to_string() }
+}
+
+/// Checks, before any work, that `output` can take the bake of the mesh file `input`: a
+/// file of its format (glTF and GLB are one), and not the input itself unless
+/// `overwrite`.
+pub fn check_output(input: &Path, output: &Path, overwrite: bool) -> Result<()> {
+    let Some(theirs) = format_of(input) else {
+        return Err(Error::scene(
+            input,
+            "cannot bake into this file type: expected .ply, .obj, .gltf, .glb or a scene file (.toml)",
+        ));
+    };
+    if format_of(output) != Some(theirs) {
+        let message = format!(
+            "the output must be a {theirs} file like the input ({}), optionally gzipped (.gz)",
+            input.display()
+        );
+        return Err(Error::output(output, message));
+    }
+    if !overwrite && crate::output::same_file(input, output) {
+        return Err(Error::output(
+            output,
+            "the output would replace the input; choose another path, or allow writing over it (--overwrite)",
+        ));
+    }
+    Ok(())
+}
