@@ -337,21 +337,7 @@ impl PyScene {
             Some(d) => camera_from(d, self.scene.camera)?,
             None => self.scene.camera,
         };
-        let samples = match sample_range {
-            Some((a, b)) if a >= b || b > spp => {
-                return Err(PyValueError::new_err(format!(
-                    "sample_range ({a}, {b}) must be a non-empty range of sample indices within 0..{spp}"
-                )));
-            }
-            Some((a, b)) => Some(a..b),
-            None => None,
-        };
-        let merge = merge.unwrap_or_default();
-        if !merge.is_empty() && (samples.is_some() || checkpoint.is_some()) {
-            return Err(PyValueError::new_err(
-                "merge renders from finished shards: it takes no sample_range or checkpoint",
-            ));
-        }
+        let (samples, merge) = shard_options(sample_range, spp, checkpoint.is_some(), merge, "renders")?;
         let session = self.session(py, device)?;
         if !merge.is_empty() {
             let kind = session.device().kind();
@@ -463,21 +449,7 @@ impl PyScene {
         if samples == 0 {
             return Err(PyValueError::new_err("samples must be at least 1"));
         }
-        let sample_range = match sample_range {
-            Some((a, b)) if a >= b || b > samples => {
-                return Err(PyValueError::new_err(format!(
-                    "sample_range ({a}, {b}) must be a non-empty range of sample indices within 0..{samples}"
-                )));
-            }
-            Some((a, b)) => Some(a..b),
-            None => None,
-        };
-        let merge = merge.unwrap_or_default();
-        if !merge.is_empty() && (sample_range.is_some() || checkpoint.is_some()) {
-            return Err(PyValueError::new_err(
-                "merge bakes from finished shards: it takes no sample_range or checkpoint",
-            ));
-        }
+        let (sample_range, merge) = shard_options(sample_range, samples, checkpoint.is_some(), merge, "bakes")?;
         let texture = match texture {
             Some(size) => Some(texture_request(size, uv_set, padding, bit_depth, texel_points, uv_wrap, generate_uvs)?),
             None => None,
@@ -693,4 +665,31 @@ fn merged_image(
         "adapter": adapters.join(", "),
     });
     Ok((merged.film, stats))
+}
+
+/// A shard's options checked: `sample_range` a non-empty range within 0..`total`, and a
+/// merge (which `verb`s from finished shards) without a range or a checkpoint.
+fn shard_options(
+    sample_range: Option<(u32, u32)>,
+    total: u32,
+    checkpoint: bool,
+    merge: Option<Vec<PathBuf>>,
+    verb: &str,
+) -> PyResult<(Option<std::ops::Range<u32>>, Vec<PathBuf>)> {
+    let range = match sample_range {
+        Some((a, b)) if a >= b || b > total => {
+            return Err(PyValueError::new_err(format!(
+                "sample_range ({a}, {b}) must be a non-empty range of sample indices within 0..{total}"
+            )));
+        }
+        Some((a, b)) => Some(a..b),
+        None => None,
+    };
+    let merge = merge.unwrap_or_default();
+    if !merge.is_empty() && (range.is_some() || checkpoint) {
+        return Err(PyValueError::new_err(format!(
+            "merge {verb} from finished shards: it takes no sample_range or checkpoint"
+        )));
+    }
+    Ok((range, merge))
 }
