@@ -1,6 +1,7 @@
 // Resources of the AO kernel. The structs and bindings are generated from src/gpu/layout.rs
 // (the header and resources.wgsl); this file adds the private copies the functions read.
 //#import resources.wgsl
+//#import unfused.wgsl
 
 // Every binding is a storage buffer, none a uniform buffer: Mesa's lavapipe (22.x) inlines
 // the uniform-buffer values a shader branches on and recompiles the kernel each time a

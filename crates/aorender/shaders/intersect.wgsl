@@ -1,3 +1,4 @@
+//#import unfused.wgsl
 // Ray-primitive intersection: the WGSL twin of src/geometry.rs. Each returns the hit
 // distance in (t_min, t_max) or INF.
 
@@ -19,17 +20,6 @@
 // test conservative (a ray on an edge or vertex hits every triangle there) without f64,
 // which most adapters lack. det == 0 (all three zero: edge-on, or a repeated vertex) is
 // a miss, and so is a t within pbrt-v4's bound on its rounding error.
-
-// 1.0 as the kernel reads it at run time (`Frame.one`, or the test probe's parameter);
-// zero until the entry point sets it, so a kernel that forgets misses every triangle.
-var<private> runtime_one: f32;
-
-// The product a, rounded on its own: the compiler cannot drop a * runtime_one (it cannot
-// know the value is 1), and a product cannot fuse into another product, so a sum of
-// unfused products rounds each product as written (naga's SPIR-V has no NoContraction).
-fn unfused(a: f32) -> f32 {
-    return a * runtime_one;
-}
 
 fn intersect_triangle(o: vec3f, d: vec3f, t_min: f32, t_max: f32, v0: vec3f, v1: vec3f, v2: vec3f) -> f32 {
     return triangle_test(o, d, t_min, t_max, v0, v1, v2).x;

@@ -22,6 +22,7 @@ pub const FILES: &[(&str, &str)] = &[
     ("trace_common.wgsl", include_str!("../../shaders/trace_common.wgsl")),
     ("trace_cwbvh.wgsl", include_str!("../../shaders/trace_cwbvh.wgsl")),
     ("trace_cwbvh_group.wgsl", include_str!("../../shaders/trace_cwbvh_group.wgsl")),
+    ("unfused.wgsl", include_str!("../../shaders/unfused.wgsl")),
 ];
 
 /// How the kernel's invocations share the tracing of rays.
