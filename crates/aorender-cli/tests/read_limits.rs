@@ -311,9 +311,11 @@ fn lying_checkpoint(d: &Path) -> PathBuf {
     );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let mut bytes = std::fs::read(d.join("small.ck")).unwrap();
-    // Magic, version, hash, then width and height; the adapter name's length at 128.
+    // Magic, version, hash, then width and height; the adapter name's length at 128, then
+    // the replicate size, the film and sky codes, the sky's up vector and ground albedo,
+    // the replicates and the count of replicate groups (format version 4).
     let name = u32::from_le_bytes(bytes[128..132].try_into().unwrap()) as usize;
-    let header = 132 + name + 20;
+    let header = 132 + name + 36;
     let groups = u32::from_le_bytes(bytes[header - 4..header].try_into().unwrap()) as u64;
     assert_eq!(bytes.len() as u64, header as u64 + 32 * 4 + 16 * groups + 32, "a checkpoint of 4 pixels");
     bytes[44..48].copy_from_slice(&16384u32.to_le_bytes());
