@@ -72,12 +72,19 @@ pub(crate) fn write(
             v.bent_normals.as_ref().map(|b| b.iter().map(carry).collect())
         })
         .collect();
-    match format_of(path) {
-        Some("PLY") => write_ply(path, meshes, values, &bent, options),
-        Some("OBJ") => write_obj(path, meshes, values, &bent, options),
-        Some("glTF") => write_gltf(path, meshes, values, &bent, options),
-        _ => Err(fail("cannot bake into this file type: expected .ply, .obj, .gltf or .glb".to_string())),
+    let mut notes = match format_of(path) {
+        Some("PLY") => write_ply(path, meshes, values, &bent, options)?,
+        Some("OBJ") => write_obj(path, meshes, values, &bent, options)?,
+        Some("glTF") => write_gltf(path, meshes, values, &bent, options)?,
+        _ => return Err(fail("cannot bake into this file type: expected .ply, .obj, .gltf or .glb".to_string())),
+    };
+    if meshes.iter().any(|m| !m.uv_sets.is_empty() || m.material.is_some()) {
+        notes.push(format!(
+            "texture coordinates and materials not written: a bake into {} makes a new file of the mesh and its values",
+            format_of(path).unwrap_or_default()
+        ));
     }
+    Ok(notes)
 }
 
 fn is_glb(path: &Path) -> bool {
