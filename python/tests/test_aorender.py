@@ -354,8 +354,11 @@ def test_bake_writes_the_file_like_the_command(repo, tmp_path):
     ao, err = scene.bake(4, device="cpu", output=out)
     assert out.is_file() and len(ao) == len(err) > 30000
     assert 0 < ao.mean() < 1
-    with pytest.raises(ValueError, match="must be a OBJ file"):
-        scene.bake(4, device="cpu", output=tmp_path / "bunny.ply")
+    # Another format is written from the same trace.
+    ao_ply, _ = scene.bake(4, device="cpu", output=tmp_path / "bunny.ply")
+    assert (tmp_path / "bunny.ply").is_file() and (ao_ply == ao).all()
+    with pytest.raises(ValueError, match="cannot bake into '.stl' files"):
+        scene.bake(4, device="cpu", output=tmp_path / "bunny.stl")
     with pytest.raises(ValueError, match="no file to write back to"):
         aorender.Scene.from_arrays(*cube()).bake(4, device="cpu", output=out)
 

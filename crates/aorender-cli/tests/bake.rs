@@ -396,7 +396,7 @@ fn bad_input_is_refused_in_one_line_with_nothing_written() {
         .unwrap();
     for (args, expect) in [
         (&["m.ply", "-o", "m.ply"][..], "would replace the input"),
-        (&["m.ply", "-o", "m.obj"][..], "must be a PLY file"),
+        (&["m.ply", "-o", "m.stl"][..], "cannot bake into '.stl' files"),
         (&["m.ply", "-o", "out.ply", "--samples", "0"][..], "--samples must be at least 1"),
         (&["m.ply", "-o", "out.ply", "--sample-range", "0..8"][..], "needs --checkpoint"),
         (&["empty.toml", "-o", "outdir"][..], "no mesh objects"),

@@ -9,7 +9,7 @@ use crate::{memory, output, signals};
 use anyhow::{Result, anyhow, bail};
 use aorender::bake::{
     Bake, BakeAt, BakeRequest, BakeTrace, GenerateUvs, TextureOptions, TextureReport, TextureRequest, UNUSABLE_VALUE,
-    UvWrap, check_output, is_map, sibling,
+    UvWrap, check_mesh_output, check_output, is_map, sibling,
 };
 use aorender::output::{FilePlan, OutputRules};
 use aorender::{Accumulation, Device, ReadLimits, Session};
@@ -240,7 +240,12 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let is_scene = input.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
     let texture = texture_options(&args, is_scene)?;
     if !is_scene && (texture.is_none() || !is_map(&args.output)) {
-        check_output(&input, &args.output, args.overwrite)?;
+        // A bake into vertices or faces writes any mesh format; a texture bake its input's.
+        if texture.is_some() {
+            check_output(&input, &args.output, args.overwrite)?;
+        } else {
+            check_mesh_output(&input, &args.output, args.overwrite)?;
+        }
     }
     // Before any work: no output onto an input or another output. A scene's outputs are
     // known once its objects are, and the files written beside a mesh once it is read.

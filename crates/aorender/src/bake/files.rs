@@ -90,7 +90,12 @@ pub fn plan_companions(
     texture: Option<&TextureFiles>,
 ) -> Result<()> {
     let role = output_role(object, is_scene, option);
-    for (file, what) in asset.companion_files(output, texture) {
+    let files = if texture.is_none() && is_conversion(&object.path, output) {
+        super::convert::companion_files(output)
+    } else {
+        asset.companion_files(output, texture)
+    };
+    for (file, what) in files {
         let rules = OutputRules { new_directories: true, ..OutputRules::default() };
         plan.output_with(&file, &format!("{what} beside {role}"), rules)?;
     }
@@ -101,8 +106,42 @@ fn output_role(object: &MeshObject, is_scene: bool, option: &str) -> String {
     if is_scene { format!("the bake of object {} ({option})", object.number) } else { option.to_string() }
 }
 
-/// Checks, before any work, that `output` can take the bake of the mesh file `input`: a
-/// file of its format (glTF and GLB are one), and not the input itself unless
+/// Whether a bake of `input` into `output` writes a new file of another format
+/// ([`crate::bake::Asset::write`] writes the input's own format back).
+pub(crate) fn is_conversion(input: &Path, output: &Path) -> bool {
+    format_of(input) != format_of(output)
+}
+
+/// Checks, before any work, that `output` can take the bake into vertices or faces of the
+/// mesh file `input`: a `.ply`, `.obj`, `.gltf` or `.glb` file (optionally gzipped), any
+/// of them whatever the input's format, and not the input itself unless `overwrite`.
+pub fn check_mesh_output(input: &Path, output: &Path, overwrite: bool) -> Result<()> {
+    if format_of(input).is_none() {
+        return check_output(input, output, overwrite);
+    }
+    if format_of(output).is_none() {
+        let name = output.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let ext = name.strip_suffix(".gz").unwrap_or(&name).rsplit_once('.').map_or("", |(_, e)| e).to_string();
+        let what = if ext.is_empty() { "a file without an extension".to_string() } else { format!("'.{ext}' files") };
+        return Err(Error::output(
+            output,
+            format!("cannot bake into {what}: expected .ply, .obj, .gltf or .glb, optionally gzipped (.gz)"),
+        ));
+    }
+    if !is_conversion(input, output) {
+        return check_output(input, output, overwrite);
+    }
+    if !overwrite && crate::output::same_file(input, output) {
+        return Err(Error::output(
+            output,
+            "the output would replace the input; choose another path, or allow writing over it (--overwrite)",
+        ));
+    }
+    Ok(())
+}
+
+/// Checks, before any work, that `output` can take the texture bake of the mesh file
+/// `input`: a file of its format (glTF and GLB are one), and not the input itself unless
 /// `overwrite`.
 pub fn check_output(input: &Path, output: &Path, overwrite: bool) -> Result<()> {
     let Some(theirs) = format_of(input) else {

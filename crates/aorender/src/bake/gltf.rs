@@ -1005,7 +1005,7 @@ fn insert_first_buffer(doc: &mut Value) {
 }
 
 /// The GLB container of `json` and `bin` (glTF 2.0, section 4.4), or `None` past 4 GiB.
-fn glb_bytes(mut json: Vec<u8>, mut bin: Vec<u8>) -> Option<Vec<u8>> {
+pub(crate) fn glb_bytes(mut json: Vec<u8>, mut bin: Vec<u8>) -> Option<Vec<u8>> {
     pad(&mut json, b' ');
     pad(&mut bin, 0);
     let total = 12 + 8 + json.len() + 8 + bin.len();

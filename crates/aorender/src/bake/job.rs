@@ -7,7 +7,9 @@
 use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureFiles, TextureMap, WriteOptions, map_path,
 };
-use super::files::{check_output, format_of, output_path, plan_companions, plan_output, read_object};
+use super::files::{
+    check_mesh_output, format_of, is_conversion, output_path, plan_companions, plan_output, read_object,
+};
 use super::plan::{BakePlan, Placement};
 use super::texture::{
     BakedTexture, Coverage, TextureLayout, TextureOptions, TexturePlan, TextureStats, TextureTarget, UvWrap,
@@ -313,7 +315,7 @@ impl Bake {
             return Err(Error::output(
                 &t.output,
                 format!(
-                    "{} has no per-face attributes: bake --at faces into a PLY file (convert the mesh first)",
+                    "{} has no per-face attributes: bake --at faces into a PLY file (-o NAME.ply)",
                     format_of(&t.output).unwrap_or_default()
                 ),
             ));
@@ -693,7 +695,12 @@ impl Bake {
             let (values, others) = rest.split_at(t.asset.meshes().len().min(rest.len()));
             rest = others;
             make_parent(&t.output)?;
-            notes.extend(t.asset.write(&t.output, values, &options)?.into_iter().map(|n| (t.output.clone(), n)));
+            let written = if is_conversion(&t.object.path, &t.output) {
+                super::convert::write(&t.output, t.asset.meshes(), values, &options)?
+            } else {
+                t.asset.write(&t.output, values, &options)?
+            };
+            notes.extend(written.into_iter().map(|n| (t.output.clone(), n)));
         }
         Ok(Written { files: self.targets.iter().map(|t| t.output.clone()).collect(), notes, texture: None })
     }
@@ -931,7 +938,7 @@ fn read_targets(
         let output = match out.as_mut() {
             Some((plan, output)) => {
                 let path = output_path(objects, object, is_scene, output);
-                check_output(&object.path, &path, request.overwrite)?;
+                check_mesh_output(&object.path, &path, request.overwrite)?;
                 let name = &request.output_name;
                 if is_scene {
                     plan_output(plan, object, &path, is_scene, request.overwrite, name)?;

@@ -5,10 +5,12 @@
 //! bake does not touch preserved.
 //!
 //! One module per format: `ply`, `obj`, `gltf`; textures in `texture`, and their
-//! coordinates, when a mesh has none, in `unwrap`; reading and placing the files in
+//! coordinates, when a mesh has none, in `unwrap`; a bake into another format than its
+//! input's in `convert`; reading and placing the files in
 //! `files`; the whole job, a [`BakeRequest`] planned, traced and written, in `job`.
 
 mod asset;
+mod convert;
 mod files;
 pub(crate) mod gltf;
 mod gltf_tidy;
@@ -24,7 +26,8 @@ pub use asset::{
     map_path,
 };
 pub use files::{
-    check_output, format_of, output_path, plan_companions, plan_output, read_asset, read_asset_with, read_object,
+    check_mesh_output, check_output, format_of, output_path, plan_companions, plan_output, read_asset, read_asset_with,
+    read_object,
 };
 pub use job::{
     Bake, BakeRequest, BakeTarget, BakeTrace, Baked, GenerateUvs, GeneratedReport, TextureReport, TextureRequest,
