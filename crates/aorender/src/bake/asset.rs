@@ -234,3 +234,16 @@ pub(crate) fn write_maps_beside(path: &Path, maps: &[TextureMap]) -> Result<()> 
     }
     Ok(())
 }
+
+/// The format a file name says, with or without `.gz`: `PLY`, `OBJ` or `glTF` (`.gltf`
+/// and `.glb` alike); `None` for another.
+pub fn format_of(path: &Path) -> Option<&'static str> {
+    let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
+    let name = name.strip_suffix(".gz").unwrap_or(&name);
+    match name.rsplit_once('.')?.1 {
+        "ply" => Some("PLY"),
+        "obj" => Some("OBJ"),
+        "gltf" | "glb" => Some("glTF"),
+        _ => None,
+    }
+}

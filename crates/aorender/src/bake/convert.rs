@@ -14,8 +14,8 @@
 //! A glTF input's meshes are placed as its nodes place them, so bent normals, written
 //! in each file's own space by the bake, are carried into that placed space here.
 
+use super::asset::format_of;
 use super::asset::{AssetMesh, BakeAt, BakedValues, WriteOptions};
-use super::files::format_of;
 use crate::error::{Error, Result};
 use crate::output::{write_output, write_output_with};
 use crate::scene::input::is_gzip;

@@ -1,7 +1,7 @@
 //! The files of a bake: reading a mesh file for baking, the format a name says, where
 //! each object's bake is written, and the output policy's checks before any work.
 
-use super::asset::{Asset, TextureFiles};
+use super::asset::{Asset, TextureFiles, format_of};
 use crate::error::{Error, Result};
 use crate::output::{FilePlan, OutputRules};
 use crate::scene::{LoadOptions, MeshObject, ReadLimits};
@@ -28,19 +28,6 @@ pub fn read_asset_with(path: &Path, options: &LoadOptions) -> Result<Box<dyn Ass
 pub fn read_object(object: &MeshObject, limits: &ReadLimits) -> Result<Box<dyn Asset>> {
     let options = LoadOptions { limits: limits.clone(), allow_external_uris: object.allow_external_uris };
     read_asset_with(&object.path, &options)
-}
-
-/// The format a file name says, with or without `.gz`: `PLY`, `OBJ` or `glTF` (`.gltf`
-/// and `.glb` alike); `None` for another.
-pub fn format_of(path: &Path) -> Option<&'static str> {
-    let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
-    let name = name.strip_suffix(".gz").unwrap_or(&name);
-    match name.rsplit_once('.')?.1 {
-        "ply" => Some("PLY"),
-        "obj" => Some("OBJ"),
-        "gltf" | "glb" => Some("glTF"),
-        _ => None,
-    }
 }
 
 /// Where a bake writes mesh object `object` of `objects`: `output` itself for a mesh

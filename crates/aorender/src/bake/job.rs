@@ -5,11 +5,9 @@
 //! options onto a [`BakeRequest`] and do nothing else of the bake.
 
 use super::asset::{
-    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureFiles, TextureMap, WriteOptions, map_path,
+    Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureFiles, TextureMap, WriteOptions, format_of, map_path,
 };
-use super::files::{
-    check_mesh_output, format_of, is_conversion, output_path, plan_companions, plan_output, read_object,
-};
+use super::files::{check_mesh_output, is_conversion, output_path, plan_companions, plan_output, read_object};
 use super::plan::{BakePlan, Placement};
 use super::texture::{
     BakedTexture, Coverage, TextureLayout, TextureOptions, TexturePlan, TextureStats, TextureTarget, UvWrap,

@@ -23,10 +23,10 @@ mod unwrap;
 
 pub use asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureFiles, TextureMap, UvSet, WriteOptions,
-    map_path,
+    format_of, map_path,
 };
 pub use files::{
-    check_mesh_output, check_output, format_of, output_path, plan_companions, plan_output, read_asset, read_asset_with,
+    check_mesh_output, check_output, output_path, plan_companions, plan_output, read_asset, read_asset_with,
     read_object,
 };
 pub use job::{
