@@ -355,21 +355,7 @@ impl PyScene {
                 render.run(control)?;
                 return render.finish();
             };
-            // The shard's sums saved as it goes and when its run ends.
-            let mut save = |acc: &aorender::Accumulation| acc.write(path);
-            let mut outer = control.progress.as_deref_mut();
-            let mut progress = |p: &aorender::Progress| {
-                if let Some(f) = outer.as_deref_mut() {
-                    f(p)
-                }
-            };
-            let mut inner = Control {
-                stop: control.stop,
-                progress: Some(&mut progress),
-                save: Some(&mut save),
-                ..Control::default()
-            };
-            render.run(&mut inner)?;
+            saving_to(control, path, |inner| render.run(inner).map(drop))?;
             render.finish()
         })?;
         let pixels: Vec<f32> = rendered.film.mean().into_iter().map(|m| m as f32).collect();
@@ -504,21 +490,7 @@ impl PyScene {
                 let Some(path) = &save_to else {
                     return session.bake(&bake, None, control);
                 };
-                // The shard's sums saved when its run ends (finished or stopped).
-                let mut save = |acc: &aorender::Accumulation| acc.write(path);
-                let mut outer = control.progress.as_deref_mut();
-                let mut progress = |p: &aorender::Progress| {
-                    if let Some(f) = outer.as_deref_mut() {
-                        f(p)
-                    }
-                };
-                let mut inner = Control {
-                    stop: control.stop,
-                    progress: Some(&mut progress),
-                    save: Some(&mut save),
-                    ..Control::default()
-                };
-                session.bake(&bake, None, &mut inner)
+                saving_to(control, path, |inner| session.bake(&bake, None, inner))
             })?
         } else {
             py.allow_threads(|| {
@@ -692,4 +664,23 @@ fn shard_options(
         )));
     }
     Ok((range, merge))
+}
+
+/// Runs `run` with `control`'s stop flag and progress, and the accumulation saved to
+/// `path` as the run goes and when it ends (finished or stopped): a shard's checkpoint.
+fn saving_to<T>(
+    control: &mut Control,
+    path: &std::path::Path,
+    run: impl FnOnce(&mut Control) -> aorender::Result<T>,
+) -> aorender::Result<T> {
+    let mut save = |acc: &aorender::Accumulation| acc.write(path);
+    let mut outer = control.progress.as_deref_mut();
+    let mut progress = |p: &aorender::Progress| {
+        if let Some(f) = outer.as_deref_mut() {
+            f(p)
+        }
+    };
+    let mut inner =
+        Control { stop: control.stop, progress: Some(&mut progress), save: Some(&mut save), ..Control::default() };
+    run(&mut inner)
 }
