@@ -1,6 +1,8 @@
 //#import sampler.wgsl
 //#import sums.wgsl
-//#import trace.wgsl
+//#import traversal.wgsl
+// traversal.wgsl is generated for each pipeline: an import of the chosen traversal,
+// trace_bvh2.wgsl, trace_cwbvh.wgsl or trace_cwbvh_group.wgsl (src/gpu/shaders.rs).
 // The AO kernel: one pixel per invocation, dispatch.sample_count samples of it (each a
 // camera ray, then one AO ray from its hit), added one by one to the pixel's block sums in
 // 64-bit integers (sums.wgsl): exact, so the film is the same however the samples are

@@ -1,5 +1,5 @@
 //#import trace_common.wgsl
-// What a traversal of a ray per lane (trace.wgsl, trace_cwbvh.wgsl) gives the kernel's
+// What a traversal of a ray per lane (trace_bvh2.wgsl, trace_cwbvh.wgsl) gives the kernel's
 // entry points; trace_cwbvh_group.wgsl gives the same for a ray per group of lanes.
 
 // Called by each entry point first.

@@ -2,6 +2,7 @@
 //#import intersect.wgsl
 //#import primitive_bindings.wgsl
 //#import batch.wgsl
+//#import lanes.wgsl
 // What both BVH traversals share: the hit record, the iteration budget, primitives and
 // planes. Every traversal loop iteration is counted in `steps` against
 // dispatch.traversal_budget: lavapipe silently ends a SIMD batch of invocations after
@@ -26,10 +27,6 @@ override HAS_SPHERES: bool = true;
 override HAS_TRIANGLES: bool = true;
 // Infinite planes.
 override HAS_PLANES: bool = true;
-// The adapter runs invocations as the lanes of a CPU's SIMD registers (lavapipe): the
-// traversal then takes the formulations that compile to fewer instructions there
-// (fmax_cpu, msb24). Both give the same results wherever no plane distance is NaN.
-override CPU_LANES: bool = false;
 
 struct Hit {
     t: f32,

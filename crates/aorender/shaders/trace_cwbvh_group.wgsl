@@ -74,12 +74,9 @@ fn group_nearest(a: vec2u, mask: u32) -> vec2u {
 
 // Hit bits of child `group_lane` of the node whose texels are n0 .. n4.
 fn intersect_child(n0: vec4u, n1: vec4u, n2: vec4u, n3: vec4u, n4: vec4u, ray: RayState, t_max: f32) -> u32 {
-    let upper = group_lane >= 4u;
-    let meta4 = select(n1.z, n1.w, upper);
-    let lo = select(vec3u(n2.x, n3.x, n4.x), vec3u(n2.y, n3.y, n4.y), upper);
-    let hi = select(vec3u(n2.z, n3.z, n4.z), vec3u(n2.w, n3.w, n4.w), upper);
+    let w = child_words(n1, n2, n3, n4, group_lane);
     let nf = node_frame(n0, ray.o, ray.inv_d);
-    return child_hit4(meta4, lo, hi, nf, ray.oct_inv4, t_max, (group_lane % 4u) * 8u);
+    return child_hit4(w.meta4, w.lo, w.hi, nf, ray.oct_inv4, t_max, w.shift);
 }
 
 // One ray, the same in every lane of the group, traced by all of them: the traversal of

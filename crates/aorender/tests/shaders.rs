@@ -2,44 +2,59 @@
 //! host structs match the WGSL structs' sizes.
 
 use aorender::bvh::{BvhLayout, GpuNode, GpuPrimitive};
-use aorender::gpu::layout::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint, wgsl_bindings};
-use aorender::gpu::shaders::{GeometryChunks, GeometryStorage, Traversal, batch_file, compose_with, geometry_files};
+use aorender::gpu::layout::{DispatchUniforms, FrameUniforms, GpuPlane, GpuProbePoint};
+use aorender::gpu::shaders::{
+    ELSEWHERE, GeometryChunks, GeometryStorage, Traversal, compose_with, file_path, generated_files,
+};
 use obvhs::cwbvh::node::CwBvhNode;
 use std::collections::BTreeMap;
 
+/// Every `.wgsl` file of `shaders/` and `src/`, by the name the shaders import it by: its
+/// file name in `shaders/`, its name in `ELSEWHERE` outside (or its path, where that
+/// does not list it).
 fn shader_files() -> BTreeMap<String, String> {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders");
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut files = BTreeMap::new();
-    for entry in std::fs::read_dir(&dir).expect("shaders/ exists") {
-        let path = entry.expect("directory entry").path();
-        if path.extension().is_some_and(|e| e == "wgsl") {
-            let name = path.file_name().unwrap().to_string_lossy().to_string();
-            files.insert(name, std::fs::read_to_string(&path).expect("readable shader"));
+    let mut dirs = vec![root.join("shaders"), root.join("src")];
+    while let Some(dir) = dirs.pop() {
+        for entry in std::fs::read_dir(&dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+            let path = entry.expect("directory entry").path();
+            if path.is_dir() {
+                dirs.push(path);
+            } else if path.extension().is_some_and(|e| e == "wgsl") {
+                let place = path.strip_prefix(root).unwrap().to_string_lossy().replace('\\', "/");
+                let name = match ELSEWHERE.iter().find(|(_, p)| *p == place) {
+                    Some((name, _)) => name.to_string(),
+                    None => place.strip_prefix("shaders/").unwrap_or(&place).to_string(),
+                };
+                assert_eq!(file_path(&name), place, "{place}: not where file_path puts it (list it in ELSEWHERE)");
+                files.insert(name, std::fs::read_to_string(&path).expect("readable shader"));
+            }
         }
     }
+    assert!(files.contains_key("ao.wgsl"), "no shaders/ao.wgsl");
     files
 }
 
-/// Parses and validates `name` with its imports; `trace.wgsl` stands for `traversal`, and
-/// the generated geometry bindings are those of `traversal`'s layout split as `chunks`.
+/// Parses and validates `name` with its imports, the generated files (the chosen
+/// traversal, the geometry bindings split as `chunks`) those of `layout` and `traversal`.
 fn validate_chunked(
     name: &str,
-    traversal: &str,
+    layout: BvhLayout,
+    traversal: Traversal,
     chunks: GeometryChunks,
     files: &BTreeMap<String, String>,
 ) -> naga::Module {
-    let layout = if traversal.starts_with("trace_cwbvh") { BvhLayout::Cwbvh } else { BvhLayout::Bvh2 };
     // With batch_max from subgroup operations and without; the cooperative traversal needs them.
-    let cooperative = traversal == "trace_cwbvh_group.wgsl" || name == "trace_cwbvh_group.wgsl";
+    let cooperative = traversal == Traversal::Cooperative || name == "trace_cwbvh_group.wgsl";
     let variants: &[bool] = if cooperative { &[true] } else { &[true, false] };
     let mut modules = variants.iter().map(|&subgroups| {
-        let [nodes, primitives] = geometry_files(layout, chunks, layout.stack_size());
-        let generated = [nodes, primitives, batch_file(subgroups), ("resources.wgsl", wgsl_bindings())];
+        let generated = generated_files(layout, traversal, chunks, layout.stack_size(), subgroups);
         let lookup = |n: &str| {
             if let Some((_, text)) = generated.iter().find(|(f, _)| *f == n) {
                 return Some(text.as_str());
             }
-            files.get(if n == "trace.wgsl" { traversal } else { n }).map(|s| s.as_str())
+            files.get(n).map(|s| s.as_str())
         };
         let source = compose_with(name, &lookup).unwrap_or_else(|e| panic!("{name}: {e}"));
         let module =
@@ -59,18 +74,23 @@ fn validate_chunked(
     module
 }
 
-fn validate_with(name: &str, traversal: &str, files: &BTreeMap<String, String>) -> naga::Module {
-    validate_chunked(name, traversal, GeometryChunks::SINGLE, files)
+fn validate_with(
+    name: &str,
+    layout: BvhLayout,
+    traversal: Traversal,
+    files: &BTreeMap<String, String>,
+) -> naga::Module {
+    validate_chunked(name, layout, traversal, GeometryChunks::SINGLE, files)
 }
 
 fn validate(name: &str, files: &BTreeMap<String, String>) -> naga::Module {
     // Each traversal file with its own node type.
-    let traversal = match name {
-        "trace_cwbvh.wgsl" | "trace_cwbvh_group.wgsl" => name,
-        "cwbvh.wgsl" => "trace_cwbvh.wgsl",
-        _ => "trace.wgsl",
+    let (layout, traversal) = match name {
+        "trace_cwbvh.wgsl" | "cwbvh.wgsl" => (BvhLayout::Cwbvh, Traversal::PerLane),
+        "trace_cwbvh_group.wgsl" => (BvhLayout::Cwbvh, Traversal::Cooperative),
+        _ => (BvhLayout::Bvh2, Traversal::PerLane),
     };
-    validate_with(name, traversal, files)
+    validate_with(name, layout, traversal, files)
 }
 
 #[test]
@@ -97,8 +117,7 @@ fn every_shader_file_validates() {
         (BvhLayout::Cwbvh, Traversal::Cooperative),
     ] {
         for chunks in [GeometryChunks::SINGLE, split, textures(GeometryChunks::SINGLE), textures(split)] {
-            let module =
-                validate_chunked("ao.wgsl", aorender::gpu::shaders::traversal_file(layout, traversal), chunks, &files);
+            let module = validate_chunked("ao.wgsl", layout, traversal, chunks, &files);
             let bound = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).count() as u32;
             assert_eq!(
                 bound,
@@ -114,14 +133,14 @@ fn compiled_in_shaders_are_the_files_on_disk() {
     let files = shader_files();
     let compiled: BTreeMap<String, String> =
         aorender::gpu::shaders::FILES.iter().map(|(n, t)| (n.to_string(), t.to_string())).collect();
-    assert_eq!(files, compiled, "src/gpu/shaders.rs FILES must list every file in shaders/");
+    assert_eq!(files, compiled, "src/gpu/shaders.rs FILES must list every file in shaders/ (and ELSEWHERE in src/)");
 }
 
 #[test]
 fn host_structs_match_wgsl_layout() {
     let files = shader_files();
     let module = validate("ao.wgsl", &files);
-    let cw_module = validate_with("ao.wgsl", "trace_cwbvh.wgsl", &files);
+    let cw_module = validate_with("ao.wgsl", BvhLayout::Cwbvh, Traversal::PerLane, &files);
     assert_eq!(wgsl_size(&cw_module, "CwNode") as usize, std::mem::size_of::<CwBvhNode>());
     let size_of = |name: &str| wgsl_size(&module, name);
     let scene = aorender::Scene::default_scene();
@@ -149,8 +168,7 @@ fn host_structs_match_wgsl_layout() {
 fn kernel_binds_no_uniform_buffer() {
     let files = shader_files();
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
-        let module =
-            validate_with("ao.wgsl", aorender::gpu::shaders::traversal_file(layout, Traversal::PerLane), &files);
+        let module = validate_with("ao.wgsl", layout, Traversal::PerLane, &files);
         let bound: Vec<_> = module.global_variables.iter().filter(|(_, g)| g.binding.is_some()).collect();
         assert!(bound.len() >= 8, "{} bindings found", bound.len());
         for (_, g) in bound {

@@ -12,6 +12,7 @@
 //! being built, with no more cells at once than threads, nor than one per 16 cells' worth of
 //! primitives.
 
+use super::cwbvh::{inner_node, placed};
 use super::ploc::cwbvh_over;
 use super::quality::BuildQuality;
 use glam::{UVec3, Vec3A};
@@ -192,8 +193,8 @@ impl Part {
                 // Node j > 0 of the cell moves to node_base + j - 1; its root to `slot`.
                 let node_base = out.nodes.len() as u32 - 1;
                 let prim_base = out.primitive_indices.len() as u32;
-                let moved = |n: &CwBvhNode| moved_node(n, node_base, prim_base);
-                out.nodes[slot] = moved_node(&cell.nodes[0], node_base, prim_base);
+                let moved = |n: &CwBvhNode| placed(n, node_base, prim_base);
+                out.nodes[slot] = placed(&cell.nodes[0], node_base, prim_base);
                 out.nodes.extend(cell.nodes[1..].iter().map(moved));
                 out.primitive_indices.extend_from_slice(&cell.primitive_indices);
             }
@@ -214,45 +215,6 @@ impl Part {
             }
         }
     }
-}
-
-/// `n` with its child and primitive indices moved by `node_base` and `prim_base`.
-fn moved_node(n: &CwBvhNode, node_base: u32, prim_base: u32) -> CwBvhNode {
-    CwBvhNode {
-        child_base_idx: n.child_base_idx + node_base,
-        primitive_base_idx: n.primitive_base_idx + prim_base,
-        ..*n
-    }
-}
-
-/// A CWBVH node whose children, all inner, are `(slot, box)`, quantized as obvhs's
-/// `Bvh2Converter` does: the node's minimum and a power-of-two step per axis, the child
-/// boxes rounded outwards to 8 bits.
-fn inner_node(node_box: &Aabb, children: &[(usize, Aabb)], child_base_idx: u32, primitive_base_idx: u32) -> CwBvhNode {
-    let p = node_box.min;
-    let e = ((node_box.max - node_box.min).max(Vec3A::splat(1e-20)) * (1.0 / 255.0)).log2().ceil().exp2();
-    let rcp_e = 1.0 / e;
-    let exponent = |x: f32| (x.to_bits() >> 23) as u8;
-    let mut node = CwBvhNode {
-        p: p.into(),
-        e: [exponent(e.x), exponent(e.y), exponent(e.z)],
-        child_base_idx,
-        primitive_base_idx,
-        ..Default::default()
-    };
-    for &(slot, b) in children {
-        let lo = ((b.min - p) * rcp_e).floor().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
-        let hi = ((b.max - p) * rcp_e).ceil().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
-        node.child_min_x[slot] = lo.x as u8;
-        node.child_min_y[slot] = lo.y as u8;
-        node.child_min_z[slot] = lo.z as u8;
-        node.child_max_x[slot] = hi.x as u8;
-        node.child_max_y[slot] = hi.y as u8;
-        node.child_max_z[slot] = hi.z as u8;
-        node.imask |= 1 << slot;
-        node.child_meta[slot] = (24 + slot as u8) | 0b0010_0000;
-    }
-    node
 }
 
 /// The slot of each child: slot s faces the direction whose signs are s's bits (x, y, z

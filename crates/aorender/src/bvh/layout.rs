@@ -2,6 +2,7 @@
 //! children's boxes, and the primitive records in leaf order that both read.
 
 use super::build::{SceneCwbvh, build_bvh2, build_cwbvh};
+use super::cwbvh::placed;
 use super::ploc::cwbvh_depth;
 use super::quality::BuildQuality;
 use crate::geometry::AffineRows;
@@ -33,7 +34,7 @@ pub const CWBVH_STACK_SIZE: u32 = 31;
 /// The node layout the GPU traverses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum BvhLayout {
-    /// Binary BVH, both children's boxes in each 64-byte node (`shaders/trace.wgsl`).
+    /// Binary BVH, both children's boxes in each 64-byte node (`shaders/trace_bvh2.wgsl`).
     Bvh2,
     /// obvhs's compressed 8-wide BVH, 80-byte nodes (`shaders/trace_cwbvh.wgsl`).
     #[default]
@@ -108,27 +109,6 @@ gpu_struct! {
     }
 }
 const _: () = assert!(std::mem::size_of::<GpuPrimitive>() == 48);
-
-gpu_struct! {
-    /// obvhs's `CwBvhNode` (80 bytes) as the kernel reads it, five words at a time:
-    /// `n0 = (p.x, p.y, p.z, e.x | e.y << 8 | e.z << 16 | imask << 24)`, `n1 = (child_base_idx,
-    /// primitive_base_idx, child_meta[0..4], child_meta[4..8])`, `n2 = (child_min_x[0..4],
-    /// [4..8], child_max_x[0..4], [4..8])`, `n3` the same for y and `n4` for z.
-    pub struct CwNodeWords as "CwNode" {
-        /// Origin and exponents, and the inner-child mask.
-        pub n0: [u32; 4] = "vec4u",
-        /// Child and primitive bases and the children's metadata.
-        pub n1: [u32; 4] = "vec4u",
-        /// Quantized x bounds of the children.
-        pub n2: [u32; 4] = "vec4u",
-        /// Quantized y bounds.
-        pub n3: [u32; 4] = "vec4u",
-        /// Quantized z bounds.
-        pub n4: [u32; 4] = "vec4u",
-    }
-}
-const _: () = assert!(std::mem::size_of::<CwBvhNode>() == 80);
-const _: () = assert!(std::mem::size_of::<CwNodeWords>() == std::mem::size_of::<CwBvhNode>());
 
 /// The record of top-level primitive `id` (triangles, spheres, instances).
 pub fn gpu_primitive(scene: &Scene, id: usize) -> GpuPrimitive {
@@ -346,12 +326,7 @@ impl GpuBvh {
             let node_base = (node_bytes.len() / node_size) as u32;
             roots.push(node_base);
             for n in &blas.nodes {
-                let moved = CwBvhNode {
-                    child_base_idx: n.child_base_idx + node_base,
-                    primitive_base_idx: n.primitive_base_idx + prim_base,
-                    ..*n
-                };
-                node_bytes.extend_from_slice(bytemuck::bytes_of(&moved));
+                node_bytes.extend_from_slice(bytemuck::bytes_of(&placed(n, node_base, prim_base)));
             }
             prim_base += blas.primitive_indices.len() as u32;
         }

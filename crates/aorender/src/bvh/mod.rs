@@ -13,13 +13,15 @@
 
 pub mod build;
 pub mod chunked;
+pub mod cwbvh;
 pub mod layout;
 pub mod ploc;
 pub mod quality;
 
 pub use build::{SceneCwbvh, build_cwbvh};
+pub use cwbvh::CwNodeWords;
 pub use layout::{
-    BvhLayout, CWBVH_STACK_SIZE, CwNodeWords, GpuBvh, GpuNode, GpuPrimitive, INVALID_INDEX, PRIM_INSTANCE, PRIM_SPHERE,
+    BvhLayout, CWBVH_STACK_SIZE, GpuBvh, GpuNode, GpuPrimitive, INVALID_INDEX, PRIM_INSTANCE, PRIM_SPHERE,
     PRIM_TRIANGLE, gpu_primitive, mesh_primitive,
 };
 pub use quality::BuildQuality;
