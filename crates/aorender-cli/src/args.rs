@@ -12,6 +12,20 @@ use glam::Vec3;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
+/// Samples per replicate of a run with an error target, unless --replicate says (or
+/// fewer, to make 16 replicates of the samples asked for): the target is checked after
+/// every replicate.
+pub const TARGET_REPLICATE: u32 = 16;
+/// Replicates a run with an error target makes of its samples at least.
+pub const TARGET_REPLICATES: u32 = 16;
+
+/// The replicate size of a render or probe run of `samples` samples with an error target
+/// and no --replicate: at most [`TARGET_REPLICATE`], and at least [`TARGET_REPLICATES`]
+/// replicates where `sampler` allows.
+pub fn target_replicate(sampler: Sampler, samples: u32) -> u32 {
+    sampler.replicate_for(samples.min(TARGET_REPLICATE * TARGET_REPLICATES), TARGET_REPLICATES)
+}
+
 /// `--hemisphere` values: the library's names.
 pub fn hemisphere_parser() -> impl clap::builder::TypedValueParser<Value = Hemisphere> {
     clap::builder::PossibleValuesParser::new(Hemisphere::ALL.map(Hemisphere::name))

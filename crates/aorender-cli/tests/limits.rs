@@ -5,6 +5,7 @@
 mod common;
 use aorender::gpu::context::TEST_STACK_ENTRIES_ENV;
 use aorender::host_memory::FILM_BUDGET_ENV;
+use aorender::scene::MAX_IMAGE_SIDE;
 use aorender::{Device, DeviceKind};
 use common::*;
 use std::io::Read;
@@ -57,7 +58,7 @@ fn devices() -> Vec<&'static str> {
     if gpu_available() { vec!["cpu", "gpu"] } else { vec!["cpu"] }
 }
 
-/// A 16384² image of a small mesh with the film budget set to 100 MB: refused in one line
+/// The largest image (16384²) of a small mesh with the film budget set to 100 MB: refused in one line
 /// naming the file, the bytes the film needs (the library's estimate) and the budget,
 /// exit 1, nothing written, and the process never near the film's size (its peak resident
 /// memory under 512 MiB, where the film alone would take 34 GiB).
@@ -67,15 +68,16 @@ fn a_film_past_the_budget_is_refused_before_any_work() {
     let d = dir.path();
     std::fs::copy(repo().join("scenes/teapot.obj"), d.join("teapot.obj")).unwrap();
     for device in devices() {
-        let args = ["render", "teapot.obj", "--width", "16384", "--height", "16384", "--device", device];
+        let side = MAX_IMAGE_SIDE.to_string();
+        let args = ["render", "teapot.obj", "--width", &side, "--height", &side, "--device", device];
         let args = [&args[..], &["-o", "out.png", "--stats", "stats.json"]].concat();
         let out = run(&args, d, &[(FILM_BUDGET_ENV, "100000000")]);
         let line = one_line(&out, device);
         assert_eq!(out.code, Some(1), "{device}: {line}");
         let kind = if device == "cpu" { DeviceKind::Cpu } else { DeviceKind::Gpu };
-        let needed = Device::open(kind, None).unwrap().film_bytes(16384 * 16384, false);
+        let needed = Device::open(kind, None).unwrap().film_bytes(MAX_IMAGE_SIDE as u64 * MAX_IMAGE_SIDE as u64, false);
         let expect = format!(
-            "aorender: teapot.obj: a 16384x16384 image needs {needed} bytes of host memory, past the film budget of \
+            "aorender: teapot.obj: a {side}x{side} image needs {needed} bytes of host memory, past the film budget of \
              100000000 bytes (set by {FILM_BUDGET_ENV})"
         );
         assert_eq!(line, expect, "{device}");

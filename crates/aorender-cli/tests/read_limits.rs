@@ -9,6 +9,7 @@
 //! may show the bytes of a file it read.
 
 mod common;
+use aorender::scene::MAX_IMAGE_SIDE;
 use common::*;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -318,13 +319,13 @@ fn lying_checkpoint(d: &Path) -> PathBuf {
     let header = 132 + name + 36;
     let groups = u32::from_le_bytes(bytes[header - 4..header].try_into().unwrap()) as u64;
     assert_eq!(bytes.len() as u64, header as u64 + 32 * 4 + 16 * groups + 32, "a checkpoint of 4 pixels");
-    bytes[44..48].copy_from_slice(&16384u32.to_le_bytes());
-    bytes[48..52].copy_from_slice(&16384u32.to_le_bytes());
+    bytes[44..48].copy_from_slice(&MAX_IMAGE_SIDE.to_le_bytes());
+    bytes[48..52].copy_from_slice(&MAX_IMAGE_SIDE.to_le_bytes());
     bytes.truncate(header);
     let path = d.join("huge.ck");
     let file = std::fs::File::create(&path).unwrap();
     (&file).write_all(&bytes).unwrap();
-    file.set_len(header as u64 + 32 * 16384 * 16384 + 16 * groups + 32).unwrap();
+    file.set_len(header as u64 + 32 * MAX_IMAGE_SIDE as u64 * MAX_IMAGE_SIDE as u64 + 16 * groups + 32).unwrap();
     path
 }
 

@@ -4,6 +4,7 @@
 //! reference; checkpoints of other scenes or settings, and damaged ones, are refused.
 
 mod common;
+use aorender::scene::MAX_IMAGE_SIDE;
 use aorender::{
     Accumulation, BuildQuality, BvhLayout, BvhOptions, Control, Device, DeviceKind, Hemisphere, ImageRequest, Progress,
     RenderOutput, SaveFn, Scene, Session,
@@ -563,9 +564,9 @@ fn a_header_claiming_a_huge_image_is_refused_without_allocating_it() {
     let header = bytes.len() - 32 * 8 * 6 - 32;
     // Width and height follow the magic, the version and the scene hash.
     assert_eq!(&bytes[44..52], [8u32.to_le_bytes(), 6u32.to_le_bytes()].concat());
-    bytes[44..48].copy_from_slice(&16384u32.to_le_bytes());
-    bytes[48..52].copy_from_slice(&16384u32.to_le_bytes());
-    let described = header as u64 + 32 * 16384 * 16384 + 32;
+    bytes[44..48].copy_from_slice(&MAX_IMAGE_SIDE.to_le_bytes());
+    bytes[48..52].copy_from_slice(&MAX_IMAGE_SIDE.to_le_bytes());
+    let described = header as u64 + 32 * MAX_IMAGE_SIDE as u64 * MAX_IMAGE_SIDE as u64 + 32;
     let e = Accumulation::from_bytes(&bytes).unwrap_err().to_string();
     assert!(e.contains(&format!("{} bytes, but its header describes {described}", bytes.len())), "{e}");
 

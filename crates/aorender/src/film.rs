@@ -583,6 +583,9 @@ pub const OUT_OF_RANGE_BIT: u64 = 1 << 63;
 /// below 2^62). The GPU kernel skips such a slot; the slot reads back as empty.
 pub const INACTIVE_SLOT_BITS: u32 = 0xffff_ffff;
 
+/// The largest exponent e of the bound 2^e on a render's samples that sums are scaled for.
+pub const MAX_VALUE_EXPONENT: i32 = 256;
+
 /// The exponent e of the smallest power of two, 2^e, at least `max_value` (taken as at
 /// least 1; a non-finite bound as twice the largest f32): the scale of a render's sums,
 /// from the largest magnitude its samples can take.
@@ -590,7 +593,7 @@ pub fn value_exponent(max_value: f64) -> i32 {
     let v = if max_value.is_finite() { max_value.max(1.0) } else { 2.0 * f32::MAX as f64 };
     // At most 129 for any f32 value doubled.
     let mut e = 0;
-    while e < 256 && pow2(e) < v {
+    while e < MAX_VALUE_EXPONENT && pow2(e) < v {
         e += 1;
     }
     e

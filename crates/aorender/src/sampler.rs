@@ -41,7 +41,7 @@ pub const PERMUTE_WALK_LIMIT: u32 = 32;
 pub const SAMPLER_LOOP_BOUND: u32 = 2 * PERMUTE_WALK_LIMIT;
 /// The largest replicate: the exact accumulation's block ([`crate::film::BLOCK_SAMPLES`]),
 /// so that replicates nest in blocks.
-pub const MAX_REPLICATE_SAMPLES: u32 = 256;
+pub const MAX_REPLICATE_SAMPLES: u32 = crate::film::BLOCK_SAMPLES;
 /// The largest `f32` below one.
 pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
 
@@ -147,8 +147,16 @@ impl Sampler {
             return Ok(());
         }
         let allowed = match self {
-            Sampler::Stratified => "0 (one replicate) or 1, 4, 16, 64 or 256 (n x n cells, n a power of two)",
-            _ => "0 (one replicate) or a power of two up to 256",
+            Sampler::Stratified => {
+                // The powers of four up to the largest replicate: "1, 4, 16, 64 or 256".
+                let sizes: Vec<String> = std::iter::successors(Some(1u32), |n| n.checked_mul(4))
+                    .take_while(|&n| n <= MAX_REPLICATE_SAMPLES)
+                    .map(|n| n.to_string())
+                    .collect();
+                let (last, rest) = sizes.split_last().expect("1 is a replicate size");
+                format!("0 (one replicate) or {} or {last} (n x n cells, n a power of two)", rest.join(", "))
+            }
+            _ => format!("0 (one replicate) or a power of two up to {MAX_REPLICATE_SAMPLES}"),
         };
         Err(format!("{replicate} samples per replicate for the {} sampler: use {allowed}", self.name()))
     }

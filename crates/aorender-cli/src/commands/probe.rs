@@ -96,7 +96,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     phases.load_seconds = loading.elapsed().as_secs_f64();
     let target = args.target_error.map(ErrorTarget::PointStdError);
     if target.is_some() && args.sampling.replicate.is_none() {
-        scene.settings.replicate = Some(scene.settings.sampler.replicate_for(args.samples.min(256), 16));
+        scene.settings.replicate = Some(crate::args::target_replicate(scene.settings.sampler, args.samples));
     }
     let settings = scene.settings.clone();
     let opening = Instant::now();

@@ -11,10 +11,6 @@ use aorender::{Accumulation, Device, ErrorTarget, ImageRequest, Sampler, Session
 
 /// Samples per pixel a render with an error target takes at most, unless --spp says.
 const TARGET_SPP_CAP: u32 = 65536;
-/// Samples per replicate of a render with an error target, unless --replicate says (or
-/// fewer, to make 16 replicates of the samples asked for): the target is checked after
-/// every replicate.
-const TARGET_REPLICATE: u32 = 16;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -89,7 +85,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     // replicates to decide at.
     let s = &mut scene.settings;
     if target.is_some() && s.replicate.is_none() && (s.sampler != Sampler::Independent || args.adaptive) {
-        s.replicate = Some(s.sampler.replicate_for(s.spp.min(TARGET_REPLICATE * 16), 16));
+        s.replicate = Some(crate::args::target_replicate(s.sampler, s.spp));
     }
     scene.settings.validate().map_err(invalid_option)?;
     let checkpoint_path = args.run.check(scene.settings.spp, "pixel")?;

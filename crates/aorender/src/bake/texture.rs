@@ -29,8 +29,9 @@ use crate::error::{Error, Result};
 use crate::probe::{Probe, ProbeValue};
 use glam::{DVec2, Mat3, Vec2, Vec3};
 
-/// The largest side of a texture the bake takes.
-pub const MAX_TEXTURE_SIZE: u32 = 16384;
+/// The largest side of a texture the bake takes: a map is an image, at most the largest
+/// image side.
+pub const MAX_TEXTURE_SIZE: u32 = crate::scene::MAX_IMAGE_SIDE;
 
 /// Host bytes a texel needs while the texture is planned and written (its value, standard
 /// error, bent normal, coverage, where its points start and the rasteriser's records),

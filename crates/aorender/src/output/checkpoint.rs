@@ -376,7 +376,7 @@ impl Accumulation {
             (replicate, layout, r.u64()?, r.u32()?)
         };
 
-        // An image is at most 16384 on a side; a probe film (bake: one slot per point) may be
+        // An image is at most MAX_IMAGE_SIDE on a side; a probe film (bake: one slot per point) may be
         // long and narrow, within the same number of slots.
         if width == 0 || height == 0 || width as u64 * height as u64 > MAX_SLOTS {
             return Err(format!("invalid film size {width}x{height} (at most {MAX_SLOTS} slots)").into());
@@ -396,7 +396,9 @@ impl Accumulation {
             return Err(format!("written with blocks of {block} samples; this aorender uses {BLOCK_SAMPLES}").into());
         }
         let e = sum_exponent - ExactSums::exponents(1.0).0;
-        if !(0..=256).contains(&e) || (sum_exponent, sq_exponent) != ExactSums::exponents(2f64.powi(e)) {
+        if !(0..=crate::film::MAX_VALUE_EXPONENT).contains(&e)
+            || (sum_exponent, sq_exponent) != ExactSums::exponents(2f64.powi(e))
+        {
             return Err(format!("invalid sum scales 2^{sum_exponent}, 2^{sq_exponent}").into());
         }
         if !(first <= next && next <= end && end <= spp) {
