@@ -12,6 +12,15 @@ use glam::Vec3;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
+/// The mesh formats the loaders read, as every command's help names them.
+#[macro_export]
+macro_rules! mesh_formats {
+    () => {
+        "Wavefront OBJ (.obj), Stanford PLY (.ply, ASCII or binary), glTF 2.0 (.gltf with its \
+         buffers, or .glb), each optionally gzipped (.gz)"
+    };
+}
+
 /// Samples per replicate of a run with an error target, unless --replicate says (or
 /// fewer, to make 16 replicates of the samples asked for): the target is checked after
 /// every replicate.
@@ -118,8 +127,8 @@ impl SizeArgs {
 /// The scene and how to trace it: options shared by `render`, `compare` and `probe`.
 #[derive(clap::Args)]
 pub struct SceneArgs {
-    /// Scene file (.toml) or mesh (.obj, .ply, .gltf or .glb, each optionally gzipped: .gz).
-    /// Default: the built-in aobench scene.
+    /// Scene file (.toml) or mesh ([`crate::mesh_formats!`]). Default: the built-in aobench scene.
+    #[arg(help = concat!("Scene file (.toml) or mesh: ", mesh_formats!(), ". Default: the built-in aobench scene"))]
     pub scene: Option<PathBuf>,
     /// AO rays longer than this are unoccluded (default: the scene's, else unlimited).
     #[arg(long, allow_negative_numbers = true)]

@@ -122,7 +122,8 @@ fn invert_cosine_hemisphere_sample(w: vec3f) -> vec2f {
     return invert_uniform_disk_concentric_sample(w.xy);
 }
 
-// Cosine-weighted hemisphere through the polar disk map (the lecture's construction).
+// Cosine-weighted hemisphere through the polar disk map (the construction of the lecture
+// "Monte Carlo Integration I", Nowrouzezahrai, ECSE 446/546).
 fn sample_cosine_hemisphere_polar(u: vec2f) -> vec3f {
     let d = sample_uniform_disk_polar(u);
     return vec3f(d.x, d.y, safe_sqrt(1.0 - u.x));

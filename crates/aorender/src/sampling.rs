@@ -50,8 +50,9 @@ pub enum Hemisphere {
     Uniform,
     /// p(ω) = cos θ/π via the concentric disk mapping; estimator ρ V.
     Cosine,
-    /// p(ω) = cos θ/π via the polar disk mapping (r = √ξ₁, φ = 2πξ₂), the lecture's
-    /// literal method; same estimator as `Cosine`, but it stretches the square's strata.
+    /// p(ω) = cos θ/π via the polar disk mapping (r = √ξ₁, φ = 2πξ₂), the literal method of
+    /// the lecture *Monte Carlo Integration I* (Nowrouzezahrai, ECSE 446/546, McGill); same
+    /// estimator as `Cosine`, but it stretches the square's strata.
     CosinePolar,
 }
 
@@ -118,7 +119,8 @@ impl Hemisphere {
     }
 }
 
-/// Uniform hemisphere by inversion: z = ξ₁, φ = 2πξ₂ (the lecture's "better" form).
+/// Uniform hemisphere by inversion: z = ξ₁, φ = 2πξ₂ (the "better" form of the lecture
+/// *Monte Carlo Integration I*).
 pub fn sample_uniform_hemisphere(u: Vec2) -> Vec3 {
     let z = u.x;
     let r = safe_sqrt(1.0 - z * z);
@@ -205,7 +207,8 @@ pub fn invert_cosine_hemisphere_sample(w: Vec3) -> Vec2 {
     invert_uniform_disk_concentric_sample(Vec2::new(w.x, w.y))
 }
 
-/// Cosine-weighted hemisphere through the polar disk map: the lecture's construction.
+/// Cosine-weighted hemisphere through the polar disk map: the construction of the lecture
+/// *Monte Carlo Integration I*.
 /// The height is √(1 − ξ₁), exact up to one rounding.
 pub fn sample_cosine_hemisphere_polar(u: Vec2) -> Vec3 {
     let d = sample_uniform_disk_polar(u);

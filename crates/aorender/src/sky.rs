@@ -96,7 +96,8 @@ pub struct Sky {
     pub model: SkyModel,
     /// The zenith, in the scene's coordinates (normalised where used; glTF's +Y by default).
     pub up: Vec3,
-    /// Albedo of the ground below the horizon, in [0, 1] (0: the lecture's black ground).
+    /// Albedo of the ground below the horizon, in [0, 1] (0: the black ground of the lecture
+    /// *Monte Carlo Integration I*).
     pub ground_albedo: f32,
     /// How the overcast sky is sampled.
     pub sampling: SkySampling,

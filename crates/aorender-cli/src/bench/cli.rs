@@ -13,7 +13,9 @@ use std::path::{Path, PathBuf};
 /// Options of `aorender bench`.
 #[derive(clap::Args, Debug)]
 pub struct BenchArgs {
-    /// Scene files or meshes to measure instead of the built-in list (see --with-builtin).
+    /// Scene files (.toml) or meshes to measure instead of the built-in list (see
+    /// --with-builtin).
+    #[arg(help = concat!("Scene files (.toml) or meshes (", crate::mesh_formats!(), ") to measure instead of the built-in list (see --with-builtin)"))]
     pub scenes: Vec<PathBuf>,
     /// Small images and sample counts on three small scenes: a smoke check that finishes
     /// in under a minute on lavapipe.

@@ -23,12 +23,13 @@ use std::time::Instant;
 #[command(mut_arg("scene", |a| a
     .required(true)
     .value_name("INPUT")
-    .help("The mesh to bake (.obj, .ply, .gltf or .glb, each optionally gzipped: .gz), or a scene file (.toml) whose mesh objects are baked, all its objects occluding")))]
+    .help(concat!("The mesh to bake: ", crate::mesh_formats!(), "; or a scene file (.toml) whose mesh objects are baked, all its objects occluding"))))]
 pub struct BakeArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Output: a mesh file of the input's format (.ply, .obj, .gltf or .glb, optionally
-    /// .gz) for a mesh input; a directory for a scene file (one file per mesh object).
+    /// Output: for a mesh input, a mesh file whose extension picks its format (.ply, .obj,
+    /// .gltf or .glb, optionally .gz; a texture bake: .png or .exr too); a directory for a
+    /// scene file (one file per mesh object).
     #[arg(short, long)]
     output: PathBuf,
     /// Where AO is baked: at every vertex about its normal, or at every face's centroid.
