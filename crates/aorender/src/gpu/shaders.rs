@@ -414,10 +414,8 @@ pub fn compose(
                 .iter()
                 .map(|(f, _)| {
                     let dir = std::path::Path::new(&dir);
-                    let path = match ELSEWHERE.iter().find(|(n, _)| n == f) {
-                        Some((_, place)) => dir.join("..").join(place),
-                        None => dir.join(f),
-                    };
+                    let elsewhere = ELSEWHERE.iter().any(|(n, _)| n == f);
+                    let path = if elsewhere { dir.join("..").join(file_path(f)) } else { dir.join(f) };
                     std::fs::read_to_string(&path)
                         .map(|text| (*f, text))
                         .map_err(|e| Error::Shader(format!("{SHADER_DIR_VAR}: {}: {e}", path.display())))
