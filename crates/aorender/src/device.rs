@@ -8,7 +8,7 @@ use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::{Error, Result};
 use crate::film::{BlockSums, ExactSums, INACTIVE_SLOT_BITS};
-use crate::gpu::stats::{CheckQuery, CheckSums};
+use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
 use crate::gpu::{
     AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal,
 };
@@ -435,13 +435,36 @@ pub(crate) trait Passes {
     fn keeps_sums(&self) -> bool {
         false
     }
-    /// Replaces the device's exact sums with `exact`'s.
-    fn write_sums(&mut self, _exact: &ExactSums) -> Result<()> {
+    /// Replaces the device's exact sums and counts with `exact`'s (`samples` a pixel
+    /// where it does not count them per pixel).
+    fn write_sums(&mut self, _exact: &ExactSums, _samples: u32) -> Result<()> {
         Err(Error::settings("this device does not keep exact sums"))
     }
-    /// Adds the block to the device's exact sums, leaving the block empty; `replicate`:
-    /// the block is one whole replicate, whose square is added to the replicates' squares.
-    fn fold(&mut self, _replicate: bool) -> Result<()> {
+    /// Adds the block of `taken` samples to the device's exact sums and the counts of
+    /// the pixels it holds, leaving the block empty; `replicate`: the block is one whole
+    /// replicate, whose square is added to the replicates' squares.
+    fn fold(&mut self, _replicate: bool, _taken: u32) -> Result<()> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+    /// The image-level sums of an adaptive render's decisions over the device's sums and
+    /// counts, and the first slot that received a sample out of range.
+    fn adapt_check(&mut self, _query: AdaptQuery, _exponents: (i32, i32)) -> Result<(AdaptSums, Option<u32>)> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+    /// Stops (`apply`) or counts the pixels still sampled whose replicates reach σ ×
+    /// `per_sigma`; how many do, and how many go on.
+    fn allocate(
+        &mut self,
+        _query: AdaptQuery,
+        _exponents: (i32, i32),
+        _per_sigma: f32,
+        _apply: bool,
+    ) -> Result<(u32, u32)> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+    /// Each pixel's samples, complete replicates and whether it is stopped, as the device
+    /// counts them.
+    fn read_counts(&mut self) -> Result<Vec<(u32, u32, bool)>> {
         Err(Error::settings("this device does not keep exact sums"))
     }
     /// The image-level sums of the stopping rule over the device's exact sums, and the
@@ -506,12 +529,30 @@ impl Passes for GpuTarget {
         GpuTarget::keeps_sums(self)
     }
 
-    fn write_sums(&mut self, exact: &ExactSums) -> Result<()> {
-        GpuTarget::write_sums(self, exact)
+    fn write_sums(&mut self, exact: &ExactSums, samples: u32) -> Result<()> {
+        GpuTarget::write_sums(self, exact, samples)
     }
 
-    fn fold(&mut self, replicate: bool) -> Result<()> {
-        GpuTarget::fold(self, replicate)
+    fn fold(&mut self, replicate: bool, taken: u32) -> Result<()> {
+        GpuTarget::fold(self, replicate, taken)
+    }
+
+    fn adapt_check(&mut self, query: AdaptQuery, exponents: (i32, i32)) -> Result<(AdaptSums, Option<u32>)> {
+        GpuTarget::adapt_check(self, query, exponents)
+    }
+
+    fn allocate(
+        &mut self,
+        query: AdaptQuery,
+        exponents: (i32, i32),
+        per_sigma: f32,
+        apply: bool,
+    ) -> Result<(u32, u32)> {
+        GpuTarget::allocate(self, query, exponents, per_sigma, apply)
+    }
+
+    fn read_counts(&mut self) -> Result<Vec<(u32, u32, bool)>> {
+        GpuTarget::read_counts(self)
     }
 
     fn check(&mut self, query: CheckQuery, exponents: (i32, i32)) -> Result<(CheckSums, Option<u32>)> {
@@ -608,17 +649,68 @@ impl Passes for GpuChunks {
         self.targets.iter().all(|(t, _)| t.keeps_sums())
     }
 
-    fn write_sums(&mut self, exact: &ExactSums) -> Result<()> {
+    fn write_sums(&mut self, exact: &ExactSums, samples: u32) -> Result<()> {
         let mut start = 0;
         for (target, slots) in &mut self.targets {
-            target.write_sums(&sums_part(exact, start..start + *slots))?;
+            let range = start..start + *slots;
+            let mut part = sums_part(exact, range.clone());
+            if !exact.pixel_samples.is_empty() {
+                part.pixel_samples = exact.pixel_samples[range.clone()].to_vec();
+                part.pixel_replicates = exact.pixel_replicates[range].to_vec();
+            }
+            target.write_sums(&part, samples)?;
             start += *slots;
         }
         Ok(())
     }
 
-    fn fold(&mut self, replicate: bool) -> Result<()> {
-        self.targets.iter_mut().try_for_each(|(t, _)| t.fold(replicate))
+    fn fold(&mut self, replicate: bool, taken: u32) -> Result<()> {
+        self.targets.iter_mut().try_for_each(|(t, _)| t.fold(replicate, taken))
+    }
+
+    fn adapt_check(&mut self, query: AdaptQuery, exponents: (i32, i32)) -> Result<(AdaptSums, Option<u32>)> {
+        let (mut total, mut bad, mut start) = (None::<AdaptSums>, None, 0u32);
+        for (target, slots) in &mut self.targets {
+            let (s, b) = target.adapt_check(query, exponents)?;
+            total = Some(match total {
+                None => s,
+                Some(t) => AdaptSums {
+                    variance: t.variance + s.variance,
+                    variance_sq: t.variance_sq + s.variance_sq,
+                    mean: t.mean + s.mean,
+                    sigma: t.sigma + s.sigma,
+                    fewest: t.fewest.into_iter().chain(s.fewest).min(),
+                    most: t.most.max(s.most),
+                    pixels: t.pixels + s.pixels,
+                },
+            });
+            bad = bad.or(b.map(|b| b + start));
+            start += *slots as u32;
+        }
+        Ok((total.unwrap_or_default(), bad))
+    }
+
+    fn allocate(
+        &mut self,
+        query: AdaptQuery,
+        exponents: (i32, i32),
+        per_sigma: f32,
+        apply: bool,
+    ) -> Result<(u32, u32)> {
+        let mut total = (0, 0);
+        for (target, _) in &mut self.targets {
+            let (stop, go) = target.allocate(query, exponents, per_sigma, apply)?;
+            total = (total.0 + stop, total.1 + go);
+        }
+        Ok(total)
+    }
+
+    fn read_counts(&mut self) -> Result<Vec<(u32, u32, bool)>> {
+        let mut counts = Vec::new();
+        for (target, _) in &mut self.targets {
+            counts.extend(target.read_counts()?);
+        }
+        Ok(counts)
     }
 
     fn check(&mut self, query: CheckQuery, exponents: (i32, i32)) -> Result<(CheckSums, Option<u32>)> {
