@@ -325,6 +325,16 @@ pub struct PassTimes {
     pub checks: u32,
 }
 
+/// What a render's samples and replicates cost on its device ([`Render::replicate_costs`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReplicateCosts {
+    /// Seconds a sample per pixel takes in a pass.
+    pub per_sample: f64,
+    /// Seconds of the work done once a replicate: a pass's fixed cost, the fold of the
+    /// block into the exact sums and a check of the target.
+    pub per_replicate: f64,
+}
+
 /// A request in progress: its film on the device and its accumulation. Made by
 /// `Session::render`; run with [`Render::run`] (or [`Render::run_to`], stopping at given
 /// sample counts), then [`Render::finish`].
@@ -441,6 +451,45 @@ impl Render {
         self.interrupted = false;
         self.ended = None;
         Ok(())
+    }
+
+    /// Measures what a sample and a replicate cost on this render's device, then empties
+    /// the film as [`Render::restart`] does: a pass of one sample after a warm-up one and
+    /// a pass of eight give the seconds a sample takes and a pass's fixed cost; a fold of
+    /// a block into the exact sums and a check (the faster of two, after one that makes
+    /// the sums) add the work done once a replicate. `None` for a request of
+    /// fewer than 16 samples, one that has samples already, or one whose device does not
+    /// keep the sums (the CPU reference, whose statistics are host work beside its
+    /// passes: its replicates are what the caller asks).
+    pub fn replicate_costs(&mut self) -> Result<Option<ReplicateCosts>> {
+        const PASS: u32 = 8;
+        let acc = &self.acc;
+        if acc.end - acc.first < 16 || acc.next != acc.first || !self.passes.keeps_sums() {
+            return Ok(None);
+        }
+        let first = acc.first;
+        self.passes.pass(first, 1)?;
+        let t = Instant::now();
+        self.passes.pass(first + 1, 1)?;
+        let one = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        self.passes.pass(first + 2, PASS)?;
+        let several = t.elapsed().as_secs_f64();
+        let per_sample = ((several - one) / (PASS - 1) as f64).max(several / (2 * PASS) as f64);
+        // The first fold makes the device's sums and compiles their kernels: not timed.
+        self.passes.write_sums(&acc.exact, 0)?;
+        self.passes.fold(true, PASS + 2)?;
+        let exponents = (acc.exact.sum_exponent, acc.exact.sq_exponent);
+        let mut statistics = f64::INFINITY;
+        for _ in 0..2 {
+            let t = Instant::now();
+            self.passes.fold(true, 0)?;
+            self.passes.check(acc.check_query(), exponents)?;
+            statistics = statistics.min(t.elapsed().as_secs_f64());
+        }
+        self.passes.take()?;
+        self.restart()?;
+        Ok(Some(ReplicateCosts { per_sample, per_replicate: (one - per_sample).max(0.0) + statistics }))
     }
 
     /// Samples per pixel done.

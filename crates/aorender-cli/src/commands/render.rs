@@ -13,7 +13,9 @@ use aorender::{Accumulation, Device, ErrorTarget, ImageRequest, Sampler, Session
 const TARGET_SPP_CAP: u32 = 65536;
 /// Samples per replicate of a render with an error target, unless --replicate says (or
 /// fewer, to make 16 replicates of the samples asked for): the target is checked after
-/// every replicate.
+/// every replicate. A whole render (no --sample-range, no --resume) grows it where its
+/// device's costs ask (`Sampler::replicate_by_cost`); a shard keeps it, so that every
+/// shard of a render has the same.
 const TARGET_REPLICATE: u32 = 16;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -88,8 +90,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
     // Independent samples are their own replicates, unless an adaptive render needs
     // replicates to decide at.
     let s = &mut scene.settings;
+    let mut measure_replicate = false;
     if target.is_some() && s.replicate.is_none() && (s.sampler != Sampler::Independent || args.adaptive) {
         s.replicate = Some(s.sampler.replicate_for(s.spp.min(TARGET_REPLICATE * 16), 16));
+        measure_replicate = args.run.sample_range.is_none() && args.run.resume.is_none();
     }
     scene.settings.validate().map_err(invalid_option)?;
     let checkpoint_path = args.run.check(scene.settings.spp, "pixel")?;
@@ -153,8 +157,23 @@ pub fn run(args: RenderArgs) -> Result<()> {
         // refused before that work.
         device.check_image_budget(&scene, &scene.settings)?;
         let session = Session::new(&device, scene, &bvh)?;
-        let request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
+        let mut request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
         let mut render = session.render(&request)?;
+        if measure_replicate && let Some(costs) = render.replicate_costs()? {
+            let s = &request.settings;
+            let least = s.replicate.unwrap_or(1);
+            let chosen = s.sampler.replicate_by_cost(
+                least,
+                s.sampler.replicate_for(s.spp, 16),
+                costs.per_sample,
+                costs.per_replicate,
+            );
+            if chosen != least {
+                drop(render);
+                request.settings.replicate = Some(chosen);
+                render = session.render(&request)?;
+            }
+        }
         if let Some(acc) = resume {
             render.resume(acc)?;
         }

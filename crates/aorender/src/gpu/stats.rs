@@ -1,7 +1,7 @@
 //! A film's exact sums kept on the device (`shaders/stats.wgsl`): each finished block of
 //! samples is folded into them there, a replicate's square with it, and a check of an
 //! error target reduces the image-level sums of the stopping rule on the device and reads
-//! back 20 bytes rather than the film. The sums are read (`DeviceSums::read`) at
+//! back 32 bytes rather than the film. The sums are read (`DeviceSums::read`) at
 //! checkpoints and at the end, into the host's [`ExactSums`], bit for bit the integers
 //! the host would have added.
 //!
