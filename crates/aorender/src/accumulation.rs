@@ -167,6 +167,8 @@ pub const ADAPTIVE_SHARE: f64 = 0.9;
 /// The 97.5 % quantile of Student's t with `dof` ≥ 1 degrees of freedom in f32: the
 /// table and the Cornish–Fisher expansion of [`crate::film::t_quantile_975`], its
 /// coefficients rounded to f32 (`stats.wgsl`'s `t975`, step for step).
+// The literals are the shader's, digit for digit: both round them to the same f32.
+#[allow(clippy::excessive_precision)]
 fn t975(dof: u32) -> f32 {
     match dof {
         0 | 1 => 12.706_204_7,
@@ -260,8 +262,9 @@ fn tree_sum(terms: &[[f32; 4]]) -> [f32; 4] {
         let mut half = REDUCE_WORKGROUP / 2;
         while half > 0 {
             for l in 0..half {
-                for c in 0..4 {
-                    shared[l][c] += shared[l + half][c];
+                let other = shared[l + half];
+                for (a, b) in shared[l].iter_mut().zip(other) {
+                    *a += b;
                 }
             }
             half /= 2;
@@ -278,9 +281,8 @@ fn tree_sum(terms: &[[f32; 4]]) -> [f32; 4] {
         .collect();
     let mut shared = [[0.0f32; 4]; REDUCE_WORKGROUP];
     for (g, p) in partial.iter().enumerate() {
-        let lane = &mut shared[g % REDUCE_WORKGROUP];
-        for c in 0..4 {
-            lane[c] += p[c];
+        for (a, b) in shared[g % REDUCE_WORKGROUP].iter_mut().zip(p) {
+            *a += b;
         }
     }
     halve(&mut shared)
@@ -776,7 +778,7 @@ impl Accumulation {
     }
 
     /// The image-level sums of an adaptive render's decisions over the exact sums, in f32
-    /// in the tree a device's `stats.wgsl` sums them in ([`pixel_sigma`]): what the CPU
+    /// in the tree a device's `stats.wgsl` sums them in (`pixel_sigma`): what the CPU
     /// reference decides from, and the reference a device's sums are held to.
     pub fn adapt_sums(&self) -> AdaptSums {
         let (query, e) = (self.adapt_query(), (self.exact.sum_exponent, self.exact.sq_exponent));
@@ -799,10 +801,10 @@ impl Accumulation {
     /// that is not exact has `MIN_TARGET_REPLICATES` replicates (`None` before, or for a
     /// target that is not an image's). For a mean square error (1/P) Σ σᵢ² / kᵢ at a
     /// given total of replicates, the best kᵢ is in proportion to σᵢ, the standard
-    /// deviation of pixel i's replicate means ([`pixel_sigma`]): kᵢ = σᵢ Σσ / (P e′²)
+    /// deviation of pixel i's replicate means (`pixel_sigma`): kᵢ = σᵢ Σσ / (P e′²)
     /// gives an error of e′, and saves mean(σ²) / mean(σ)² of the replicates of uniform
     /// sampling. e′ is `ADAPTIVE_SHARE` of the target over the ratio of the image's RMSE
-    /// bound ([`rmse_bound`]) to its estimate, so that the bound, above the estimate,
+    /// bound (`film::rmse_bound`) to its estimate, so that the bound, above the estimate,
     /// meets the target when the pixels have the replicates allocated to them.
     pub fn allocation(&self, target: ErrorTarget, sums: &AdaptSums) -> Option<Allocation> {
         let fewest = sums.fewest.unwrap_or(sums.most) as u64;

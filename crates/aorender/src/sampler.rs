@@ -136,7 +136,7 @@ impl Sampler {
     /// asked for, from measured costs: the smallest size this sampler allows, from
     /// `least` up to `most`, whose work once a replicate (`per_replicate` seconds: a
     /// pass's fixed cost, as a pass ends with its replicate, the fold of the block into
-    /// the sums and a check of the target) is at most [`REPLICATE_OVERHEAD_SHARE`] of its
+    /// the sums and a check of the target) is at most `REPLICATE_OVERHEAD_SHARE` of its
     /// samples' (`per_sample` seconds each). The smallest, because a target is checked
     /// from the eighth replicate on: a larger replicate's first check comes later.
     pub fn replicate_by_cost(self, least: u32, most: u32, per_sample: f64, per_replicate: f64) -> u32 {
@@ -146,9 +146,9 @@ impl Sampler {
             Sampler::Independent | Sampler::Sobol => 2,
         };
         let mut r = least.max(1);
-        while r * step <= most.min(MAX_REPLICATE_SAMPLES)
-            && !(per_replicate <= REPLICATE_OVERHEAD_SHARE * per_sample * r as f64)
-        {
+        // A cost that is not a number grows it too: no measurement says it is small.
+        let within = |r: u32| per_replicate.partial_cmp(&(REPLICATE_OVERHEAD_SHARE * per_sample * r as f64));
+        while r * step <= most.min(MAX_REPLICATE_SAMPLES) && within(r).is_none_or(|o| o.is_gt()) {
             r *= step;
         }
         r

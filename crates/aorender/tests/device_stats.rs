@@ -1,7 +1,8 @@
 //! The statistics a GPU keeps on the device: the exact sums it folds its blocks and
 //! replicates into are the CPU reference's integers bit for bit, the image-level sums its
-//! checks reduce are the host's within their f32 rounding, and target renders resumed
-//! from a checkpoint end with the uninterrupted render's bits.
+//! checks reduce are the host's within their f32 rounding, an adaptive render's decisions
+//! taken on the device are the host rule's bit for bit, and target renders resumed from a
+//! checkpoint end with the uninterrupted render's bits.
 
 mod common;
 
