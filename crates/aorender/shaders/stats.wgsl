@@ -12,6 +12,12 @@
 // film.rs `standard_error`) and sums v, v² and the mean over a workgroup; `reduce_groups`
 // sums the workgroups' partial sums in one workgroup. Both are bounded loops (eight
 // halvings; a stride over at most 65,536 partial sums), far below lavapipe's cap.
+//
+// An adaptive render's pixels have their own counts (`stats_counts`, added by `fold` to
+// the pixels still sampled) and its decisions are taken here: `reduce` in per-pixel mode
+// also sums each pixel's σ (accumulation.rs `pixel_sigma`, whose f32 steps these are),
+// `allocate` stops the pixels that have the replicates an allocation ∝ σ gives them,
+// and `mark` writes the stopped flags into the counts before they are read.
 
 //#import sums.wgsl
 
@@ -34,7 +40,19 @@ struct StatsParams {
     sum_exponent: i32,
     square_exponent: i32,
     replicate_exponent: i32,
-    _pad2: i32,
+    // 1: every pixel has its own counts (`stats_counts`); 0: `n` and `k`.
+    per_pixel: u32,
+    // Samples `fold` adds to the counts of the pixels it folds.
+    taken: u32,
+    // What a sample can be (accumulation.rs `RANGE_*`), and its largest magnitude.
+    range: u32,
+    max_value: f32,
+    // `allocate`: 1 stops the pixels, 0 counts them; and replicates per unit of σ.
+    apply: u32,
+    per_sigma: f32,
+    _pad3: u32,
+    _pad4: u32,
+    _pad5: u32,
 }
 
 @group(0) @binding(0) var<storage, read_write> stats_film: array<vec4u>;
@@ -42,10 +60,15 @@ struct StatsParams {
 @group(0) @binding(2) var<storage, read_write> stats_square: array<vec4u>;
 @group(0) @binding(3) var<storage, read_write> stats_replicate: array<vec4u>;
 @group(0) @binding(4) var<uniform> stats_params: StatsParams;
-// One partial sum (Σv, Σv², Σ mean, 0) per workgroup of `reduce`, then the total.
+// One partial sum (Σv, Σv², Σ mean, Σσ) per workgroup of `reduce`, then the total.
 @group(0) @binding(5) var<storage, read_write> stats_partial: array<vec4f>;
 // [0]: 2^32 − 1 − the first pixel whose block held a sample out of range (0: none).
+// `reduce` per pixel: [2] 2^32 − 1 − the fewest replicates of a pixel whose value is
+// not exact (0: none), [3] the most of any. `allocate`: [1] the pixels it stops (or
+// would), [2] those that go on.
 @group(0) @binding(6) var<storage, read_write> stats_status: array<atomic<u32>>;
+// Per pixel: samples folded, and complete replicates (bit 31: stopped, set by `mark`).
+@group(0) @binding(7) var<storage, read_write> stats_counts: array<vec2u>;
 
 // log2 of the ratio of a block's quanta to the exact sums' (film.rs BLOCK_SHIFT).
 const BLOCK_SHIFT_WORDS: u32 = 1u;
@@ -54,7 +77,7 @@ const BLOCK_SHIFT_BITS: u32 = 7u;
 // (film.rs `add_replicates`: sq_exponent + REPLICATE_SQ_SHIFT − 2 (sum_exponent + BLOCK_SHIFT)).
 const REPLICATE_SQUARE_SHIFT: u32 = 23u;
 
-var<workgroup> stats_shared: array<vec3f, 256>;
+var<workgroup> stats_shared: array<vec4f, 256>;
 
 // x + y, wrapping at 2^128.
 fn add128(x: vec4u, y: vec4u) -> vec4u {
@@ -131,6 +154,7 @@ fn fold(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) lo
         atomicMax(&stats_status[0], 0xffffffffu - i);
         return;
     }
+    stats_counts[i] += vec2u(stats_params.taken, stats_params.replicate);
     stats_sum[i] = add128(stats_sum[i], widen_shifted(w.xy, true));
     stats_square[i] = add128(stats_square[i], widen_shifted(w.zw, false));
     if (stats_params.replicate == 1u) {
@@ -161,6 +185,78 @@ fn pixel_variance(i: u32) -> vec2f {
     return vec2f(v, mean);
 }
 
+// The 97.5 % quantile of Student's t with `dof` ≥ 1 degrees of freedom, in f32
+// (film.rs `t_quantile_975`).
+fn t975(dof: u32) -> f32 {
+    switch dof {
+        case 1u: { return 12.7062047; }
+        case 2u: { return 4.30265273; }
+        case 3u: { return 3.18244631; }
+        case 4u: { return 2.77644511; }
+        case 5u: { return 2.57058184; }
+        case 6u: { return 2.44691185; }
+        default: {
+            let v = f32(dof);
+            return 1.95996404 + 2.3722713 / v + 2.82249856 / (v * v) + 2.55584979 / (v * v * v)
+                + 1.58953404 / ((v * v) * (v * v));
+        }
+    }
+}
+
+// An adaptive render's view of pixel i: (v, mean, σ, replicates), v its variance of the
+// mean and σ the standard deviation of a replicate's mean the allocation takes (both 0
+// before a second replicate: an exact pixel's, or no estimate yet, which the fewest
+// replicates tell apart); accumulation.rs `pixel_sigma`.
+fn adaptive_pixel(i: u32) -> vec4f {
+    let p = stats_params;
+    let c = stats_counts[i];
+    let kk = c.y & 0x7fffffffu;
+    let n = f32(c.x);
+    let s = wide_to_f32(stats_sum[i], p.sum_exponent);
+    let mean = select(0.0, s / n, c.x > 0u);
+    if (kk < 2u) {
+        return vec4f(0.0, mean, 0.0, f32(kk));
+    }
+    let q = wide_to_f32(stats_square[i], p.square_exponent);
+    let r = wide_to_f32(stats_replicate[i], p.replicate_exponent);
+    let k = f32(kk);
+    let b = p.b;
+    let variance = max((r / (b * b) - (k * mean) * mean) / (k - 1.0), 0.0);
+    let v = (variance * b) / n;
+    let se = sqrt(v);
+    var upper = p.max_value;
+    if (p.range == 0u && s > 0.0 && q > 0.0) {
+        upper = min(q / s, p.max_value);
+    }
+    var lower = min(mean, 0.0);
+    if (p.range == 2u) {
+        lower = -p.max_value;
+    }
+    var width: f32;
+    if (se > 1e-9 * max(abs(upper), 1.17549435e-38)) {
+        let t = t975(kk - 1u);
+        let lo = min(lower, mean);
+        let hi = max(upper, mean);
+        let range = hi - lo;
+        let share = (mean - lo) / range;
+        let e = se / range;
+        let spread = share * (1.0 - share);
+        if (range > 0.0 && spread > 0.0) {
+            let kw = ((t * t) * (e * e)) / spread;
+            let centre = (share + 0.5 * kw) / (1.0 + kw);
+            let half = sqrt(kw * (spread + 0.25 * kw)) / (1.0 + kw);
+            width = range * (min(centre + half, 1.0) - max(centre - half, 0.0));
+        } else {
+            width = 2.0 * (t * se);
+        }
+    } else {
+        let jeffreys = min(3.8414588 / (2.0 * n + 1.0), 1.0);
+        width = jeffreys * max(mean, 0.0) + jeffreys * max(upper - mean, 0.0);
+    }
+    let sigma = max(se, width / 3.92) * sqrt(k);
+    return vec4f(v, mean, sigma, k);
+}
+
 // Sums stats_shared over the workgroup into stats_shared[0].
 fn reduce_shared(local: u32) {
     for (var half = 128u; half > 0u; half >>= 1u) {
@@ -175,29 +271,67 @@ fn reduce_shared(local: u32) {
 @compute @workgroup_size(256)
 fn reduce(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
     let i = stats_slot(group, local);
-    var x = vec3f(0.0);
-    if (i < stats_params.slots) {
+    var x = vec4f(0.0);
+    if (i < stats_params.slots && stats_params.per_pixel == 1u) {
+        let a = adaptive_pixel(i);
+        x = vec4f(a.x, a.x * a.x, a.y, a.z);
+        let kk = stats_counts[i].y & 0x7fffffffu;
+        if (!(stats_film[i].w == INACTIVE_SLOT && kk < 2u)) {
+            atomicMax(&stats_status[2], 0xffffffffu - kk);
+        }
+        atomicMax(&stats_status[3], kk);
+    } else if (i < stats_params.slots) {
         let vm = pixel_variance(i);
-        x = vec3f(vm.x, vm.x * vm.x, vm.y);
+        x = vec4f(vm.x, vm.x * vm.x, vm.y, 0.0);
     }
     stats_shared[local] = x;
     reduce_shared(local);
     // The last row of the dispatch may have workgroups past the slots' last.
     let g = group.y * stats_params.row_groups + group.x;
     if (local == 0u && g < stats_params.groups) {
-        stats_partial[g] = vec4f(stats_shared[0], 0.0);
+        stats_partial[g] = stats_shared[0];
     }
 }
 
 @compute @workgroup_size(256)
 fn reduce_groups(@builtin(local_invocation_index) local: u32) {
-    var x = vec3f(0.0);
+    var x = vec4f(0.0);
     for (var g = local; g < stats_params.groups; g += 256u) {
-        x += stats_partial[g].xyz;
+        x += stats_partial[g];
     }
     stats_shared[local] = x;
     reduce_shared(local);
     if (local == 0u) {
-        stats_partial[stats_params.groups] = vec4f(stats_shared[0], 0.0);
+        stats_partial[stats_params.groups] = stats_shared[0];
     }
+}
+
+// Stops (with `apply`; else counts) the pixels still sampled that have the replicates
+// the allocation gives them: k ≥ σ × per_sigma.
+@compute @workgroup_size(256)
+fn allocate(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
+    let i = stats_slot(group, local);
+    if (i >= stats_params.slots || stats_film[i].w == INACTIVE_SLOT) {
+        return;
+    }
+    let a = adaptive_pixel(i);
+    if (a.w >= a.z * stats_params.per_sigma) {
+        atomicAdd(&stats_status[1], 1u);
+        if (stats_params.apply == 1u) {
+            stats_film[i] = vec4u(0u, 0u, 0u, INACTIVE_SLOT);
+        }
+    } else {
+        atomicAdd(&stats_status[2], 1u);
+    }
+}
+
+// Sets bit 31 of each pixel's replicate count where the pixel is stopped.
+@compute @workgroup_size(256)
+fn mark(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
+    let i = stats_slot(group, local);
+    if (i >= stats_params.slots) {
+        return;
+    }
+    let stopped = select(0u, 0x80000000u, stats_film[i].w == INACTIVE_SLOT);
+    stats_counts[i].y = (stats_counts[i].y & 0x7fffffffu) | stopped;
 }

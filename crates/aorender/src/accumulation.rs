@@ -12,8 +12,11 @@
 use crate::bvh::{BuildQuality, BvhLayout};
 use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
-use crate::film::{BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, SampleRange, rmse_bound, standard_error};
-use crate::gpu::stats::{CheckQuery, CheckSums};
+use crate::film::{
+    BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, REPLICATE_SQ_SHIFT, SampleRange, rmse_bound,
+    standard_error,
+};
+use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
 use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_film_values};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
@@ -156,43 +159,142 @@ pub const TARGET_CHECK_SAMPLES: u32 = 16;
 /// freedom at least.
 pub const MIN_TARGET_REPLICATES: u64 = 8;
 
-/// The share of an adaptive render's target its allocation aims at (`allocate`): below 1,
+/// The share of an adaptive render's target its allocation aims at ([`Accumulation::allocation`]): below 1,
 /// so that the image's RMSE bound, above the estimate, meets the target when the pixels
 /// have the replicates allocated to them.
 pub const ADAPTIVE_SHARE: f64 = 0.9;
 
-/// Stops (in `mask`) the pixels of `film` that have the replicates an allocation for an
-/// RMSE of `e` gives them, returning whether one stopped. For a mean square error
-/// (1/P) Σ σᵢ² / kᵢ at a given total of replicates, the best kᵢ is in proportion to σᵢ,
-/// the standard deviation of pixel i's replicate means: kᵢ = σᵢ Σσ / (P e′²) gives an
-/// error of e′, and saves mean(σ²) / mean(σ)² of the replicates of uniform sampling.
-/// σᵢ is taken from the pixel's 95 % interval (`intervals`, Wilson's score interval
-/// where the samples are nearly binary) where that is wider than its standard error: a
-/// pixel whose samples happen to be nearly equal is not taken for a pixel without error.
-/// e′ is `ADAPTIVE_SHARE` of `e` over the ratio of the film's RMSE bound to its estimate.
-fn allocate(film: &Film, intervals: &[(f64, f64)], e: f64, mask: &mut [bool]) -> bool {
-    let se = film.std_error();
-    let sigma: Vec<f64> = (0..se.len())
-        .map(|i| {
-            let (lo, hi) = intervals[i];
-            let s = se[i].max((hi - lo) / (2.0 * 1.96));
-            if film.is_exact(i) || !s.is_finite() { 0.0 } else { s * (film.replicates_of(i) as f64).sqrt() }
-        })
-        .collect();
-    let inflation = match (film.rmse_bound(), film.rmse_estimate()) {
-        (Some(b), Some(r)) if r > 0.0 => b / r,
-        _ => 1.0,
-    };
-    let e_alloc = ADAPTIVE_SHARE * e / inflation;
-    let per_sigma = sigma.iter().sum::<f64>() / (sigma.len() as f64 * e_alloc * e_alloc);
-    let mut changed = false;
-    for (i, off) in mask.iter_mut().enumerate() {
-        if !*off && film.replicates_of(i) as f64 >= sigma[i] * per_sigma {
-            *off = true;
-            changed = true;
+/// The 97.5 % quantile of Student's t with `dof` ≥ 1 degrees of freedom in f32: the
+/// table and the Cornish–Fisher expansion of [`crate::film::t_quantile_975`], its
+/// coefficients rounded to f32 (`stats.wgsl`'s `t975`, step for step).
+// The literals are the shader's, digit for digit: both round them to the same f32.
+#[allow(clippy::excessive_precision)]
+fn t975(dof: u32) -> f32 {
+    match dof {
+        0 | 1 => 12.706_204_7,
+        2 => 4.302_652_73,
+        3 => 3.182_446_31,
+        4 => 2.776_445_11,
+        5 => 2.570_581_84,
+        6 => 2.446_911_85,
+        _ => {
+            let v = dof as f32;
+            1.959_964_04
+                + 2.372_271_3 / v
+                + 2.822_498_56 / (v * v)
+                + 2.555_849_79 / (v * v * v)
+                + 1.589_534_04 / ((v * v) * (v * v))
         }
     }
-    changed
+}
+
+/// The signed fixed-point `x` in quanta of 2^`e` as f32, as `stats.wgsl`'s `wide_to_f32`
+/// makes it: its magnitude's four 32-bit words, each rounded to f32 and scaled, added
+/// from the highest.
+pub fn wide_to_f32(x: i128, e: i32) -> f32 {
+    let m = x.unsigned_abs();
+    let word = |j: u32, k: i32| (((m >> (32 * j)) as u32) as f32 as f64 * 2f64.powi(k)) as f32;
+    let f = word(3, e + 96) + word(2, e + 64) + word(1, e + 32) + word(0, e);
+    if x < 0 { -f } else { f }
+}
+
+/// What an adaptive render's decisions take of one pixel, in f32, step for step what
+/// `stats.wgsl`'s `adaptive_pixel` computes on a device, so that both decide alike:
+/// (v, mean, σ, k), v the variance of its mean from its `k` replicates of `b` samples
+/// (`film::standard_error` squared) and σ the standard deviation of a replicate's mean
+/// the allocation takes: the larger of the standard error and the width of the pixel's
+/// 95 % interval over 2 × 1.96 (Wilson's score interval where the samples are nearly
+/// binary, the Jeffreys bound where they were all equal: [`crate::film::interval_95`]),
+/// times √k. A pixel whose samples happen to be nearly equal is so not taken for one
+/// without error. v and σ are 0 before a second replicate (an exact pixel's value).
+pub fn pixel_sigma(
+    sums: (i128, i128, i128),
+    samples: u32,
+    k: u32,
+    query: &AdaptQuery,
+    exponents: (i32, i32),
+) -> [f32; 4] {
+    let (range, max_value) = query.range_code();
+    let n = samples as f32;
+    let s = wide_to_f32(sums.0, exponents.0);
+    let mean = if samples > 0 { s / n } else { 0.0 };
+    if k < 2 {
+        return [0.0, mean, 0.0, k as f32];
+    }
+    let q = wide_to_f32(sums.1, exponents.1);
+    let r = wide_to_f32(sums.2, exponents.1 + REPLICATE_SQ_SHIFT);
+    let (kf, b) = (k as f32, query.replicate as f32);
+    let variance = ((r / (b * b) - (kf * mean) * mean) / (kf - 1.0)).max(0.0);
+    let v = (variance * b) / n;
+    let se = v.sqrt();
+    let upper = if range == 0 && s > 0.0 && q > 0.0 { (q / s).min(max_value) } else { max_value };
+    let lower = if range == 2 { -max_value } else { mean.min(0.0) };
+    let width = if se > 1e-9 * upper.abs().max(f32::MIN_POSITIVE) {
+        let t = t975(k - 1);
+        let (lo, hi) = (lower.min(mean), upper.max(mean));
+        let range = hi - lo;
+        let share = (mean - lo) / range;
+        let e = se / range;
+        let spread = share * (1.0 - share);
+        if range > 0.0 && spread > 0.0 {
+            let kw = ((t * t) * (e * e)) / spread;
+            let centre = (share + 0.5 * kw) / (1.0 + kw);
+            let half = (kw * (spread + 0.25 * kw)).sqrt() / (1.0 + kw);
+            range * ((centre + half).min(1.0) - (centre - half).max(0.0))
+        } else {
+            2.0 * (t * se)
+        }
+    } else {
+        let jeffreys = (3.841_458_8 / (2.0 * n + 1.0)).min(1.0);
+        jeffreys * mean.max(0.0) + jeffreys * (upper - mean).max(0.0)
+    };
+    let sigma = se.max(width / 3.92) * kf.sqrt();
+    [v, mean, sigma, kf]
+}
+
+/// Slots of a workgroup of `stats.wgsl`'s reductions.
+const REDUCE_WORKGROUP: usize = 256;
+
+/// Sums `terms` as `stats.wgsl`'s `reduce` and `reduce_groups` do, in f32: workgroups of
+/// 256 slots halved in a tree, their sums strided over 256 lanes and halved again.
+fn tree_sum(terms: &[[f32; 4]]) -> [f32; 4] {
+    let halve = |shared: &mut [[f32; 4]; REDUCE_WORKGROUP]| {
+        let mut half = REDUCE_WORKGROUP / 2;
+        while half > 0 {
+            for l in 0..half {
+                let other = shared[l + half];
+                for (a, b) in shared[l].iter_mut().zip(other) {
+                    *a += b;
+                }
+            }
+            half /= 2;
+        }
+        shared[0]
+    };
+    let partial: Vec<[f32; 4]> = terms
+        .chunks(REDUCE_WORKGROUP)
+        .map(|chunk| {
+            let mut shared = [[0.0f32; 4]; REDUCE_WORKGROUP];
+            shared[..chunk.len()].copy_from_slice(chunk);
+            halve(&mut shared)
+        })
+        .collect();
+    let mut shared = [[0.0f32; 4]; REDUCE_WORKGROUP];
+    for (g, p) in partial.iter().enumerate() {
+        for (a, b) in shared[g % REDUCE_WORKGROUP].iter_mut().zip(p) {
+            *a += b;
+        }
+    }
+    halve(&mut shared)
+}
+
+/// The decision an adaptive render takes from its [`AdaptSums`] (`Accumulation::allocation`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Allocation {
+    /// Replicates a pixel is given per unit of its σ: it stops once k ≥ σ × this.
+    pub per_sigma: f32,
+    /// Whether the image's RMSE bound already meets the target.
+    pub met: bool,
 }
 
 /// An accuracy to stop at.
@@ -648,7 +750,7 @@ impl Accumulation {
     }
 
     /// Samples of the finished blocks of the pixels still sampled.
-    fn finished(&self) -> u32 {
+    pub fn finished(&self) -> u32 {
         self.samples() - self.partial_samples
     }
 
@@ -657,51 +759,135 @@ impl Accumulation {
         self.exact.stopped.clone()
     }
 
-    /// An adaptive render's decision after a complete replicate: the background pixels
-    /// (`background`, whose value is exact) stop after the first; from the
-    /// `MIN_TARGET_REPLICATES`th on, a pixel still sampled stops once it has the replicates
-    /// an allocation in proportion to its standard deviation gives it (`allocate`),
-    /// unless that would stop every pixel before the image's RMSE bound meets the target.
-    /// Returns the new mask when a pixel stopped.
+    /// What an adaptive render's decisions need besides the sums.
+    pub fn adapt_query(&self) -> AdaptQuery {
+        AdaptQuery { replicate: self.settings.replicate, range: self.sample_range() }
+    }
+
+    /// Each pixel's samples, complete replicates and whether it is stopped, from the
+    /// exact sums' counts (every pixel the finished blocks' where they are not counted
+    /// per pixel).
+    fn pixel_counts(&self) -> Vec<(u32, u32, bool)> {
+        let e = &self.exact;
+        if e.pixel_samples.is_empty() {
+            return vec![(self.finished(), e.replicates as u32, false); e.sum.len()];
+        }
+        (0..e.sum.len())
+            .map(|i| (e.pixel_samples[i], e.pixel_replicates[i], e.stopped.get(i).copied().unwrap_or(false)))
+            .collect()
+    }
+
+    /// The image-level sums of an adaptive render's decisions over the exact sums, in f32
+    /// in the tree a device's `stats.wgsl` sums them in (`pixel_sigma`): what the CPU
+    /// reference decides from, and the reference a device's sums are held to.
+    pub fn adapt_sums(&self) -> AdaptSums {
+        let (query, e) = (self.adapt_query(), (self.exact.sum_exponent, self.exact.sq_exponent));
+        let counts = self.pixel_counts();
+        let x = &self.exact;
+        let terms: Vec<[f32; 4]> = (0..x.sum.len())
+            .map(|i| {
+                let r = x.replicate_sq.get(i).copied().unwrap_or(0);
+                let [v, mean, sigma, _] = pixel_sigma((x.sum[i], x.sum_sq[i], r), counts[i].0, counts[i].1, &query, e);
+                [v, v * v, mean, sigma]
+            })
+            .collect();
+        let [variance, variance_sq, mean, sigma] = tree_sum(&terms);
+        let fewest = counts.iter().filter(|c| !(c.2 && c.1 < 2)).map(|c| c.1).min();
+        let most = counts.iter().map(|c| c.1).max().unwrap_or(0);
+        AdaptSums { variance, variance_sq, mean, sigma, fewest, most, pixels: counts.len() as u64 }
+    }
+
+    /// The allocation an adaptive render's decision takes from `sums`, once every pixel
+    /// that is not exact has `MIN_TARGET_REPLICATES` replicates (`None` before, or for a
+    /// target that is not an image's). For a mean square error (1/P) Σ σᵢ² / kᵢ at a
+    /// given total of replicates, the best kᵢ is in proportion to σᵢ, the standard
+    /// deviation of pixel i's replicate means (`pixel_sigma`): kᵢ = σᵢ Σσ / (P e′²)
+    /// gives an error of e′, and saves mean(σ²) / mean(σ)² of the replicates of uniform
+    /// sampling. e′ is `ADAPTIVE_SHARE` of the target over the ratio of the image's RMSE
+    /// bound (`film::rmse_bound`) to its estimate, so that the bound, above the estimate,
+    /// meets the target when the pixels have the replicates allocated to them.
+    pub fn allocation(&self, target: ErrorTarget, sums: &AdaptSums) -> Option<Allocation> {
+        let fewest = sums.fewest.unwrap_or(sums.most) as u64;
+        if fewest < MIN_TARGET_REPLICATES || sums.pixels == 0 {
+            return None;
+        }
+        let p = sums.pixels as f64;
+        let (v, v_sq) = (sums.variance as f64, sums.variance_sq as f64);
+        let bound = rmse_bound(v, v_sq, sums.pixels, fewest - 1)?;
+        let estimate = (v / p).sqrt();
+        let inflation = if estimate > 0.0 { bound / estimate } else { 1.0 };
+        let e = match target {
+            ErrorTarget::Rmse(e) => e,
+            ErrorTarget::RelativeRmse(r) => r * (sums.mean as f64 / p).abs(),
+            ErrorTarget::PointStdError(_) => return None,
+        };
+        let e_alloc = ADAPTIVE_SHARE * e / inflation;
+        Some(Allocation { per_sigma: (sums.sigma as f64 / (p * e_alloc * e_alloc)) as f32, met: bound <= e })
+    }
+
+    /// An adaptive render's decision after a complete replicate, on the exact sums in host
+    /// memory (a device that keeps the sums takes the same steps on its own: `render`):
+    /// the background pixels (`background`, whose value is exact) stop after the first;
+    /// once the `MIN_TARGET_REPLICATES`th is in, the pixels still sampled that have the
+    /// replicates of their [`Accumulation::allocation`] stop, unless that would stop
+    /// every pixel before the image's RMSE bound meets the target. Returns the new mask
+    /// when a pixel stopped.
     pub fn adapt(&mut self, target: ErrorTarget) -> Result<Option<Vec<bool>>> {
-        let replicates = self.exact.replicate_count();
-        if replicates == 0 || self.partial_samples > 0 || matches!(target, ErrorTarget::PointStdError(_)) {
+        if self.exact.replicates == 0 || self.partial_samples > 0 || matches!(target, ErrorTarget::PointStdError(_)) {
             return Ok(None);
         }
-        let mut mask = self.inactive();
-        if mask.is_empty() {
-            mask = vec![false; self.exact.sum.len()];
-        }
         let mut changed = false;
-        for (off, &exact) in mask.iter_mut().zip(&self.background) {
-            if exact && !*off {
-                *off = true;
+        if let Some(mask) = self.with_background() {
+            self.stop(&mask);
+            changed = true;
+        }
+        if self.exact.replicates >= MIN_TARGET_REPLICATES
+            && let Some(a) = self.allocation(target, &self.adapt_sums())
+        {
+            let (query, e) = (self.adapt_query(), (self.exact.sum_exponent, self.exact.sq_exponent));
+            let counts = self.pixel_counts();
+            let x = &self.exact;
+            let mut mask: Vec<bool> = counts.iter().map(|c| c.2).collect();
+            let mut stops = 0;
+            for (i, off) in mask.iter_mut().enumerate().filter(|(_, off)| !**off) {
+                let r = x.replicate_sq.get(i).copied().unwrap_or(0);
+                let [_, _, sigma, k] = pixel_sigma((x.sum[i], x.sum_sq[i], r), counts[i].0, counts[i].1, &query, e);
+                if k >= sigma * a.per_sigma {
+                    *off = true;
+                    stops += 1;
+                }
+            }
+            // The bound is of these sums: where it is not met yet, the pixels go on.
+            if stops > 0 && (a.met || !mask.iter().all(|&off| off)) {
+                self.stop(&mask);
                 changed = true;
             }
         }
-        if replicates >= MIN_TARGET_REPLICATES {
-            let film = self.film()?;
-            let e = match target {
-                ErrorTarget::RelativeRmse(r) => r * film.image_mean().abs(),
-                ErrorTarget::Rmse(e) | ErrorTarget::PointStdError(e) => e,
-            };
-            if let Some(intervals) = film.intervals_95(self.sample_range()) {
-                let before = mask.clone();
-                let stopped = allocate(&film, &intervals, e, &mut mask);
-                // The bound is of these sums: where it is not met yet, the pixels go on.
-                if stopped && mask.iter().all(|&off| off) && film.rmse_bound().is_none_or(|b| b > e) {
-                    mask = before;
-                } else {
-                    changed |= stopped;
-                }
-            }
+        Ok(changed.then(|| self.inactive()))
+    }
+
+    /// The stopped pixels with the background ones added, when that adds one.
+    pub fn with_background(&self) -> Option<Vec<bool>> {
+        let stopped = |i: usize| self.exact.stopped.get(i).copied().unwrap_or(false);
+        if !self.background.iter().enumerate().any(|(i, &b)| b && !stopped(i)) {
+            return None;
         }
-        if !changed {
-            return Ok(None);
-        }
+        Some(
+            (0..self.exact.sum.len()).map(|i| stopped(i) || self.background.get(i).copied().unwrap_or(false)).collect(),
+        )
+    }
+
+    /// Stops sampling the pixels marked in `mask`, counting samples per pixel from now on.
+    pub fn stop(&mut self, mask: &[bool]) {
         self.exact.count_per_pixel(self.finished());
-        self.exact.stopped.clone_from(&mask);
-        Ok(Some(mask))
+        self.exact.stopped.copy_from_slice(mask);
+    }
+
+    /// Whether `sums`, an adaptive render's ([`Accumulation::adapt_sums`] or a device's),
+    /// meet `target`: every pixel that is not exact has `MIN_TARGET_REPLICATES`
+    /// replicates and the image's RMSE bound is within the target.
+    pub fn adaptive_target_met(&self, target: ErrorTarget, sums: &AdaptSums) -> bool {
+        self.allocation(target, sums).is_some_and(|a| a.met)
     }
 
     /// The replicate size a film of this accumulation reports: 0 where the replicates'

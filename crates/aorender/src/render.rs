@@ -325,6 +325,16 @@ pub struct PassTimes {
     pub checks: u32,
 }
 
+/// What a render's samples and replicates cost on its device ([`Render::replicate_costs`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReplicateCosts {
+    /// Seconds a sample per pixel takes in a pass.
+    pub per_sample: f64,
+    /// Seconds of the work done once a replicate: a pass's fixed cost, the fold of the
+    /// block into the exact sums and a check of the target.
+    pub per_replicate: f64,
+}
+
 /// A request in progress: its film on the device and its accumulation. Made by
 /// `Session::render`; run with [`Render::run`] (or [`Render::run_to`], stopping at given
 /// sample counts), then [`Render::finish`].
@@ -346,6 +356,11 @@ pub struct Render {
     /// Whether the device holds the exact sums (`Passes::fold`): the accumulation's are
     /// then those of the last [`Render::sync`].
     on_device: bool,
+    /// Whether the device also takes an adaptive render's decisions, so that the
+    /// per-pixel counts and stopped pixels are its own.
+    adapting_on_device: bool,
+    /// Whether this render has stopped the background pixels (after their first replicate).
+    background_stopped: bool,
 }
 
 /// What finds a render's background pixels ([`crate::footprint::background_pixels`]).
@@ -364,6 +379,8 @@ impl Render {
             ended: None,
             background: None,
             on_device: false,
+            adapting_on_device: false,
+            background_stopped: false,
         }
     }
 
@@ -405,6 +422,7 @@ impl Render {
         self.resumed = saved.samples();
         self.acc = saved;
         self.on_device = false;
+        self.background_stopped = false;
         Ok(())
     }
 
@@ -412,11 +430,16 @@ impl Render {
     /// request: the render starts again from its first sample (after a warm-up pass that
     /// is not to be measured, say).
     pub fn restart(&mut self) -> Result<()> {
-        if self.acc.partial_samples > 0 {
+        if !self.acc.exact.stopped.is_empty() || self.adapting_on_device {
+            // Every pixel is sampled again: the film loses its stopped pixels' marks.
+            self.passes.set_inactive(&[])?;
+            self.passes.take()?;
+        } else if self.acc.partial_samples > 0 {
             self.passes.take()?;
         }
         self.passes.take_readback_bytes();
         self.on_device = false;
+        self.background_stopped = false;
         let acc = &mut self.acc;
         acc.exact.clear();
         (acc.next, acc.partial_samples, acc.on_grid) = (acc.first, 0, true);
@@ -428,6 +451,45 @@ impl Render {
         self.interrupted = false;
         self.ended = None;
         Ok(())
+    }
+
+    /// Measures what a sample and a replicate cost on this render's device, then empties
+    /// the film as [`Render::restart`] does: a pass of one sample after a warm-up one and
+    /// a pass of eight give the seconds a sample takes and a pass's fixed cost; a fold of
+    /// a block into the exact sums and a check (the faster of two, after one that makes
+    /// the sums) add the work done once a replicate. `None` for a request of
+    /// fewer than 16 samples, one that has samples already, or one whose device does not
+    /// keep the sums (the CPU reference, whose statistics are host work beside its
+    /// passes: its replicates are what the caller asks).
+    pub fn replicate_costs(&mut self) -> Result<Option<ReplicateCosts>> {
+        const PASS: u32 = 8;
+        let acc = &self.acc;
+        if acc.end - acc.first < 16 || acc.next != acc.first || !self.passes.keeps_sums() {
+            return Ok(None);
+        }
+        let first = acc.first;
+        self.passes.pass(first, 1)?;
+        let t = Instant::now();
+        self.passes.pass(first + 1, 1)?;
+        let one = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        self.passes.pass(first + 2, PASS)?;
+        let several = t.elapsed().as_secs_f64();
+        let per_sample = ((several - one) / (PASS - 1) as f64).max(several / (2 * PASS) as f64);
+        // The first fold makes the device's sums and compiles their kernels: not timed.
+        self.passes.write_sums(&acc.exact, 0)?;
+        self.passes.fold(true, PASS + 2)?;
+        let exponents = (acc.exact.sum_exponent, acc.exact.sq_exponent);
+        let mut statistics = f64::INFINITY;
+        for _ in 0..2 {
+            let t = Instant::now();
+            self.passes.fold(true, 0)?;
+            self.passes.check(acc.check_query(), exponents)?;
+            statistics = statistics.min(t.elapsed().as_secs_f64());
+        }
+        self.passes.take()?;
+        self.restart()?;
+        Ok(Some(ReplicateCosts { per_sample, per_replicate: (one - per_sample).max(0.0) + statistics }))
     }
 
     /// Samples per pixel done.
@@ -474,19 +536,20 @@ impl Render {
                 self.acc.background = find();
             }
         }
-        // The device keeps the exact sums of an image whose pixels all take every sample;
-        // an adaptive run decides on every pixel's own sums, on the host.
+        // The device keeps the exact sums of an image, and the counts and decisions of an
+        // adaptive run; a run that is not adaptive continuing an adaptive one's pixels
+        // (which count their own samples) adds on the host.
         let device_sums = self.passes.keeps_sums()
-            && !control.adaptive
             && self.acc.settings.layout == FilmLayout::Image
-            && self.acc.exact.pixel_samples.is_empty();
+            && (control.adaptive || self.acc.exact.pixel_samples.is_empty());
         if device_sums && !self.on_device {
-            self.passes.write_sums(&self.acc.exact)?;
+            self.passes.write_sums(&self.acc.exact, self.acc.finished())?;
             self.on_device = true;
         } else if !device_sums {
             self.sync()?;
             self.on_device = false;
         }
+        self.adapting_on_device |= device_sums && control.adaptive;
         let acc = &mut self.acc;
         let until = (acc.first + samples.min(acc.end - acc.first)).max(acc.next);
         let pixels = acc.settings.width as u64 * acc.settings.height as u64;
@@ -540,10 +603,24 @@ impl Render {
             if acc.next == block_end && device_sums {
                 let t = Instant::now();
                 let whole = acc.whole_replicate(acc.next - acc.partial_samples..acc.next);
-                self.passes.fold(whole)?;
+                self.passes.fold(whole, acc.partial_samples)?;
                 acc.exact.replicates += whole as u64;
                 acc.partial_samples = 0;
                 self.times.host_stats_seconds += t.elapsed().as_secs_f64();
+                if let (true, Some(target)) = (control.adaptive, control.target) {
+                    self.times.checks += 1;
+                    let all = adapt_on_device(
+                        self.passes.as_mut(),
+                        acc,
+                        target,
+                        &mut self.background_stopped,
+                        &mut self.times,
+                    )?;
+                    if all {
+                        end = RunEnd::TargetMet;
+                        break;
+                    }
+                }
             } else if acc.next == block_end {
                 let t = Instant::now();
                 let block = self.passes.take()?;
@@ -586,7 +663,7 @@ impl Render {
             {
                 let t = Instant::now();
                 if device_sums {
-                    sync_sums(self.passes.as_mut(), acc)?;
+                    sync_sums(self.passes.as_mut(), acc, self.adapting_on_device)?;
                 }
                 acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
                 save(acc)?;
@@ -604,17 +681,25 @@ impl Render {
                     // A stretch of independent samples is folded whole: no replicate's
                     // square is cut.
                     if acc.partial_samples > 0 {
-                        self.passes.fold(false)?;
+                        self.passes.fold(false, acc.partial_samples)?;
                         acc.partial_samples = 0;
                     }
                     let exponents = (acc.exact.sum_exponent, acc.exact.sq_exponent);
-                    let (sums, bad) = self.passes.check(acc.check_query(), exponents)?;
+                    let (met, bad) = match control.adaptive {
+                        true => {
+                            let (sums, bad) = self.passes.adapt_check(acc.adapt_query(), exponents)?;
+                            (acc.adaptive_target_met(target, &sums), bad)
+                        }
+                        false => {
+                            let (sums, bad) = self.passes.check(acc.check_query(), exponents)?;
+                            (acc.target_met_by(target, &sums), bad)
+                        }
+                    };
                     self.times.readback_seconds += t.elapsed().as_secs_f64();
                     if let Some(slot) = bad {
                         return Err(out_of_range(acc, slot));
                     }
                     let t = Instant::now();
-                    let met = acc.target_met_by(target, &sums);
                     self.times.host_stats_seconds += t.elapsed().as_secs_f64();
                     self.times.checks += 1;
                     if met {
@@ -627,7 +712,11 @@ impl Render {
                 acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
                 self.times.readback_seconds += t.elapsed().as_secs_f64();
                 let t = Instant::now();
-                let met = acc.target_met(target);
+                // An adaptive render's check is its decisions' rule, on the host's sums.
+                let met = match control.adaptive && acc.partial.is_none() {
+                    true => Ok(acc.adaptive_target_met(target, &acc.adapt_sums())),
+                    false => acc.target_met(target),
+                };
                 acc.partial = None;
                 self.times.host_stats_seconds += t.elapsed().as_secs_f64();
                 self.times.checks += 1;
@@ -644,7 +733,7 @@ impl Render {
         {
             let t = Instant::now();
             if device_sums {
-                sync_sums(self.passes.as_mut(), acc)?;
+                sync_sums(self.passes.as_mut(), acc, self.adapting_on_device)?;
             }
             acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
             save(acc)?;
@@ -806,7 +895,7 @@ impl Render {
         if self.acc.partial_samples > 0 {
             // Independent samples only: a replicate cut here would lose its square.
             assert!(self.acc.settings.replicate_plan().is_none(), "a replicate in progress");
-            self.passes.fold(false)?;
+            self.passes.fold(false, self.acc.partial_samples)?;
             self.acc.partial_samples = 0;
         }
         let exponents = (self.acc.exact.sum_exponent, self.acc.exact.sq_exponent);
@@ -817,23 +906,97 @@ impl Render {
         }
     }
 
+    /// The device's image-level sums of an adaptive render's decisions over the samples
+    /// held, for tests that hold them against the host's ([`Accumulation::adapt_sums`]);
+    /// `None` where the device does not keep the sums or no pass has run.
+    #[cfg(feature = "testing")]
+    pub fn device_adapt_sums(&mut self) -> Result<Option<crate::gpu::stats::AdaptSums>> {
+        if !self.on_device || self.acc.partial_samples > 0 {
+            return Ok(None);
+        }
+        let exponents = (self.acc.exact.sum_exponent, self.acc.exact.sq_exponent);
+        let (sums, bad) = self.passes.adapt_check(self.acc.adapt_query(), exponents)?;
+        match bad {
+            Some(slot) => Err(out_of_range(&self.acc, slot)),
+            None => Ok(Some(sums)),
+        }
+    }
+
     /// Reads the device's exact sums into the accumulation, where the device keeps them.
     fn sync(&mut self) -> Result<()> {
         if self.on_device {
-            sync_sums(self.passes.as_mut(), &mut self.acc)?;
+            sync_sums(self.passes.as_mut(), &mut self.acc, self.adapting_on_device)?;
         }
         Ok(())
     }
 }
 
 /// Reads the exact sums `passes` keeps into `acc` (with the replicates' squares once it
-/// has any).
-fn sync_sums(passes: &mut dyn Passes, acc: &mut Accumulation) -> Result<()> {
+/// has any), and with `counts` the per-pixel counts and stopped pixels of an adaptive
+/// render, once one has stopped.
+fn sync_sums(passes: &mut dyn Passes, acc: &mut Accumulation, counts: bool) -> Result<()> {
     let replicates = acc.exact.replicates > 0 || !acc.exact.replicate_sq.is_empty();
-    match passes.read_sums(&mut acc.exact, replicates)? {
-        Some(slot) => Err(out_of_range(acc, slot)),
-        None => Ok(()),
+    if let Some(slot) = passes.read_sums(&mut acc.exact, replicates)? {
+        return Err(out_of_range(acc, slot));
     }
+    if counts {
+        let counts = passes.read_counts()?;
+        let x = &mut acc.exact;
+        if counts.iter().any(|c| c.2) || !x.pixel_samples.is_empty() {
+            x.pixel_samples = counts.iter().map(|c| c.0).collect();
+            x.pixel_replicates = counts.iter().map(|c| c.1).collect();
+            x.stopped = counts.iter().map(|c| c.2).collect();
+        }
+    }
+    Ok(())
+}
+
+/// An adaptive render's decision after a block, on a device that keeps its sums: the
+/// steps of [`Accumulation::adapt`], with the sums and the allocation on the device and
+/// a few bytes read back. Returns whether every pixel has stopped.
+fn adapt_on_device(
+    passes: &mut dyn Passes,
+    acc: &mut Accumulation,
+    target: ErrorTarget,
+    background_stopped: &mut bool,
+    times: &mut PassTimes,
+) -> Result<bool> {
+    if acc.exact.replicates == 0 || matches!(target, ErrorTarget::PointStdError(_)) {
+        return Ok(false);
+    }
+    // The background pixels stop after their first replicate, before the device stops
+    // any other in this run: the host's mask is still the device's.
+    if !*background_stopped {
+        *background_stopped = true;
+        if let Some(mask) = acc.with_background() {
+            passes.set_inactive(&mask)?;
+            acc.stop(&mask);
+            if mask.iter().all(|&off| off) {
+                return Ok(true);
+            }
+        }
+    }
+    if acc.exact.replicates < MIN_TARGET_REPLICATES {
+        return Ok(false);
+    }
+    let t = Instant::now();
+    let (query, exponents) = (acc.adapt_query(), (acc.exact.sum_exponent, acc.exact.sq_exponent));
+    let (sums, bad) = passes.adapt_check(query, exponents)?;
+    if let Some(slot) = bad {
+        return Err(out_of_range(acc, slot));
+    }
+    let Some(a) = acc.allocation(target, &sums) else {
+        times.readback_seconds += t.elapsed().as_secs_f64();
+        return Ok(false);
+    };
+    let (stops, going) = passes.allocate(query, exponents, a.per_sigma, false)?;
+    // The bound is of these sums: where it is not met yet, the pixels go on.
+    let apply = stops > 0 && (a.met || going > 0);
+    if apply {
+        passes.allocate(query, exponents, a.per_sigma, true)?;
+    }
+    times.readback_seconds += t.elapsed().as_secs_f64();
+    Ok(apply && going == 0)
 }
 
 /// The error of a block that held a sample out of range at film slot `slot`, as the

@@ -1,7 +1,8 @@
 //! The statistics a GPU keeps on the device: the exact sums it folds its blocks and
 //! replicates into are the CPU reference's integers bit for bit, the image-level sums its
-//! checks reduce are the host's within their f32 rounding, and target renders resumed
-//! from a checkpoint end with the uninterrupted render's bits.
+//! checks reduce are the host's within their f32 rounding, an adaptive render's decisions
+//! taken on the device are the host rule's bit for bit, and target renders resumed from a
+//! checkpoint end with the uninterrupted render's bits.
 
 mod common;
 
@@ -141,4 +142,64 @@ fn target_checks_are_spaced_by_a_sixteenth_of_the_render() {
         assert!(a < 32 || (b - a) * 32 >= a, "checks at {a} and {b}: closer than a thirty-second");
     }
     assert!(due.len() <= 16 * 13, "{} checks in 2^16 stretches", due.len());
+}
+
+/// An adaptive render whose decisions a GPU takes on the device (its sums, counts and
+/// allocation there, a few bytes read back a decision) decides as the CPU reference's
+/// host rule does, pixel for pixel: on an image whose pixel count is no multiple of a
+/// workgroup, in replicates of 4 and 16, both end with the same bits (the same pixels
+/// stopped after the same replicates), and part-way the device's image-level sums of the
+/// rule are the host's bit for bit. The device reads back less than one film a replicate,
+/// which the host rule would need.
+#[test]
+fn adaptive_decisions_on_the_device_are_the_host_rules() {
+    if !gpu_available() {
+        eprintln!("no GPU adapter: nothing to compare");
+        return;
+    }
+    let scene = bunny(29, 23);
+    let cpu = session(&scene, &Config::cpu());
+    let gpu = session(&scene, &Config { device: DeviceKind::Gpu, ..Default::default() });
+    for (sampler, replicate, target) in [(Sampler::Sobol, 16, 0.01), (Sampler::Independent, 4, 0.015)] {
+        let what = format!("{} in replicates of {replicate}", sampler.name());
+        let settings =
+            Settings { sampler, replicate: Some(replicate), spp: 1 << 13, seed: 3, ..scene.settings.clone() };
+        let request = ImageRequest { camera: scene.camera, settings, samples: None };
+        let control = || Control { target: Some(ErrorTarget::Rmse(target)), adaptive: true, ..Control::default() };
+        let reference = cpu.render(&request).unwrap().complete(&mut control()).unwrap();
+        let out = gpu.render(&request).unwrap().complete(&mut control()).unwrap();
+        let (r, g) = (&reference.accumulation.exact, &out.accumulation.exact);
+        let stopped = r.stopped.iter().filter(|&&s| s).count();
+        eprintln!(
+            "{what}: {} spp, {:.1} on average, {stopped} of {} pixels stopped early; {} checks, {} bytes read back \
+             on the device",
+            out.stats.samples_per_pixel,
+            out.stats.mean_samples_per_pixel,
+            r.sum.len(),
+            out.stats.checks,
+            out.stats.readback_bytes
+        );
+        assert_eq!(reference.stats.ended_by, "target", "{what}");
+        assert!(stopped > 0 && r.pixel_replicates.iter().any(|&k| k as u64 > 8), "{what}: nothing was adaptive");
+        assert_eq!(g.stopped, r.stopped, "{what}: other pixels stopped");
+        assert_eq!(g.pixel_replicates, r.pixel_replicates, "{what}: the pixels stopped after other replicates");
+        assert!(out.accumulation.exact == reference.accumulation.exact, "{what}: the sums differ");
+        assert!(out.film == reference.film, "{what}: the films differ");
+        let replicates = out.stats.samples_per_pixel as u64 / replicate as u64;
+        let film_bytes = 16 * r.sum.len() as u64;
+        assert!(
+            out.stats.readback_bytes < replicates * film_bytes,
+            "{what}: {} bytes read back, not less than a film a replicate ({})",
+            out.stats.readback_bytes,
+            replicates * film_bytes
+        );
+
+        // Part-way, past the first decisions: the device's sums of the rule are the host's.
+        let mut render = gpu.render(&request).unwrap();
+        let part = (out.stats.samples_per_pixel / 2).next_multiple_of(replicate);
+        render.run_to(part, &mut control()).unwrap();
+        let device = render.device_adapt_sums().unwrap().expect("the GPU keeps an adaptive image's sums");
+        let host = render.accumulation().unwrap().adapt_sums();
+        assert_eq!(device, host, "{what}: the device's sums of the rule at {part} spp");
+    }
 }

@@ -40,6 +40,13 @@ pub struct RenderArgs {
     /// error is already within the target, so that the samples go where the error is.
     #[arg(long)]
     adaptive: bool,
+    /// With an error target and no --replicate: time a pass and a check on the device
+    /// first and grow the replicate (up to 256 samples) until the work done once per
+    /// replicate is at most 2 % of its samples' time. The size then depends on the
+    /// machine's speed, so the image can differ run to run; the statistics and a
+    /// checkpoint record it.
+    #[arg(long, conflicts_with = "replicate")]
+    replicate_by_cost: bool,
     /// Also write each pixel's standard error (.exr or .pfm, 32-bit float).
     #[arg(long, value_name = "FILE")]
     error_image: Option<PathBuf>,
@@ -81,11 +88,16 @@ pub fn run(args: RenderArgs) -> Result<()> {
     if args.adaptive && target.is_none() {
         bail!("invalid option: --adaptive needs --target-error or --target-relative-error");
     }
+    if args.replicate_by_cost && target.is_none() {
+        bail!("invalid option: --replicate-by-cost needs --target-error or --target-relative-error");
+    }
     // Independent samples are their own replicates, unless an adaptive render needs
     // replicates to decide at.
     let s = &mut scene.settings;
+    let mut measure_replicate = false;
     if target.is_some() && s.replicate.is_none() && (s.sampler != Sampler::Independent || args.adaptive) {
         s.replicate = Some(crate::args::target_replicate(s.sampler, s.spp));
+        measure_replicate = args.replicate_by_cost && args.run.sample_range.is_none() && args.run.resume.is_none();
     }
     scene.settings.validate().map_err(invalid_option)?;
     let checkpoint_path = args.run.check(scene.settings.spp, "pixel")?;
@@ -149,8 +161,23 @@ pub fn run(args: RenderArgs) -> Result<()> {
         // refused before that work.
         device.check_image_budget(&scene, &scene.settings)?;
         let session = Session::new(&device, scene, &bvh)?;
-        let request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
+        let mut request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
         let mut render = session.render(&request)?;
+        if measure_replicate && let Some(costs) = render.replicate_costs()? {
+            let s = &request.settings;
+            let least = s.replicate.unwrap_or(1);
+            let chosen = s.sampler.replicate_by_cost(
+                least,
+                s.sampler.replicate_for(s.spp, 16),
+                costs.per_sample,
+                costs.per_replicate,
+            );
+            if chosen != least {
+                drop(render);
+                request.settings.replicate = Some(chosen);
+                render = session.render(&request)?;
+            }
+        }
         if let Some(acc) = resume {
             render.resume(acc)?;
         }

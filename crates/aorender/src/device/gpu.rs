@@ -5,7 +5,7 @@ use super::passes::{PassReport, Passes};
 use crate::error::{Error, Result};
 use crate::film::{BlockSums, ExactSums, INACTIVE_SLOT_BITS};
 use crate::gpu::GpuTarget;
-use crate::gpu::stats::{CheckQuery, CheckSums};
+use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
 
 /// The slots `range` of `exact`: its sums (and replicates' squares, where it has them).
 fn sums_part(exact: &ExactSums, range: std::ops::Range<usize>) -> ExactSums {
@@ -57,12 +57,30 @@ impl Passes for GpuTarget {
         GpuTarget::keeps_sums(self)
     }
 
-    fn write_sums(&mut self, exact: &ExactSums) -> Result<()> {
-        GpuTarget::write_sums(self, exact)
+    fn write_sums(&mut self, exact: &ExactSums, samples: u32) -> Result<()> {
+        GpuTarget::write_sums(self, exact, samples)
     }
 
-    fn fold(&mut self, replicate: bool) -> Result<()> {
-        GpuTarget::fold(self, replicate)
+    fn fold(&mut self, replicate: bool, taken: u32) -> Result<()> {
+        GpuTarget::fold(self, replicate, taken)
+    }
+
+    fn adapt_check(&mut self, query: AdaptQuery, exponents: (i32, i32)) -> Result<(AdaptSums, Option<u32>)> {
+        GpuTarget::adapt_check(self, query, exponents)
+    }
+
+    fn allocate(
+        &mut self,
+        query: AdaptQuery,
+        exponents: (i32, i32),
+        per_sigma: f32,
+        apply: bool,
+    ) -> Result<(u32, u32)> {
+        GpuTarget::allocate(self, query, exponents, per_sigma, apply)
+    }
+
+    fn read_counts(&mut self) -> Result<Vec<(u32, u32, bool)>> {
+        GpuTarget::read_counts(self)
     }
 
     fn check(&mut self, query: CheckQuery, exponents: (i32, i32)) -> Result<(CheckSums, Option<u32>)> {
@@ -159,17 +177,68 @@ impl Passes for GpuChunks {
         self.targets.iter().all(|(t, _)| t.keeps_sums())
     }
 
-    fn write_sums(&mut self, exact: &ExactSums) -> Result<()> {
+    fn write_sums(&mut self, exact: &ExactSums, samples: u32) -> Result<()> {
         let mut start = 0;
         for (target, slots) in &mut self.targets {
-            target.write_sums(&sums_part(exact, start..start + *slots))?;
+            let range = start..start + *slots;
+            let mut part = sums_part(exact, range.clone());
+            if !exact.pixel_samples.is_empty() {
+                part.pixel_samples = exact.pixel_samples[range.clone()].to_vec();
+                part.pixel_replicates = exact.pixel_replicates[range].to_vec();
+            }
+            target.write_sums(&part, samples)?;
             start += *slots;
         }
         Ok(())
     }
 
-    fn fold(&mut self, replicate: bool) -> Result<()> {
-        self.targets.iter_mut().try_for_each(|(t, _)| t.fold(replicate))
+    fn fold(&mut self, replicate: bool, taken: u32) -> Result<()> {
+        self.targets.iter_mut().try_for_each(|(t, _)| t.fold(replicate, taken))
+    }
+
+    fn adapt_check(&mut self, query: AdaptQuery, exponents: (i32, i32)) -> Result<(AdaptSums, Option<u32>)> {
+        let (mut total, mut bad, mut start) = (None::<AdaptSums>, None, 0u32);
+        for (target, slots) in &mut self.targets {
+            let (s, b) = target.adapt_check(query, exponents)?;
+            total = Some(match total {
+                None => s,
+                Some(t) => AdaptSums {
+                    variance: t.variance + s.variance,
+                    variance_sq: t.variance_sq + s.variance_sq,
+                    mean: t.mean + s.mean,
+                    sigma: t.sigma + s.sigma,
+                    fewest: t.fewest.into_iter().chain(s.fewest).min(),
+                    most: t.most.max(s.most),
+                    pixels: t.pixels + s.pixels,
+                },
+            });
+            bad = bad.or(b.map(|b| b + start));
+            start += *slots as u32;
+        }
+        Ok((total.unwrap_or_default(), bad))
+    }
+
+    fn allocate(
+        &mut self,
+        query: AdaptQuery,
+        exponents: (i32, i32),
+        per_sigma: f32,
+        apply: bool,
+    ) -> Result<(u32, u32)> {
+        let mut total = (0, 0);
+        for (target, _) in &mut self.targets {
+            let (stop, go) = target.allocate(query, exponents, per_sigma, apply)?;
+            total = (total.0 + stop, total.1 + go);
+        }
+        Ok(total)
+    }
+
+    fn read_counts(&mut self) -> Result<Vec<(u32, u32, bool)>> {
+        let mut counts = Vec::new();
+        for (target, _) in &mut self.targets {
+            counts.extend(target.read_counts()?);
+        }
+        Ok(counts)
     }
 
     fn check(&mut self, query: CheckQuery, exponents: (i32, i32)) -> Result<(CheckSums, Option<u32>)> {

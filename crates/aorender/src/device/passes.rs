@@ -3,7 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::film::{BlockSums, ExactSums};
-use crate::gpu::stats::{CheckQuery, CheckSums};
+use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
 
 /// What a pass did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -39,13 +39,36 @@ pub(crate) trait Passes {
     fn keeps_sums(&self) -> bool {
         false
     }
-    /// Replaces the device's exact sums with `exact`'s.
-    fn write_sums(&mut self, _exact: &ExactSums) -> Result<()> {
+    /// Replaces the device's exact sums and counts with `exact`'s (`samples` a pixel
+    /// where it does not count them per pixel).
+    fn write_sums(&mut self, _exact: &ExactSums, _samples: u32) -> Result<()> {
         Err(Error::settings("this device does not keep exact sums"))
     }
-    /// Adds the block to the device's exact sums, leaving the block empty; `replicate`:
-    /// the block is one whole replicate, whose square is added to the replicates' squares.
-    fn fold(&mut self, _replicate: bool) -> Result<()> {
+    /// Adds the block of `taken` samples to the device's exact sums and the counts of
+    /// the pixels it holds, leaving the block empty; `replicate`: the block is one whole
+    /// replicate, whose square is added to the replicates' squares.
+    fn fold(&mut self, _replicate: bool, _taken: u32) -> Result<()> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+    /// The image-level sums of an adaptive render's decisions over the device's sums and
+    /// counts, and the first slot that received a sample out of range.
+    fn adapt_check(&mut self, _query: AdaptQuery, _exponents: (i32, i32)) -> Result<(AdaptSums, Option<u32>)> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+    /// Stops (`apply`) or counts the pixels still sampled whose replicates reach σ ×
+    /// `per_sigma`; how many do, and how many go on.
+    fn allocate(
+        &mut self,
+        _query: AdaptQuery,
+        _exponents: (i32, i32),
+        _per_sigma: f32,
+        _apply: bool,
+    ) -> Result<(u32, u32)> {
+        Err(Error::settings("this device does not keep exact sums"))
+    }
+    /// Each pixel's samples, complete replicates and whether it is stopped, as the device
+    /// counts them.
+    fn read_counts(&mut self) -> Result<Vec<(u32, u32, bool)>> {
         Err(Error::settings("this device does not keep exact sums"))
     }
     /// The image-level sums of the stopping rule over the device's exact sums, and the

@@ -1,20 +1,26 @@
 //! A film's exact sums kept on the device (`shaders/stats.wgsl`): each finished block of
 //! samples is folded into them there, a replicate's square with it, and a check of an
 //! error target reduces the image-level sums of the stopping rule on the device and reads
-//! back 20 bytes rather than the film. The sums are read (`DeviceSums::read`) at
+//! back 32 bytes rather than the film. The sums are read (`DeviceSums::read`) at
 //! checkpoints and at the end, into the host's [`ExactSums`], bit for bit the integers
 //! the host would have added.
+//!
+//! An adaptive render keeps each pixel's counts of samples and replicates on the device
+//! as well, and takes its decisions there: a decision reduces the image-level sums of
+//! the allocation (`DeviceSums::adapt_check`, 32 bytes back), then stops the pixels
+//! that have their share (`DeviceSums::allocate`, 32 bytes back); the counts and the
+//! stopped pixels (8 bytes a pixel) are read with the sums.
 
 use super::context::GpuContext;
 use super::shaders::{FILES, compose_with};
 use crate::error::{Error, Result};
-use crate::film::{ExactSums, REPLICATE_SQ_SHIFT};
+use crate::film::{ExactSums, REPLICATE_SQ_SHIFT, SampleRange};
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Invocations of a workgroup of the statistics kernels (`stats.wgsl`).
 const STATS_WORKGROUP: u32 = 256;
 /// Bytes of the uniforms (`StatsParams`).
-const PARAMS_BYTES: u64 = 48;
+const PARAMS_BYTES: u64 = 80;
 /// Bytes a check reads back: the total (Σv, Σv², Σ mean, 0) and the status word.
 const CHECK_BYTES: u64 = 32;
 
@@ -25,10 +31,12 @@ pub struct StatsPipelines {
     fold: wgpu::ComputePipeline,
     reduce: wgpu::ComputePipeline,
     reduce_groups: wgpu::ComputePipeline,
+    allocate: wgpu::ComputePipeline,
+    mark: wgpu::ComputePipeline,
 }
 
 impl StatsPipelines {
-    /// Compiles `stats.wgsl`'s three entry points.
+    /// Compiles `stats.wgsl`'s entry points.
     pub fn new(ctx: &GpuContext) -> Result<StatsPipelines> {
         let lookup = |n: &str| FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t);
         let source = compose_with("stats.wgsl", &lookup)?;
@@ -42,7 +50,7 @@ impl StatsPipelines {
         let storage = wgpu::BufferBindingType::Storage { read_only: false };
         let mut entries: Vec<_> = (0..4).map(|b| entry(b, storage)).collect();
         entries.push(entry(4, wgpu::BufferBindingType::Uniform));
-        entries.extend((5..7).map(|b| entry(b, storage)));
+        entries.extend((5..8).map(|b| entry(b, storage)));
         let layout = device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("stats"), entries: &entries });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -68,6 +76,8 @@ impl StatsPipelines {
             fold: pipeline("fold"),
             reduce: pipeline("reduce"),
             reduce_groups: pipeline("reduce_groups"),
+            allocate: pipeline("allocate"),
+            mark: pipeline("mark"),
             layout,
         };
         ctx.take_error()?;
@@ -86,11 +96,17 @@ struct StatsParams {
     n: f32,
     k: f32,
     b: f32,
-    _pad: f32,
+    _pad0: f32,
     sum_exponent: i32,
     square_exponent: i32,
     replicate_exponent: i32,
-    _pad2: i32,
+    per_pixel: u32,
+    taken: u32,
+    range: u32,
+    max_value: f32,
+    apply: u32,
+    per_sigma: f32,
+    _pad: [u32; 3],
 }
 const _: () = assert!(std::mem::size_of::<StatsParams>() as u64 == PARAMS_BYTES);
 
@@ -133,6 +149,49 @@ impl std::ops::Add for CheckSums {
     }
 }
 
+/// What an adaptive render's decisions need besides the sums: the samples per replicate
+/// and what a sample can be.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdaptQuery {
+    /// Samples per replicate.
+    pub replicate: u32,
+    /// What one sample can be.
+    pub range: SampleRange,
+}
+
+impl AdaptQuery {
+    /// The range's kind as `stats.wgsl` takes it (0 binary, 1 bounded, 2 signed), and
+    /// its bound in f32.
+    pub fn range_code(&self) -> (u32, f32) {
+        match self.range {
+            SampleRange::Binary(m) => (0, m as f32),
+            SampleRange::Bounded(m) => (1, m as f32),
+            SampleRange::Signed(m) => (2, m as f32),
+        }
+    }
+}
+
+/// The image-level sums of an adaptive render's decisions, each pixel's terms
+/// (`accumulation::pixel_sigma`) summed in f32 in a fixed tree (`accumulation::adapt_sums`
+/// on the host is the same tree): the same bits for the same sums and counts.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AdaptSums {
+    /// Σv, v a pixel's variance of the mean.
+    pub variance: f32,
+    /// Σv².
+    pub variance_sq: f32,
+    /// Σ of the pixels' means.
+    pub mean: f32,
+    /// Σσ, σ the standard deviation of a pixel's replicate means the allocation takes.
+    pub sigma: f32,
+    /// The fewest complete replicates of a pixel whose value is not exact (`None`: none).
+    pub fewest: Option<u32>,
+    /// The most complete replicates of any pixel.
+    pub most: u32,
+    /// Pixels summed.
+    pub pixels: u64,
+}
+
 /// A film's exact sums on the device, with the buffers its checks reduce into.
 pub struct DeviceSums {
     pipelines: StatsPipelines,
@@ -143,6 +202,8 @@ pub struct DeviceSums {
     partial: wgpu::Buffer,
     status: wgpu::Buffer,
     readback: wgpu::Buffer,
+    /// Each pixel's samples and complete replicates (bit 31: stopped).
+    counts: wgpu::Buffer,
     slots: u32,
     /// Workgroups of a dispatch over the slots, and of one row of it.
     groups: u32,
@@ -170,6 +231,7 @@ impl DeviceSums {
         let status = buffer("stats status", 16, wgpu::BufferUsages::STORAGE | copy);
         let readback =
             buffer("stats readback", CHECK_BYTES, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
+        let counts = buffer("stats counts", (slots as u64 * 8).max(16), wgpu::BufferUsages::STORAGE | copy);
         fn bind(binding: u32, b: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
             wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }
         }
@@ -184,15 +246,18 @@ impl DeviceSums {
                 bind(4, &params),
                 bind(5, &partial),
                 bind(6, &status),
+                bind(7, &counts),
             ],
         });
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") });
-        for b in sums.iter().chain([&status]) {
+        for b in sums.iter().chain([&status, &counts]) {
             encoder.clear_buffer(b, 0, None);
         }
         ctx.submit([encoder.finish()])?;
-        let device_bytes =
-            [&sums[0], &sums[1], &sums[2], &params, &partial, &status, &readback].into_iter().map(|b| b.size()).sum();
+        let device_bytes = [&sums[0], &sums[1], &sums[2], &params, &partial, &status, &readback, &counts]
+            .into_iter()
+            .map(|b| b.size())
+            .sum();
         Ok(DeviceSums {
             pipelines,
             bind_group,
@@ -201,6 +266,7 @@ impl DeviceSums {
             partial,
             status,
             readback,
+            counts,
             slots,
             groups,
             row_groups,
@@ -236,10 +302,11 @@ impl DeviceSums {
         StatsParams { slots: self.slots, groups: self.groups, row_groups: self.row_groups, ..Default::default() }
     }
 
-    /// Adds the film's block to the sums and empties the film; with `replicate`, the
-    /// block is one whole replicate and its square is added to the replicates' squares.
-    pub fn fold(&self, ctx: &GpuContext, replicate: bool) -> Result<()> {
-        let params = StatsParams { replicate: replicate as u32, ..self.params() };
+    /// Adds the film's block of `taken` samples to the sums and counts and empties the
+    /// film; with `replicate`, the block is one whole replicate and its square is added
+    /// to the replicates' squares.
+    pub fn fold(&self, ctx: &GpuContext, replicate: bool, taken: u32) -> Result<()> {
+        let params = StatsParams { replicate: replicate as u32, taken, ..self.params() };
         let encoder = self.dispatch(ctx, &self.pipelines.fold, params, true);
         ctx.submit([encoder.finish()])
     }
@@ -280,6 +347,115 @@ impl DeviceSums {
         let f = |i: usize| f32::from_bits(words[i]) as f64;
         let sums = CheckSums { variance: f(0), variance_sq: f(1), mean: f(2), pixels: self.slots as u64 };
         Ok((sums, bad_slot(words[4])))
+    }
+
+    /// The image-level sums of an adaptive render's decisions over the sums and counts
+    /// held; reads back [`CHECK_BYTES`]. Also the first slot whose block held a sample
+    /// out of range.
+    pub fn adapt_check(
+        &self,
+        ctx: &GpuContext,
+        query: AdaptQuery,
+        exponents: (i32, i32),
+        readback_bytes: &AtomicU64,
+    ) -> Result<(AdaptSums, Option<u32>)> {
+        let (range, max_value) = query.range_code();
+        let params = StatsParams {
+            per_pixel: 1,
+            b: query.replicate as f32,
+            range,
+            max_value,
+            sum_exponent: exponents.0,
+            square_exponent: exponents.1,
+            replicate_exponent: exponents.1 + REPLICATE_SQ_SHIFT,
+            ..self.params()
+        };
+        let words = self.reduce_and_read(ctx, params, &self.pipelines.reduce, readback_bytes)?;
+        let f = |i: usize| f32::from_bits(words[i]);
+        let sums = AdaptSums {
+            variance: f(0),
+            variance_sq: f(1),
+            mean: f(2),
+            sigma: f(3),
+            fewest: (words[6] != 0).then(|| u32::MAX - words[6]),
+            most: words[7],
+            pixels: self.slots as u64,
+        };
+        Ok((sums, bad_slot(words[4])))
+    }
+
+    /// Stops (`apply`) or counts the pixels still sampled whose replicates k reach
+    /// σ × `per_sigma` ([`AdaptSums`]'s σ); returns how many do and how many go on.
+    /// Reads back [`CHECK_BYTES`].
+    pub fn allocate(
+        &self,
+        ctx: &GpuContext,
+        query: AdaptQuery,
+        exponents: (i32, i32),
+        per_sigma: f32,
+        apply: bool,
+        readback_bytes: &AtomicU64,
+    ) -> Result<(u32, u32)> {
+        let (range, max_value) = query.range_code();
+        let params = StatsParams {
+            per_pixel: 1,
+            b: query.replicate as f32,
+            range,
+            max_value,
+            sum_exponent: exponents.0,
+            square_exponent: exponents.1,
+            replicate_exponent: exponents.1 + REPLICATE_SQ_SHIFT,
+            apply: apply as u32,
+            per_sigma,
+            ..self.params()
+        };
+        let words = self.reduce_and_read(ctx, params, &self.pipelines.allocate, readback_bytes)?;
+        Ok((words[5], words[6]))
+    }
+
+    /// Clears the status words past the first, runs `pipeline` over the slots (with the
+    /// workgroups' sums reduced after it, for `reduce`) and reads back the total and the
+    /// status.
+    fn reduce_and_read(
+        &self,
+        ctx: &GpuContext,
+        params: StatsParams,
+        pipeline: &wgpu::ComputePipeline,
+        readback_bytes: &AtomicU64,
+    ) -> Result<Vec<u32>> {
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") });
+        encoder.clear_buffer(&self.status, 4, Some(12));
+        ctx.submit([encoder.finish()])?;
+        let mut encoder = self.dispatch(ctx, pipeline, params, true);
+        if std::ptr::eq(pipeline, &self.pipelines.reduce) {
+            let mut pass = encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("stats"), timestamp_writes: None });
+            pass.set_pipeline(&self.pipelines.reduce_groups);
+            pass.set_bind_group(0, &self.bind_group, &[]);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+        encoder.copy_buffer_to_buffer(&self.partial, self.groups as u64 * 16, &self.readback, 0, Some(16));
+        encoder.copy_buffer_to_buffer(&self.status, 0, &self.readback, 16, Some(16));
+        ctx.submit([encoder.finish()])?;
+        let words: Vec<u32> = ctx.read(&self.readback)?;
+        readback_bytes.fetch_add(CHECK_BYTES, Ordering::Relaxed);
+        Ok(words)
+    }
+
+    /// Each pixel's samples, complete replicates and whether it is stopped, read through
+    /// `staging` (a readback buffer of at least 8 bytes a slot).
+    pub fn read_counts(
+        &self,
+        ctx: &GpuContext,
+        staging: &wgpu::Buffer,
+        readback_bytes: &AtomicU64,
+    ) -> Result<Vec<(u32, u32, bool)>> {
+        let mut encoder = self.dispatch(ctx, &self.pipelines.mark, self.params(), true);
+        encoder.copy_buffer_to_buffer(&self.counts, 0, staging, 0, Some(self.slots as u64 * 8));
+        ctx.submit([encoder.finish()])?;
+        let words: Vec<[u32; 2]> = ctx.read(staging)?;
+        readback_bytes.fetch_add(staging.size(), Ordering::Relaxed);
+        Ok(words[..self.slots as usize].iter().map(|w| (w[0], w[1] & 0x7fff_ffff, w[1] >> 31 == 1)).collect())
     }
 
     /// Replaces `exact`'s Σv, Σv² and (where `replicates`) the replicates' squares with
@@ -330,8 +506,9 @@ impl DeviceSums {
     }
 
     /// Replaces the device's sums with `exact`'s (the replicates' squares zero where it
-    /// has none).
-    pub fn write(&self, ctx: &GpuContext, exact: &ExactSums) -> Result<()> {
+    /// has none), and its counts with `exact`'s per-pixel ones, or `samples` and its
+    /// replicates for every pixel.
+    pub fn write(&self, ctx: &GpuContext, exact: &ExactSums, samples: u32) -> Result<()> {
         let n = self.slots as usize;
         if exact.sum.len() != n {
             return Err(Error::Gpu(format!("sums of {} pixels written to device sums of {n}", exact.sum.len())));
@@ -348,6 +525,11 @@ impl DeviceSums {
         ctx.queue.write_buffer(&self.sums[0], 0, bytemuck::cast_slice(&words(&exact.sum)));
         ctx.queue.write_buffer(&self.sums[1], 0, bytemuck::cast_slice(&words(&exact.sum_sq)));
         ctx.queue.write_buffer(&self.sums[2], 0, bytemuck::cast_slice(&words(&exact.replicate_sq)));
+        let counts: Vec<[u32; 2]> = match exact.pixel_samples.is_empty() {
+            true => vec![[samples, exact.replicates as u32]; n],
+            false => exact.pixel_samples.iter().zip(&exact.pixel_replicates).map(|(&s, &k)| [s, k]).collect(),
+        };
+        ctx.queue.write_buffer(&self.counts, 0, bytemuck::cast_slice(&counts));
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("status") });
         encoder.clear_buffer(&self.status, 0, None);
         ctx.submit([encoder.finish()])?;

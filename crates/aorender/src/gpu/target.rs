@@ -8,7 +8,7 @@ use super::layout::{
     FRAME, FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE, WORKGROUP_SIZE,
 };
 use super::pipeline::{GpuDevice, Kernel, PipelineKey};
-use super::stats::{CheckQuery, CheckSums, DeviceSums};
+use super::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, DeviceSums};
 use super::upload::{GpuScene, storage_buffer};
 use crate::error::{Error, Result};
 use crate::film::{ExactSums, INACTIVE_SLOT_BITS};
@@ -540,17 +540,51 @@ impl GpuTarget {
         self.device_bytes + self.sums.as_ref().map_or(0, |s| s.device_bytes)
     }
 
-    /// Replaces the device's exact sums with `exact`'s.
-    pub fn write_sums(&mut self, exact: &ExactSums) -> Result<()> {
+    /// Replaces the device's exact sums and counts with `exact`'s (`samples` a pixel
+    /// where it does not count them per pixel).
+    pub fn write_sums(&mut self, exact: &ExactSums, samples: u32) -> Result<()> {
         self.device_sums()?;
-        self.sums.as_ref().expect("made above").write(&self.dev.ctx, exact)
+        self.sums.as_ref().expect("made above").write(&self.dev.ctx, exact, samples)
     }
 
-    /// Folds the film's block into the device's exact sums and empties the film (`replicate`:
-    /// the block is one whole replicate, whose square is added).
-    pub fn fold(&mut self, replicate: bool) -> Result<()> {
+    /// Folds the film's block of `taken` samples into the device's exact sums and empties
+    /// the film (`replicate`: the block is one whole replicate, whose square is added).
+    pub fn fold(&mut self, replicate: bool, taken: u32) -> Result<()> {
         self.device_sums()?;
-        self.sums.as_ref().expect("made above").fold(&self.dev.ctx, replicate)
+        self.sums.as_ref().expect("made above").fold(&self.dev.ctx, replicate, taken)
+    }
+
+    /// The image-level sums of an adaptive render's decisions ([`DeviceSums::adapt_check`]).
+    pub fn adapt_check(&mut self, query: AdaptQuery, exponents: (i32, i32)) -> Result<(AdaptSums, Option<u32>)> {
+        self.device_sums()?;
+        let sums = self.sums.as_ref().expect("made above");
+        sums.adapt_check(&self.dev.ctx, query, exponents, &self.readback_bytes)
+    }
+
+    /// Stops or counts the pixels that have their share ([`DeviceSums::allocate`]).
+    pub fn allocate(
+        &mut self,
+        query: AdaptQuery,
+        exponents: (i32, i32),
+        per_sigma: f32,
+        apply: bool,
+    ) -> Result<(u32, u32)> {
+        self.device_sums()?;
+        let sums = self.sums.as_ref().expect("made above");
+        sums.allocate(&self.dev.ctx, query, exponents, per_sigma, apply, &self.readback_bytes)
+    }
+
+    /// Each pixel's samples, replicates and whether it is stopped, as the device keeps
+    /// them; the stopped pixels become the target's inactive ones, so that a later
+    /// [`GpuTarget::mark_inactive`] keeps them.
+    pub fn read_counts(&mut self) -> Result<Vec<(u32, u32, bool)>> {
+        self.device_sums()?;
+        let sums = self.sums.as_ref().expect("made above");
+        let counts = sums.read_counts(&self.dev.ctx, &self.film_readback, &self.readback_bytes)?;
+        if counts.iter().any(|c| c.2) || !self.inactive.is_empty() {
+            self.inactive = counts.iter().map(|c| c.2).collect();
+        }
+        Ok(counts)
     }
 
     /// The image-level sums of the stopping rule over the device's exact sums, and the
