@@ -184,7 +184,6 @@ mod tests {
     /// solved in parallel, each on one thread, and gathered in order.
     #[test]
     fn the_bunny_unwraps_the_same_on_any_thread_count() {
-        use super::super::asset::Asset;
         let bunny = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/bunny.obj");
         let asset = super::super::files::read_asset(&bunny).unwrap();
         let o =
