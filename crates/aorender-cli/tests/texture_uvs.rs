@@ -468,3 +468,38 @@ fn meshes_without_uvs_are_refused_when_generation_is_off() {
     left.sort();
     assert_eq!(left, ["ball.glb", "ball.obj", "mapped.obj"]);
 }
+
+/// A bake into generated UVs writes the same bytes run to run and on any number of
+/// threads: the bunny (62 charts) baked twice on three rayon threads and once on one, its
+/// mesh with the new `vt` lines and its map compared byte for byte, and the statistics'
+/// chart count the same.
+#[test]
+fn a_bake_into_generated_uvs_is_the_same_bytes_on_any_thread_count() {
+    let dir = temp_dir();
+    let d = dir.path();
+    std::fs::copy(repo().join("scenes/bunny.obj"), d.join("bunny.obj")).unwrap();
+    let bake_on = |threads: usize, name: &str| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_aorender"))
+            .args(["bake", "bunny.obj", "-o", name, "--texture", "256", "--samples", "2", "--device", "cpu"])
+            .current_dir(d)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .env("RAYON_NUM_THREADS", threads.to_string())
+            .output()
+            .expect("aorender runs");
+        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
+        let stats: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let charts = stats["texture"]["generated_uvs"]["charts"].as_u64().unwrap();
+        let mesh = std::fs::read(d.join(name)).unwrap();
+        let map = std::fs::read(d.join(name.replace(".obj", "_ao.png"))).unwrap();
+        (charts, mesh, map)
+    };
+    let first = bake_on(3, "a.obj");
+    assert!(first.0 > 10, "{} charts", first.0);
+    assert!(String::from_utf8_lossy(&first.1).lines().filter(|l| l.starts_with("vt ")).count() > 35_000);
+    for (threads, name) in [(3, "b.obj"), (1, "c.obj")] {
+        let other = bake_on(threads, name);
+        assert_eq!(other.0, first.0, "{name} on {threads} threads: the charts");
+        assert!(other.1 == first.1, "{name} on {threads} threads: another mesh");
+        assert!(other.2 == first.2, "{name} on {threads} threads: another map");
+    }
+}
