@@ -347,7 +347,7 @@ impl SkyArgs {
 }
 
 /// A parser of the names `names`, mapped by `from_name`.
-fn named_parser<T: Clone + Send + Sync + 'static>(
+pub fn named_parser<T: Clone + Send + Sync + 'static>(
     names: impl IntoIterator<Item = &'static str>,
     from_name: fn(&str) -> Option<T>,
 ) -> impl clap::builder::TypedValueParser<Value = T> {
