@@ -119,7 +119,7 @@ impl Device {
     pub fn check_image_budget(&self, scene: &Scene, settings: &Settings) -> Result<()> {
         let what = format!("a {}x{} image", settings.width, settings.height);
         let slots = settings.width as u64 * settings.height as u64;
-        self.check_film_budget(&scene.source(), what, slots, settings.replicate_samples() >= 2, None)
+        self.check_film_budget(&scene.source(), what, slots, settings.sampling.replicate_samples() >= 2, None)
     }
 
     /// Fails with [`Error::FilmBudget`] naming `scene` when a film of `slots` slots
@@ -299,7 +299,13 @@ impl Prepared {
                 let frame = FrameUniforms::image(camera, settings, scene.node_count, scene.plane_count, e);
                 let rows = crate::gpu::target::image_rows_per_target(dev, settings.width);
                 if rows >= settings.height {
-                    return Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?));
+                    return Ok(Box::new(GpuTarget::image(
+                        dev,
+                        scene,
+                        frame,
+                        settings.sampling.sampler,
+                        settings.sampling.hemisphere,
+                    )?));
                 }
                 // Bands of rows, each a target with a film of one binding at most, read
                 // through one shared buffer: driven as one film, in row order.
@@ -308,7 +314,7 @@ impl Prepared {
                     let band = rows.min(settings.height - first_row);
                     let readback = targets.first().map(|(t, _)| t.readback());
                     let frame = FrameUniforms { first_row, ..frame };
-                    let (sampler, hemisphere) = (settings.sampler, settings.hemisphere);
+                    let (sampler, hemisphere) = (settings.sampling.sampler, settings.sampling.hemisphere);
                     let target = GpuTarget::image_band(dev, scene, frame, band, sampler, hemisphere, readback)?;
                     targets.push((target, band as usize * settings.width as usize));
                 }
@@ -371,8 +377,8 @@ impl Prepared {
                         dev,
                         scene,
                         frame,
-                        settings.sampler,
-                        settings.hemisphere,
+                        settings.sampling.sampler,
+                        settings.sampling.hemisphere,
                         chunk,
                         bent_normals,
                     )?;
@@ -706,7 +712,7 @@ struct CpuProbes {
 impl CpuWork for CpuProbes {
     // Probe requests are not adaptive: every point is sampled.
     fn pass(&self, sums: &mut BlockSums, e: i32, first: u32, count: u32, _inactive: &[bool]) -> u64 {
-        let (t, s, p, k) = (&self.tracer, &self.settings, &self.probes, self.first_point);
+        let (t, s, p, k) = (&self.tracer, &self.settings.sampling, &self.probes, self.first_point);
         if self.bent_normals {
             t.probe_bent_pass(s, p, k, self.samples, sums, e, first, count)
         } else {

@@ -5,6 +5,7 @@
 
 mod common;
 
+use aorender::Sampling;
 use aorender::{Accumulation, Control, DeviceKind, ErrorTarget, ImageRequest, PassSizing, Sampler, Scene, Settings};
 use common::{Config, gpu_available, repo, session};
 
@@ -12,7 +13,7 @@ use common::{Config, gpu_available, repo, session};
 fn bunny(w: u32, h: u32) -> Scene {
     let mut scene = Scene::load(&repo().join("scenes/bunny.obj")).unwrap_or_else(|e| panic!("{e}"));
     (scene.settings.width, scene.settings.height) = (w, h);
-    scene.settings.max_distance = Some(0.05);
+    scene.settings.sampling.max_distance = Some(0.05);
     scene
 }
 
@@ -43,7 +44,11 @@ fn device_sums_are_the_host_sums_and_checks_reduce_them() {
         [(Sampler::Independent, None, 261), (Sampler::Sobol, Some(4), 46), (Sampler::Stratified, Some(16), 272)]
     {
         let what = format!("{} in replicates of {replicate:?}, {spp} spp", sampler.name());
-        let settings = Settings { sampler, replicate, spp, seed: 7, ..scene.settings.clone() };
+        let settings = Settings {
+            spp,
+            sampling: Sampling { sampler, replicate, seed: 7, ..scene.settings.sampling },
+            ..scene.settings.clone()
+        };
         let request = ImageRequest { camera: scene.camera, settings, samples: None };
         let reference = cpu.render(&request).unwrap().complete(&mut Control::default()).unwrap();
         let mut render = gpu.render(&request).unwrap();
@@ -105,7 +110,11 @@ fn target_renders_resume_to_the_same_bits() {
         let session = session(&scene, &Config { device: kind, ..Default::default() });
         for (sampler, replicate) in [(Sampler::Independent, None), (Sampler::Sobol, Some(16))] {
             let what = format!("{kind:?} {}", sampler.name());
-            let settings = Settings { sampler, replicate, spp: 1 << 14, seed: 4, ..scene.settings.clone() };
+            let settings = Settings {
+                spp: 1 << 14,
+                sampling: Sampling { sampler, replicate, seed: 4, ..scene.settings.sampling },
+                ..scene.settings.clone()
+            };
             let request = ImageRequest { camera: scene.camera, settings, samples: None };
             let control = || Control { target: Some(ErrorTarget::Rmse(0.01)), ..Control::default() };
             let whole = session.render(&request).unwrap().complete(&mut control()).unwrap();

@@ -123,10 +123,10 @@ impl SkyPlan {
             sky_normalise: self.normalise,
         };
         args.apply(scene)?;
-        if scene.settings.sky.is_uniform() {
+        if scene.settings.sampling.sky.is_uniform() {
             return Ok(Vec::new());
         }
-        let with = |m: SkySampling| aorender::Sky { sampling: m, ..scene.settings.sky };
+        let with = |m: SkySampling| aorender::Sky { sampling: m, ..scene.settings.sampling.sky };
         if self.samplings.is_empty() {
             // Every sampling the sky allows (weighted has no surface normalisation).
             return Ok(SkySampling::ALL.into_iter().filter(|&m| with(m).validate().is_ok()).collect());
@@ -617,11 +617,11 @@ fn measured(raw: &RawRun, device: &str, request: &ImageRequest, baseline: bool, 
     let pixel_samples = last.spp as f64 * s.width as f64 * s.height as f64;
     Run {
         device: device.into(),
-        hemisphere: s.hemisphere.name().into(),
-        sampler: s.sampler.name().into(),
-        sky_sampling: (!s.sky.is_uniform()).then(|| s.sky.sampling.name().into()),
+        hemisphere: s.sampling.hemisphere.name().into(),
+        sampler: s.sampling.sampler.name().into(),
+        sky_sampling: (!s.sampling.sky.is_uniform()).then(|| s.sampling.sky.sampling.name().into()),
         baseline,
-        unbiased: s.sampler.is_unbiased(),
+        unbiased: s.sampling.sampler.is_unbiased(),
         variance_per_sample,
         variance_seconds: variance_per_sample * last.seconds / pixel_samples.max(1.0),
         time_source: if raw.timestamps { "gpu-timestamps" } else { "wall-clock" }.into(),
@@ -636,9 +636,10 @@ fn measured(raw: &RawRun, device: &str, request: &ImageRequest, baseline: bool, 
 fn configured(session: &Session, config: Config, spp: u32, seed: u32) -> ImageRequest {
     let mut r = session.default_request();
     let s = &mut r.settings;
-    (s.hemisphere, s.sampler, s.spp, s.seed) = (config.hemisphere, config.sampler, spp, seed);
+    (s.sampling.hemisphere, s.sampling.sampler, s.spp, s.sampling.seed) =
+        (config.hemisphere, config.sampler, spp, seed);
     if let Some(m) = config.sky {
-        s.sky.sampling = m;
+        s.sampling.sky.sampling = m;
     }
     r
 }
@@ -965,7 +966,7 @@ fn bench_scene(
         });
 
     let scene = session.scene();
-    let sky = default_config.settings.sky.describe();
+    let sky = default_config.settings.sampling.sky.describe();
     let (triangles, spheres, planes) = (scene.world_triangle_count(), scene.spheres.len(), scene.planes.len());
     if sp.presets {
         let mut preset_scene = scene.clone();

@@ -88,8 +88,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
     // Independent samples are their own replicates, unless an adaptive render needs
     // replicates to decide at.
     let s = &mut scene.settings;
-    if target.is_some() && s.replicate.is_none() && (s.sampler != Sampler::Independent || args.adaptive) {
-        s.replicate = Some(s.sampler.replicate_for(s.spp.min(TARGET_REPLICATE * 16), 16));
+    if target.is_some()
+        && s.sampling.replicate.is_none()
+        && (s.sampling.sampler != Sampler::Independent || args.adaptive)
+    {
+        s.sampling.replicate = Some(s.sampling.sampler.replicate_for(s.spp.min(TARGET_REPLICATE * 16), 16));
     }
     scene.settings.validate().map_err(invalid_option)?;
     let checkpoint_path = args.run.check(scene.settings.spp, "pixel")?;
@@ -102,7 +105,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         Some(path) => {
             let saved = Accumulation::read_with(path, &args.scene.load_options()?.limits)?;
             if args.sampling.replicate.is_none() {
-                scene.settings.replicate = Some(saved.settings.replicate);
+                scene.settings.sampling.replicate = saved.settings.sampling.replicate;
             }
             // Before any work: the checkpoint must hold samples of this very render.
             let s = &scene.settings;
@@ -126,11 +129,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
         }
     };
     let s = &scene.settings;
-    if args.error_image.is_some() && s.sampler.replicate_samples(s.replicate) == 0 {
+    if args.error_image.is_some() && s.sampling.sampler.replicate_samples(s.sampling.replicate) == 0 {
         bail!(
             "invalid option: --error-image needs an error estimate, which the {} sampler has only in replicates: \
              add --replicate N",
-            s.sampler.name()
+            s.sampling.sampler.name()
         );
     }
     let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
