@@ -1052,3 +1052,42 @@ pub fn merge(shards: &[(PathBuf, Accumulation)]) -> Result<Merged> {
             .collect(),
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sky::SkyModel;
+
+    /// The identity keeps the request's `Sampling` with its replicate size resolved, so a
+    /// request that leaves the size to the sampler and one that names that size hold the
+    /// same samples; each other change of the sampling is one difference, named.
+    #[test]
+    fn the_identity_resolves_the_replicate_size_and_names_each_difference() {
+        let hash = [7u8; 32];
+        for (sampler, resolved) in [(Sampler::Independent, 1), (Sampler::Stratified, 0), (Sampler::Sobol, 0)] {
+            let left = Sampling { sampler, ..Sampling::default() };
+            let named = Sampling { replicate: Some(resolved), ..left };
+            let a = SampleSettings::new(hash, FilmLayout::Image, 8, 4, 16, 0.0, &left);
+            let b = SampleSettings::new(hash, FilmLayout::Image, 8, 4, 16, 0.0, &named);
+            assert_eq!((a.sampling.replicate, a.replicate()), (Some(resolved), resolved), "{sampler:?}");
+            assert!(a.differences(&b).is_empty(), "{sampler:?}: {:?}", a.differences(&b));
+        }
+        let base = Sampling { sampler: Sampler::Sobol, replicate: Some(4), ..Sampling::default() };
+        let id = |s: &Sampling| SampleSettings::new(hash, FilmLayout::Probes, 4, 3, 64, 0.0, s);
+        let overcast = Sky { model: SkyModel::Overcast, ..Sky::default() };
+        let cases = [
+            (Sampling { seed: 1, ..base }, "seed 0, not 1"),
+            (Sampling { hemisphere: crate::sampling::Hemisphere::Uniform, ..base }, "hemisphere cosine, not uniform"),
+            (Sampling { replicate: Some(8), ..base }, "samples per replicate 4, not 8"),
+            (Sampling { max_distance: Some(0.5), ..base }, "max distance unlimited, not 0.5"),
+            (Sampling { sky: overcast, ..base }, "sky uniform, not overcast"),
+        ];
+        for (other, expect) in cases {
+            let d = id(&base).differences(&id(&other));
+            assert!(d.len() == 1 && d[0].starts_with(expect), "expected {expect:?}, got {d:?}");
+        }
+        // An image's identity from the same sampling keeps the same `Sampling`.
+        let image = SampleSettings::image(hash, &Settings { sampling: base, ..Settings::default() });
+        assert_eq!(image.sampling, id(&base).sampling);
+    }
+}
