@@ -173,10 +173,10 @@ impl SceneArgs {
         }
         let s = &mut scene.settings;
         if self.max_distance.is_some() {
-            s.max_distance = self.max_distance;
+            s.sampling.max_distance = self.max_distance;
         }
         if let Some(seed) = self.seed {
-            s.seed = seed;
+            s.sampling.seed = seed;
         }
         Ok(scene)
     }
@@ -295,7 +295,7 @@ pub struct SamplingArgs {
 impl SamplingArgs {
     /// The scene's settings with the options applied, the sampling checked.
     pub fn apply(&self, scene: &mut Scene) -> Result<()> {
-        let s = &mut scene.settings;
+        let s = &mut scene.settings.sampling;
         if let Some(h) = self.hemisphere {
             s.hemisphere = h;
         }
@@ -339,7 +339,7 @@ impl SkyArgs {
     /// The scene's settings with the sky options applied and the sampling checked: an
     /// overcast sky's option given with the uniform sky is refused, naming it.
     pub fn apply(&self, scene: &mut Scene) -> Result<()> {
-        let s = &mut scene.settings;
+        let s = &mut scene.settings.sampling;
         if let Some(m) = self.sky {
             s.sky.model = m;
         }
@@ -365,12 +365,12 @@ impl SkyArgs {
                 bail!("invalid option: {name} needs --sky overcast");
             }
         }
-        s.validate_sampling().map_err(invalid_option)
+        s.validate().map_err(invalid_option)
     }
 }
 
 /// A parser of the names `names`, mapped by `from_name`.
-fn named_parser<T: Clone + Send + Sync + 'static>(
+pub fn named_parser<T: Clone + Send + Sync + 'static>(
     names: impl IntoIterator<Item = &'static str>,
     from_name: fn(&str) -> Option<T>,
 ) -> impl clap::builder::TypedValueParser<Value = T> {

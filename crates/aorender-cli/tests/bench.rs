@@ -1,7 +1,8 @@
 //! `aorender bench --quick`, the CI smoke check of the benchmark: it exits 0, its JSON and
 //! CSV hold every scene × configuration with finite positive figures, unbiased samplers
 //! converge (independent sampling at the rate σ²/N), the plots decode, and a second run
-//! reuses the cached references. Bad input is refused with a one-line error.
+//! reuses the cached references. Under the overcast sky its samplings are measured against
+//! each other and agree with the closed form. Bad input is refused with a one-line error.
 
 mod common;
 use common::*;
@@ -221,6 +222,97 @@ fn quick_mode_writes_complete_results_and_reuses_its_references() {
     }
 }
 
+/// The overcast sky's irradiance of an unoccluded plane tilted by `beta` from the zenith,
+/// over a horizontal one's (docs/sampling.md).
+fn overcast_plane(beta: f64) -> f64 {
+    use std::f64::consts::PI;
+    (3.0 * PI * (1.0 + beta.cos()) + 8.0 * ((PI - beta) * beta.cos() + beta.sin())) / (14.0 * PI)
+}
+
+/// `bench --sky overcast` on an open plane tilted by 60°, seen face-on so that every pixel
+/// is the plane: a run per sky sampling, horizon the baseline; the control variate exact
+/// with no variance, the others within 4 standard errors of the closed form, weighted
+/// cosine sampling noisier than horizon-clipped sampling; the sky's table on stdout.
+#[test]
+fn overcast_sky_samplings_are_measured_against_each_other() {
+    if !gpu_available() {
+        return;
+    }
+    let tmp = temp_dir();
+    let beta = 60f64.to_radians();
+    let (sin, cos) = beta.sin_cos();
+    let scene = tmp.path().join("plane.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "[camera]\ntype = \"orthographic\"\neye = [{}, {}, 0.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n\
+             height = 1.0\n\n[[object]]\ntype = \"plane\"\npoint = [0.0, 0.0, 0.0]\nnormal = [{sin}, {cos}, 0.0]\n",
+            2.0 * sin,
+            2.0 * cos
+        ),
+    )
+    .unwrap();
+    let out_dir = tmp.path().join("out");
+    let cache = tmp.path().join("cache");
+    let output = run_bench(&[
+        "bench",
+        scene.to_str().unwrap(),
+        "--sky",
+        "overcast",
+        "--hemisphere",
+        "cosine",
+        "--sampler",
+        "independent",
+        "--no-cpu",
+        "--size",
+        "16",
+        "--spp",
+        "16",
+        "--reference-spp",
+        "64",
+        "--out",
+        out_dir.to_str().unwrap(),
+        "--cache",
+        cache.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let table = stdout.split("Overcast sky").nth(1).unwrap_or_else(|| panic!("no sky table on stdout:\n{stdout}"));
+    for sampling in ["horizon", "control-variate", "weighted cosine"] {
+        assert!(table.lines().any(|l| l.starts_with("plane") && l.contains(sampling)), "no {sampling} row:\n{stdout}");
+    }
+
+    let results = read_json(&out_dir.join("results.json"));
+    let sc = &results["scenes"][0];
+    assert!(s(sc, "sky").starts_with("overcast (up 0,1,0"), "{}", s(sc, "sky"));
+    let runs = sc["runs"].as_array().expect("runs");
+    let names: Vec<&str> = runs.iter().map(|r| s(r, "sky_sampling")).collect();
+    assert_eq!(names, ["horizon", "control-variate", "weighted"]);
+    let baselines: Vec<bool> = runs.iter().map(|r| r["baseline"].as_bool().expect("baseline")).collect();
+    assert_eq!(baselines, [true, false, false]);
+    let expected = overcast_plane(beta);
+    let pixel_samples = f(sc, "width") * f(sc, "height") * f(sc, "max_spp");
+    let mut variance = std::collections::BTreeMap::new();
+    for run in runs {
+        let name = s(run, "sky_sampling");
+        let var = f(run, "variance_per_sample");
+        let mean = f(run["checkpoints"].as_array().unwrap().last().unwrap(), "image_mean");
+        if name == "control-variate" {
+            // Every sample is the closed form, in f32 (a few units of its last place).
+            assert_eq!(var, 0.0, "control variate: variance {var}");
+            assert!((mean - expected).abs() < 1e-6, "control variate: {mean}, closed form {expected}");
+        } else {
+            // Every pixel's mean is independent of the others': the image mean's standard
+            // error is √(σ² / (pixels × N)).
+            let se = (var / pixel_samples).sqrt();
+            assert!(var > 0.0 && (mean - expected).abs() < 4.0 * se, "{name}: {mean} ± {se}, closed form {expected}");
+            assert!(f(run, "variance_seconds") > 0.0, "{name}: {run}");
+        }
+        variance.insert(name, var);
+    }
+    // Weighted cosine sampling spends a quarter of its rays below the horizon at 60°.
+    assert!(variance["weighted"] > variance["horizon"], "{variance:?}");
+}
+
 /// A scene path that does not exist, or does not parse, is refused in one line naming the
 /// file, before anything runs; so are bad options.
 #[test]
@@ -230,13 +322,21 @@ fn bad_scenes_and_options_are_refused_in_one_line() {
     std::fs::write(&bad, "[camera]\ntype = \"perspective\"\nfov = 40\n").unwrap();
     let missing = tmp.path().join("missing.obj");
     let out_dir = tmp.path().join("out");
-    let cases: [(Vec<&str>, String); 4] = [
+    let cases: [(Vec<&str>, String); 6] = [
         (vec!["bench", missing.to_str().unwrap()], format!("aorender: {}: ", missing.display())),
         (vec!["bench", bad.to_str().unwrap()], format!("aorender: {}: ", bad.display())),
         (vec!["bench", "--quick", "--spp", "12"], "aorender: invalid option: --spp must be a power of two".into()),
         (
             vec!["bench", "--quick", "--scenes-dir", tmp.path().to_str().unwrap()],
             format!("aorender: {}: no such file", tmp.path().join("dragon_vrip_res4.ply.gz").display()),
+        ),
+        (
+            vec!["bench", "--quick", "--sky-sampling", "weighted"],
+            "aorender: invalid option: --sky-sampling needs --sky overcast".into(),
+        ),
+        (
+            vec!["bench", "--quick", "--sky", "overcast", "--sky-normalise", "surface", "--sky-sampling", "weighted"],
+            "aorender: invalid option: surface normalisation needs the horizon or control-variate".into(),
         ),
     ];
     for (mut args, prefix) in cases {

@@ -264,7 +264,7 @@ fn render_resumable<'a>(
 fn aobench(spp: u32) -> Scene {
     let mut scene = Scene::default_scene();
     let s = &mut scene.settings;
-    (s.width, s.height, s.spp, s.hemisphere) = (8, 6, spp, Hemisphere::Uniform);
+    (s.width, s.height, s.spp, s.sampling.hemisphere) = (8, 6, spp, Hemisphere::Uniform);
     scene
 }
 

@@ -3,7 +3,7 @@
 //! KeyboardInterrupt stops after the current pass.
 
 use aorender::{
-    Control, Device, DeviceKind, Hemisphere, Progress, Sampler, Settings, Sky, SkyModel, SkyNormalise, SkySampling,
+    Control, Device, DeviceKind, Hemisphere, Progress, Sampler, Sampling, Sky, SkyModel, SkyNormalise, SkySampling,
 };
 use pyo3::exceptions::{PyMemoryError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -54,15 +54,15 @@ pub fn device(py: Python<'_>, name: &str) -> PyResult<Device> {
     .map_err(to_py)
 }
 
-/// Sampling settings from the keyword arguments every call takes.
-pub fn settings(
+/// The sampling the keyword arguments every call takes ask for.
+pub fn sampling(
     hemisphere: &str,
     sampler: &str,
     seed: u32,
     max_distance: Option<f64>,
     replicate: Option<u32>,
     sky: Option<&Bound<'_, PyAny>>,
-) -> PyResult<Settings> {
+) -> PyResult<Sampling> {
     let names =
         |all: &mut dyn Iterator<Item = &'static str>| all.map(|n| format!("'{n}'")).collect::<Vec<_>>().join(", ");
     let h = Hemisphere::from_name(hemisphere).ok_or_else(|| {
@@ -82,17 +82,10 @@ pub fn settings(
     {
         return Err(PyValueError::new_err(format!("max_distance must be zero or positive, got {d}")));
     }
-    let settings = Settings {
-        hemisphere: h,
-        sampler: s,
-        seed,
-        max_distance: max_distance.map(|d| d as f32),
-        replicate,
-        sky: parse_sky(sky)?,
-        ..Settings::default()
-    };
-    settings.validate_sampling().map_err(to_py)?;
-    Ok(settings)
+    let max_distance = max_distance.map(|d| d as f32);
+    let sampling = Sampling { hemisphere: h, sampler: s, seed, max_distance, replicate, sky: parse_sky(sky)? };
+    sampling.validate().map_err(to_py)?;
+    Ok(sampling)
 }
 
 /// The `sky` keyword: None (classic AO), a sky's name ("uniform", "overcast"), or a dict

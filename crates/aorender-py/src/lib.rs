@@ -91,7 +91,10 @@ fn ambient_occlusion<'py>(
     let v = arrays::vec3s(py, V, "V")?;
     let f = arrays::faces(py, F, "F", v.len())?;
     let probes = scene::probes(py, P, N, samples, glam::DVec3::ZERO)?;
-    let settings = engine::settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
+    let settings = aorender::Settings {
+        sampling: engine::sampling(hemisphere, sampler, seed, max_distance, replicate, sky)?,
+        ..Default::default()
+    };
     let tolerance = scene::tolerance(surface_tolerance)?;
     let scene = PyScene::of_arrays("arrays", v, f)
         .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("V, F: {}", e.value(py))))?;

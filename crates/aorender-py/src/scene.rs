@@ -2,7 +2,7 @@
 //! (the BVH built and uploaded) per device it has been asked on, kept for its lifetime.
 
 use crate::arrays::{faces, out, relative_vec3s, vec3s};
-use crate::engine::{device, interruptible, settings, to_py};
+use crate::engine::{device, interruptible, sampling, to_py};
 use aorender::bake::{AssetMesh, Bake, BakeAt, BakeRequest, GenerateUvs, TextureOptions, TextureRequest, UvWrap};
 use aorender::output::{FilePlan, OutputRules};
 use aorender::scene::mesh_triangles;
@@ -289,7 +289,8 @@ impl PyScene {
         device: &str,
     ) -> PyResult<Values<'py>> {
         let probes = probes(py, P, N, samples, self.scene.origin)?;
-        let settings = settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
+        let sampling = sampling(hemisphere, sampler, seed, max_distance, replicate, sky)?;
+        let settings = Settings { sampling, ..Settings::default() };
         let tolerance = tolerance(surface_tolerance)?;
         self.probe(py, &probes, samples, &settings, tolerance, device)
     }
@@ -330,8 +331,8 @@ impl PyScene {
         checkpoint: Option<PathBuf>,
         merge: Option<Vec<PathBuf>>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
-        let sampling = settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
-        let settings = Settings { width, height, spp, background: background as f32, ..sampling };
+        let sampling = sampling(hemisphere, sampler, seed, max_distance, replicate, sky)?;
+        let settings = Settings { width, height, spp, background: background as f32, sampling };
         settings.validate().map_err(to_py)?;
         let camera = match camera {
             Some(d) => camera_from(d, self.scene.camera)?,
@@ -425,7 +426,8 @@ impl PyScene {
         checkpoint: Option<PathBuf>,
         merge: Option<Vec<PathBuf>>,
     ) -> PyResult<Bound<'py, PyAny>> {
-        let settings = settings(hemisphere, sampler, seed, max_distance, replicate, sky)?;
+        let sampling = sampling(hemisphere, sampler, seed, max_distance, replicate, sky)?;
+        let settings = Settings { sampling, ..Settings::default() };
         let value_error = |e: aorender::Error| PyValueError::new_err(e.to_string());
         let at = match at {
             "vertices" => BakeAt::Vertices,

@@ -12,6 +12,7 @@
 //!
 //! (512 × 512 and 256 samples per pixel on the CPU reference by default.)
 
+use aorender::Sampling;
 use aorender::{BvhOptions, Control, Device, Film, ImageRequest, Scene, Session, Settings};
 use glam::{DVec3, Vec3};
 use std::path::PathBuf;
@@ -64,7 +65,13 @@ fn main() -> aorender::Result<()> {
     let mut origin = Scene::from_triangles("bunny", triangles);
     origin.camera.eye = on_grid(origin.camera.eye.as_vec3(), grid).as_dvec3();
     origin.camera.look_at = on_grid(origin.camera.look_at.as_vec3(), grid).as_dvec3();
-    let settings = Settings { width: side, height: side, spp, max_distance: Some(625.6), ..Settings::default() };
+    let settings = Settings {
+        width: side,
+        height: side,
+        spp,
+        sampling: Sampling { max_distance: Some(625.6), ..Sampling::default() },
+        ..Settings::default()
+    };
     let render = |scene: &Scene| -> aorender::Result<(Film, DVec3)> {
         let session = Session::new(&device, scene.clone(), &BvhOptions::default())?;
         let request = ImageRequest { camera: scene.camera, settings: settings.clone(), samples: None };

@@ -50,12 +50,12 @@ type Sum = fn(&[f32]) -> f64;
 fn main() {
     let mut scene = Scene::default_scene();
     let s = &mut scene.settings;
-    (s.width, s.height, s.spp, s.hemisphere, s.seed) = (24, 16, 600, Hemisphere::Uniform, 9);
+    (s.width, s.height, s.spp, s.sampling.hemisphere, s.sampling.seed) = (24, 16, 600, Hemisphere::Uniform, 9);
     let scene = scene;
     let s = &scene.settings;
     let tracer = CpuTracer::new(&scene, build_cwbvh(&scene, BuildQuality::default()));
     let rays = scene.camera.ray_gen(s.width, s.height);
-    let sampler = PointSampler::new(s.sampler, s.seed, s.spp, s.replicate_samples());
+    let sampler = PointSampler::new(s.sampling.sampler, s.sampling.seed, s.spp, s.sampling.replicate_samples());
     let samples: Vec<Vec<f32>> = (0..s.width * s.height)
         .map(|p| (0..s.spp).map(|k| tracer.shade_sample(&rays, s, &sampler, p % s.width, p / s.width, k).0).collect())
         .collect();

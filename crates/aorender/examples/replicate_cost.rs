@@ -17,6 +17,7 @@
 //! Defaults: `scenes/bunny.obj`, 256 samples per pixel, 128 × 128, max distance 0.05, the
 //! cosine hemisphere, on the CPU reference (the GPU gives the same samples).
 
+use aorender::Sampling;
 use aorender::{BvhOptions, Control, Device, ImageRequest, Sampler, Scene, Session, Settings};
 
 fn main() -> aorender::Result<()> {
@@ -26,13 +27,17 @@ fn main() -> aorender::Result<()> {
     let size: u32 = args.get(2).map_or(128, |s| s.parse().expect("image size"));
     let mut scene = Scene::load(std::path::Path::new(path))?;
     (scene.settings.width, scene.settings.height) = (size, size);
-    scene.settings.max_distance.get_or_insert(0.05);
+    scene.settings.sampling.max_distance.get_or_insert(0.05);
     let session = Session::new(&Device::cpu(), scene.clone(), &BvhOptions::default())?;
     let render = |settings: Settings| -> aorender::Result<aorender::Film> {
         let request = ImageRequest { camera: scene.camera, settings, samples: None };
         Ok(session.render(&request)?.complete(&mut Control::default())?.film)
     };
-    let reference = render(Settings { spp: 64 * spp, seed: 999, ..scene.settings.clone() })?;
+    let reference = render(Settings {
+        spp: 64 * spp,
+        sampling: Sampling { seed: 999, ..scene.settings.sampling },
+        ..scene.settings.clone()
+    })?;
     let (r, r_se) = (reference.mean(), reference.std_error());
     let reference_var: f64 = r_se.iter().map(|e| e * e).sum::<f64>() / r.len() as f64;
     let seeds = 8u32;
@@ -54,7 +59,11 @@ fn main() -> aorender::Result<()> {
     for (sampler, replicate) in configs {
         let (mut mse, mut estimated) = (0.0, 0.0);
         for seed in 0..seeds {
-            let settings = Settings { sampler, replicate, seed, spp, ..scene.settings.clone() };
+            let settings = Settings {
+                spp,
+                sampling: Sampling { sampler, replicate, seed, ..scene.settings.sampling },
+                ..scene.settings.clone()
+            };
             let film = render(settings)?;
             let m = film.mean();
             let e: f64 = m.iter().zip(&r).map(|(a, b)| (a - b) * (a - b)).sum::<f64>() / m.len() as f64;

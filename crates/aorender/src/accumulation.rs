@@ -19,14 +19,14 @@ use crate::film::{
 use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
 use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_film_values};
 use crate::sampler::Sampler;
-use crate::sampling::Hemisphere;
-use crate::scene::{Camera, Projection, Scene, Settings};
+use crate::scene::{Camera, Projection, Sampling, Scene, Settings};
 use crate::sky::Sky;
 use glam::Vec3;
 use std::path::PathBuf;
 
 /// Everything a sample's value depends on besides its index and the device: two
-/// accumulations with equal `SampleSettings` hold samples of the same render.
+/// accumulations with equal `SampleSettings` hold samples of the same render. Built in
+/// one place, [`SampleSettings::new`], for images and probe films alike.
 #[derive(Clone, Debug)]
 pub struct SampleSettings {
     /// BLAKE3 hash of the geometry (every triangle, sphere and plane with its albedo) and
@@ -40,77 +40,49 @@ pub struct SampleSettings {
     pub spp: u32,
     /// Cells per axis of the cell samplers ([`Sampler::strata_per_axis`]), 1 for the others.
     pub strata: u32,
-    /// Samples per replicate ([`Sampler::replicate_samples`]).
-    pub replicate: u32,
     /// What the film's slots hold.
     pub layout: FilmLayout,
-    /// Hemisphere distribution.
-    pub hemisphere: Hemisphere,
-    /// Point sampler.
-    pub sampler: Sampler,
-    /// AO distance limit.
-    pub max_distance: Option<f32>,
     /// Value of camera rays that miss.
     pub background: f32,
-    /// Seed.
-    pub seed: u32,
-    /// The sky and its sampling.
-    pub sky: Sky,
+    /// The request's sampling, its replicate size resolved (`Some` of
+    /// [`Sampling::replicate_samples`]).
+    pub sampling: Sampling,
 }
 
 impl SampleSettings {
-    /// The settings of an image of `settings` of `scene` seen by `camera`.
-    pub fn image(scene: &Scene, camera: &Camera, settings: &Settings) -> SampleSettings {
-        SampleSettings::with_hash(scene_hash(scene, camera), settings)
-    }
-
-    /// The settings of an image of `settings` whose scene and camera hash to `scene_hash`
-    /// ([`scene_hash`]).
-    pub fn with_hash(scene_hash: [u8; 32], settings: &Settings) -> SampleSettings {
-        let s = settings;
-        SampleSettings {
-            scene_hash,
-            width: s.width,
-            height: s.height,
-            spp: s.spp,
-            strata: s.strata(s.spp),
-            replicate: s.replicate_samples(),
-            layout: FilmLayout::Image,
-            hemisphere: s.hemisphere,
-            sampler: s.sampler,
-            max_distance: s.max_distance,
-            background: s.background,
-            seed: s.seed,
-            sky: s.sky,
-        }
-    }
-
-    /// The settings of `points` probe points of `samples` samples each, in a film of
-    /// `layout` (`lanes` slots a point: its width), with the sampling of `settings`;
-    /// `points_hash` identifies the scene and the points (`probes_hash`).
-    pub fn probes(
-        points_hash: [u8; 32],
+    /// The identity of a film of `layout`, `width` × `height` slots (for probes: lanes ×
+    /// points) of `spp` samples each, whose scene (and camera, or points) hash to
+    /// `scene_hash` ([`scene_hash`], `probes_hash`), drawn with `sampling`.
+    pub fn new(
+        scene_hash: [u8; 32],
         layout: FilmLayout,
-        lanes: u32,
-        points: u32,
-        samples: u32,
-        settings: &Settings,
+        width: u32,
+        height: u32,
+        spp: u32,
+        background: f32,
+        sampling: &Sampling,
     ) -> SampleSettings {
         SampleSettings {
-            scene_hash: points_hash,
-            width: lanes,
-            height: points,
-            spp: samples,
-            strata: settings.strata(samples),
-            replicate: settings.replicate_samples(),
+            scene_hash,
+            width,
+            height,
+            spp,
+            strata: sampling.strata(spp),
             layout,
-            hemisphere: settings.hemisphere,
-            sampler: settings.sampler,
-            max_distance: settings.max_distance,
-            background: settings.background,
-            seed: settings.seed,
-            sky: settings.sky,
+            background,
+            sampling: Sampling { replicate: Some(sampling.replicate_samples()), ..*sampling },
         }
+    }
+
+    /// The identity of an image of `settings` whose scene and camera hash to `scene_hash`.
+    pub fn image(scene_hash: [u8; 32], settings: &Settings) -> SampleSettings {
+        let s = settings;
+        SampleSettings::new(scene_hash, FilmLayout::Image, s.width, s.height, s.spp, s.background, &s.sampling)
+    }
+
+    /// Samples per replicate ([`Sampler::replicate_samples`]).
+    pub fn replicate(&self) -> u32 {
+        self.sampling.replicate_samples()
     }
 
     /// What differs between `self` (a checkpoint's) and `other` (this render's) that
@@ -124,20 +96,21 @@ impl SampleSettings {
             }
         };
         check(&mut d, "size", format!("{}x{}", self.width, self.height), format!("{}x{}", other.width, other.height));
-        check(&mut d, "seed", self.seed.to_string(), other.seed.to_string());
-        check(&mut d, "hemisphere", self.hemisphere.name().into(), other.hemisphere.name().into());
-        check(&mut d, "sampler", self.sampler.name().into(), other.sampler.name().into());
-        check(&mut d, "sky", self.sky.describe(), other.sky.describe());
+        let (a, b) = (&self.sampling, &other.sampling);
+        check(&mut d, "seed", a.seed.to_string(), b.seed.to_string());
+        check(&mut d, "hemisphere", a.hemisphere.name().into(), b.hemisphere.name().into());
+        check(&mut d, "sampler", a.sampler.name().into(), b.sampler.name().into());
+        check(&mut d, "sky", a.sky.describe(), b.sky.describe());
         if self.strata != other.strata {
             d.push(format!(
                 "samples per pixel {} ({}×{} strata), not {} ({}×{} strata)",
                 self.spp, self.strata, self.strata, other.spp, other.strata, other.strata
             ));
         }
-        check(&mut d, "samples per replicate", self.replicate.to_string(), other.replicate.to_string());
+        check(&mut d, "samples per replicate", self.replicate().to_string(), other.replicate().to_string());
         check(&mut d, "film", format!("{:?}", self.layout), format!("{:?}", other.layout));
         let distance = |m: Option<f32>| m.map_or("unlimited".to_string(), |m| format!("{m} ({:#010x})", m.to_bits()));
-        check(&mut d, "max distance", distance(self.max_distance), distance(other.max_distance));
+        check(&mut d, "max distance", distance(a.max_distance), distance(b.max_distance));
         check(
             &mut d,
             "background",
@@ -352,7 +325,7 @@ impl SampleSettings {
     /// more (`None` for independent samples, one replicate, or a probe film whose lanes
     /// do not tile the replicates).
     pub fn replicate_plan(&self) -> Option<ReplicatePlan> {
-        let b = self.replicate;
+        let b = self.replicate();
         if b < 2 {
             return None;
         }
@@ -377,7 +350,7 @@ impl SampleSettings {
     /// How the error of this film is estimated once it holds `replicates` complete
     /// replicates.
     pub fn error_estimator(&self, replicates: u64) -> ErrorEstimator {
-        match self.replicate {
+        match self.replicate() {
             1 => ErrorEstimator::Samples,
             0 => ErrorEstimator::None,
             _ if self.replicate_plan().is_none() || replicates < 2 => ErrorEstimator::None,
@@ -644,13 +617,13 @@ impl Accumulation {
         // The CPU reference always traverses obvhs's CWBVH.
         let layout = if kind == DeviceKind::Cpu { BvhLayout::Cwbvh } else { bvh.layout };
         Accumulation::new(
-            SampleSettings::image(scene, camera, settings),
+            SampleSettings::image(scene_hash(scene, camera), settings),
             kind,
             layout,
             bvh.quality,
             samples.start,
             samples.end,
-            max_image_sample(scene, settings.background, &settings.sky),
+            max_image_sample(scene, settings.background, &settings.sampling.sky),
         )
     }
 
@@ -676,8 +649,9 @@ impl Accumulation {
         // The probes as the request traces them (and hashes them).
         let hash = probes_hash(&geometry_hash(scene), &checked(probes)?);
         let (slots, film) = if bent_normals { (4, FilmLayout::BentProbes) } else { (1, FilmLayout::Probes) };
-        let settings = SampleSettings::probes(hash, film, slots, probes.len() as u32, spp, settings);
-        let max_value = settings.sky.max_weight();
+        let points = probes.len() as u32;
+        let settings = SampleSettings::new(hash, film, slots, points, spp, settings.background, &settings.sampling);
+        let max_value = settings.sampling.sky.max_weight();
         Ok(Accumulation::new(settings, kind, layout, bvh.quality, samples.start, samples.end, max_value))
     }
 
@@ -761,7 +735,7 @@ impl Accumulation {
 
     /// What an adaptive render's decisions need besides the sums.
     pub fn adapt_query(&self) -> AdaptQuery {
-        AdaptQuery { replicate: self.settings.replicate, range: self.sample_range() }
+        AdaptQuery { replicate: self.settings.replicate(), range: self.sample_range() }
     }
 
     /// Each pixel's samples, complete replicates and whether it is stopped, from the
@@ -893,8 +867,8 @@ impl Accumulation {
     /// The replicate size a film of this accumulation reports: 0 where the replicates'
     /// sums are not taken ([`SampleSettings::replicate_plan`]).
     fn film_replicate(&self) -> u32 {
-        match self.settings.replicate {
-            0 | 1 => self.settings.replicate,
+        match self.settings.replicate() {
+            0 | 1 => self.settings.replicate(),
             b if self.settings.replicate_plan().is_some() => b,
             _ => 0,
         }
@@ -902,9 +876,10 @@ impl Accumulation {
 
     /// What one of this accumulation's samples can be, for its intervals.
     pub fn sample_range(&self) -> SampleRange {
-        if self.settings.sky.is_uniform() {
-            SampleRange::of(self.settings.hemisphere, self.settings.background, self.max_value)
-        } else if self.settings.sky.sampling == crate::sky::SkySampling::ControlVariate {
+        let sampling = &self.settings.sampling;
+        if sampling.sky.is_uniform() {
+            SampleRange::of(sampling.hemisphere, self.settings.background, self.max_value)
+        } else if sampling.sky.sampling == crate::sky::SkySampling::ControlVariate {
             SampleRange::Signed(self.max_value)
         } else {
             SampleRange::Bounded(self.max_value)
@@ -923,9 +898,9 @@ impl Accumulation {
             return Err(Error::settings(format!(
                 "an error target needs an error estimate, which the {} sampler has only in replicates \
                  (samples per replicate {}: give a power of two{})",
-                s.sampler.name(),
-                s.replicate,
-                if s.sampler == Sampler::Stratified { " of four" } else { "" }
+                s.sampling.sampler.name(),
+                s.replicate(),
+                if s.sampling.sampler == Sampler::Stratified { " of four" } else { "" }
             )));
         }
         let image = s.layout == FilmLayout::Image;
@@ -968,7 +943,7 @@ impl Accumulation {
     pub fn target_met(&self, target: ErrorTarget) -> Result<bool> {
         let sums = self.sums()?;
         let s = &self.settings;
-        let replicates = match s.replicate {
+        let replicates = match s.replicate() {
             1 => s.samples_in(self.first..self.next),
             _ => sums.replicates,
         };
@@ -995,13 +970,13 @@ impl Accumulation {
     /// has the same samples: from the replicates where they are taken.
     pub fn check_query(&self) -> CheckQuery {
         let s = &self.settings;
-        let replicates = s.replicate_plan().map(|_| (s.replicate, self.exact.replicates));
+        let replicates = s.replicate_plan().map(|_| (s.replicate(), self.exact.replicates));
         CheckQuery { samples: self.samples() as u64, replicates }
     }
 
     /// Complete replicates the target's estimate has (samples, for independent ones).
     pub fn target_replicates(&self) -> u64 {
-        match self.settings.replicate {
+        match self.settings.replicate() {
             1 => self.settings.samples_in(self.first..self.next),
             _ => self.exact.replicates,
         }
@@ -1262,4 +1237,43 @@ pub fn merge(shards: &[(PathBuf, Accumulation)]) -> Result<Merged> {
             })
             .collect(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sky::SkyModel;
+
+    /// The identity keeps the request's `Sampling` with its replicate size resolved, so a
+    /// request that leaves the size to the sampler and one that names that size hold the
+    /// same samples; each other change of the sampling is one difference, named.
+    #[test]
+    fn the_identity_resolves_the_replicate_size_and_names_each_difference() {
+        let hash = [7u8; 32];
+        for (sampler, resolved) in [(Sampler::Independent, 1), (Sampler::Stratified, 0), (Sampler::Sobol, 0)] {
+            let left = Sampling { sampler, ..Sampling::default() };
+            let named = Sampling { replicate: Some(resolved), ..left };
+            let a = SampleSettings::new(hash, FilmLayout::Image, 8, 4, 16, 0.0, &left);
+            let b = SampleSettings::new(hash, FilmLayout::Image, 8, 4, 16, 0.0, &named);
+            assert_eq!((a.sampling.replicate, a.replicate()), (Some(resolved), resolved), "{sampler:?}");
+            assert!(a.differences(&b).is_empty(), "{sampler:?}: {:?}", a.differences(&b));
+        }
+        let base = Sampling { sampler: Sampler::Sobol, replicate: Some(4), ..Sampling::default() };
+        let id = |s: &Sampling| SampleSettings::new(hash, FilmLayout::Probes, 4, 3, 64, 0.0, s);
+        let overcast = Sky { model: SkyModel::Overcast, ..Sky::default() };
+        let cases = [
+            (Sampling { seed: 1, ..base }, "seed 0, not 1"),
+            (Sampling { hemisphere: crate::sampling::Hemisphere::Uniform, ..base }, "hemisphere cosine, not uniform"),
+            (Sampling { replicate: Some(8), ..base }, "samples per replicate 4, not 8"),
+            (Sampling { max_distance: Some(0.5), ..base }, "max distance unlimited, not 0.5"),
+            (Sampling { sky: overcast, ..base }, "sky uniform, not overcast"),
+        ];
+        for (other, expect) in cases {
+            let d = id(&base).differences(&id(&other));
+            assert!(d.len() == 1 && d[0].starts_with(expect), "expected {expect:?}, got {d:?}");
+        }
+        // An image's identity from the same sampling keeps the same `Sampling`.
+        let image = SampleSettings::image(hash, &Settings { sampling: base, ..Settings::default() });
+        assert_eq!(image.sampling, id(&base).sampling);
+    }
 }

@@ -15,7 +15,7 @@ use crate::geometry::Plane;
 use crate::probe::{Probe, ProbeValue};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
-use crate::scene::{Camera, Projection, Scene, Settings, Sphere, Triangle, mesh_triangles};
+use crate::scene::{Camera, Projection, Sampling, Scene, Settings, Sphere, Triangle, mesh_triangles};
 use crate::session::Session;
 use glam::{DVec3, Vec3};
 use std::path::Path;
@@ -299,10 +299,10 @@ pub fn cases(v: &Variant) -> Vec<Case> {
         let mut s = empty_scene("ceiling", v);
         let ceiling = plane(v, DVec3::new(0.0, h, 0.0), -up);
         s.planes.push(ceiling);
-        s.settings.max_distance = r.map(|r| v.length(r));
+        s.settings.sampling.max_distance = r.map(|r| v.length(r));
         let p = probe_at(v, DVec3::ZERO, up);
         let height = ceiling.normal.as_dvec3().dot(ceiling.point.as_dvec3() - p.position.as_dvec3()).abs();
-        let expected = match s.settings.max_distance {
+        let expected = match s.settings.sampling.max_distance {
             None => 0.0,
             Some(r) if (r as f64) < height => 1.0,
             Some(r) => (height / r as f64).powi(2),
@@ -313,7 +313,7 @@ pub fn cases(v: &Variant) -> Vec<Case> {
     {
         let mut s = empty_scene("ceiling", v);
         s.planes.push(plane(v, DVec3::new(0.0, 1.0, 0.0), -up));
-        s.settings.max_distance = Some(f32::from_bits(1));
+        s.settings.sampling.max_distance = Some(f32::from_bits(1));
         push("ceiling h 1 R 1e-45".into(), s, vec![probe_at(v, DVec3::ZERO, up)], vec![1.0]);
     }
 
@@ -329,7 +329,7 @@ pub fn cases(v: &Variant) -> Vec<Case> {
     for limit in [None, Some(0.0)] {
         let mut s = empty_scene("closed box", v);
         s.triangles = mesh("closed box", cube(v));
-        s.settings.max_distance = limit;
+        s.settings.sampling.max_distance = limit;
         let probes: Vec<Probe> = inside.iter().map(|&(p, n)| probe_at(v, p, n)).collect();
         let value = if limit.is_some() { 1.0 } else { 0.0 };
         let name = if limit.is_some() { "inside a closed box, R 0" } else { "inside a closed box" };
@@ -381,7 +381,10 @@ impl Case {
         seed: u32,
         samples: u32,
     ) -> Result<Vec<ProbeValue>> {
-        let settings = Settings { hemisphere, sampler, seed, ..self.scene.settings.clone() };
+        let settings = Settings {
+            sampling: Sampling { hemisphere, sampler, seed, ..self.scene.settings.sampling },
+            ..self.scene.settings.clone()
+        };
         Ok(session.probe(&self.probes, samples, &settings)?.values)
     }
 }

@@ -30,8 +30,8 @@
 //! println!("{:.1} M rays/s, image mean {:.4}", out.stats.rays_per_second / 1e6, out.stats.image_mean);
 //!
 //! // … then uniform directions from a Sobol sequence, with a progress callback …
-//! request.settings.hemisphere = Hemisphere::Uniform;
-//! request.settings.sampler = Sampler::Sobol;
+//! request.settings.sampling.hemisphere = Hemisphere::Uniform;
+//! request.settings.sampling.sampler = Sampler::Sobol;
 //! let mut on_progress = |p: &aorender::Progress| eprintln!("{}/{} spp", p.samples_done, p.samples_total);
 //! let mut control = Control { progress: Some(&mut on_progress), ..Control::default() };
 //! let sobol = session.render(&request)?.complete(&mut control)?;
@@ -129,7 +129,7 @@ pub use render::{
 };
 pub use sampler::Sampler;
 pub use sampling::Hemisphere;
-pub use scene::{Camera, LoadOptions, Projection, ReadLimits, Scene, Settings};
+pub use scene::{Camera, LoadOptions, Projection, ReadLimits, Sampling, Scene, Settings};
 pub use session::{ImageRequest, ProbeOutput, Session};
 pub use sky::{Sky, SkyModel, SkyNormalise, SkySampling};
 pub use surface::{Located, RELATIVE_TOLERANCE, SurfaceTolerance};

@@ -163,7 +163,7 @@ impl Session {
     /// device ([`Device::film_bytes`]).
     pub fn image_film_bytes(&self, settings: &Settings) -> u64 {
         let slots = settings.width as u64 * settings.height as u64;
-        self.device.film_bytes(slots, settings.replicate_samples() >= 2)
+        self.device.film_bytes(slots, settings.sampling.replicate_samples() >= 2)
     }
 
     /// Fails with [`Error::FilmBudget`] when a film of `slots` slots (`what`, in words)
@@ -233,12 +233,12 @@ impl Session {
         let camera = self.frame.camera(&request.camera, self.scene.origin);
         camera.validate_f32()?;
         let what = format!("a {}x{} image", s.width, s.height);
-        self.check_film_budget(what, s.width as u64 * s.height as u64, s.replicate_samples() >= 2)?;
+        self.check_film_budget(what, s.width as u64 * s.height as u64, s.sampling.replicate_samples() >= 2)?;
         let start = Instant::now();
-        let max_value = max_image_sample(&self.scene, s.background, &s.sky);
+        let max_value = max_image_sample(&self.scene, s.background, &s.sampling.sky);
         let passes = self.prepared.image(&camera, s, value_exponent(max_value))?;
         let target_seconds = start.elapsed().as_secs_f64();
-        let settings = SampleSettings::with_hash(self.scene_hash(&request.camera), s);
+        let settings = SampleSettings::image(self.scene_hash(&request.camera), s);
         let mut acc = Accumulation::new(
             settings,
             self.device.kind(),
@@ -288,7 +288,7 @@ impl Session {
         settings: &Settings,
         bent_normals: bool,
     ) -> Result<Render> {
-        settings.validate_sampling()?;
+        settings.sampling.validate()?;
         if spp == 0 {
             return Err(Error::settings("samples per point must be at least 1"));
         }
@@ -311,9 +311,9 @@ impl Session {
             )));
         }
         let what = format!("the film of {} probe points", probes.len());
-        self.check_film_budget(what, probes.len() as u64 * slots as u64, settings.replicate_samples() >= 2)?;
+        self.check_film_budget(what, probes.len() as u64 * slots as u64, settings.sampling.replicate_samples() >= 2)?;
         let start = Instant::now();
-        let e = value_exponent(settings.sky.max_weight());
+        let e = value_exponent(settings.sampling.sky.max_weight());
         let local = self.local_probes(&probes);
         let passes = self.prepared.probes(&local, first_point, slots, spp, settings, bent_normals, e)?;
         drop(local);
@@ -330,7 +330,8 @@ impl Session {
         }
         let points = probes.len() as u32;
         drop(probes);
-        let sample_settings = SampleSettings::probes(hash, layout, slots, points, spp, settings);
+        let (background, sampling) = (settings.background, &settings.sampling);
+        let sample_settings = SampleSettings::new(hash, layout, slots, points, spp, background, sampling);
         let mut acc = Accumulation::new(
             sample_settings,
             self.device.kind(),
@@ -338,7 +339,7 @@ impl Session {
             self.options.quality,
             range.start,
             range.end,
-            settings.sky.max_weight(),
+            settings.sampling.sky.max_weight(),
         );
         acc.adapter = self.setup.adapter.name.clone();
         Ok(Render::new(passes, acc, self.info(target_seconds)))
@@ -363,7 +364,7 @@ impl Session {
         settings: &Settings,
         control: &mut Control,
     ) -> Result<ProbeOutput> {
-        settings.validate_sampling()?;
+        settings.sampling.validate()?;
         if samples == 0 {
             return Err(Error::settings("samples per probe must be at least 1"));
         }
@@ -375,16 +376,17 @@ impl Session {
         }
         let lanes = lanes_for(probes.len(), samples);
         let what = format!("the film of {} probe points", probes.len());
-        self.check_film_budget(what, probes.len() as u64 * lanes as u64, settings.replicate_samples() >= 2)?;
+        self.check_film_budget(what, probes.len() as u64 * lanes as u64, settings.sampling.replicate_samples() >= 2)?;
         let rounds = samples.div_ceil(lanes);
-        let e = value_exponent(settings.sky.max_weight());
+        let e = value_exponent(settings.sampling.sky.max_weight());
         let start = Instant::now();
         let passes = self.prepared.probes(&self.local_probes(probes), 0, lanes, samples, settings, false, e)?;
         let pipeline_seconds = start.elapsed().as_secs_f64();
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let hash = probes_hash(geometry, probes);
+        let (points, background) = (probes.len() as u32, settings.background);
         let sample_settings =
-            SampleSettings::probes(hash, FilmLayout::Probes, lanes, probes.len() as u32, samples, settings);
+            SampleSettings::new(hash, FilmLayout::Probes, lanes, points, samples, background, &settings.sampling);
         let acc = Accumulation::new(
             sample_settings,
             self.device.kind(),
@@ -392,7 +394,7 @@ impl Session {
             self.options.quality,
             0,
             rounds,
-            settings.sky.max_weight(),
+            settings.sampling.sky.max_weight(),
         );
         let mut render = Render::new(passes, acc, self.info(pipeline_seconds));
         render.run(control)?;

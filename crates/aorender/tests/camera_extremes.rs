@@ -52,8 +52,8 @@ fn two_to_the_twenty_samples_converge_to_the_closed_form() {
     let floor = Plane { normal: Vec3::Y, point: Vec3::ZERO, albedo: 1.0 };
     let sphere = Sphere { center: Vec3::new(0.5, 0.875, 0.0), radius: 0.5, albedo: 1.0 };
     let mut s = scene(camera, vec![floor], vec![sphere], 4, SPP);
-    s.settings.sampler = Sampler::Independent;
-    s.settings.hemisphere = Hemisphere::Uniform;
+    s.settings.sampling.sampler = Sampler::Independent;
+    s.settings.sampling.hemisphere = Hemisphere::Uniform;
     let to_centre = sphere.center.as_dvec3();
     let (h, d, r) = (to_centre.y, to_centre.length(), 0.5f64);
     let expected = 1.0 - h * r * r / (d * d * d);

@@ -15,7 +15,7 @@ fn for_each_render(dir: &Path, spp: u32, body: &str, hemispheres: &[Hemisphere],
     for options in all_configs() {
         let session = session(&scene, &options);
         for &hemisphere in hemispheres {
-            scene.settings.hemisphere = hemisphere;
+            scene.settings.sampling.hemisphere = hemisphere;
             let film = render_settings(&session, &scene.settings);
             check(&film, &format!("{} {}", label(&options), hemisphere.name()));
         }

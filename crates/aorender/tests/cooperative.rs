@@ -6,6 +6,7 @@
 //! runs out of budget is rendered again. It needs subgroups, which lavapipe has.
 
 mod common;
+use aorender::Sampling;
 use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
 use aorender::gpu::GpuDevice;
 use aorender::gpu::layout::FrameUniforms;
@@ -68,7 +69,10 @@ fn cooperative_images_are_the_per_lane_films() {
     for scene in [bunny(), aobench()] {
         let sessions = TRAVERSALS.map(|t| session_with(&scene, t));
         for sampler in Sampler::ALL {
-            let settings = Settings { sampler, hemisphere: Hemisphere::Uniform, ..scene.settings.clone() };
+            let settings = Settings {
+                sampling: Sampling { sampler, hemisphere: Hemisphere::Uniform, ..scene.settings.sampling },
+                ..scene.settings.clone()
+            };
             let [a, b] = [0, 1].map(|k| render_settings(&sessions[k], &settings));
             assert_same_film(&a, &b, &format!("{}, {}", scene.name, sampler.name()));
         }
@@ -84,7 +88,11 @@ fn cooperative_adaptive_renders_are_the_per_lane_ones() {
         return;
     }
     let scene = bunny();
-    let settings = Settings { spp: 256, replicate: Some(16), ..scene.settings.clone() };
+    let settings = Settings {
+        spp: 256,
+        sampling: Sampling { replicate: Some(16), ..scene.settings.sampling },
+        ..scene.settings.clone()
+    };
     let films = TRAVERSALS.map(|t| {
         let session = session_with(&scene, t);
         let request = aorender::ImageRequest { camera: scene.camera, settings: settings.clone(), samples: None };
@@ -119,7 +127,10 @@ fn cooperative_probes_are_the_per_lane_values() {
             }
         })
         .collect();
-    let settings = Settings { hemisphere: Hemisphere::Uniform, max_distance: Some(0.05), ..scene.settings.clone() };
+    let settings = Settings {
+        sampling: Sampling { hemisphere: Hemisphere::Uniform, max_distance: Some(0.05), ..scene.settings.sampling },
+        ..scene.settings.clone()
+    };
     let sessions = TRAVERSALS.map(|t| session_with(&scene, t));
     let values = sessions.each_ref().map(|s| s.probe(&probes, 200, &settings).unwrap_or_else(|e| panic!("{e}")));
     assert!(values[0].values.iter().any(|v| v.mean > 0.0 && v.mean < 1.0), "no probe partly occluded");
@@ -147,7 +158,8 @@ fn image_target(
     assert_eq!(gs.traversal, traversal);
     let s = &scene.settings;
     let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count, value_exponent_of(scene));
-    let target = GpuTarget::image(dev, &gs, frame, s.sampler, s.hemisphere).unwrap_or_else(|e| panic!("{e}"));
+    let target =
+        GpuTarget::image(dev, &gs, frame, s.sampling.sampler, s.sampling.hemisphere).unwrap_or_else(|e| panic!("{e}"));
     (gs, target)
 }
 
@@ -159,7 +171,7 @@ fn cooperative_reads_geometry_in_buffers_or_textures_whole_or_split() {
         return;
     }
     let mut scene = bunny();
-    scene.settings.hemisphere = Hemisphere::Uniform;
+    scene.settings.sampling.hemisphere = Hemisphere::Uniform;
     let whole = gpu_adapter();
     let split = gpu_device_with(|ctx| {
         ctx.limit_chunk_bytes(200_000);
@@ -190,7 +202,7 @@ fn cooperative_passes_stay_within_the_loop_cap() {
         return;
     }
     let mut scene = bunny();
-    scene.settings.hemisphere = Hemisphere::Uniform;
+    scene.settings.sampling.hemisphere = Hemisphere::Uniform;
     let dev = gpu_adapter();
     let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
     let films: Vec<Film> = [1, u32::MAX]

@@ -6,6 +6,7 @@
 
 mod common;
 
+use aorender::Sampling;
 use aorender::{Accumulation, Control, DeviceKind, ErrorTarget, ImageRequest, PassSizing, Sampler, Scene, Settings};
 use common::{Config, gpu_available, repo, session};
 
@@ -13,7 +14,7 @@ use common::{Config, gpu_available, repo, session};
 fn bunny(w: u32, h: u32) -> Scene {
     let mut scene = Scene::load(&repo().join("scenes/bunny.obj")).unwrap_or_else(|e| panic!("{e}"));
     (scene.settings.width, scene.settings.height) = (w, h);
-    scene.settings.max_distance = Some(0.05);
+    scene.settings.sampling.max_distance = Some(0.05);
     scene
 }
 
@@ -44,7 +45,11 @@ fn device_sums_are_the_host_sums_and_checks_reduce_them() {
         [(Sampler::Independent, None, 261), (Sampler::Sobol, Some(4), 46), (Sampler::Stratified, Some(16), 272)]
     {
         let what = format!("{} in replicates of {replicate:?}, {spp} spp", sampler.name());
-        let settings = Settings { sampler, replicate, spp, seed: 7, ..scene.settings.clone() };
+        let settings = Settings {
+            spp,
+            sampling: Sampling { sampler, replicate, seed: 7, ..scene.settings.sampling },
+            ..scene.settings.clone()
+        };
         let request = ImageRequest { camera: scene.camera, settings, samples: None };
         let reference = cpu.render(&request).unwrap().complete(&mut Control::default()).unwrap();
         let mut render = gpu.render(&request).unwrap();
@@ -106,7 +111,11 @@ fn target_renders_resume_to_the_same_bits() {
         let session = session(&scene, &Config { device: kind, ..Default::default() });
         for (sampler, replicate) in [(Sampler::Independent, None), (Sampler::Sobol, Some(16))] {
             let what = format!("{kind:?} {}", sampler.name());
-            let settings = Settings { sampler, replicate, spp: 1 << 14, seed: 4, ..scene.settings.clone() };
+            let settings = Settings {
+                spp: 1 << 14,
+                sampling: Sampling { sampler, replicate, seed: 4, ..scene.settings.sampling },
+                ..scene.settings.clone()
+            };
             let request = ImageRequest { camera: scene.camera, settings, samples: None };
             let control = || Control { target: Some(ErrorTarget::Rmse(0.01)), ..Control::default() };
             let whole = session.render(&request).unwrap().complete(&mut control()).unwrap();
@@ -162,8 +171,8 @@ fn adaptive_decisions_on_the_device_are_the_host_rules() {
     let gpu = session(&scene, &Config { device: DeviceKind::Gpu, ..Default::default() });
     for (sampler, replicate, target) in [(Sampler::Sobol, 16, 0.01), (Sampler::Independent, 4, 0.015)] {
         let what = format!("{} in replicates of {replicate}", sampler.name());
-        let settings =
-            Settings { sampler, replicate: Some(replicate), spp: 1 << 13, seed: 3, ..scene.settings.clone() };
+        let sampling = Sampling { sampler, replicate: Some(replicate), seed: 3, ..scene.settings.sampling };
+        let settings = Settings { sampling, spp: 1 << 13, ..scene.settings.clone() };
         let request = ImageRequest { camera: scene.camera, settings, samples: None };
         let control = || Control { target: Some(ErrorTarget::Rmse(target)), adaptive: true, ..Control::default() };
         let reference = cpu.render(&request).unwrap().complete(&mut control()).unwrap();

@@ -49,11 +49,11 @@ fn one_session_answers_many_requests_like_fresh_sessions() {
             requests.push(r);
         };
         with(&|r| r.settings.spp = 20);
-        with(&|r| r.settings.seed = 7);
-        with(&|r| r.settings.hemisphere = Hemisphere::Uniform);
-        with(&|r| r.settings.sampler = Sampler::Sobol);
-        with(&|r| r.settings.sampler = Sampler::Stratified);
-        with(&|r| r.settings.max_distance = Some(0.5));
+        with(&|r| r.settings.sampling.seed = 7);
+        with(&|r| r.settings.sampling.hemisphere = Hemisphere::Uniform);
+        with(&|r| r.settings.sampling.sampler = Sampler::Sobol);
+        with(&|r| r.settings.sampling.sampler = Sampler::Stratified);
+        with(&|r| r.settings.sampling.max_distance = Some(0.5));
         with(&|r| (r.settings.width, r.settings.height) = (17, 9));
         with(&|r| r.camera.eye.x += 0.25);
         with(&|r| r.samples = Some(3..9));
@@ -155,7 +155,7 @@ fn version_1_checkpoints_resume_to_the_same_bits() {
         assert!(0 < saved.samples() && saved.samples() < 600 && saved.partial.is_some(), "{name}: a block in progress");
         let mut scene = Scene::default_scene();
         let s = &mut scene.settings;
-        (s.width, s.height, s.spp, s.hemisphere, s.sampler, s.seed) =
+        (s.width, s.height, s.spp, s.sampling.hemisphere, s.sampling.sampler, s.sampling.seed) =
             (64, 48, 600, Hemisphere::Uniform, Sampler::Stratified, 7);
         let session = Session::new(&device, scene, &BvhOptions::default()).expect("session");
         let mut render = session.render(&session.default_request()).expect("render");

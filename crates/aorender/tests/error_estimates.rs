@@ -5,6 +5,7 @@
 
 mod common;
 
+use aorender::Sampling;
 use aorender::accumulation::max_sample_value;
 use aorender::closed_form::configurations;
 use aorender::geometry::Plane;
@@ -31,7 +32,7 @@ fn kinds() -> Vec<DeviceKind> {
 
 /// Degrees of freedom of the error estimate of `samples` samples drawn with `settings`.
 fn dof(settings: &Settings, samples: u32) -> u64 {
-    match settings.replicate_samples() {
+    match settings.sampling.replicate_samples() {
         1 => samples as u64 - 1,
         b => (samples / b) as u64 - 1,
     }
@@ -146,7 +147,10 @@ fn probe_intervals_cover_the_closed_form_for_every_sampler() {
                     // Eight replicates at 16 samples (the fewest an error target decides
                     // on, `MIN_TARGET_REPLICATES`), sixteen at 64 and 256.
                     let replicate = Some(sampler.replicate_for(spp, (spp / 2).min(16)));
-                    let settings = Settings { hemisphere, sampler, seed: 11, replicate, ..Settings::default() };
+                    let settings = Settings {
+                        sampling: Sampling { hemisphere, sampler, seed: 11, replicate, ..Sampling::default() },
+                        ..Settings::default()
+                    };
                     let values = session.probe(&probes, spp, &settings).unwrap().values;
                     let mean: Vec<f64> = values.iter().map(|v| v.mean).collect();
                     let se: Vec<f64> = values.iter().map(|v| v.std_error).collect();
@@ -180,13 +184,17 @@ fn probe_intervals_cover_the_closed_form_for_every_sampler() {
 fn bunny() -> Scene {
     let mut scene = Scene::load(&repo().join("scenes/bunny.obj")).unwrap_or_else(|e| panic!("{e}"));
     (scene.settings.width, scene.settings.height) = (64, 64);
-    scene.settings.max_distance = Some(0.05);
+    scene.settings.sampling.max_distance = Some(0.05);
     scene
 }
 
 /// A converged film of `scene`: `spp` independent samples a pixel on the CPU reference.
 fn converged(scene: &Scene, spp: u32) -> Film {
-    let settings = Settings { spp, seed: 1234, sampler: Sampler::Independent, ..scene.settings.clone() };
+    let settings = Settings {
+        spp,
+        sampling: Sampling { seed: 1234, sampler: Sampler::Independent, ..scene.settings.sampling },
+        ..scene.settings.clone()
+    };
     common::render_settings(&session(scene, &Config::cpu()), &settings)
 }
 
@@ -209,7 +217,11 @@ fn image_intervals_and_rmse_estimates_hold_for_every_sampler_on_a_scan() {
         let session = session(&scene, &Config { device: kind, ..Default::default() });
         for (hemisphere, sampler) in configurations() {
             let replicate = Some(sampler.replicate_for(SAMPLES, 16));
-            let settings = Settings { hemisphere, sampler, seed: 5, spp: SAMPLES, replicate, ..scene.settings.clone() };
+            let settings = Settings {
+                spp: SAMPLES,
+                sampling: Sampling { hemisphere, sampler, seed: 5, replicate, ..scene.settings.sampling },
+                ..scene.settings.clone()
+            };
             let film = common::render_settings(&session, &settings);
             let range = SampleRange::of(hemisphere, 0.0, max_sample_value(&scene, 0.0));
             let intervals = film.intervals_95(range).unwrap();
@@ -272,7 +284,11 @@ fn renders_with_an_error_target_meet_it_uniform_or_adaptive() {
                     // render needs replicates to decide at; stratified and Sobol points
                     // are in replicates of 16.
                     let replicate = (adaptive || sampler != Sampler::Independent).then_some(16);
-                    let settings = Settings { sampler, seed, spp: 4096, replicate, ..scene.settings.clone() };
+                    let settings = Settings {
+                        spp: 4096,
+                        sampling: Sampling { sampler, seed, replicate, ..scene.settings.sampling },
+                        ..scene.settings.clone()
+                    };
                     let request = ImageRequest { camera: scene.camera, settings, samples: None };
                     let mut control =
                         Control { target: Some(ErrorTarget::Rmse(target)), adaptive, ..Control::default() };
@@ -317,7 +333,11 @@ fn renders_with_an_error_target_meet_it_uniform_or_adaptive() {
 fn replicates_resume_and_merge_to_the_same_bits() {
     let mut scene = bunny();
     (scene.settings.width, scene.settings.height) = (24, 24);
-    let settings = Settings { sampler: Sampler::Sobol, spp: 96, seed: 3, replicate: Some(4), ..scene.settings.clone() };
+    let settings = Settings {
+        spp: 96,
+        sampling: Sampling { sampler: Sampler::Sobol, seed: 3, replicate: Some(4), ..scene.settings.sampling },
+        ..scene.settings.clone()
+    };
     for kind in kinds() {
         let session = session(&scene, &Config { device: kind, ..Default::default() });
         let request = |samples| ImageRequest { camera: scene.camera, settings: settings.clone(), samples };
@@ -355,7 +375,10 @@ fn checkpoint_bytes(acc: &Accumulation) -> Vec<u8> {
 #[test]
 fn replicate_sizes_are_checked_and_one_replicate_has_no_estimate() {
     let scene = bunny();
-    let s = |sampler, replicate| Settings { sampler, replicate: Some(replicate), ..Settings::default() };
+    let s = |sampler, replicate| Settings {
+        sampling: Sampling { sampler, replicate: Some(replicate), ..Sampling::default() },
+        ..Settings::default()
+    };
     assert!(s(Sampler::Sobol, 3).validate().unwrap_err().to_string().contains("power of two"));
     assert!(s(Sampler::Stratified, 8).validate().unwrap_err().to_string().contains("1, 4, 16, 64 or 256"));
     assert!(s(Sampler::Sobol, 512).validate().is_err());
@@ -380,8 +403,15 @@ fn replicate_sizes_are_checked_and_one_replicate_has_no_estimate() {
 fn probes_with_a_target_stop_when_every_point_meets_it() {
     let (scene, probes, _) = floor_under_sphere(20);
     let session = Session::new(&device(DeviceKind::Cpu), scene, &Default::default()).unwrap();
-    let settings =
-        Settings { sampler: Sampler::Sobol, replicate: Some(16), hemisphere: Hemisphere::Cosine, ..Default::default() };
+    let settings = Settings {
+        sampling: Sampling {
+            sampler: Sampler::Sobol,
+            replicate: Some(16),
+            hemisphere: Hemisphere::Cosine,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
     let mut control = Control { target: Some(ErrorTarget::PointStdError(0.005)), ..Control::default() };
     let out = session.probe_with(&probes, 1 << 16, &settings, &mut control).unwrap();
     let most = out.values.iter().map(|v| v.std_error).fold(0.0, f64::max);
@@ -398,7 +428,11 @@ fn probes_with_a_target_stop_when_every_point_meets_it() {
 fn adaptive_renders_resume_to_the_same_bits() {
     let mut scene = bunny();
     (scene.settings.width, scene.settings.height) = (32, 32);
-    let settings = Settings { spp: 4096, seed: 9, replicate: Some(16), ..scene.settings.clone() };
+    let settings = Settings {
+        spp: 4096,
+        sampling: Sampling { seed: 9, replicate: Some(16), ..scene.settings.sampling },
+        ..scene.settings.clone()
+    };
     let request = ImageRequest { camera: scene.camera, settings, samples: None };
     let control = || Control { target: Some(ErrorTarget::Rmse(0.008)), adaptive: true, ..Control::default() };
     for kind in kinds() {
@@ -438,7 +472,11 @@ fn background_pixels_of_an_adaptive_render_take_one_replicate() {
         assert!(!background[i] || empty[i], "pixel {i} is clear, but its rays met the bunny");
     }
     assert!(clear * 10 >= missed * 7, "{clear} pixels clear of {missed} that saw nothing");
-    let settings = Settings { spp: 4096, seed: 2, replicate: Some(16), ..scene.settings.clone() };
+    let settings = Settings {
+        spp: 4096,
+        sampling: Sampling { seed: 2, replicate: Some(16), ..scene.settings.sampling },
+        ..scene.settings.clone()
+    };
     let request = ImageRequest { camera: scene.camera, settings, samples: None };
     for kind in kinds() {
         let session = session(&scene, &Config { device: kind, ..Default::default() });
@@ -463,7 +501,11 @@ fn background_pixels_of_an_adaptive_render_take_one_replicate() {
 fn adaptive_shards_merge_exactly_in_any_order() {
     let mut scene = bunny();
     (scene.settings.width, scene.settings.height) = (24, 24);
-    let settings = Settings { spp: 768, seed: 4, replicate: Some(16), ..scene.settings.clone() };
+    let settings = Settings {
+        spp: 768,
+        sampling: Sampling { seed: 4, replicate: Some(16), ..scene.settings.sampling },
+        ..scene.settings.clone()
+    };
     let session = session(&scene, &Config::cpu());
     let mut shards = Vec::new();
     for (i, range) in [(0..384), (384..768)].into_iter().enumerate() {

@@ -97,7 +97,7 @@ fn mixed_scene() -> (Scene, tempfile::TempDir) {
     scene.spheres.push(Sphere { center: Vec3::new(1.1, 0.45, 0.9), radius: 0.4, albedo: 0.7 });
     scene.planes.push(Plane { normal: Vec3::Y, point: Vec3::new(0.0, -0.05, 0.0), albedo: 0.6 });
     let s = &mut scene.settings;
-    (s.width, s.height, s.spp, s.seed, s.background) = (24, 16, 300, 5, 0.3);
+    (s.width, s.height, s.spp, s.sampling.seed, s.background) = (24, 16, 300, 5, 0.3);
     (scene, dir)
 }
 
@@ -155,8 +155,8 @@ fn gpu_and_cpu_sums_are_equal_and_shards_split_anywhere_merge_exactly() {
     cases.push((Hemisphere::Uniform, Sampler::Sobol, 16, vec![0, 16, 112, 272, 300]));
     for (hemisphere, sampler, replicate, splits) in cases {
         let mut settings = scene.settings.clone();
-        settings.replicate = (replicate > 0).then_some(replicate);
-        (settings.hemisphere, settings.sampler) = (hemisphere, sampler);
+        settings.sampling.replicate = (replicate > 0).then_some(replicate);
+        (settings.sampling.hemisphere, settings.sampling.sampler) = (hemisphere, sampler);
         let request = ImageRequest { camera: scene.camera, settings, samples: None };
         let reference = render_request(&cpu, &request);
         for (config, session) in &sessions {
@@ -211,7 +211,7 @@ fn probe_and_bent_normal_films_split_anywhere_merge_exactly() {
     };
     for (hemisphere, sampler) in [(Hemisphere::Uniform, Sampler::Sobol), (Hemisphere::Cosine, Sampler::Independent)] {
         let mut settings = scene.settings.clone();
-        (settings.hemisphere, settings.sampler) = (hemisphere, sampler);
+        (settings.sampling.hemisphere, settings.sampling.sampler) = (hemisphere, sampler);
         for bent in [false, true] {
             let reference = run(&cpu, &settings, bent, 0..300).film().unwrap();
             if bent {

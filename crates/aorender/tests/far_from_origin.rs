@@ -13,6 +13,7 @@
 //!   checkpoint is identified by the scene's own coordinates and resumes to the same bits.
 
 mod common;
+use aorender::Sampling;
 use aorender::scene::Triangle;
 use aorender::{Accumulation, Control, Film, Hemisphere, ImageRequest, Probe, Sampler, Scene, Session, Settings};
 use common::*;
@@ -65,7 +66,13 @@ fn bunny() -> Scene {
     let mut scene = Scene::from_triangles("bunny", triangles.collect());
     scene.camera.eye = on_grid(scene.camera.eye.as_vec3(), grid).as_dvec3();
     scene.camera.look_at = on_grid(scene.camera.look_at.as_vec3(), grid).as_dvec3();
-    scene.settings = Settings { width: 192, height: 192, spp: 256, max_distance: Some(625.6), ..Settings::default() };
+    scene.settings = Settings {
+        width: 192,
+        height: 192,
+        spp: 256,
+        sampling: Sampling { max_distance: Some(625.6), ..Sampling::default() },
+        ..Settings::default()
+    };
     scene
 }
 
@@ -80,7 +87,13 @@ fn aobench(scale: f32) -> Scene {
         p.point *= scale;
     }
     scene.camera.look_at *= scale as f64;
-    scene.settings = Settings { width: 96, height: 96, spp: 64, sampler: Sampler::Sobol, ..scene.settings };
+    scene.settings = Settings {
+        width: 96,
+        height: 96,
+        spp: 64,
+        sampling: Sampling { sampler: Sampler::Sobol, ..scene.settings.sampling },
+        ..scene.settings
+    };
     scene
 }
 
@@ -199,7 +212,10 @@ fn probes_far_from_the_origin_give_their_values_at_the_origin() {
         let points = scene.triangles.iter().step_by(97).map(vertex);
         points.map(|(p, n)| Probe::new(moved(p, t), n).expect("a probe")).collect()
     };
-    let settings = Settings { sampler: Sampler::Sobol, hemisphere: Hemisphere::Uniform, ..scene.settings.clone() };
+    let settings = Settings {
+        sampling: Sampling { sampler: Sampler::Sobol, hemisphere: Hemisphere::Uniform, ..scene.settings.sampling },
+        ..scene.settings.clone()
+    };
     for config in all_configs() {
         let what = label(&config);
         let (near, moved_away) = (session(&scene, &config), session(&far, &config));

@@ -25,7 +25,7 @@ fn capped_device(bytes: u64) -> Device {
 fn bunny(spp: u32) -> Scene {
     let mut scene = Scene::load(&repo().join("scenes/bunny.obj")).unwrap_or_else(|e| panic!("{e}"));
     (scene.settings.width, scene.settings.height, scene.settings.spp) = (44, 37, spp);
-    scene.settings.hemisphere = Hemisphere::Uniform;
+    scene.settings.sampling.hemisphere = Hemisphere::Uniform;
     scene
 }
 
@@ -70,7 +70,7 @@ fn an_image_in_bands_renders_the_unsplit_film() {
     for (sampler, replicate) in [(Sampler::Independent, None), (Sampler::Sobol, Some(8))] {
         let what = sampler.name();
         let mut request = whole.default_request();
-        (request.settings.sampler, request.settings.replicate) = (sampler, replicate);
+        (request.settings.sampling.sampler, request.settings.sampling.replicate) = (sampler, replicate);
         let a = render(&whole, &request, &mut Control::default()).film().unwrap();
         let b = render(&banded, &request, &mut Control::default()).film().unwrap();
         assert_same_film(&a, &b, what);
@@ -81,7 +81,7 @@ fn an_image_in_bands_renders_the_unsplit_film() {
     }
     // Adaptive: the pixels that stop are marked in each band's part of the film.
     let mut request = whole.default_request();
-    (request.settings.spp, request.settings.replicate) = (256, Some(8));
+    (request.settings.spp, request.settings.sampling.replicate) = (256, Some(8));
     let control = || Control { target: Some(ErrorTarget::Rmse(0.02)), adaptive: true, ..Control::default() };
     let a = render(&whole, &request, &mut control()).film().unwrap();
     let b = render(&banded, &request, &mut control()).film().unwrap();

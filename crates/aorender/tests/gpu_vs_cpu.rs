@@ -42,18 +42,18 @@ fn check_scene(mut scene: Scene, what: &str) {
     for (hemisphere, (options, gpu_session)) in
         Hemisphere::ALL.into_iter().flat_map(|h| gpu_sessions.iter().map(move |o| (h, o)))
     {
-        scene.settings.hemisphere = hemisphere;
+        scene.settings.sampling.hemisphere = hemisphere;
         for sampler in Sampler::ALL {
             let what = format!("{what}, {}, {}, {}", hemisphere.name(), sampler.name(), label(options));
-            scene.settings.sampler = sampler;
-            scene.settings.seed = 1;
+            scene.settings.sampling.sampler = sampler;
+            scene.settings.sampling.seed = 1;
             let gpu = render_settings(gpu_session, &scene.settings);
             // Same seed: the same random numbers, so the same samples up to rounding in
             // traversal (different BVH layouts); a pixel may differ where a ray grazes an edge.
             let cpu_same_seed = render_settings(&cpu_session, &scene.settings);
             if sampler == Sampler::Independent {
                 // The per-pixel z-test needs independent samples within each pixel.
-                scene.settings.seed = 2;
+                scene.settings.sampling.seed = 2;
                 let cpu = render_settings(&cpu_session, &scene.settings);
                 assert_ne!(cpu.mean(), cpu_same_seed.mean(), "{what}: seeds must change the image");
                 let max = max_sample_value(&scene, scene.settings.background);
@@ -109,7 +109,7 @@ fn samples_per_invocation_leave_the_film_unchanged() {
     let dev = gpu_adapter();
     let dir = temp_dir();
     for (mut scene, what) in [(aobench(), "aobench"), (mesh_scene(dir.path()), "mesh")] {
-        scene.settings.hemisphere = Hemisphere::Uniform;
+        scene.settings.sampling.hemisphere = Hemisphere::Uniform;
         for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {
             let bvh = GpuBvh::build(&scene, layout, BuildQuality::default());
             let mut films = Vec::new();
@@ -164,7 +164,7 @@ fn geometry_in_buffers_or_textures_whole_or_split_renders_the_same_film() {
     }
     let dir = temp_dir();
     let mut scene = mesh_scene(dir.path());
-    scene.settings.hemisphere = Hemisphere::Uniform;
+    scene.settings.sampling.hemisphere = Hemisphere::Uniform;
     let whole = gpu_adapter();
     let prim_size = std::mem::size_of::<aorender::bvh::GpuPrimitive>();
     for layout in [BvhLayout::Bvh2, BvhLayout::Cwbvh] {

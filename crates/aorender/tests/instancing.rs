@@ -91,9 +91,9 @@ fn instanced_and_flattened_scenes_agree() {
     let dir = temp_dir();
     write_mesh(dir.path());
     let mut scene = scene_from_toml(&scene_text(&PLACEMENTS), dir.path());
-    scene.settings.seed = 1;
+    scene.settings.sampling.seed = 1;
     let mut flat = scene.flattened();
-    flat.settings.seed = 2;
+    flat.settings.sampling.seed = 2;
     let (a, b) = (render_on(&scene, DeviceKind::Cpu), render_on(&flat, DeviceKind::Cpu));
     let max = max_sample_value(&scene, scene.settings.background);
     assert_statistical_agreement(&a, &b, max, "instanced (cpu) vs flattened (cpu)");
@@ -116,8 +116,8 @@ fn gpu_and_cpu_trace_instances_alike() {
         gpu_configs().into_iter().map(|c| (c, session(&scene, &c))).collect();
     for hemisphere in Hemisphere::ALL {
         for sampler in [Sampler::Independent, Sampler::Sobol] {
-            scene.settings.hemisphere = hemisphere;
-            scene.settings.sampler = sampler;
+            scene.settings.sampling.hemisphere = hemisphere;
+            scene.settings.sampling.sampler = sampler;
             let cpu = render_settings(&cpu_session, &scene.settings).mean();
             for (options, gpu_session) in &gpu_sessions {
                 let what = format!("{} {} {}", hemisphere.name(), sampler.name(), label(options));
@@ -235,7 +235,7 @@ fn inside_an_instanced_closed_mesh_is_black() {
         for options in all_configs() {
             let session = session(&scene, &options);
             for hemisphere in Hemisphere::ALL {
-                scene.settings.hemisphere = hemisphere;
+                scene.settings.sampling.hemisphere = hemisphere;
                 let film = render_settings(&session, &scene.settings);
                 let lit = film.mean().iter().filter(|v| **v != 0.0).count();
                 eprintln!("scale {scale} offset {offset} {} {}: {lit} lit pixels", label(&options), hemisphere.name());
@@ -272,7 +272,7 @@ fn an_open_instanced_floor_returns_its_albedo() {
         for options in all_configs() {
             let session = session(&scene, &options);
             for hemisphere in [Hemisphere::Cosine, Hemisphere::CosinePolar] {
-                scene.settings.hemisphere = hemisphere;
+                scene.settings.sampling.hemisphere = hemisphere;
                 let film = render_settings(&session, &scene.settings);
                 let off: Vec<f64> = film.mean().iter().copied().filter(|v| *v != 0.5).collect();
                 let what = format!("scale {scale} offset {offset} {} {}", label(&options), hemisphere.name());

@@ -920,11 +920,11 @@ fn gpu_and_cpu_agree_on_loaded_meshes() {
         scene.settings.width = 32;
         scene.settings.height = 32;
         scene.settings.spp = 64;
-        scene.settings.hemisphere = Hemisphere::Cosine;
-        scene.settings.sampler = Sampler::Independent;
-        scene.settings.seed = 1;
+        scene.settings.sampling.hemisphere = Hemisphere::Cosine;
+        scene.settings.sampling.sampler = Sampler::Independent;
+        scene.settings.sampling.seed = 1;
         let gpu = render_on(&scene, DeviceKind::Gpu);
-        scene.settings.seed = 2;
+        scene.settings.sampling.seed = 2;
         let cpu = render_on(&scene, DeviceKind::Cpu);
         // Independent renders: the image means within 4 combined standard errors.
         let (mg, mc) = (gpu.image_mean(), cpu.image_mean());

@@ -29,7 +29,7 @@ fn scene(objects: &str, max_distance: Option<f32>) -> Scene {
         ),
         dir.path(),
     );
-    scene.settings.max_distance = max_distance;
+    scene.settings.sampling.max_distance = max_distance;
     scene
 }
 
@@ -49,8 +49,8 @@ fn check(what: &str, scene: &mut Scene, probes: &[Probe], expected: &[f64]) {
         let session = session(scene, &options);
         for hemisphere in Hemisphere::ALL {
             for sampler in Sampler::ALL.into_iter().filter(|s| s.is_unbiased()) {
-                scene.settings.hemisphere = hemisphere;
-                scene.settings.sampler = sampler;
+                scene.settings.sampling.hemisphere = hemisphere;
+                scene.settings.sampling.sampler = sampler;
                 let out = session.probe(probes, SAMPLES, &scene.settings).expect("probe runs");
                 for (k, (v, &e)) in out.values.iter().zip(expected).enumerate() {
                     let tag = format!("{what} probe {k}, {} {} {}", label(&options), hemisphere.name(), sampler.name());
@@ -117,7 +117,7 @@ fn gpu_and_cpu_take_the_same_samples() {
         (0..50).map(|i| Probe::new(Vec3::new(i as f32 * 0.05 - 1.0, 0.0, 0.2), Vec3::Y).unwrap()).collect();
     let (cpu_session, gpu_session) = (session(&s, &Config::cpu()), session(&s, &Config::default()));
     for sampler in Sampler::ALL {
-        s.settings.sampler = sampler;
+        s.settings.sampling.sampler = sampler;
         let cpu = cpu_session.probe(&probes, 1000, &s.settings).unwrap();
         let gpu = gpu_session.probe(&probes, 1000, &s.settings).unwrap();
         for (k, (c, g)) in cpu.values.iter().zip(&gpu.values).enumerate() {
@@ -195,7 +195,7 @@ fn rounds_per_invocation_leave_the_sums_unchanged() {
         return;
     }
     let mut s = scene(&(plane([0.0; 3], [0.0, 1.0, 0.0]) + &sphere([0.3, 1.5, 0.0], 0.6)), None);
-    s.settings.hemisphere = Hemisphere::Uniform;
+    s.settings.sampling.hemisphere = Hemisphere::Uniform;
     let points: Vec<GpuProbePoint> = [[0.0, 0.0, 0.0], [1.0, 0.0, -0.5], [-2.0, 0.0, 3.0]]
         .iter()
         .map(|&p| GpuProbePoint {
@@ -219,8 +219,16 @@ fn rounds_per_invocation_leave_the_sums_unchanged() {
             FrameUniforms::probes(settings, lanes, points.len() as u32, samples, gs.node_count, gs.plane_count, e);
         let mut sums = Vec::new();
         for per in [1, 5, u32::MAX] {
-            let mut renderer =
-                GpuTarget::probes(&dev, &gs, frame, settings.sampler, settings.hemisphere, &points, false).unwrap();
+            let mut renderer = GpuTarget::probes(
+                &dev,
+                &gs,
+                frame,
+                settings.sampling.sampler,
+                settings.sampling.hemisphere,
+                &points,
+                false,
+            )
+            .unwrap();
             let per = renderer.set_samples_per_invocation(per);
             let mut done = 0;
             while done < rounds {

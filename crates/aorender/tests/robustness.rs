@@ -449,7 +449,7 @@ fn assert_black_inside(text: &str, dir: &Path, what: &str, configurations: Vec<C
     for options in configurations {
         let session = session(&scene, &options);
         for hemisphere in Hemisphere::ALL {
-            scene.settings.hemisphere = hemisphere;
+            scene.settings.sampling.hemisphere = hemisphere;
             let start = std::time::Instant::now();
             let film = render_settings(&session, &scene.settings);
             let lit: Vec<(usize, f64)> = film.mean().iter().copied().enumerate().filter(|(_, v)| *v != 0.0).collect();
@@ -565,7 +565,7 @@ fn degenerate_triangles_render_without_nan_and_agree() {
         let session = session(&scene, &options);
         for hemisphere in Hemisphere::ALL {
             let mut scene = scene.clone();
-            scene.settings.hemisphere = hemisphere;
+            scene.settings.sampling.hemisphere = hemisphere;
             let what = format!("{} {}", label(&options), hemisphere.name());
             let film = render_settings(&session, &scene.settings);
             assert!(

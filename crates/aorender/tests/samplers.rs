@@ -103,9 +103,9 @@ fn measure(options: &Config) -> Vec<Measured> {
             for sampler in Sampler::ALL {
                 seed += 1;
                 scene.settings.spp = spp;
-                scene.settings.hemisphere = hemisphere;
-                scene.settings.sampler = sampler;
-                scene.settings.seed = seed;
+                scene.settings.sampling.hemisphere = hemisphere;
+                scene.settings.sampling.sampler = sampler;
+                scene.settings.sampling.seed = seed;
                 let (mean, var) = pixel_statistics(&render_settings(&session, &scene.settings));
                 out.push(Measured { hemisphere, sampler, spp, mean, var });
             }

@@ -5,6 +5,7 @@
 //! variate; a plane under a sphere; GPU and CPU agreeing.
 
 mod common;
+use aorender::Sampling;
 use aorender::closed_form::agrees;
 use aorender::sky::{overcast_plane_f64, overcast_radiance};
 use aorender::{BvhOptions, scene::Sphere};
@@ -67,7 +68,10 @@ fn open_planes_match_the_closed_form_for_every_sampler_and_estimator() {
                         }
                         for sampler in Sampler::ALL.into_iter().filter(|s| s.is_unbiased()) {
                             let seed = 17 + ui as u32 * 100 + checks as u32;
-                            let settings = Settings { hemisphere, sampler, seed, sky, ..Settings::default() };
+                            let settings = Settings {
+                                sampling: Sampling { hemisphere, sampler, seed, sky, ..Sampling::default() },
+                                ..Settings::default()
+                            };
                             let values = probe(&settings, &session, &probes);
                             for (k, (v, n)) in values.iter().zip(&normals).enumerate() {
                                 // A surface facing straight down, under an up axis that is not
@@ -140,7 +144,10 @@ fn a_plane_under_a_sphere_matches_the_closed_form() {
             for sampling in SkySampling::ALL {
                 for sampler in Sampler::ALL.into_iter().filter(|s| s.is_unbiased()) {
                     let sky = Sky { model: SkyModel::Overcast, sampling, ..Sky::default() };
-                    let settings = Settings { sampler, seed: 5 + checks, sky, ..Settings::default() };
+                    let settings = Settings {
+                        sampling: Sampling { sampler, seed: 5 + checks, sky, ..Sampling::default() },
+                        ..Settings::default()
+                    };
                     let v = probe(&settings, &session, &probes)[0];
                     checks += 1;
                     if !(v.std_error.is_finite() && v.std_error > 0.0 && agrees(&v, expected)) {
@@ -169,7 +176,11 @@ fn the_horizon_sampler_beats_weighted_cosine_sampling_on_a_wall() {
     let probes = [Probe::new(Vec3::ZERO, Vec3::X).expect("unit normal")];
     let relative = |sampling| {
         let sky = Sky { model: SkyModel::Overcast, sampling, ..Sky::default() };
-        let v = probe(&Settings { sky, ..Settings::default() }, &session, &probes)[0];
+        let v = probe(
+            &Settings { sampling: Sampling { sky, ..Sampling::default() }, ..Settings::default() },
+            &session,
+            &probes,
+        )[0];
         v.std_error * (SAMPLES as f64).sqrt() / v.mean
     };
     let (weighted, horizon) = (relative(SkySampling::Weighted), relative(SkySampling::Horizon));
@@ -195,18 +206,24 @@ fn gpu_and_cpu_render_the_same_overcast_image() {
          [[object]]\ntype = \"plane\"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\n",
         dir.path(),
     );
-    assert_eq!(scene.settings.sky.sampling, SkySampling::ControlVariate);
-    scene.settings.sky.normalise = SkyNormalise::Horizontal;
+    assert_eq!(scene.settings.sampling.sky.sampling, SkySampling::ControlVariate);
+    scene.settings.sampling.sky.normalise = SkyNormalise::Horizontal;
     let gpu = common::render_on(&scene, aorender::DeviceKind::Gpu);
     // Same seed: the same samples up to rounding; a pixel may differ where a ray grazes an edge.
     let same = common::render_on(&scene, aorender::DeviceKind::Cpu);
     let close = gpu.mean().iter().zip(same.mean()).filter(|(a, b)| (*a - b).abs() <= 1e-4).count();
     assert!(close as f64 >= 0.99 * (48.0 * 32.0), "only {close} pixels match with the same seed");
     // Another seed: independent samples for the per-pixel z-test.
-    scene.settings.seed = 2;
+    scene.settings.sampling.seed = 2;
     let cpu = common::render_on(&scene, aorender::DeviceKind::Cpu);
-    let max = aorender::accumulation::max_image_sample(&scene, 0.0, &scene.settings.sky);
+    let max = aorender::accumulation::max_image_sample(&scene, 0.0, &scene.settings.sampling.sky);
     common::assert_statistical_agreement(&gpu, &cpu, max, "overcast control variate");
-    let uniform = Scene { settings: Settings { sky: Sky::default(), ..scene.settings.clone() }, ..scene.clone() };
+    let uniform = Scene {
+        settings: Settings {
+            sampling: Sampling { sky: Sky::default(), ..scene.settings.sampling },
+            ..scene.settings.clone()
+        },
+        ..scene.clone()
+    };
     assert_ne!(common::render_on(&uniform, aorender::DeviceKind::Cpu).sum, cpu.sum, "the sky must change the image");
 }

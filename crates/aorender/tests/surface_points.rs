@@ -14,6 +14,7 @@
 //!   over a floor every texel agrees with a probe at its point and normal.
 
 mod common;
+use aorender::Sampling;
 use aorender::bake::{BakeAt, BakePlan, Placement, TextureOptions, TexturePlan, UvWrap, read_asset};
 use aorender::{Control, Probe, ProbeValue, Scene, Session, Settings, SurfaceTolerance};
 use common::*;
@@ -66,7 +67,7 @@ fn probes_and_moved(points: &[(DVec3, DVec3)], by: f64) -> (Vec<Probe>, Vec<Prob
 }
 
 fn values(session: &Session, probes: &[Probe], samples: u32, seed: u32) -> Vec<ProbeValue> {
-    let settings = Settings { seed, ..Settings::default() };
+    let settings = Settings { sampling: Sampling { seed, ..Sampling::default() }, ..Settings::default() };
     session.probe(probes, samples, &settings).expect("probe runs").values
 }
 
@@ -319,7 +320,7 @@ fn texel_probes(obj: &Path, size: u32) -> Vec<Probe> {
 }
 
 fn bake_values(session: &Session, probes: &[Probe], samples: u32, seed: u32) -> Vec<ProbeValue> {
-    let settings = Settings { seed, ..Settings::default() };
+    let settings = Settings { sampling: Sampling { seed, ..Sampling::default() }, ..Settings::default() };
     let mut render = session.probe_render(probes, samples, None, &settings, false).unwrap();
     render.run(&mut Control::default()).unwrap();
     render.finish().unwrap().accumulation.probe_values().unwrap()

@@ -16,7 +16,7 @@ const ROUNDS: usize = 16;
 fn small_scene() -> Scene {
     let mut scene = Scene::default_scene();
     let s = &mut scene.settings;
-    (s.width, s.height, s.spp, s.hemisphere, s.seed) = (32, 24, 16, Hemisphere::Uniform, 3);
+    (s.width, s.height, s.spp, s.sampling.hemisphere, s.sampling.seed) = (32, 24, 16, Hemisphere::Uniform, 3);
     scene
 }
 

@@ -31,12 +31,12 @@ pub fn key(scene: &Scene, sampling: ReferenceSampling) -> String {
     let s = &scene.settings;
     h.update(&s.width.to_le_bytes());
     h.update(&s.height.to_le_bytes());
-    h.update(&s.max_distance.map_or(u32::MAX, f32::to_bits).to_le_bytes());
+    h.update(&s.sampling.max_distance.map_or(u32::MAX, f32::to_bits).to_le_bytes());
     h.update(&s.background.to_bits().to_le_bytes());
     // The overcast sky changes the image (its sampling does not); the uniform sky keeps the
     // keys it had before there were skies.
-    if !s.sky.is_uniform() {
-        let k = &s.sky;
+    if !s.sampling.sky.is_uniform() {
+        let k = &s.sampling.sky;
         h.update(&[k.model.code(), k.normalise.code()]);
         for v in k.up.to_array().into_iter().chain([k.ground_albedo]) {
             h.update(&v.to_bits().to_le_bytes());
@@ -198,18 +198,18 @@ mod tests {
         let k = key(&base, sampling);
         let mut same = base.clone();
         same.settings.spp = 7;
-        same.settings.seed = 99;
-        same.settings.sampler = aorender::Sampler::Sobol;
-        same.settings.hemisphere = aorender::Hemisphere::Uniform;
+        same.settings.sampling.seed = 99;
+        same.settings.sampling.sampler = aorender::Sampler::Sobol;
+        same.settings.sampling.hemisphere = aorender::Hemisphere::Uniform;
         assert_eq!(key(&same, sampling), k);
         let overcast = aorender::Sky { model: aorender::SkyModel::Overcast, ..aorender::Sky::default() };
         let mut sky = base.clone();
-        sky.settings.sky = overcast;
+        sky.settings.sampling.sky = overcast;
         let ks = key(&sky, sampling);
         assert_ne!(ks, k, "the sky changes the image");
-        sky.settings.sky.sampling = aorender::SkySampling::ControlVariate;
+        sky.settings.sampling.sky.sampling = aorender::SkySampling::ControlVariate;
         assert_eq!(key(&sky, sampling), ks, "the sky's sampling does not");
-        sky.settings.sky.ground_albedo = 0.5;
+        sky.settings.sampling.sky.ground_albedo = 0.5;
         assert_ne!(key(&sky, sampling), ks, "the ground does");
         let mut changes: Vec<Scene> = Vec::new();
         let mut s = base.clone();
@@ -219,7 +219,7 @@ mod tests {
         s.settings.width += 1;
         changes.push(s);
         let mut s = base.clone();
-        s.settings.max_distance = Some(1.0);
+        s.settings.sampling.max_distance = Some(1.0);
         changes.push(s);
         let mut s = base.clone();
         s.camera.eye.y += 0.5;

@@ -1,12 +1,13 @@
 //! `aorender bench` on the command line: the options, the built-in scene list, progress on
 //! stderr, the files written and the table printed.
 
-use super::{Plan, Progress, Results, ScenePlan, plot, report};
-use crate::args::{hemisphere_parser, sampler_parser};
+use super::{Plan, Progress, Results, ScenePlan, SkyPlan, plot, report};
+use crate::args::{hemisphere_parser, named_parser, parse_ground_albedo, parse_up, sampler_parser};
 use anyhow::{Context, Result, bail};
 use aorender::output::{FilePlan, OutputRules};
 use aorender::scene::MAX_IMAGE_SIDE;
-use aorender::{Hemisphere, Sampler, Scene};
+use aorender::{Hemisphere, Sampler, Scene, SkyModel, SkyNormalise, SkySampling};
+use glam::Vec3;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
@@ -61,6 +62,28 @@ pub struct BenchArgs {
     /// Use the adapter whose name contains this (case-insensitive).
     #[arg(long)]
     pub adapter: Option<String>,
+    /// The sky of every scene, as `render --sky` (default: each scene's, else uniform).
+    /// Under the overcast sky every --sky-sampling is measured.
+    #[arg(long, value_parser = named_parser(SkyModel::ALL.map(SkyModel::name), SkyModel::from_name))]
+    pub sky: Option<SkyModel>,
+    /// The overcast sky's zenith, X,Y,Z, as `render --up`.
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_up, allow_negative_numbers = true)]
+    pub up: Option<Vec3>,
+    /// Albedo of the ground below the overcast sky's horizon, as `render --ground-albedo`.
+    #[arg(long, value_parser = parse_ground_albedo, allow_negative_numbers = true)]
+    pub ground_albedo: Option<f32>,
+    /// The overcast sky's samplings to measure against each other, comma-separated
+    /// (default: horizon, control-variate and, with horizontal normalisation, weighted);
+    /// horizon and control-variate once per point sampler, weighted with every hemisphere.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        value_parser = named_parser(SkySampling::ALL.map(SkySampling::name), SkySampling::from_name)
+    )]
+    pub sky_sampling: Vec<SkySampling>,
+    /// What the overcast sky's values are divided by, as `render --sky-normalise`.
+    #[arg(long, value_parser = named_parser(SkyNormalise::ALL.map(SkyNormalise::name), SkyNormalise::from_name))]
+    pub sky_normalise: Option<SkyNormalise>,
 }
 
 /// A scene of the built-in list: file (`None` for aobench), the image's longer side, N, and
@@ -121,6 +144,13 @@ pub fn plan(args: &BenchArgs, command: String) -> Result<Plan> {
     let (list, scaling_spp, resolutions) =
         if args.quick { (QUICK, 4, vec![16, 32, 64]) } else { (FULL, 8, vec![64, 128, 256, 512]) };
     let reference_spp = |spp: u32| args.reference_spp.unwrap_or(spp.saturating_mul(REFERENCE_FACTOR));
+    let sky = SkyPlan {
+        model: args.sky,
+        up: args.up,
+        ground_albedo: args.ground_albedo,
+        normalise: args.sky_normalise,
+        samplings: args.sky_sampling.clone(),
+    };
     let mut scenes = Vec::new();
     if args.scenes.is_empty() || args.with_builtin {
         for b in list {
@@ -154,6 +184,8 @@ pub fn plan(args: &BenchArgs, command: String) -> Result<Plan> {
     let first_user = scenes.len();
     for path in &args.scenes {
         let scene = Scene::load(path)?;
+        // The sky options on this scene, checked before anything runs.
+        sky.apply(&mut scene.clone())?;
         let size = args.size.unwrap_or(if args.quick { 32 } else { 128 });
         let spp = args.spp.unwrap_or(if args.quick { 16 } else { 64 });
         scenes.push(ScenePlan {
@@ -174,6 +206,10 @@ pub fn plan(args: &BenchArgs, command: String) -> Result<Plan> {
         s.presets = true;
         s.resolutions = true;
     }
+    if first_user > 0 {
+        // The built-in list's scenes have the uniform sky.
+        sky.apply(&mut Scene::default_scene())?;
+    }
     for s in &scenes {
         if s.reference_spp < s.max_spp {
             bail!("invalid option: --reference-spp {} is below N = {} of {}", s.reference_spp, s.max_spp, s.label);
@@ -184,6 +220,7 @@ pub fn plan(args: &BenchArgs, command: String) -> Result<Plan> {
         hemispheres: if args.hemisphere.is_empty() { Hemisphere::ALL.to_vec() } else { args.hemisphere.clone() },
         samplers: if args.sampler.is_empty() { Sampler::ALL.to_vec() } else { args.sampler.clone() },
         seed: args.seed,
+        sky,
         adapter: args.adapter.clone(),
         cpu: !args.no_cpu,
         cache_dir: args.cache.clone(),

@@ -12,6 +12,11 @@
 //! trace speed they give), and how the cost per ray scales with triangles, resolution and
 //! samples per pass.
 //!
+//! Under the overcast sky (`--sky overcast`, or a scene's own) the sky's samplings are
+//! measured against each other: horizon-clipped sampling and its control variate once per
+//! point sampler, weighted sampling with every hemisphere; each run also reports its
+//! variance per sample and that variance times the seconds a sample takes.
+//!
 //! Timings are reported, never asserted: on the GPU a pass's time is the span between its
 //! first and last timestamp queries where the adapter has them, else the wall clock
 //! around the pass; the CPU reference is timed by the wall clock. Each scene's BVH is
@@ -28,8 +33,8 @@ pub use cli::{BenchArgs, command};
 
 use anyhow::{Result, anyhow};
 use aorender::{
-    AdapterInfo, BuildQuality, BvhOptions, Control, Device, Film, Hemisphere, ImageRequest, PassSizing, Sampler, Scene,
-    Session,
+    AdapterInfo, BuildQuality, BvhOptions, Control, Device, ErrorEstimator, Film, Hemisphere, ImageRequest, PassSizing,
+    Sampler, Scene, Session, SkyModel, SkyNormalise, SkySampling,
 };
 use metrics::{ErrorMetrics, Reference};
 use std::path::PathBuf;
@@ -71,6 +76,8 @@ pub struct Plan {
     pub samplers: Vec<Sampler>,
     /// Seed of the measured renders (the reference uses another).
     pub seed: u32,
+    /// The sky options.
+    pub sky: SkyPlan,
     /// Substring of the adapter's name.
     pub adapter: Option<String>,
     /// Measure the CPU reference renderer too.
@@ -85,6 +92,90 @@ pub struct Plan {
     pub command: String,
     /// True for `--quick`.
     pub quick: bool,
+}
+
+/// The sky options of a run, applied to every scene as `render`'s are.
+#[derive(Clone, Debug, Default)]
+pub struct SkyPlan {
+    /// `--sky`.
+    pub model: Option<SkyModel>,
+    /// `--up`.
+    pub up: Option<glam::Vec3>,
+    /// `--ground-albedo`.
+    pub ground_albedo: Option<f32>,
+    /// `--sky-normalise`.
+    pub normalise: Option<SkyNormalise>,
+    /// The sky samplings to measure under the overcast sky; empty for every one the sky's
+    /// normalisation allows.
+    pub samplings: Vec<SkySampling>,
+}
+
+impl SkyPlan {
+    /// Applies the options to `scene`'s sky (refusing an overcast sky's option with the
+    /// uniform sky, in `render`'s words) and returns the sky samplings to measure: none
+    /// under the uniform sky.
+    pub fn apply(&self, scene: &mut Scene) -> Result<Vec<SkySampling>> {
+        let args = crate::args::SkyArgs {
+            sky: self.model,
+            up: self.up,
+            ground_albedo: self.ground_albedo,
+            sky_sampling: self.samplings.first().copied(),
+            sky_normalise: self.normalise,
+        };
+        args.apply(scene)?;
+        if scene.settings.sampling.sky.is_uniform() {
+            return Ok(Vec::new());
+        }
+        let with = |m: SkySampling| aorender::Sky { sampling: m, ..scene.settings.sampling.sky };
+        if self.samplings.is_empty() {
+            // Every sampling the sky allows (weighted has no surface normalisation).
+            return Ok(SkySampling::ALL.into_iter().filter(|&m| with(m).validate().is_ok()).collect());
+        }
+        for &m in &self.samplings {
+            with(m).validate().map_err(|e| anyhow!("invalid option: {e}"))?;
+        }
+        Ok(self.samplings.clone())
+    }
+}
+
+/// One measured configuration: hemisphere, point sampler and, under the overcast sky, the
+/// sky's sampling.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Config {
+    hemisphere: Hemisphere,
+    sampler: Sampler,
+    sky: Option<SkySampling>,
+}
+
+/// The configurations of a scene: every hemisphere × sampler under the uniform sky; under
+/// the overcast sky, for each of `samplings`, every sampler (horizon and control-variate,
+/// whose directions are cos θ-distributed above the horizon whatever the hemisphere, are
+/// listed as cosine) or every hemisphere × sampler (weighted). The first is the baseline.
+fn configs(plan: &Plan, samplings: &[SkySampling]) -> Vec<Config> {
+    let mut out = Vec::new();
+    let mut add = |sky: Option<SkySampling>, hemispheres: &[Hemisphere]| {
+        for &hemisphere in hemispheres {
+            for &sampler in &plan.samplers {
+                out.push(Config { hemisphere, sampler, sky });
+            }
+        }
+    };
+    if samplings.is_empty() {
+        add(None, &plan.hemispheres);
+    }
+    for &m in samplings {
+        match m {
+            SkySampling::Weighted => add(Some(m), &plan.hemispheres),
+            _ => add(Some(m), &[Hemisphere::Cosine]),
+        }
+    }
+    out
+}
+
+/// The configuration the CPU reference, the reference image and the scaling series use:
+/// cosine / independent, with the first sky sampling measured.
+fn baseline(samplings: &[SkySampling]) -> Config {
+    Config { hemisphere: Hemisphere::Cosine, sampler: Sampler::Independent, sky: samplings.first().copied() }
 }
 
 /// The reference's seed for a benchmark seed: any other value would do.
@@ -142,8 +233,20 @@ pub struct Run {
     pub hemisphere: String,
     /// Point sampler.
     pub sampler: String,
+    /// The overcast sky's sampling (`None` under the uniform sky).
+    pub sky_sampling: Option<String>,
+    /// Whether this is the scene's baseline configuration (cosine / independent, with the
+    /// first sky sampling measured), which the CPU run and the scaling series share.
+    pub baseline: bool,
     /// Whether the sampler is unbiased (the grid is not: its error stops falling).
     pub unbiased: bool,
+    /// Variance of one sample at N, the mean over pixels: from the film's own spread for
+    /// independent samples, else MSE × N against the reference (the variance an
+    /// independent sampler of the same error would have).
+    pub variance_per_sample: f64,
+    /// `variance_per_sample` times the seconds one sample of one pixel took: the variance
+    /// of a pixel after one second of rendering spent on it (less is better).
+    pub variance_seconds: f64,
     /// "gpu-timestamps" or "wall-clock".
     pub time_source: String,
     /// Seconds to upload the scene and create the pipeline (GPU) or to prepare the
@@ -161,6 +264,16 @@ impl Run {
     /// The last checkpoint.
     pub fn last(&self) -> &Checkpoint {
         self.checkpoints.last().expect("a run has checkpoints")
+    }
+
+    /// How its AO directions are drawn, for tables and plots: the hemisphere, or the
+    /// overcast sky's sampling ("weighted" with its hemisphere).
+    pub fn distribution(&self) -> String {
+        match self.sky_sampling.as_deref() {
+            None => self.hemisphere.clone(),
+            Some("weighted") => format!("weighted {}", self.hemisphere),
+            Some(m) => m.to_string(),
+        }
     }
 }
 
@@ -208,7 +321,7 @@ pub struct GpuCpu {
 /// The configuration with the highest efficiency at N samples.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Best {
-    /// Hemisphere.
+    /// Hemisphere, or the overcast sky's sampling ([`Run::distribution`]).
     pub hemisphere: String,
     /// Sampler.
     pub sampler: String,
@@ -237,6 +350,8 @@ pub struct SceneResult {
     pub height: u32,
     /// N.
     pub max_spp: u32,
+    /// The sky, as the statistics describe it (with the baseline's sampling).
+    pub sky: String,
     /// Seconds to load the scene.
     pub load_seconds: f64,
     /// Seconds to build the CWBVH (medium preset), shared by the GPU and the CPU.
@@ -461,8 +576,19 @@ fn measure(session: &Session, request: &ImageRequest, targets: &[u32], tracker: 
     })
 }
 
+/// The variance of one sample, the mean over pixels, of independent samples from `film`'s
+/// spread; `None` for other samplers.
+fn film_variance(film: &Film) -> Option<f64> {
+    if film.error_estimator() != ErrorEstimator::Samples {
+        return None;
+    }
+    let se = film.std_error();
+    let sum: f64 = se.iter().enumerate().map(|(i, e)| e * e * film.samples_of(i) as f64).sum();
+    Some(sum / se.len().max(1) as f64)
+}
+
 /// `run` measured against `reference`.
-fn measured(raw: &RawRun, device: &str, request: &ImageRequest, reference: &Reference) -> Run {
+fn measured(raw: &RawRun, device: &str, request: &ImageRequest, baseline: bool, reference: &Reference) -> Run {
     let checkpoints: Vec<Checkpoint> = raw
         .checkpoints
         .iter()
@@ -485,11 +611,19 @@ fn measured(raw: &RawRun, device: &str, request: &ImageRequest, reference: &Refe
         })
         .collect();
     let points: Vec<(f64, f64)> = checkpoints.iter().map(|c| (c.spp as f64, c.rmse)).collect();
+    let s = &request.settings;
+    let last = checkpoints.last().expect("a run has checkpoints");
+    let variance_per_sample = film_variance(&raw.film).unwrap_or(last.mse * last.spp as f64);
+    let pixel_samples = last.spp as f64 * s.width as f64 * s.height as f64;
     Run {
         device: device.into(),
-        hemisphere: request.settings.hemisphere.name().into(),
-        sampler: request.settings.sampler.name().into(),
-        unbiased: request.settings.sampler.is_unbiased(),
+        hemisphere: s.sampling.hemisphere.name().into(),
+        sampler: s.sampling.sampler.name().into(),
+        sky_sampling: (!s.sampling.sky.is_uniform()).then(|| s.sampling.sky.sampling.name().into()),
+        baseline,
+        unbiased: s.sampling.sampler.is_unbiased(),
+        variance_per_sample,
+        variance_seconds: variance_per_sample * last.seconds / pixel_samples.max(1.0),
         time_source: if raw.timestamps { "gpu-timestamps" } else { "wall-clock" }.into(),
         setup_seconds: raw.setup_seconds,
         device_bytes: raw.device_bytes,
@@ -499,10 +633,14 @@ fn measured(raw: &RawRun, device: &str, request: &ImageRequest, reference: &Refe
 }
 
 /// The session's own view with a configuration's settings.
-fn configured(session: &Session, hemisphere: Hemisphere, sampler: Sampler, spp: u32, seed: u32) -> ImageRequest {
+fn configured(session: &Session, config: Config, spp: u32, seed: u32) -> ImageRequest {
     let mut r = session.default_request();
     let s = &mut r.settings;
-    (s.hemisphere, s.sampler, s.spp, s.seed) = (hemisphere, sampler, spp, seed);
+    (s.sampling.hemisphere, s.sampling.sampler, s.spp, s.sampling.seed) =
+        (config.hemisphere, config.sampler, spp, seed);
+    if let Some(m) = config.sky {
+        s.sampling.sky.sampling = m;
+    }
     r
 }
 
@@ -533,7 +671,12 @@ pub fn machine() -> Machine {
 /// Expected work of a scene, in camera rays, for the progress bar.
 fn planned_units(plan: &Plan, sp: &ScenePlan) -> u64 {
     let px = sp.size as u64 * sp.size as u64;
-    let configs = (plan.hemispheres.len() * plan.samplers.len()) as u64;
+    let samplings = match plan.sky.model {
+        Some(SkyModel::Overcast) if plan.sky.samplings.is_empty() => SkySampling::ALL.to_vec(),
+        Some(SkyModel::Overcast) => plan.sky.samplings.clone(),
+        _ => Vec::new(),
+    };
+    let configs = configs(plan, &samplings).len() as u64;
     let devices = if plan.cpu { 2 } else { 1 };
     let mut units = configs * sp.max_spp as u64 * px + sp.reference_spp as u64 * px;
     if plan.cpu {
@@ -591,7 +734,7 @@ pub fn run(plan: &Plan, progress: &mut dyn FnMut(&Progress)) -> Result<Results> 
 fn triangle_scaling(scenes: &[SceneResult]) -> Vec<ScalingPoint> {
     let mut out = Vec::new();
     for s in scenes {
-        for r in s.runs.iter().filter(|r| r.hemisphere == "cosine" && r.sampler == "independent") {
+        for r in s.runs.iter().filter(|r| r.baseline) {
             let c = r.last();
             out.push(ScalingPoint {
                 scene: s.name.clone(),
@@ -666,6 +809,8 @@ fn bench_scene(
     let t = Instant::now();
     let mut scene = load_scene(sp)?;
     let load_seconds = t.elapsed().as_secs_f64();
+    let samplings = plan.sky.apply(&mut scene)?;
+    let base = baseline(&samplings);
     let (width, height) = fit(sp.size, scene.settings.width, scene.settings.height);
     scene.settings.width = width;
     scene.settings.height = height;
@@ -682,19 +827,19 @@ fn bench_scene(
     let cpu_session = sessions.next();
     let setup = session.setup().clone();
 
-    let mut raw_runs: Vec<(ImageRequest, RawRun)> = Vec::new();
-    for &h in &plan.hemispheres {
-        for &s in &plan.samplers {
-            tracker.stage(format!("{prefix}: GPU {}/{} to {} spp", h.name(), s.name(), sp.max_spp));
-            let request = configured(&session, h, s, sp.max_spp, plan.seed);
-            let raw = measure(&session, &request, &targets, tracker)?;
-            raw_runs.push((request, raw));
-        }
+    let mut raw_runs: Vec<(ImageRequest, RawRun, bool)> = Vec::new();
+    for config in configs(plan, &samplings) {
+        let (h, s) = (config.hemisphere.name(), config.sampler.name());
+        let sky = config.sky.map_or(String::new(), |m| format!(", {} sky sampling", m.name()));
+        tracker.stage(format!("{prefix}: GPU {h}/{s}{sky} to {} spp", sp.max_spp));
+        let request = configured(&session, config, sp.max_spp, plan.seed);
+        let raw = measure(&session, &request, &targets, tracker)?;
+        raw_runs.push((request, raw, config == base));
     }
-    let default_config = configured(&session, Hemisphere::Cosine, Sampler::Independent, sp.max_spp, plan.seed);
+    let default_config = configured(&session, base, sp.max_spp, plan.seed);
     let mut scaling = Vec::new();
     let sized = |session: &Session, r: u32| {
-        let mut sized = configured(session, Hemisphere::Cosine, Sampler::Independent, plan.scaling_spp, plan.seed);
+        let mut sized = configured(session, base, plan.scaling_spp, plan.seed);
         sized.settings.width = r;
         sized.settings.height = r;
         sized
@@ -724,7 +869,7 @@ fn bench_scene(
 
     // The reference: cached, or rendered on whichever device traced faster.
     let ref_seed = reference_seed(plan.seed);
-    let ref_request = configured(&session, Hemisphere::Cosine, Sampler::Independent, sp.reference_spp, ref_seed);
+    let ref_request = configured(&session, base, sp.reference_spp, ref_seed);
     let sampling = cache::ReferenceSampling { samples: sp.reference_spp, seed: ref_seed };
     let mut ref_scene = session.scene().clone();
     ref_scene.settings = ref_request.settings.clone();
@@ -740,12 +885,7 @@ fn bench_scene(
             if let Err(why) = found {
                 tracker.stage(format!("{prefix}: {}: {why}; rendering it again", file.display()));
             }
-            let gpu_default = raw_runs
-                .iter()
-                .find(|(r, _)| {
-                    r.settings.hemisphere == Hemisphere::Cosine && r.settings.sampler == Sampler::Independent
-                })
-                .map(|(_, r)| r);
+            let gpu_default = raw_runs.iter().find(|(_, _, baseline)| *baseline).map(|(_, r, _)| r);
             let speed = |r: &RawRun| {
                 let c = r.checkpoints.last().expect("checkpoints");
                 c.rays as f64 / c.wall_seconds.max(1e-12)
@@ -782,11 +922,11 @@ fn bench_scene(
     };
     let reference = &stored.reference;
 
-    let mut runs: Vec<Run> = raw_runs.iter().map(|(r, raw)| measured(raw, "gpu", r, reference)).collect();
-    let gpu_default = runs.iter().position(|r| r.hemisphere == "cosine" && r.sampler == "independent");
+    let mut runs: Vec<Run> = raw_runs.iter().map(|(r, raw, b)| measured(raw, "gpu", r, *b, reference)).collect();
+    let gpu_default = runs.iter().position(|r| r.baseline);
     let mut gpu_cpu = None;
     if let Some(raw) = &cpu_raw {
-        let cpu = measured(raw, "cpu", &default_config, reference);
+        let cpu = measured(raw, "cpu", &default_config, true, reference);
         if let Some(g) = gpu_default {
             let (gr, cr) = (&runs[g], cpu.last());
             let g_last = gr.last();
@@ -809,7 +949,7 @@ fn bench_scene(
         }
         runs.push(cpu);
     }
-    for r in runs.iter().filter(|r| r.hemisphere == "cosine" && r.sampler == "independent") {
+    for r in runs.iter().filter(|r| r.baseline) {
         scaling.extend(spp_scaling(&name, width, height, r));
     }
     let default_eff = gpu_default.and_then(|g| runs[g].last().efficiency);
@@ -819,13 +959,14 @@ fn bench_scene(
         .filter_map(|r| r.last().efficiency.map(|e| (r, e)))
         .max_by(|a, b| a.1.total_cmp(&b.1))
         .map(|(r, e)| Best {
-            hemisphere: r.hemisphere.clone(),
+            hemisphere: r.distribution(),
             sampler: r.sampler.clone(),
             efficiency: e,
             over_default: default_eff.map(|d| e / d),
         });
 
     let scene = session.scene();
+    let sky = default_config.settings.sampling.sky.describe();
     let (triangles, spheres, planes) = (scene.world_triangle_count(), scene.spheres.len(), scene.planes.len());
     if sp.presets {
         let mut preset_scene = scene.clone();
@@ -844,6 +985,7 @@ fn bench_scene(
         width,
         height,
         max_spp: sp.max_spp,
+        sky,
         load_seconds,
         bvh_build_seconds: setup.bvh_build_seconds - setup.bvh_convert_seconds,
         bvh_convert_seconds: setup.bvh_convert_seconds,

@@ -84,16 +84,16 @@ pub enum Axis {
 }
 
 /// RMSE against spp or seconds, log-log: one row of panels per scene, one column per
-/// hemisphere, one line per sampler. The spp grid draws a slope −1/2 guide through the
-/// independent sampler's first point and the reference's floor; the seconds grid adds the
-/// CPU reference's run.
+/// hemisphere (or overcast sky sampling), one line per sampler. The spp grid draws a slope
+/// −1/2 guide through the independent sampler's first point and the reference's floor; the
+/// seconds grid adds the CPU reference's run to the baseline's panel.
 pub fn convergence(results: &Results, axis: Axis, path: &Path) -> Result<()> {
     let scenes: Vec<&SceneResult> = results.scenes.iter().filter(|s| !s.runs.is_empty()).collect();
     let mut hemispheres: Vec<String> = Vec::new();
     for s in &scenes {
         for r in s.runs.iter().filter(|r| r.device == "gpu") {
-            if !hemispheres.contains(&r.hemisphere) {
-                hemispheres.push(r.hemisphere.clone());
+            if !hemispheres.contains(&r.distribution()) {
+                hemispheres.push(r.distribution());
             }
         }
     }
@@ -118,8 +118,8 @@ pub fn convergence(results: &Results, axis: Axis, path: &Path) -> Result<()> {
             for (j, hemi) in hemispheres.iter().enumerate() {
                 let panel = &panels[i * cols + j];
                 let mut runs: Vec<&Run> =
-                    s.runs.iter().filter(|r| r.device == "gpu" && &r.hemisphere == hemi).collect();
-                if axis == Axis::Seconds && hemi == "cosine" {
+                    s.runs.iter().filter(|r| r.device == "gpu" && &r.distribution() == hemi).collect();
+                if axis == Axis::Seconds && runs.iter().any(|r| r.baseline) {
                     runs.extend(s.runs.iter().filter(|r| r.device == "cpu"));
                 }
                 let points = |r: &Run| -> Vec<(f64, f64)> {
@@ -290,9 +290,7 @@ pub fn rays_vs_triangles(results: &Results, path: &Path) -> Result<()> {
     {
         let mut pts: Vec<(f64, f64)> = Vec::new();
         for s in &results.scenes {
-            if let Some(r) =
-                s.runs.iter().find(|r| r.device == device && r.hemisphere == "cosine" && r.sampler == "independent")
-            {
+            if let Some(r) = s.runs.iter().find(|r| r.device == device && r.baseline) {
                 let p = ((s.triangles + s.spheres).max(1) as f64, r.last().rays_per_second / 1e6);
                 pts.push(p);
                 if device == "gpu" {

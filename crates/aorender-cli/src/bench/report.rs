@@ -67,8 +67,7 @@ pub fn table(r: &Results) -> String {
         let (g, c, ratio) = match &s.gpu_cpu {
             Some(gc) => (sig(gc.gpu_rays_per_second / 1e6), sig(gc.cpu_rays_per_second / 1e6), sig(gc.ratio)),
             None => {
-                let g =
-                    s.runs.iter().find(|x| x.device == "gpu" && x.hemisphere == "cosine" && x.sampler == "independent");
+                let g = s.runs.iter().find(|x| x.device == "gpu" && x.baseline);
                 (g.map_or("-".into(), |g| sig(g.last().rays_per_second / 1e6)), "-".into(), "-".into())
             }
         };
@@ -95,12 +94,43 @@ pub fn table(r: &Results) -> String {
     let _ = writeln!(o, "\nConvergence: slope of ln RMSE against ln spp; RMSE, relative MSE, time and efficiency at N");
     let _ = writeln!(
         o,
-        "{:<18} {:<4} {:<12} {:<12} {:>7} {:>9} {:>9} {:>8} {:>8} {:>10}",
+        "{:<18} {:<4} {:<16} {:<12} {:>7} {:>9} {:>9} {:>8} {:>8} {:>10}",
         "scene", "dev", "hemisphere", "sampler", "slope", "RMSE", "relMSE", "seconds", "Mray/s", "1/(MSE·s)"
     );
     for s in &r.scenes {
         for run in &s.runs {
             let _ = writeln!(o, "{:<18} {}", s.name, run_row(run));
+        }
+    }
+
+    if r.scenes.iter().any(|s| s.runs.iter().any(|run| run.sky_sampling.is_some())) {
+        let _ = writeln!(
+            o,
+            "\nOvercast sky: variance of a sample at N (independent: the film's spread; else MSE × N), samples per \
+             second, their ratio (less is better)"
+        );
+        let _ = writeln!(
+            o,
+            "{:<18} {:<4} {:<16} {:<12} {:>8} {:>10} {:>8} {:>10}",
+            "scene", "dev", "sky sampling", "sampler", "mean", "variance", "Msmp/s", "variance·s"
+        );
+        for s in &r.scenes {
+            for run in s.runs.iter().filter(|run| run.sky_sampling.is_some()) {
+                let c = run.last();
+                let samples_per_second = run.variance_per_sample / run.variance_seconds;
+                let _ = writeln!(
+                    o,
+                    "{:<18} {:<4} {:<16} {:<12} {:>8} {:>10} {:>8} {:>10}",
+                    s.name,
+                    run.device,
+                    run.distribution(),
+                    run.sampler,
+                    sig(c.image_mean),
+                    sig(run.variance_per_sample),
+                    sig(samples_per_second / 1e6),
+                    sig(run.variance_seconds)
+                );
+            }
         }
     }
 
@@ -160,9 +190,9 @@ pub fn table(r: &Results) -> String {
 fn run_row(run: &Run) -> String {
     let c = run.last();
     format!(
-        "{:<4} {:<12} {:<12} {:>7} {:>9} {:>9} {:>8} {:>8} {:>10}",
+        "{:<4} {:<16} {:<12} {:>7} {:>9} {:>9} {:>8} {:>8} {:>10}",
         run.device,
-        run.hemisphere,
+        run.distribution(),
         if run.unbiased { run.sampler.clone() } else { format!("{} (biased)", run.sampler) },
         run.slope.map_or("-".into(), |s| format!("{s:.3}")),
         sig(c.rmse),
@@ -182,14 +212,15 @@ fn field(s: &str) -> String {
 pub fn convergence_csv(r: &Results) -> String {
     let mut o = String::from(
         "scene,triangles,width,height,device,hemisphere,sampler,unbiased,time_source,spp,seconds,wall_seconds,\
-         rays,rays_per_second,mse,mse_std_error,rmse,rel_mse,efficiency,reference_rmse_floor,slope\n",
+         rays,rays_per_second,mse,mse_std_error,rmse,rel_mse,efficiency,reference_rmse_floor,slope,sky_sampling,\
+         variance_per_sample,variance_seconds\n",
     );
     for s in &r.scenes {
         for run in &s.runs {
             for c in &run.checkpoints {
                 let _ = writeln!(
                     o,
-                    "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                    "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                     field(&s.name),
                     s.triangles,
                     s.width,
@@ -211,6 +242,9 @@ pub fn convergence_csv(r: &Results) -> String {
                     c.efficiency.map_or(String::new(), |e| e.to_string()),
                     s.reference.rmse_floor,
                     run.slope.map_or(String::new(), |e| e.to_string()),
+                    run.sky_sampling.as_deref().unwrap_or(""),
+                    run.variance_per_sample,
+                    run.variance_seconds,
                 );
             }
         }

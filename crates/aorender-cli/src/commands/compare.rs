@@ -251,7 +251,7 @@ pub fn run(
     for &(sampler, hemisphere) in &rows {
         for &spp in spps {
             let s = &mut request.settings;
-            (s.spp, s.hemisphere, s.sampler) = (spp, hemisphere, sampler);
+            (s.spp, s.sampling.hemisphere, s.sampling.sampler) = (spp, hemisphere, sampler);
             let mut at = CompareProgress { cell: cells.len(), cells: count, spp, hemisphere, sampler, render: None };
             progress(&at);
             let mut on_progress = |p: &Progress| {
@@ -280,8 +280,8 @@ pub fn run(
         scene: scene.name.clone(),
         width: scene.settings.width,
         height: scene.settings.height,
-        seed: scene.settings.seed,
-        sky: scene.settings.sky.describe(),
+        seed: scene.settings.sampling.seed,
+        sky: scene.settings.sampling.sky.describe(),
         adapter,
         backend,
         total_seconds: start.elapsed().as_secs_f64(),

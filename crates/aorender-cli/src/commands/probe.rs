@@ -96,7 +96,8 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     phases.load_seconds = loading.elapsed().as_secs_f64();
     let target = args.target_error.map(ErrorTarget::PointStdError);
     if target.is_some() && args.sampling.replicate.is_none() {
-        scene.settings.replicate = Some(crate::args::target_replicate(scene.settings.sampler, args.samples));
+        scene.settings.sampling.replicate =
+            Some(crate::args::target_replicate(scene.settings.sampling.sampler, args.samples));
     }
     let settings = scene.settings.clone();
     let opening = Instant::now();
@@ -142,10 +143,10 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         rays_per_second: out.rays as f64 / out.seconds.max(1e-9),
         phases,
         adapter: out.adapter.clone(),
-        hemisphere: settings.hemisphere.name(),
-        sky: settings.sky.describe(),
-        sampler: settings.sampler.name(),
-        seed: settings.seed,
+        hemisphere: settings.sampling.hemisphere.name(),
+        sky: settings.sampling.sky.describe(),
+        sampler: settings.sampling.sampler.name(),
+        seed: settings.sampling.seed,
         triangles,
         host_peak_bytes,
         host_peak_bytes_per_triangle: phases::per(host_peak_bytes, triangles as u64),
@@ -173,13 +174,13 @@ pub fn run(args: ProbeArgs) -> Result<()> {
             args.points.display()
         );
     }
-    if matches!(settings.sampler, Sampler::Sobol | Sampler::Stratified)
-        && settings.sampler.replicate_samples(settings.replicate) == 0
+    if matches!(settings.sampling.sampler, Sampler::Sobol | Sampler::Stratified)
+        && settings.sampling.sampler.replicate_samples(settings.sampling.replicate) == 0
     {
         crate::say!(
             "note: std_error is the spread of single samples, which overestimates the error of {} points: \
              --replicate N gives a valid one",
-            settings.sampler.name()
+            settings.sampling.sampler.name()
         );
     }
     if let Some(e) = args.target_error {

@@ -95,8 +95,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
     // replicates to decide at.
     let s = &mut scene.settings;
     let mut measure_replicate = false;
-    if target.is_some() && s.replicate.is_none() && (s.sampler != Sampler::Independent || args.adaptive) {
-        s.replicate = Some(crate::args::target_replicate(s.sampler, s.spp));
+    if target.is_some()
+        && s.sampling.replicate.is_none()
+        && (s.sampling.sampler != Sampler::Independent || args.adaptive)
+    {
+        s.sampling.replicate = Some(crate::args::target_replicate(s.sampling.sampler, s.spp));
         measure_replicate = args.replicate_by_cost && args.run.sample_range.is_none() && args.run.resume.is_none();
     }
     scene.settings.validate().map_err(invalid_option)?;
@@ -110,7 +113,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         Some(path) => {
             let saved = Accumulation::read_with(path, &args.scene.load_options()?.limits)?;
             if args.sampling.replicate.is_none() {
-                scene.settings.replicate = Some(saved.settings.replicate);
+                scene.settings.sampling.replicate = saved.settings.sampling.replicate;
             }
             // Before any work: the checkpoint must hold samples of this very render.
             let s = &scene.settings;
@@ -134,11 +137,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
         }
     };
     let s = &scene.settings;
-    if args.error_image.is_some() && s.sampler.replicate_samples(s.replicate) == 0 {
+    if args.error_image.is_some() && s.sampling.sampler.replicate_samples(s.sampling.replicate) == 0 {
         bail!(
             "invalid option: --error-image needs an error estimate, which the {} sampler has only in replicates: \
              add --replicate N",
-            s.sampler.name()
+            s.sampling.sampler.name()
         );
     }
     let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
@@ -165,16 +168,16 @@ pub fn run(args: RenderArgs) -> Result<()> {
         let mut render = session.render(&request)?;
         if measure_replicate && let Some(costs) = render.replicate_costs()? {
             let s = &request.settings;
-            let least = s.replicate.unwrap_or(1);
-            let chosen = s.sampler.replicate_by_cost(
+            let least = s.sampling.replicate.unwrap_or(1);
+            let chosen = s.sampling.sampler.replicate_by_cost(
                 least,
-                s.sampler.replicate_for(s.spp, 16),
+                s.sampling.sampler.replicate_for(s.spp, 16),
                 costs.per_sample,
                 costs.per_replicate,
             );
             if chosen != least {
                 drop(render);
-                request.settings.replicate = Some(chosen);
+                request.settings.sampling.replicate = Some(chosen);
                 render = session.render(&request)?;
             }
         }

@@ -281,7 +281,7 @@ impl Bake {
         let mut request = request.clone();
         let settings = request.settings.clone().unwrap_or_else(|| scene.settings.clone());
         if let Some(t) = request.texture.as_mut() {
-            t.options.seed = settings.seed;
+            t.options.seed = settings.sampling.seed;
         }
         let output = request.output.clone();
         if request.texture.is_some() && output.is_none() {

@@ -12,7 +12,7 @@ use crate::geometry::{
 use crate::probe::Probe;
 use crate::sampler::PointSampler;
 use crate::sampling::{above_surface, offset_ray_origin};
-use crate::scene::{Camera, RayGen, Scene, Settings};
+use crate::scene::{Camera, RayGen, Sampling, Scene, Settings};
 use crate::sky::SkySample;
 use glam::{Vec3, Vec3A};
 use obvhs::cwbvh::CwBvh;
@@ -256,17 +256,17 @@ impl CpuTracer {
 
     /// AO value at a surface point `p` with normal `n`, within `error` of its surface along
     /// `n`, for hemisphere numbers `u`: a camera hit's, in `shaders/ao.wgsl`'s `shade_sample`.
-    pub fn ao_at(&self, p: Vec3, n: Vec3, error: f32, u: glam::Vec2, settings: &Settings) -> f32 {
-        let sample = settings.sky.sample(settings.hemisphere, n, u);
-        self.estimate(offset_ray_origin(p, n, error), sample.w, &sample, settings).0
+    pub fn ao_at(&self, p: Vec3, n: Vec3, error: f32, u: glam::Vec2, sampling: &Sampling) -> f32 {
+        let sample = sampling.sky.sample(sampling.hemisphere, n, u);
+        self.estimate(offset_ray_origin(p, n, error), sample.w, &sample, sampling).0
     }
 
     /// The AO ray of `probe` for hemisphere numbers `u` (origin, direction, and the sky's
     /// sample): about its normal, from its position pushed off its surface along the
     /// surface's normal (its normal where it has none), a direction below the surface
     /// mirrored above it. The twin of `probe_ray` in `shaders/ao.wgsl`.
-    pub fn probe_ray(probe: &Probe, u: glam::Vec2, settings: &Settings) -> (Vec3, Vec3, SkySample) {
-        let sample = settings.sky.sample(settings.hemisphere, probe.normal, u);
+    pub fn probe_ray(probe: &Probe, u: glam::Vec2, sampling: &Sampling) -> (Vec3, Vec3, SkySample) {
+        let sample = sampling.sky.sample(sampling.hemisphere, probe.normal, u);
         let g = probe.surface_normal;
         let off = if g == Vec3::ZERO { probe.normal } else { g };
         let w = above_surface(sample.w, g);
@@ -274,15 +274,15 @@ impl CpuTracer {
     }
 
     /// The estimate of one sample of `probe` and, when its ray escaped, its world direction.
-    pub fn probe_sample(&self, probe: &Probe, u: glam::Vec2, settings: &Settings) -> (f32, Option<Vec3>) {
-        let (o, w, sample) = Self::probe_ray(probe, u, settings);
-        self.estimate(o, w, &sample, settings)
+    pub fn probe_sample(&self, probe: &Probe, u: glam::Vec2, sampling: &Sampling) -> (f32, Option<Vec3>) {
+        let (o, w, sample) = Self::probe_ray(probe, u, sampling);
+        self.estimate(o, w, &sample, sampling)
     }
 
     /// The estimate of the AO ray from `o` along `w` (the sky's `sample`) and, when it
     /// escaped, `w`.
-    fn estimate(&self, o: Vec3, w: Vec3, sample: &SkySample, settings: &Settings) -> (f32, Option<Vec3>) {
-        let t_max = settings.max_distance.unwrap_or(f32::MAX);
+    fn estimate(&self, o: Vec3, w: Vec3, sample: &SkySample, sampling: &Sampling) -> (f32, Option<Vec3>) {
+        let t_max = sampling.max_distance.unwrap_or(f32::MAX);
         if self.occluded(o, w, t_max) { (sample.blocked, None) } else { (sample.open, Some(w)) }
     }
 
@@ -296,7 +296,7 @@ impl CpuTracer {
     #[allow(clippy::too_many_arguments)]
     pub fn probe_bent_pass(
         &self,
-        settings: &Settings,
+        sampling: &Sampling,
         probes: &[Probe],
         first_point: u32,
         samples: u32,
@@ -305,7 +305,7 @@ impl CpuTracer {
         first: u32,
         count: u32,
     ) -> u64 {
-        let sampler = PointSampler::new(settings.sampler, settings.seed, samples, settings.replicate_samples());
+        let sampler = PointSampler::new(sampling.sampler, sampling.seed, samples, sampling.replicate_samples());
         sums.sum
             .par_chunks_mut(4)
             .zip(sums.sum_sq.par_chunks_mut(4))
@@ -315,7 +315,7 @@ impl CpuTracer {
                 let mut rays = 0;
                 for index in first..(first + count).min(samples) {
                     let u = sampler.uniforms(first_point + k as u32, 0, index);
-                    let (v, open) = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), settings);
+                    let (v, open) = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), sampling);
                     let d = open.unwrap_or(Vec3::ZERO);
                     for (c, x) in [v, d.x, d.y, d.z].into_iter().enumerate() {
                         add_sample(&mut sum[c], &mut sum_sq[c], x, e);
@@ -346,7 +346,7 @@ impl CpuTracer {
         let (hit, albedo) = self.surface(o, d, t, kind);
         // The hemisphere faces the side the camera ray came from.
         let n = if hit.n.dot(d) > 0.0 { -hit.n } else { hit.n };
-        (albedo * self.ao_at(hit.p, n, hit.error, glam::Vec2::new(u[2], u[3]), settings), true)
+        (albedo * self.ao_at(hit.p, n, hit.error, glam::Vec2::new(u[2], u[3]), &settings.sampling), true)
     }
 
     /// Adds probe rounds `first .. first + count` to `sums`, whose slots are `lanes` per
@@ -358,7 +358,7 @@ impl CpuTracer {
     #[allow(clippy::too_many_arguments)]
     pub fn probe_pass(
         &self,
-        settings: &Settings,
+        sampling: &Sampling,
         probes: &[Probe],
         first_point: u32,
         samples: u32,
@@ -368,7 +368,7 @@ impl CpuTracer {
         first: u32,
         count: u32,
     ) -> u64 {
-        let sampler = PointSampler::new(settings.sampler, settings.seed, samples, settings.replicate_samples());
+        let sampler = PointSampler::new(sampling.sampler, sampling.seed, samples, sampling.replicate_samples());
         sums.sum
             .par_iter_mut()
             .zip(sums.sum_sq.par_iter_mut())
@@ -383,7 +383,7 @@ impl CpuTracer {
                         break;
                     }
                     let u = sampler.uniforms(first_point + k as u32, 0, index as u32);
-                    let v = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), settings).0;
+                    let v = self.probe_sample(p, glam::Vec2::new(u[2], u[3]), sampling).0;
                     add_sample(sum, sum_sq, v, e);
                     rays += 1;
                 }
@@ -410,7 +410,7 @@ impl CpuTracer {
     ) -> u64 {
         let s = settings;
         let rg = camera.ray_gen(s.width, s.height);
-        let sampler = PointSampler::new(s.sampler, s.seed, s.spp, s.replicate_samples());
+        let sampler = PointSampler::new(s.sampling.sampler, s.sampling.seed, s.spp, s.sampling.replicate_samples());
         let w = s.width as usize;
         sums.sum
             .par_chunks_mut(w)

@@ -46,7 +46,7 @@ pub(super) struct CpuProbes {
 impl CpuWork for CpuProbes {
     // Probe requests are not adaptive: every point is sampled.
     fn pass(&self, sums: &mut BlockSums, e: i32, first: u32, count: u32, _inactive: &[bool]) -> u64 {
-        let (t, s, p, k) = (&self.tracer, &self.settings, &self.probes, self.first_point);
+        let (t, s, p, k) = (&self.tracer, &self.settings.sampling, &self.probes, self.first_point);
         if self.bent_normals {
             t.probe_bent_pass(s, p, k, self.samples, sums, e, first, count)
         } else {

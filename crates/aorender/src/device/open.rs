@@ -109,7 +109,7 @@ impl Device {
     pub fn check_image_budget(&self, scene: &Scene, settings: &Settings) -> Result<()> {
         let what = format!("a {}x{} image", settings.width, settings.height);
         let slots = settings.width as u64 * settings.height as u64;
-        self.check_film_budget(&scene.source(), what, slots, settings.replicate_samples() >= 2, None)
+        self.check_film_budget(&scene.source(), what, slots, settings.sampling.replicate_samples() >= 2, None)
     }
 
     /// Fails with [`Error::FilmBudget`](crate::Error::FilmBudget) naming `scene` when a film

@@ -169,7 +169,13 @@ impl Prepared {
                 let frame = FrameUniforms::image(camera, settings, scene.node_count, scene.plane_count, e);
                 let rows = crate::gpu::target::image_rows_per_target(dev, settings.width);
                 if rows >= settings.height {
-                    return Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?));
+                    return Ok(Box::new(GpuTarget::image(
+                        dev,
+                        scene,
+                        frame,
+                        settings.sampling.sampler,
+                        settings.sampling.hemisphere,
+                    )?));
                 }
                 // Bands of rows, each a target with a film of one binding at most, read
                 // through one shared buffer: driven as one film, in row order.
@@ -178,7 +184,7 @@ impl Prepared {
                     let band = rows.min(settings.height - first_row);
                     let readback = targets.first().map(|(t, _)| t.readback());
                     let frame = FrameUniforms { first_row, ..frame };
-                    let (sampler, hemisphere) = (settings.sampler, settings.hemisphere);
+                    let (sampler, hemisphere) = (settings.sampling.sampler, settings.sampling.hemisphere);
                     let target = GpuTarget::image_band(dev, scene, frame, band, sampler, hemisphere, readback)?;
                     targets.push((target, band as usize * settings.width as usize));
                 }
@@ -241,8 +247,8 @@ impl Prepared {
                         dev,
                         scene,
                         frame,
-                        settings.sampler,
-                        settings.hemisphere,
+                        settings.sampling.sampler,
+                        settings.sampling.hemisphere,
                         chunk,
                         bent_normals,
                     )?;

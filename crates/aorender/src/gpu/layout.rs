@@ -12,7 +12,7 @@ use crate::mirror::{GpuStruct, StructLayout, gpu_struct};
 use crate::sampler::Sampler;
 use crate::sampler::{ONE_MINUS_EPSILON, PERMUTE_WALK_LIMIT, SOBOL_SCRAMBLE_SALT, SOBOL_SHUFFLE_SALT, STRATA_SALT};
 use crate::sampling::Hemisphere;
-use crate::scene::{Camera, Settings};
+use crate::scene::{Camera, Sampling, Settings};
 use crate::sky::{SKY_UNIFORM, SkyNormalise, SkySampling};
 
 /// Workgroup size of the AO kernel: an 8 × 8 tile of pixels (ao.wgsl `tile_pixel` lays
@@ -154,6 +154,25 @@ impl From<&Plane> for GpuPlane {
 }
 
 impl FrameUniforms {
+    /// The constants a request's sampling sets, for `spp` samples per pixel or point
+    /// (what the cell samplers' strata depend on): every sampling parameter the kernel
+    /// reads comes from here. The others are zero, `one` 1.
+    pub fn sampling(sampling: &Sampling, spp: u32) -> Self {
+        let s = sampling;
+        FrameUniforms {
+            seed: s.seed,
+            max_distance: s.max_distance.map_or(f32::MAX, |d| d.min(f32::MAX)),
+            strata: s.strata(spp),
+            replicate: s.replicate_samples(),
+            sky: s.sky.shader_id(),
+            sky_normalise: s.sky.normalise.code() as u32,
+            sky_up: s.sky.unit_up().to_array(),
+            ground_albedo: s.sky.ground_albedo,
+            one: 1.0,
+            ..bytemuck::Zeroable::zeroed()
+        }
+    }
+
     /// The constants of an image of `settings` seen by `camera`, over a BVH of
     /// `node_count` nodes and `plane_count` planes, its samples at most 2^`value_exponent`
     /// in magnitude (`film::value_exponent`).
@@ -168,23 +187,11 @@ impl FrameUniforms {
             up: rg.up_ws.to_array(),
             height: s.height,
             forward: rg.forward_ws.to_array(),
-            seed: s.seed,
-            max_distance: s.max_distance.map_or(f32::MAX, |d| d.min(f32::MAX)),
             background: s.background,
             plane_count,
             node_count,
-            strata: s.strata(s.spp),
-            probe_samples: 0,
-            replicate: s.replicate_samples(),
-            first_point: 0,
-            first_row: 0,
             value_exponent,
-            sky: s.sky.shader_id(),
-            sky_normalise: s.sky.normalise.code() as u32,
-            sky_up: s.sky.unit_up().to_array(),
-            ground_albedo: s.sky.ground_albedo,
-            one: 1.0,
-            _pad: [0; 3],
+            ..FrameUniforms::sampling(&s.sampling, s.spp)
         }
     }
 
@@ -201,30 +208,14 @@ impl FrameUniforms {
         value_exponent: i32,
     ) -> Self {
         FrameUniforms {
-            eye: [0.0; 3],
-            orthographic: 0,
-            right: [0.0; 3],
             width: lanes,
-            up: [0.0; 3],
             height: points,
-            forward: [0.0; 3],
-            seed: settings.seed,
-            max_distance: settings.max_distance.map_or(f32::MAX, |d| d.min(f32::MAX)),
             background: settings.background,
             plane_count,
             node_count,
-            strata: settings.strata(samples),
             probe_samples: samples,
-            replicate: settings.replicate_samples(),
-            first_point: 0,
-            first_row: 0,
             value_exponent,
-            sky: settings.sky.shader_id(),
-            sky_normalise: settings.sky.normalise.code() as u32,
-            sky_up: settings.sky.unit_up().to_array(),
-            ground_albedo: settings.sky.ground_albedo,
-            one: 1.0,
-            _pad: [0; 3],
+            ..FrameUniforms::sampling(&settings.sampling, samples)
         }
     }
 }

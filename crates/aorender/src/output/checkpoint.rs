@@ -67,8 +67,8 @@ use crate::error::{Error, Result};
 use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, OUT_OF_RANGE_BIT};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
-use crate::scene::ReadLimits;
 use crate::scene::input::vec_bytes;
+use crate::scene::{ReadLimits, Sampling};
 use crate::sky::{Sky, SkyModel, SkyNormalise, SkySampling};
 use std::io::{Read, Write};
 use std::path::Path;
@@ -194,7 +194,7 @@ impl Accumulation {
     }
 
     fn write_body(&self, w: &mut dyn Write) -> std::io::Result<()> {
-        let s = &self.settings;
+        let (s, m) = (&self.settings, &self.settings.sampling);
         w.write_all(&MAGIC)?;
         w.write_all(&VERSION.to_le_bytes())?;
         w.write_all(&s.scene_hash)?;
@@ -202,19 +202,19 @@ impl Accumulation {
             w.write_all(&v.to_le_bytes())?;
         }
         w.write_all(&[
-            hemisphere_code(s.hemisphere),
-            sampler_code(s.sampler),
+            hemisphere_code(m.hemisphere),
+            sampler_code(m.sampler),
             device_code(self.device),
             layout_code(self.bvh_layout),
             quality_code(self.bvh_quality),
-            s.max_distance.is_some() as u8,
+            m.max_distance.is_some() as u8,
             self.partial.is_some() as u8,
             if self.on_grid { FLAG_ON_GRID } else { 0 }
                 | if self.exact.pixel_samples.is_empty() { 0 } else { FLAG_PER_PIXEL },
         ])?;
-        w.write_all(&s.max_distance.unwrap_or(0.0).to_le_bytes())?;
+        w.write_all(&m.max_distance.unwrap_or(0.0).to_le_bytes())?;
         w.write_all(&s.background.to_le_bytes())?;
-        w.write_all(&s.seed.to_le_bytes())?;
+        w.write_all(&m.seed.to_le_bytes())?;
         w.write_all(&self.exact.sum_exponent.to_le_bytes())?;
         w.write_all(&self.exact.sq_exponent.to_le_bytes())?;
         w.write_all(&BLOCK_SAMPLES.to_le_bytes())?;
@@ -227,9 +227,9 @@ impl Accumulation {
         let name = &self.adapter.as_bytes()[..self.adapter.len().min(MAX_ADAPTER_NAME)];
         w.write_all(&(name.len() as u32).to_le_bytes())?;
         w.write_all(name)?;
-        w.write_all(&s.replicate.to_le_bytes())?;
-        w.write_all(&[film_code(s.layout), s.sky.model.code(), s.sky.sampling.code(), s.sky.normalise.code()])?;
-        for v in s.sky.up.to_array().into_iter().chain([s.sky.ground_albedo]) {
+        w.write_all(&s.replicate().to_le_bytes())?;
+        w.write_all(&[film_code(s.layout), m.sky.model.code(), m.sky.sampling.code(), m.sky.normalise.code()])?;
+        for v in m.sky.up.to_array().into_iter().chain([m.sky.ground_albedo]) {
             w.write_all(&v.to_le_bytes())?;
         }
         w.write_all(&self.exact.replicates.to_le_bytes())?;
@@ -512,14 +512,16 @@ impl Accumulation {
                 height,
                 spp,
                 strata,
-                replicate,
                 layout,
-                hemisphere,
-                sampler,
-                max_distance: (has_max_distance == 1).then_some(max_distance),
                 background,
-                seed,
-                sky,
+                sampling: Sampling {
+                    hemisphere,
+                    sampler,
+                    max_distance: (has_max_distance == 1).then_some(max_distance),
+                    seed,
+                    replicate: Some(replicate),
+                    sky,
+                },
             },
             device,
             bvh_layout,

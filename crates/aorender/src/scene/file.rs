@@ -12,7 +12,7 @@ use super::input::{LoadOptions, Meter, vec_bytes};
 use super::mesh::IndexedMesh;
 use super::meshes::{mesh_bytes, mesh_triangles_within, place_mesh, read_mesh, vertex_name};
 use super::types::{
-    Instance, InstancedMesh, MeshObject as PlacedMesh, Scene, Settings, Sphere, Triangle, Warning,
+    Instance, InstancedMesh, MeshObject as PlacedMesh, Sampling, Scene, Settings, Sphere, Triangle, Warning,
     non_finite_coordinate, place_point,
 };
 use crate::error::{Error, Result};
@@ -295,26 +295,28 @@ pub(super) fn parse_scene(
     let file: SceneFile = toml::from_str(text).map_err(|e| Error::scene(path, toml_error(text, &e)))?;
     let err = |m: String| Error::scene(path, m);
 
-    let defaults = Settings::default();
+    let (defaults, d) = (Settings::default(), Sampling::default());
     let settings = Settings {
         width: file.image.width.unwrap_or(defaults.width),
         height: file.image.height.unwrap_or(defaults.height),
         background: file.image.background.unwrap_or(defaults.background),
         spp: file.sampling.spp.unwrap_or(defaults.spp),
-        hemisphere: file.sampling.hemisphere.unwrap_or(defaults.hemisphere),
-        sampler: file.sampling.sampler.unwrap_or(defaults.sampler),
-        max_distance: file.sampling.max_distance,
-        seed: file.sampling.seed.unwrap_or(defaults.seed),
-        replicate: file.sampling.replicate,
-        sky: {
-            let (d, k) = (defaults.sky, &file.sky);
-            Sky {
-                model: k.model.unwrap_or(d.model),
-                up: k.up.map_or(d.up, Vec3::from),
-                ground_albedo: k.ground_albedo.unwrap_or(d.ground_albedo),
-                sampling: k.sampling.unwrap_or(d.sampling),
-                normalise: k.normalise.unwrap_or(d.normalise),
-            }
+        sampling: Sampling {
+            hemisphere: file.sampling.hemisphere.unwrap_or(d.hemisphere),
+            sampler: file.sampling.sampler.unwrap_or(d.sampler),
+            max_distance: file.sampling.max_distance,
+            seed: file.sampling.seed.unwrap_or(d.seed),
+            replicate: file.sampling.replicate,
+            sky: {
+                let (d, k) = (d.sky, &file.sky);
+                Sky {
+                    model: k.model.unwrap_or(d.model),
+                    up: k.up.map_or(d.up, Vec3::from),
+                    ground_albedo: k.ground_albedo.unwrap_or(d.ground_albedo),
+                    sampling: k.sampling.unwrap_or(d.sampling),
+                    normalise: k.normalise.unwrap_or(d.normalise),
+                }
+            },
         },
     };
     settings.validate().map_err(|e| err(e.message()))?;

@@ -28,7 +28,7 @@ pub(crate) use meshes::extension;
 pub use meshes::mesh_triangles;
 pub use types::{
     Bounds, Instance, InstancedMesh, MAX_IMAGE_SIDE, MAX_NORMAL_LENGTH_SQUARED, MIN_NORMAL_LENGTH_SQUARED, MeshObject,
-    Scene, Settings, Sphere, Triangle, Warning, place_point,
+    Sampling, Scene, Settings, Sphere, Triangle, Warning, place_point,
 };
 
 #[cfg(feature = "testing")]

@@ -105,23 +105,18 @@ impl std::fmt::Display for Warning {
     }
 }
 
-/// Image size and sampling: the scene file's defaults, and what a render request asks for.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Settings {
-    /// Image width in pixels.
-    pub width: u32,
-    /// Image height in pixels.
-    pub height: u32,
-    /// Samples per pixel (each: one camera ray and at most one AO ray).
-    pub spp: u32,
+/// What a request's samples are drawn with besides the image: the one owner of its
+/// sampling parameters. [`Settings`] holds one; the CPU reference, the GPU's frame
+/// constants (`gpu::layout::FrameUniforms::sampling`), a render's identity
+/// (`SampleSettings`, which checkpoints store), statistics and Python read it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sampling {
     /// AO direction distribution.
     pub hemisphere: Hemisphere,
     /// Placement of the pixel-jitter and hemisphere numbers.
     pub sampler: Sampler,
     /// AO rays longer than this are unoccluded; `None` is no limit.
     pub max_distance: Option<f32>,
-    /// Value of camera rays that hit nothing.
-    pub background: f32,
     /// Seed of the random numbers.
     pub seed: u32,
     /// Samples per independently randomised replicate (`sampler` module doc); `None`
@@ -132,20 +127,65 @@ pub struct Settings {
     pub sky: Sky,
 }
 
-impl Default for Settings {
+impl Default for Sampling {
     fn default() -> Self {
-        Settings {
-            width: 512,
-            height: 512,
-            spp: 64,
+        Sampling {
             hemisphere: Hemisphere::Cosine,
             sampler: Sampler::Independent,
             max_distance: None,
-            background: 0.0,
             seed: 0,
             replicate: None,
             sky: Sky::default(),
         }
+    }
+}
+
+impl Sampling {
+    /// Samples per replicate ([`Sampler::replicate_samples`]).
+    pub fn replicate_samples(&self) -> u32 {
+        self.sampler.replicate_samples(self.replicate)
+    }
+
+    /// Cells per axis of a request of `spp` samples per pixel or point
+    /// ([`Sampler::strata_per_axis`]).
+    pub fn strata(&self, spp: u32) -> u32 {
+        self.sampler.strata_per_axis(spp, self.replicate_samples())
+    }
+
+    /// Checks what AO at a point depends on besides the hemisphere, sampler and seed (the
+    /// maximum distance, the replicate size and the sky): [`Error::Settings`] naming it.
+    pub fn validate(&self) -> Result<()> {
+        self.sky.validate().map_err(Error::settings)?;
+        if let Some(r) = self.replicate {
+            self.sampler.check_replicate(r).map_err(Error::settings)?;
+        }
+        if let Some(d) = self.max_distance
+            && (d.is_nan() || d < 0.0)
+        {
+            return Err(Error::settings(format!("max distance must be zero or positive, got {d}")));
+        }
+        Ok(())
+    }
+}
+
+/// Image size and sampling: the scene file's defaults, and what a render request asks for.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Settings {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Samples per pixel (each: one camera ray and at most one AO ray).
+    pub spp: u32,
+    /// Value of camera rays that hit nothing.
+    pub background: f32,
+    /// How the samples are drawn.
+    pub sampling: Sampling,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings { width: 512, height: 512, spp: 64, background: 0.0, sampling: Sampling::default() }
     }
 }
 
@@ -164,35 +204,9 @@ impl Settings {
         if self.spp == 0 {
             return Err(Error::settings("samples per pixel must be at least 1"));
         }
-        self.validate_sampling()?;
+        self.sampling.validate()?;
         if !self.background.is_finite() {
             return Err(Error::settings("background must be finite"));
-        }
-        Ok(())
-    }
-
-    /// Samples per replicate of a request ([`Sampler::replicate_samples`]).
-    pub fn replicate_samples(&self) -> u32 {
-        self.sampler.replicate_samples(self.replicate)
-    }
-
-    /// Cells per axis of a request of `spp` samples per pixel or point
-    /// ([`Sampler::strata_per_axis`]).
-    pub fn strata(&self, spp: u32) -> u32 {
-        self.sampler.strata_per_axis(spp, self.replicate_samples())
-    }
-
-    /// Checks what AO at a point depends on besides the hemisphere, sampler and seed (the
-    /// maximum distance, the replicate size and the sky), leaving the image's settings aside.
-    pub fn validate_sampling(&self) -> Result<()> {
-        self.sky.validate().map_err(Error::settings)?;
-        if let Some(r) = self.replicate {
-            self.sampler.check_replicate(r).map_err(Error::settings)?;
-        }
-        if let Some(d) = self.max_distance
-            && (d.is_nan() || d < 0.0)
-        {
-            return Err(Error::settings(format!("max distance must be zero or positive, got {d}")));
         }
         Ok(())
     }

@@ -180,7 +180,7 @@ pub fn gpu_image(
     let gs = GpuScene::upload(&dev.ctx, scene, bvh, storage, None)?;
     let s = &scene.settings;
     let frame = FrameUniforms::image(&scene.camera, s, gs.node_count, gs.plane_count, value_exponent_of(scene));
-    let target = GpuTarget::image(dev, &gs, frame, s.sampler, s.hemisphere)?;
+    let target = GpuTarget::image(dev, &gs, frame, s.sampling.sampler, s.sampling.hemisphere)?;
     Ok((gs, target))
 }
 
