@@ -128,9 +128,9 @@ impl Sampler {
         r
     }
 
-    /// Why `replicate` samples per replicate cannot be asked of this sampler, in words;
-    /// `Ok` when they can (any size for `grid`, which ignores it).
-    pub fn check_replicate(self, replicate: u32) -> Result<(), String> {
+    /// Checks that `replicate` samples per replicate can be asked of this sampler (any
+    /// size for `grid`, which ignores it).
+    pub fn check_replicate(self, replicate: u32) -> Result<(), ReplicateError> {
         let ok = match self {
             Sampler::Grid => true,
             Sampler::Independent | Sampler::Sobol => {
@@ -143,14 +143,7 @@ impl Sampler {
                         && replicate <= MAX_REPLICATE_SAMPLES)
             }
         };
-        if ok {
-            return Ok(());
-        }
-        let allowed = match self {
-            Sampler::Stratified => "0 (one replicate) or 1, 4, 16, 64 or 256 (n x n cells, n a power of two)",
-            _ => "0 (one replicate) or a power of two up to 256",
-        };
-        Err(format!("{replicate} samples per replicate for the {} sampler: use {allowed}", self.name()))
+        if ok { Ok(()) } else { Err(ReplicateError { sampler: self, replicate }) }
     }
 
     /// Cells per axis of a render of `spp` samples per pixel and `replicate` samples per
@@ -162,6 +155,27 @@ impl Sampler {
             Sampler::Stratified if replicate > 0 => replicate.isqrt(),
             Sampler::Stratified | Sampler::Grid => spp.max(1).isqrt().min(46_340),
             Sampler::Independent | Sampler::Sobol => 1,
+        }
+    }
+}
+
+/// A replicate size a sampler cannot use ([`Sampler::check_replicate`]): the message says
+/// which sizes it can.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{replicate} samples per replicate for the {} sampler: use {}", sampler.name(), self.allowed())]
+pub struct ReplicateError {
+    /// The sampler asked.
+    pub sampler: Sampler,
+    /// The samples per replicate it cannot use.
+    pub replicate: u32,
+}
+
+impl ReplicateError {
+    /// The sizes the sampler accepts, in words.
+    fn allowed(&self) -> &'static str {
+        match self.sampler {
+            Sampler::Stratified => "0 (one replicate) or 1, 4, 16, 64 or 256 (n x n cells, n a power of two)",
+            _ => "0 (one replicate) or a power of two up to 256",
         }
     }
 }
