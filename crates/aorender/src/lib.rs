@@ -129,7 +129,8 @@ pub use gpu::{AdapterInfo, GeometryStorage, Traversal, catching_panics, list_ada
 pub use kinds::{BuildQuality, BvhLayout};
 pub use probe::{Probe, ProbeValue, probe_film_bent_normals, probe_film_values};
 pub use render::{
-    Control, PassSizing, PassTimes, Progress, Render, RenderOutput, RenderStats, RunEnd, SaveFn, peak_rss_bytes,
+    Control, EndedBy, PassSizing, PassTimes, Progress, Render, RenderOutput, RenderStats, RunEnd, SaveFn,
+    peak_rss_bytes,
 };
 pub use sampler::Sampler;
 pub use sampling::Hemisphere;
