@@ -7,7 +7,7 @@
 
 mod common;
 use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
-use aorender::gpu::device::GpuDevice;
+use aorender::gpu::GpuDevice;
 use aorender::gpu::layout::FrameUniforms;
 use aorender::gpu::{GpuScene, GpuTarget, Traversal};
 use aorender::{

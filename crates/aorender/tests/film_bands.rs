@@ -5,8 +5,8 @@
 //! with the CPU reference as the unsplit one does.
 
 mod common;
+use aorender::gpu::GpuDevice;
 use aorender::gpu::context::GpuContext;
-use aorender::gpu::device::GpuDevice;
 use aorender::gpu::target::image_rows_per_target;
 use aorender::{Accumulation, Control, Device, ErrorTarget, Film, Hemisphere, ImageRequest, Sampler, Scene, Session};
 use common::*;

@@ -3,12 +3,11 @@
 //! it, bound to the session's geometry. A pass adds a range of samples to the film.
 
 use super::budget::{PREFERRED_SAMPLES_PER_INVOCATION, dispatch_budget, safe_samples_per_invocation};
-use super::device::GpuDevice;
 use super::layout::{
     COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, COUNTERS, DISPATCH, DISPATCH_STRIDE, DispatchUniforms, FILM,
     FRAME, FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE, WORKGROUP_SIZE,
 };
-use super::pipeline::{Kernel, PipelineKey};
+use super::pipeline::{GpuDevice, Kernel, PipelineKey};
 use super::stats::{CheckQuery, CheckSums, DeviceSums};
 use super::upload::{GpuScene, storage_buffer};
 use crate::error::{Error, Result};

@@ -4,8 +4,8 @@
 pub mod kernel;
 
 use aorender::bvh::GpuBvh;
+use aorender::gpu::GpuDevice;
 use aorender::gpu::context::GpuContext;
-use aorender::gpu::device::GpuDevice;
 use aorender::gpu::layout::FrameUniforms;
 use aorender::gpu::{GpuScene, GpuTarget};
 use aorender::{

@@ -1,0 +1,272 @@
+//! Preparing a scene on devices: the BVH built once ([`BvhOptions`]), converted and
+//! uploaded to each GPU or laid out for the CPU tracer ([`Prepared`], with what it took in
+//! [`Setup`]), and a request's film made on it.
+
+use super::cpu::{CpuImage, CpuProbes, CpuTarget};
+use super::gpu::GpuChunks;
+use super::open::{Device, DeviceKind, Opened};
+use super::passes::Passes;
+use crate::bvh::ploc::cwbvh_depth;
+use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
+use crate::cpu::CpuTracer;
+use crate::error::Result;
+use crate::film::BlockSums;
+use crate::gpu::{
+    AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal,
+};
+use crate::probe::Probe;
+use crate::scene::{Camera, Scene, Settings};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// How the scene is prepared on a device.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BvhOptions {
+    /// obvhs's build preset.
+    pub quality: BuildQuality,
+    /// The node layout the GPU traverses (the CPU reference always traverses obvhs's
+    /// CWBVH).
+    pub layout: BvhLayout,
+    /// Where the GPU kernel reads the geometry from; `None` is the adapter's preference
+    /// ([`GeometryStorage::preferred`]).
+    pub geometry_storage: Option<GeometryStorage>,
+    /// How the GPU kernel's lanes share the rays; `None` is the adapter's preference where
+    /// the scene allows it.
+    pub traversal: Option<Traversal>,
+}
+
+/// What preparing a scene on a device took and holds.
+#[derive(Clone, Debug)]
+pub struct Setup {
+    /// The adapter.
+    pub adapter: AdapterInfo,
+    /// The BVH layout traversed.
+    pub bvh_layout: BvhLayout,
+    /// Seconds to build the BVH, its conversion to the GPU's layout included.
+    pub bvh_build_seconds: f64,
+    /// Of those, seconds to convert obvhs's CWBVH to the GPU's layout (0 for BVH2 and on
+    /// the CPU).
+    pub bvh_convert_seconds: f64,
+    /// Nodes of the BVH as traversed.
+    pub bvh_nodes: usize,
+    /// Levels of the BVH as traversed: its deepest inner node's, the root 1 (with
+    /// instances, the top level's and the deepest mesh's added).
+    pub bvh_depth: u32,
+    /// Primitives the BVH leaves out as copies of others (a triangle or sphere with the
+    /// same bits and albedo, 16 times or more): rays meet them as they meet the first.
+    pub bvh_duplicates: usize,
+    /// Seconds to upload the geometry (GPU) or to lay out the tracer's records (CPU).
+    pub upload_seconds: f64,
+    /// Bytes of the BVH as traversed: nodes and primitive records, as uploaded (GPU) or
+    /// held by the tracer (CPU).
+    pub bvh_bytes: u64,
+    /// Bytes of device memory the geometry takes (GPU; 0 on the CPU).
+    pub device_bytes: u64,
+    /// Bindings holding the BVH nodes and the primitives (GPU; 0 on the CPU).
+    pub geometry_bindings: u32,
+    /// `buffers` or `textures` on the GPU, empty on the CPU.
+    pub geometry_storage: &'static str,
+    /// `per-lane` or `cooperative` on the GPU, empty on the CPU.
+    pub traversal: &'static str,
+}
+
+/// A scene prepared on a device: its BVH built and uploaded, ready for requests.
+pub(crate) enum Prepared {
+    /// The geometry on the adapter (dropped before the adapter's device, last).
+    Gpu { scene: GpuScene, dev: Arc<GpuDevice> },
+    /// The CPU tracer.
+    Cpu(Arc<CpuTracer>),
+}
+
+impl Prepared {
+    /// Builds the BVH of `scene` once and prepares it on each of `devices`: the GPU's
+    /// layout converted from obvhs's CWBVH (or its BVH2 built) and uploaded, or the CPU
+    /// tracer laid out. Each setup reports the shared build's time.
+    pub(crate) fn new(devices: &[Device], scene: &Scene, options: &BvhOptions) -> Result<Vec<(Prepared, Setup)>> {
+        // obvhs's CWBVH, built once for every device that traverses it: the CPU reference,
+        // and a GPU in the CWBVH layout.
+        let uses_cwbvh = |d: &Device| d.kind() == DeviceKind::Cpu || options.layout == BvhLayout::Cwbvh;
+        #[cfg(feature = "testing")]
+        crate::phase::enter("bvh");
+        let build = Instant::now();
+        let mut cwbvh = devices.iter().any(uses_cwbvh).then(|| build_cwbvh(scene, options.quality));
+        let cwbvh_seconds = build.elapsed().as_secs_f64();
+        let mut out = Vec::with_capacity(devices.len());
+        for (i, device) in devices.iter().enumerate() {
+            let adapter = device.info();
+            match &device.0 {
+                Opened::Gpu(dev) => {
+                    // Build time includes the conversion to the GPU layout.
+                    let convert = Instant::now();
+                    let (bvh, bvh_build_seconds, bvh_convert_seconds) = match (options.layout, &cwbvh) {
+                        (BvhLayout::Cwbvh, Some(cwbvh)) => {
+                            let bvh = GpuBvh::from_cwbvh(scene, cwbvh);
+                            let seconds = convert.elapsed().as_secs_f64();
+                            (bvh, cwbvh_seconds + seconds, seconds)
+                        }
+                        (layout, _) => {
+                            let bvh = GpuBvh::build(scene, layout, options.quality);
+                            (bvh, convert.elapsed().as_secs_f64(), 0.0)
+                        }
+                    };
+                    let upload = Instant::now();
+                    let storage = options.geometry_storage.unwrap_or_else(|| dev.ctx.preferred_storage());
+                    let gpu_scene = GpuScene::upload(&dev.ctx, scene, &bvh, storage, options.traversal)?;
+                    let setup = Setup {
+                        adapter,
+                        bvh_layout: options.layout,
+                        bvh_build_seconds,
+                        bvh_convert_seconds,
+                        bvh_nodes: bvh.node_count as usize,
+                        bvh_depth: bvh.depth,
+                        bvh_duplicates: bvh.duplicates,
+                        upload_seconds: upload.elapsed().as_secs_f64(),
+                        bvh_bytes: gpu_scene.bvh_bytes,
+                        device_bytes: gpu_scene.device_bytes(),
+                        geometry_bindings: gpu_scene.geometry_bindings(),
+                        geometry_storage: storage.name(),
+                        traversal: gpu_scene.traversal.name(),
+                    };
+                    out.push((Prepared::Gpu { scene: gpu_scene, dev: dev.clone() }, setup));
+                }
+                Opened::Cpu(_) => {
+                    // The last device that needs the CWBVH takes it; the others copy it.
+                    let last = !devices[i + 1..].iter().any(uses_cwbvh);
+                    let cwbvh = if last { cwbvh.take() } else { cwbvh.clone() }.expect("built for the CPU");
+                    let bvh_nodes = cwbvh.top.iter().chain(&cwbvh.meshes).map(|b| b.nodes.len()).sum();
+                    let bvh_duplicates = cwbvh.duplicates;
+                    let bvh_depth = cwbvh.top.as_ref().map_or(0, cwbvh_depth)
+                        + cwbvh.meshes.iter().map(cwbvh_depth).max().unwrap_or(0);
+                    let upload = Instant::now();
+                    let tracer = CpuTracer::new(scene, cwbvh);
+                    let setup = Setup {
+                        adapter,
+                        bvh_layout: BvhLayout::Cwbvh,
+                        bvh_build_seconds: cwbvh_seconds,
+                        bvh_convert_seconds: 0.0,
+                        bvh_nodes,
+                        bvh_depth,
+                        bvh_duplicates,
+                        upload_seconds: upload.elapsed().as_secs_f64(),
+                        bvh_bytes: tracer.bytes(),
+                        device_bytes: 0,
+                        geometry_bindings: 0,
+                        geometry_storage: "",
+                        traversal: "",
+                    };
+                    out.push((Prepared::Cpu(Arc::new(tracer)), setup));
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// The film of an image of `settings` seen by `camera`, whose samples are at most
+    /// 2^`e` in magnitude ([`value_exponent`]).
+    pub(crate) fn image(&self, camera: &Camera, settings: &Settings, e: i32) -> Result<Box<dyn Passes>> {
+        match self {
+            Prepared::Gpu { dev, scene } => {
+                let frame = FrameUniforms::image(camera, settings, scene.node_count, scene.plane_count, e);
+                let rows = crate::gpu::target::image_rows_per_target(dev, settings.width);
+                if rows >= settings.height {
+                    return Ok(Box::new(GpuTarget::image(dev, scene, frame, settings.sampler, settings.hemisphere)?));
+                }
+                // Bands of rows, each a target with a film of one binding at most, read
+                // through one shared buffer: driven as one film, in row order.
+                let mut targets: Vec<(GpuTarget, usize)> = Vec::new();
+                for first_row in (0..settings.height).step_by(rows as usize) {
+                    let band = rows.min(settings.height - first_row);
+                    let readback = targets.first().map(|(t, _)| t.readback());
+                    let frame = FrameUniforms { first_row, ..frame };
+                    let (sampler, hemisphere) = (settings.sampler, settings.hemisphere);
+                    let target = GpuTarget::image_band(dev, scene, frame, band, sampler, hemisphere, readback)?;
+                    targets.push((target, band as usize * settings.width as usize));
+                }
+                Ok(Box::new(GpuChunks { targets }))
+            }
+            Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
+                inactive: Vec::new(),
+                work: CpuImage { tracer: tracer.clone(), camera: *camera, settings: settings.clone() },
+                sums: BlockSums::new(settings.width as usize * settings.height as usize),
+                e,
+            })),
+        }
+    }
+
+    /// The film of `probes`, `samples` samples each with the sampling of `settings`,
+    /// spread over `lanes` slots a probe; or, with `bent_normals`, four slots a probe
+    /// (`lanes` must be 4): the AO and the escaped directions' x, y, z. Probe k takes the
+    /// sample sequence of point `first_point` + k. Its samples are at most 2^`e` in
+    /// magnitude.
+    // The request and where its points start: grouping them would only rename them.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn probes(
+        &self,
+        probes: &[Probe],
+        first_point: u32,
+        lanes: u32,
+        samples: u32,
+        settings: &Settings,
+        bent_normals: bool,
+        e: i32,
+    ) -> Result<Box<dyn Passes>> {
+        match self {
+            Prepared::Gpu { dev, scene } => {
+                let points: Vec<GpuProbePoint> = probes
+                    .iter()
+                    .map(|p| GpuProbePoint {
+                        position: p.position.to_array(),
+                        error: p.error,
+                        normal: p.normal.to_array(),
+                        _pad1: 0.0,
+                        surface_normal: p.surface_normal.to_array(),
+                        _pad2: 0.0,
+                    })
+                    .collect();
+                let slots_per_point = if bent_normals { 4 } else { lanes };
+                let per_target = crate::gpu::target::probe_points_per_target(dev, slots_per_point).max(1);
+                let mut targets = Vec::new();
+                for (k, chunk) in points.chunks(per_target).enumerate() {
+                    let mut frame = FrameUniforms::probes(
+                        settings,
+                        lanes,
+                        chunk.len() as u32,
+                        samples,
+                        scene.node_count,
+                        scene.plane_count,
+                        e,
+                    );
+                    frame.first_point = first_point + (k * per_target) as u32;
+                    let target = GpuTarget::probes(
+                        dev,
+                        scene,
+                        frame,
+                        settings.sampler,
+                        settings.hemisphere,
+                        chunk,
+                        bent_normals,
+                    )?;
+                    targets.push((target, chunk.len() * slots_per_point as usize));
+                }
+                match targets.len() {
+                    1 => Ok(Box::new(targets.pop().expect("one target").0)),
+                    _ => Ok(Box::new(GpuChunks { targets })),
+                }
+            }
+            Prepared::Cpu(tracer) => Ok(Box::new(CpuTarget {
+                inactive: Vec::new(),
+                work: CpuProbes {
+                    tracer: tracer.clone(),
+                    settings: settings.clone(),
+                    probes: probes.to_vec(),
+                    first_point,
+                    samples,
+                    lanes,
+                    bent_normals,
+                },
+                sums: BlockSums::new(lanes as usize * probes.len()),
+                e,
+            })),
+        }
+    }
+}
