@@ -1,7 +1,44 @@
 //! The choices a render's samples are made with, described apart from the code that makes
-//! them: the BVH's node layout and build preset. The checkpoint format and the
-//! accumulation record them, so they sit below the BVH and the devices, which give them
-//! their meaning (`bvh::layout`, `bvh::quality`).
+//! them: the kind of device, the BVH's node layout and build preset, and on a GPU where
+//! the kernel reads the geometry from and how its lanes share the rays. The checkpoint
+//! format and the accumulation record them, so they sit below the BVH and the devices,
+//! which give them their meaning (`bvh::layout`, `bvh::quality`, `gpu::shaders`, `device`).
+
+/// Which kind of device renders.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum DeviceKind {
+    /// WGSL compute shaders on a wgpu adapter.
+    #[default]
+    Gpu,
+    /// The multi-threaded CPU reference.
+    Cpu,
+}
+
+impl DeviceKind {
+    /// The name used on the command line: `gpu` or `cpu`.
+    pub fn name(self) -> &'static str {
+        match self {
+            DeviceKind::Gpu => "gpu",
+            DeviceKind::Cpu => "cpu",
+        }
+    }
+}
+
+/// How the scene is prepared on a device.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BvhOptions {
+    /// obvhs's build preset.
+    pub quality: BuildQuality,
+    /// The node layout the GPU traverses (the CPU reference always traverses obvhs's
+    /// CWBVH).
+    pub layout: BvhLayout,
+    /// Where the GPU kernel reads the geometry from; `None` is the adapter's preference
+    /// ([`GeometryStorage::preferred`]).
+    pub geometry_storage: Option<GeometryStorage>,
+    /// How the GPU kernel's lanes share the rays; `None` is the adapter's preference where
+    /// the scene allows it.
+    pub traversal: Option<Traversal>,
+}
 
 /// The node layout the GPU traverses (serialised as [`BvhLayout::name`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize)]
@@ -53,6 +90,54 @@ impl BuildQuality {
             BuildQuality::Fast => "fast",
             BuildQuality::Medium => "medium",
             BuildQuality::Slow => "slow",
+        }
+    }
+}
+
+/// How the kernel's invocations share the tracing of rays.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Traversal {
+    /// Each invocation traces its own rays (`trace.wgsl`, `trace_cwbvh.wgsl`).
+    #[default]
+    PerLane,
+    /// Groups of eight invocations trace their rays one at a time, together: a node's
+    /// eight children and a leaf's primitives spread over the lanes
+    /// (`trace_cwbvh_group.wgsl`). Needs subgroup operations with subgroups of a multiple
+    /// of eight lanes, the compressed wide BVH and a scene without instances.
+    Cooperative,
+}
+
+impl Traversal {
+    /// Name, as in the stats and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Traversal::PerLane => "per-lane",
+            Traversal::Cooperative => "cooperative",
+        }
+    }
+}
+
+/// Where the kernel reads the BVH nodes and the primitives from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum GeometryStorage {
+    /// Storage buffers: `array<T>` indexed by element.
+    #[default]
+    Buffers,
+    /// Read-only storage textures (`texture_storage_2d<rgba32uint, read>`), an element in
+    /// consecutive texels of one row, read with `textureLoad`. Mesa's lavapipe (22.x) reads
+    /// a storage buffer at a per-invocation index one lane and one word at a time, behind a
+    /// branch each, but an image load as one inlined gather for all lanes (a sampled
+    /// texture's texel fetch is a call that also handles mip levels): several times faster
+    /// there.
+    Textures,
+}
+
+impl GeometryStorage {
+    /// Name, as in the stats and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            GeometryStorage::Buffers => "buffers",
+            GeometryStorage::Textures => "textures",
         }
     }
 }

@@ -61,10 +61,9 @@
 
 use super::policy::write_output_with;
 use crate::accumulation::{Accumulation, FilmLayout, SampleSettings};
-use crate::device::DeviceKind;
 use crate::error::{Error, Result};
 use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, OUT_OF_RANGE_BIT};
-use crate::kinds::{BuildQuality, BvhLayout};
+use crate::kinds::{BuildQuality, BvhLayout, DeviceKind};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::ReadLimits;
