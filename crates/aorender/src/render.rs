@@ -8,7 +8,6 @@ use crate::accumulation::{Accumulation, ErrorTarget, FilmLayout, MIN_TARGET_REPL
 use crate::device::{Passes, Setup};
 use crate::error::Result;
 use crate::film::{ErrorEstimator, Film};
-use crate::gpu::MAX_PASS_SAMPLES;
 use crate::kinds::BvhLayout;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
@@ -623,7 +622,7 @@ impl Render {
             };
             let count = match control.sizing {
                 PassSizing::Timed => self.count,
-                PassSizing::Fixed(n) => n.clamp(1, MAX_PASS_SAMPLES),
+                PassSizing::Fixed(n) => n.clamp(1, self.passes.max_pass_samples()),
             };
             let count = count.min(block_end - acc.next).min(until - acc.next);
             let pass_start = Instant::now();
@@ -670,7 +669,7 @@ impl Render {
                 target = target.min((limit - start.elapsed().as_secs_f64()).max(0.0));
             }
             let per_sample = seconds / count as f64;
-            self.count = ((target / per_sample) as u32).clamp(1, (8 * self.count).min(MAX_PASS_SAMPLES));
+            self.count = ((target / per_sample) as u32).clamp(1, (8 * self.count).min(self.passes.max_pass_samples()));
             acc.render_seconds = seconds_before + start.elapsed().as_secs_f64();
             if let Some(progress) = control.progress.as_mut() {
                 progress(&Progress {
