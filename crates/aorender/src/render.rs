@@ -978,7 +978,8 @@ mod tests {
         assert_eq!(words, ["samples", "target", "time limit", "interrupted", "not run to its end"]);
         for e in EndedBy::ALL {
             assert_eq!(serde_json::to_value(e).unwrap(), e.name());
-            assert!(e == e.name() && e.to_string() == e.name());
+            assert!(e == e.name());
+            assert_eq!(e.to_string(), e.name());
         }
         for (end, name) in [
             (RunEnd::Done, "samples"),
