@@ -256,16 +256,85 @@ pub fn read_shards(paths: &[PathBuf], limits: &ReadLimits) -> Result<Vec<(PathBu
     Ok(shards)
 }
 
+/// Why the text of an option's value (`--sample-range`, `--up`, `--ground-albedo`,
+/// `--bit-depth`) is refused; clap prints it after the option's name.
+#[derive(Debug, thiserror::Error)]
+pub enum ValueError {
+    /// A value not of the option's form (`START..END`, `X,Y,Z`).
+    #[error("expected {form}, got '{text}'")]
+    Form {
+        /// The form expected.
+        form: &'static str,
+        /// The value given.
+        text: String,
+    },
+    /// A sample range without its start or end.
+    #[error("{bound} is missing in '{text}' (expected START..END)")]
+    MissingBound {
+        /// `START` or `END`.
+        bound: &'static str,
+        /// The value given.
+        text: String,
+    },
+    /// A bound of a sample range that is no sample index.
+    #[error("{bound} '{word}' in '{text}' is not a sample index: {source}")]
+    SampleIndex {
+        /// `START` or `END`.
+        bound: &'static str,
+        /// The bound as given.
+        word: String,
+        /// The value given.
+        text: String,
+        /// Why it does not parse.
+        source: std::num::ParseIntError,
+    },
+    /// A sample range with no samples.
+    #[error("'{0}' is empty: START must be below END")]
+    EmptyRange(String),
+    /// A component of a vector that is no number.
+    #[error("'{word}' in '{text}' is not a number: {source}")]
+    Component {
+        /// The component as given.
+        word: String,
+        /// The value given.
+        text: String,
+        /// Why it does not parse.
+        source: std::num::ParseFloatError,
+    },
+    /// A vector that is zero or not finite.
+    #[error("'{0}' must be finite and non-zero")]
+    ZeroVector(String),
+    /// A value that is no number.
+    #[error("'{text}' is not a number: {source}")]
+    Number {
+        /// The value given.
+        text: String,
+        /// Why it does not parse.
+        source: std::num::ParseFloatError,
+    },
+    /// A number outside [0, 1].
+    #[error("{0} is outside [0, 1]")]
+    OutsideUnit(String),
+    /// A PNG bit depth other than 8 or 16.
+    #[error("'{0}': a PNG map has 8 or 16 bits per channel")]
+    BitDepth(String),
+}
+
 /// `--sample-range START..END`: a non-empty range of sample indices.
-pub fn parse_sample_range(text: &str) -> Result<Range<u32>, String> {
-    let (a, b) = text.split_once("..").ok_or_else(|| format!("expected START..END, got '{text}'"))?;
-    let number = |t: &str, name: &str| match t.trim() {
-        "" => Err(format!("{name} is missing in '{text}' (expected START..END)")),
-        t => t.parse::<u32>().map_err(|e| format!("{name} '{t}' in '{text}' is not a sample index: {e}")),
+pub fn parse_sample_range(text: &str) -> Result<Range<u32>, ValueError> {
+    let (a, b) = text.split_once("..").ok_or_else(|| ValueError::Form { form: "START..END", text: text.into() })?;
+    let number = |t: &str, bound: &'static str| match t.trim() {
+        "" => Err(ValueError::MissingBound { bound, text: text.into() }),
+        t => t.parse::<u32>().map_err(|source| ValueError::SampleIndex {
+            bound,
+            word: t.into(),
+            text: text.into(),
+            source,
+        }),
     };
     let (a, b) = (number(a, "START")?, number(b, "END")?);
     if a >= b {
-        return Err(format!("'{text}' is empty: START must be below END"));
+        return Err(ValueError::EmptyRange(text.into()));
     }
     Ok(a..b)
 }
@@ -378,26 +447,37 @@ pub fn named_parser<T: Clone + Send + Sync + 'static>(
 }
 
 /// `--up X,Y,Z`: three finite numbers, not all zero.
-pub fn parse_up(text: &str) -> Result<Vec3, String> {
+pub fn parse_up(text: &str) -> Result<Vec3, ValueError> {
     let parts: Vec<&str> = text.split(',').collect();
     let [x, y, z] = parts[..] else {
-        return Err(format!("expected X,Y,Z, got '{text}'"));
+        return Err(ValueError::Form { form: "X,Y,Z", text: text.into() });
     };
-    let number = |t: &str| t.trim().parse::<f32>().map_err(|e| format!("'{t}' in '{text}' is not a number: {e}"));
+    let number = |t: &str| {
+        t.trim().parse::<f32>().map_err(|source| ValueError::Component { word: t.into(), text: text.into(), source })
+    };
     let v = Vec3::new(number(x)?, number(y)?, number(z)?);
     if !v.is_finite() || v == Vec3::ZERO {
-        return Err(format!("'{text}' must be finite and non-zero"));
+        return Err(ValueError::ZeroVector(text.into()));
     }
     Ok(v)
 }
 
 /// `--ground-albedo`: a number in [0, 1].
-pub fn parse_ground_albedo(text: &str) -> Result<f32, String> {
-    let a: f32 = text.trim().parse().map_err(|e| format!("'{text}' is not a number: {e}"))?;
+pub fn parse_ground_albedo(text: &str) -> Result<f32, ValueError> {
+    let a: f32 = text.trim().parse().map_err(|source| ValueError::Number { text: text.into(), source })?;
     if !(0.0..=1.0).contains(&a) {
-        return Err(format!("{text} is outside [0, 1]"));
+        return Err(ValueError::OutsideUnit(text.into()));
     }
     Ok(a)
+}
+
+/// `--bit-depth`: 8 or 16 bits per channel of a PNG map.
+pub fn parse_bit_depth(text: &str) -> Result<u8, ValueError> {
+    match text {
+        "8" => Ok(8),
+        "16" => Ok(16),
+        _ => Err(ValueError::BitDepth(text.into())),
+    }
 }
 
 /// How a long run is bounded, saved, continued and split: the options of `render` and

@@ -9,14 +9,13 @@
 //! same samples), then the block is shifted exactly into the wider [`ExactSums`]. Every
 //! addition is an integer's, so the sums do not depend on how the samples were split.
 
-use crate::bvh::{BuildQuality, BvhLayout};
-use crate::device::{BvhOptions, DeviceKind};
 use crate::error::{Error, Result};
 use crate::film::{
     BLOCK_SAMPLES, BlockSums, ErrorEstimator, ExactSums, Film, REPLICATE_SQ_SHIFT, SampleRange, rmse_bound,
     standard_error,
 };
 use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
+use crate::kinds::{BuildQuality, BvhLayout, BvhOptions, DeviceKind};
 use crate::probe::{Probe, ProbeValue, checked, probe_film_bent_normals, probe_film_values};
 use crate::sampler::Sampler;
 use crate::scene::{Camera, Projection, Sampling, Scene, Settings};

@@ -78,6 +78,10 @@ pub mod gpu;
 #[cfg(not(feature = "testing"))]
 mod gpu;
 #[cfg(feature = "testing")]
+pub mod kinds;
+#[cfg(not(feature = "testing"))]
+mod kinds;
+#[cfg(feature = "testing")]
 pub mod mirror;
 #[cfg(not(feature = "testing"))]
 mod mirror;
@@ -117,15 +121,16 @@ pub mod scene;
 pub mod sky;
 
 pub use accumulation::{Accumulation, ErrorTarget, FilmLayout, Merged, MergedShard, SampleSettings, merge, scene_hash};
-pub use bvh::{BuildQuality, BvhLayout};
 pub use device::{BvhOptions, Device, DeviceKind, Setup};
 pub use error::{Error, Result};
 pub use film::{BLOCK_SAMPLES, ErrorEstimator, Film, SampleRange, interval_95, t_quantile_975};
 pub use footprint::background_pixels;
 pub use gpu::{AdapterInfo, GeometryStorage, Traversal, catching_panics, list_adapters};
+pub use kinds::{BuildQuality, BvhLayout};
 pub use probe::{Probe, ProbeValue, probe_film_bent_normals, probe_film_values};
 pub use render::{
-    Control, PassSizing, PassTimes, Progress, Render, RenderOutput, RenderStats, RunEnd, SaveFn, peak_rss_bytes,
+    Control, EndedBy, PassSizing, PassTimes, Progress, Render, RenderOutput, RenderStats, RunEnd, SaveFn,
+    peak_rss_bytes,
 };
 pub use sampler::Sampler;
 pub use sampling::Hemisphere;

@@ -7,8 +7,11 @@
 use crate::accumulation::{Accumulation, ErrorTarget, FilmLayout, MIN_TARGET_REPLICATES};
 use crate::device::{Passes, Setup};
 use crate::error::Result;
-use crate::film::Film;
-use crate::gpu::MAX_PASS_SAMPLES;
+use crate::film::{ErrorEstimator, Film};
+use crate::kinds::BvhLayout;
+use crate::sampler::Sampler;
+use crate::sampling::Hemisphere;
+use crate::sky::Sky;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
@@ -101,12 +104,106 @@ pub enum RunEnd {
 impl RunEnd {
     /// In words, for statistics.
     pub fn name(self) -> &'static str {
+        EndedBy::from(self).name()
+    }
+}
+
+/// What ended a render, as its statistics report it ([`RenderStats::ended_by`]);
+/// serialised as [`EndedBy::name`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum EndedBy {
+    /// Every sample asked for.
+    #[serde(rename = "samples")]
+    Samples,
+    /// The error target was met.
+    #[serde(rename = "target")]
+    Target,
+    /// The time limit was reached.
+    #[serde(rename = "time limit")]
+    TimeLimit,
+    /// A stop was asked for.
+    #[serde(rename = "interrupted")]
+    Interrupted,
+    /// The render was finished before its passes were run to their end.
+    #[serde(rename = "not run to its end")]
+    Unfinished,
+}
+
+impl EndedBy {
+    /// Every variant.
+    pub const ALL: [EndedBy; 5] =
+        [EndedBy::Samples, EndedBy::Target, EndedBy::TimeLimit, EndedBy::Interrupted, EndedBy::Unfinished];
+
+    /// In words, as the statistics' JSON has it.
+    pub fn name(self) -> &'static str {
         match self {
-            RunEnd::Done => "samples",
-            RunEnd::TimeLimit => "time limit",
-            RunEnd::Stopped => "interrupted",
-            RunEnd::TargetMet => "target",
+            EndedBy::Samples => "samples",
+            EndedBy::Target => "target",
+            EndedBy::TimeLimit => "time limit",
+            EndedBy::Interrupted => "interrupted",
+            EndedBy::Unfinished => "not run to its end",
         }
+    }
+}
+
+impl From<RunEnd> for EndedBy {
+    fn from(end: RunEnd) -> EndedBy {
+        match end {
+            RunEnd::Done => EndedBy::Samples,
+            RunEnd::TimeLimit => EndedBy::TimeLimit,
+            RunEnd::Stopped => EndedBy::Interrupted,
+            RunEnd::TargetMet => EndedBy::Target,
+        }
+    }
+}
+
+impl std::fmt::Display for EndedBy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Compares with the words of the statistics' JSON.
+impl PartialEq<&str> for EndedBy {
+    fn eq(&self, other: &&str) -> bool {
+        self.name() == *other
+    }
+}
+
+/// The statistics' words for the kind of an error target.
+pub fn target_name(target: ErrorTarget) -> &'static str {
+    match target {
+        ErrorTarget::Rmse(_) => "rmse",
+        ErrorTarget::RelativeRmse(_) => "relative_rmse",
+        ErrorTarget::PointStdError(_) => "point_std_error",
+    }
+}
+
+/// How the typed fields of [`RenderStats`] are written: as the words the statistics have
+/// always used.
+mod words {
+    use crate::accumulation::ErrorTarget;
+    use crate::film::ErrorEstimator;
+    use crate::render::target_name;
+    use crate::sky::Sky;
+    use serde::Serializer;
+
+    /// An error target as its kind's name and its value.
+    pub fn target<S: Serializer>(target: &Option<ErrorTarget>, s: S) -> Result<S::Ok, S::Error> {
+        match target {
+            Some(t) => s.serialize_some(&(target_name(*t), t.value())),
+            None => s.serialize_none(),
+        }
+    }
+
+    /// An estimator in words ([`ErrorEstimator::describe`]).
+    pub fn estimator<S: Serializer>(e: &ErrorEstimator, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&e.describe())
+    }
+
+    /// A sky in words ([`Sky::describe`]).
+    pub fn sky<S: Serializer>(sky: &Sky, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&sky.describe())
     }
 }
 
@@ -201,15 +298,16 @@ pub struct RenderStats {
     /// Driver.
     pub driver: String,
     /// Hemisphere distribution.
-    pub hemisphere: String,
-    /// The sky and its sampling (`Sky::describe`).
-    pub sky: String,
+    pub hemisphere: Hemisphere,
+    /// The sky and its sampling (written as [`Sky::describe`]).
+    #[serde(serialize_with = "words::sky")]
+    pub sky: Sky,
     /// 2-D point sampler of the hemisphere and pixel numbers.
-    pub sampler: String,
+    pub sampler: Sampler,
     /// Random seed.
     pub seed: u32,
     /// BVH layout traversed.
-    pub bvh_layout: String,
+    pub bvh_layout: BvhLayout,
     /// Bytes of device memory allocated (GPU only).
     pub device_bytes: u64,
     /// Storage bindings the BVH nodes and primitives were split into (GPU only; 2 when
@@ -249,17 +347,19 @@ pub struct RenderStats {
     pub adaptive: bool,
     /// What ended the render: `samples` (all asked for), `target`, `time limit` or
     /// `interrupted`.
-    pub ended_by: String,
-    /// The error target the render stopped at, if it had one: `rmse`,
-    /// `relative_rmse` or `point_std_error`, and its value.
-    pub target: Option<(String, f64)>,
+    pub ended_by: EndedBy,
+    /// The error target the render stopped at, if it had one (written as `rmse`,
+    /// `relative_rmse` or `point_std_error`, and its value).
+    #[serde(serialize_with = "words::target")]
+    pub target: Option<ErrorTarget>,
     /// Samples per independently randomised replicate (1: independent samples; 0: one
     /// replicate of all samples, with no valid error estimate).
     pub replicate_samples: u32,
     /// Complete replicates held.
     pub replicates: u64,
-    /// How the error is estimated, in words.
-    pub error_estimator: String,
+    /// How the error is estimated (written in words).
+    #[serde(serialize_with = "words::estimator")]
+    pub error_estimator: ErrorEstimator,
     /// Degrees of freedom of the variance estimates (0: no estimate).
     pub error_degrees_of_freedom: u64,
     /// Estimated root-mean-square error of the image against its converged value: the
@@ -585,7 +685,7 @@ impl Render {
             };
             let count = match control.sizing {
                 PassSizing::Timed => self.count,
-                PassSizing::Fixed(n) => n.clamp(1, MAX_PASS_SAMPLES),
+                PassSizing::Fixed(n) => n.clamp(1, self.passes.max_pass_samples()),
             };
             let count = count.min(block_end - acc.next).min(until - acc.next);
             let pass_start = Instant::now();
@@ -646,7 +746,7 @@ impl Render {
                 target = target.min((limit - start.elapsed().as_secs_f64()).max(0.0));
             }
             let per_sample = seconds / count as f64;
-            self.count = ((target / per_sample) as u32).clamp(1, (8 * self.count).min(MAX_PASS_SAMPLES));
+            self.count = ((target / per_sample) as u32).clamp(1, (8 * self.count).min(self.passes.max_pass_samples()));
             acc.render_seconds = seconds_before + start.elapsed().as_secs_f64();
             if let Some(progress) = control.progress.as_mut() {
                 progress(&Progress {
@@ -835,11 +935,11 @@ impl Render {
             backend: setup.adapter.backend.clone(),
             device_type: setup.adapter.device_type.clone(),
             driver: setup.adapter.driver.clone(),
-            hemisphere: s.sampling.hemisphere.name().into(),
-            sky: s.sampling.sky.describe(),
-            sampler: s.sampling.sampler.name().into(),
+            hemisphere: s.sampling.hemisphere,
+            sky: s.sampling.sky,
+            sampler: s.sampling.sampler,
             seed: s.sampling.seed,
-            bvh_layout: setup.bvh_layout.name().into(),
+            bvh_layout: setup.bvh_layout,
             device_bytes: setup.device_bytes + device_bytes,
             geometry_bindings: setup.geometry_bindings,
             geometry_storage: setup.geometry_storage.into(),
@@ -859,21 +959,14 @@ impl Render {
             mean_samples_per_pixel: pixel_samples as f64 / film.sum.len().max(1) as f64,
             adaptive: !film.pixel_samples.is_empty(),
             ended_by: match self.ended {
-                Some((end, _)) => end.name().into(),
-                None if done == acc.end - acc.first => RunEnd::Done.name().into(),
-                None => "not run to its end".into(),
+                Some((end, _)) => end.into(),
+                None if done == acc.end - acc.first => EndedBy::Samples,
+                None => EndedBy::Unfinished,
             },
-            target: self.ended.and_then(|(_, t)| t).map(|t| {
-                let name = match t {
-                    ErrorTarget::Rmse(_) => "rmse",
-                    ErrorTarget::RelativeRmse(_) => "relative_rmse",
-                    ErrorTarget::PointStdError(_) => "point_std_error",
-                };
-                (name.to_string(), t.value())
-            }),
+            target: self.ended.and_then(|(_, t)| t),
             replicate_samples: film.replicate,
             replicates: film.replicates,
-            error_estimator: error_estimator.describe(),
+            error_estimator,
             error_degrees_of_freedom: error_estimator.degrees_of_freedom(film.samples),
             rmse_estimate,
             relative_rmse_estimate: rmse_estimate.map(|e| e / image_mean.abs()),
@@ -1034,4 +1127,49 @@ pub fn peak_rss_bytes() -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb * 1024)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::{Value, json};
+
+    /// The typed statistics serialise to the words the JSON has always held.
+    #[test]
+    fn typed_statistics_serialise_as_their_words() {
+        let words = EndedBy::ALL.map(EndedBy::name);
+        assert_eq!(words, ["samples", "target", "time limit", "interrupted", "not run to its end"]);
+        for e in EndedBy::ALL {
+            assert_eq!(serde_json::to_value(e).unwrap(), e.name());
+            assert!(e == e.name());
+            assert_eq!(e.to_string(), e.name());
+        }
+        for (end, name) in [
+            (RunEnd::Done, "samples"),
+            (RunEnd::TimeLimit, "time limit"),
+            (RunEnd::Stopped, "interrupted"),
+            (RunEnd::TargetMet, "target"),
+        ] {
+            assert_eq!(EndedBy::from(end), name);
+        }
+        for h in Hemisphere::ALL {
+            assert_eq!(serde_json::to_value(h).unwrap(), h.name());
+        }
+        for s in Sampler::ALL {
+            assert_eq!(serde_json::to_value(s).unwrap(), s.name());
+        }
+        for l in BvhLayout::ALL {
+            assert_eq!(serde_json::to_value(l).unwrap(), l.name());
+        }
+        let target = |t| words::target(&t, serde_json::value::Serializer).unwrap();
+        assert_eq!(target(None), Value::Null);
+        assert_eq!(target(Some(ErrorTarget::Rmse(0.5))), json!(["rmse", 0.5]));
+        assert_eq!(target(Some(ErrorTarget::RelativeRmse(0.25))), json!(["relative_rmse", 0.25]));
+        assert_eq!(target(Some(ErrorTarget::PointStdError(1e-3))), json!(["point_std_error", 1e-3]));
+        for e in [ErrorEstimator::Samples, ErrorEstimator::Replicates { size: 16, count: 4 }, ErrorEstimator::None] {
+            assert_eq!(words::estimator(&e, serde_json::value::Serializer).unwrap(), e.describe());
+        }
+        let sky = Sky { model: crate::sky::SkyModel::Overcast, ground_albedo: 0.3, ..Sky::default() };
+        assert_eq!(words::sky(&sky, serde_json::value::Serializer).unwrap(), sky.describe());
+    }
 }

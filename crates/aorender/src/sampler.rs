@@ -154,9 +154,9 @@ impl Sampler {
         r
     }
 
-    /// Why `replicate` samples per replicate cannot be asked of this sampler, in words;
-    /// `Ok` when they can (any size for `grid`, which ignores it).
-    pub fn check_replicate(self, replicate: u32) -> Result<(), String> {
+    /// Checks that `replicate` samples per replicate can be asked of this sampler (any
+    /// size for `grid`, which ignores it).
+    pub fn check_replicate(self, replicate: u32) -> Result<(), ReplicateError> {
         let ok = match self {
             Sampler::Grid => true,
             Sampler::Independent | Sampler::Sobol => {
@@ -169,22 +169,7 @@ impl Sampler {
                         && replicate <= MAX_REPLICATE_SAMPLES)
             }
         };
-        if ok {
-            return Ok(());
-        }
-        let allowed = match self {
-            Sampler::Stratified => {
-                // The powers of four up to the largest replicate: "1, 4, 16, 64 or 256".
-                let sizes: Vec<String> = std::iter::successors(Some(1u32), |n| n.checked_mul(4))
-                    .take_while(|&n| n <= MAX_REPLICATE_SAMPLES)
-                    .map(|n| n.to_string())
-                    .collect();
-                let (last, rest) = sizes.split_last().expect("1 is a replicate size");
-                format!("0 (one replicate) or {} or {last} (n x n cells, n a power of two)", rest.join(", "))
-            }
-            _ => format!("0 (one replicate) or a power of two up to {MAX_REPLICATE_SAMPLES}"),
-        };
-        Err(format!("{replicate} samples per replicate for the {} sampler: use {allowed}", self.name()))
+        if ok { Ok(()) } else { Err(ReplicateError { sampler: self, replicate }) }
     }
 
     /// Cells per axis of a render of `spp` samples per pixel and `replicate` samples per
@@ -196,6 +181,35 @@ impl Sampler {
             Sampler::Stratified if replicate > 0 => replicate.isqrt(),
             Sampler::Stratified | Sampler::Grid => spp.max(1).isqrt().min(46_340),
             Sampler::Independent | Sampler::Sobol => 1,
+        }
+    }
+}
+
+/// A replicate size a sampler cannot use ([`Sampler::check_replicate`]): the message says
+/// which sizes it can.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{replicate} samples per replicate for the {} sampler: use {}", sampler.name(), self.allowed())]
+pub struct ReplicateError {
+    /// The sampler asked.
+    pub sampler: Sampler,
+    /// The samples per replicate it cannot use.
+    pub replicate: u32,
+}
+
+impl ReplicateError {
+    /// The sizes the sampler accepts, in words.
+    fn allowed(&self) -> String {
+        match self.sampler {
+            Sampler::Stratified => {
+                // The powers of four up to the largest replicate: "1, 4, 16, 64 or 256".
+                let sizes: Vec<String> = std::iter::successors(Some(1u32), |n| n.checked_mul(4))
+                    .take_while(|&n| n <= MAX_REPLICATE_SAMPLES)
+                    .map(|n| n.to_string())
+                    .collect();
+                let (last, rest) = sizes.split_last().expect("1 is a replicate size");
+                format!("0 (one replicate) or {} or {last} (n x n cells, n a power of two)", rest.join(", "))
+            }
+            _ => format!("0 (one replicate) or a power of two up to {MAX_REPLICATE_SAMPLES}"),
         }
     }
 }

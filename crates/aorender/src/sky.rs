@@ -15,6 +15,26 @@ use crate::sampling::{Hemisphere, local_to_world, orthonormal_basis, safe_sqrt, 
 use glam::{Vec2, Vec3};
 use std::f32::consts::PI;
 
+/// Why a [`Sky`] cannot be rendered, naming the option at fault.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum SkyError {
+    /// The up vector is zero, not finite, or does not normalise.
+    #[error("up vector must be finite and non-zero, got {},{},{}", .0.x, .0.y, .0.z)]
+    Up(Vec3),
+    /// The ground albedo is outside [0, 1] (or NaN).
+    #[error("ground albedo must be in [0, 1], got {0}")]
+    GroundAlbedo(f32),
+    /// An option of the overcast sky (named) given with the uniform sky.
+    #[error("a {0} needs the overcast sky (sky = overcast)")]
+    NeedsOvercast(&'static str),
+    /// Weighted sampling with surface normalisation: unbounded samples.
+    #[error(
+        "surface normalisation needs the horizon or control-variate sky sampling: weighted \
+         samples of a surface facing away from the sky are unbounded"
+    )]
+    WeightedSurface,
+}
+
 /// The sky that lights the scene (`--sky`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -171,16 +191,13 @@ impl Sky {
     }
 
     /// Checks the up vector and the ground albedo, and that the overcast sky's options
-    /// are not given with the uniform sky: a one-line message naming the option.
-    pub fn validate(&self) -> Result<(), String> {
+    /// are not given with the uniform sky: the error names the option in one line.
+    pub fn validate(&self) -> Result<(), SkyError> {
         if !self.up.is_finite() || self.up == Vec3::ZERO || !self.unit_up().is_finite() {
-            return Err(format!(
-                "up vector must be finite and non-zero, got {},{},{}",
-                self.up.x, self.up.y, self.up.z
-            ));
+            return Err(SkyError::Up(self.up));
         }
         if !(0.0..=1.0).contains(&self.ground_albedo) {
-            return Err(format!("ground albedo must be in [0, 1], got {}", self.ground_albedo));
+            return Err(SkyError::GroundAlbedo(self.ground_albedo));
         }
         if self.is_uniform() {
             let given = [
@@ -188,14 +205,12 @@ impl Sky {
                 (self.normalise != SkyNormalise::Horizontal, "sky normalisation"),
                 (self.sampling != SkySampling::Horizon, "sky sampling"),
             ];
-            if let Some((_, what)) = given.into_iter().find(|g| g.0) {
-                return Err(format!("a {what} needs the overcast sky (sky = overcast)"));
+            if let Some((_, option)) = given.into_iter().find(|g| g.0) {
+                return Err(SkyError::NeedsOvercast(option));
             }
         }
         if self.sampling == SkySampling::Weighted && self.normalise == SkyNormalise::Surface {
-            return Err("surface normalisation needs the horizon or control-variate sky sampling: weighted \
-                        samples of a surface facing away from the sky are unbounded"
-                .into());
+            return Err(SkyError::WeightedSurface);
         }
         Ok(())
     }
@@ -399,7 +414,7 @@ mod tests {
             (Sky { sampling: SkySampling::Weighted, normalise: SkyNormalise::Surface, ..ok }, "surface normalisation"),
         ];
         for (sky, word) in cases {
-            let e = sky.validate().expect_err("invalid");
+            let e = sky.validate().expect_err("invalid").to_string();
             assert!(e.contains(word) && !e.contains('\n'), "{sky:?}: {e}");
         }
     }

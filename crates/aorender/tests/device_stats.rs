@@ -137,6 +137,43 @@ fn target_renders_resume_to_the_same_bits() {
     }
 }
 
+/// The statistics' JSON keeps its words now that the fields are typed: the settings'
+/// names, the sky and error estimator described, what ended the render and its target
+/// as a name and a value, on every device.
+#[test]
+fn statistics_json_holds_the_words_of_the_typed_fields() {
+    let scene = bunny(12, 10);
+    for kind in kinds() {
+        let session = session(&scene, &Config { device: kind, ..Default::default() });
+        let settings = Settings {
+            sampling: Sampling { sampler: Sampler::Sobol, replicate: Some(4), seed: 2, ..scene.settings.sampling },
+            spp: 1 << 12,
+            ..scene.settings.clone()
+        };
+        let request = ImageRequest { camera: scene.camera, settings: settings.clone(), samples: None };
+        let target = ErrorTarget::RelativeRmse(0.2);
+        let runs = [
+            (Control { target: Some(target), ..Control::default() }, "target"),
+            (Control { time_limit: Some(0.0), sizing: PassSizing::Fixed(1), ..Control::default() }, "time limit"),
+            (Control::default(), "samples"),
+        ];
+        for (mut control, ended_by) in runs {
+            let out = session.render(&request).unwrap().complete(&mut control).unwrap();
+            let json = serde_json::to_value(&out.stats).unwrap();
+            let what = format!("{kind:?} ended by {ended_by}");
+            assert_eq!(json["ended_by"], ended_by, "{what}");
+            assert_eq!(json["hemisphere"], settings.sampling.hemisphere.name(), "{what}");
+            assert_eq!(json["sampler"], "sobol", "{what}");
+            assert_eq!(json["sky"], settings.sampling.sky.describe(), "{what}");
+            assert_eq!(json["bvh_layout"], out.stats.bvh_layout.name(), "{what}");
+            assert_eq!(json["error_estimator"], out.film.error_estimator().describe(), "{what}");
+            let expected_target =
+                if ended_by == "target" { serde_json::json!(["relative_rmse", 0.2]) } else { serde_json::Value::Null };
+            assert_eq!(json["target"], expected_target, "{what}");
+        }
+    }
+}
+
 /// The checks of a target come after every stretch (replicate) up to the 32nd, then at
 /// most a sixteenth of the stretches apart and at least a thirty-second: a render that
 /// meets its target after k stretches stops within k / 16 more, and one of k stretches

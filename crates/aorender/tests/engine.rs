@@ -422,3 +422,28 @@ fn the_library_modules_form_no_cycle() {
         assert!(!depends(earlier, later), "{earlier} uses {later}");
     }
 }
+
+/// The checkpoint format and the accumulation read the kinds their samples were made with
+/// (device, BVH layout and preset, the options a scene is prepared with) from the module
+/// that describes them, which depends on no other: the file format imports neither the
+/// device nor the BVH code, and the accumulation not the device's.
+#[test]
+fn the_checkpoint_format_imports_no_device_code() {
+    let edges = module_graph(&Path::new(env!("CARGO_MANIFEST_DIR")).join("src"));
+    let top = |m: &str| m.split("::").next().unwrap().to_string();
+    let imports = |module: &str| edges.get(module).into_iter().flatten().map(|m| top(m)).collect::<BTreeSet<_>>();
+    let format = imports("output::checkpoint");
+    assert!(format.contains("kinds"), "the checkpoint format does not read the kinds: {format:?}");
+    for layer in ["device", "bvh", "gpu", "cpu"] {
+        assert!(!format.contains(layer), "the checkpoint format imports {layer}: {format:?}");
+    }
+    let accumulation = imports("accumulation");
+    assert!(accumulation.contains("kinds"), "the accumulation does not read the kinds: {accumulation:?}");
+    for layer in ["device", "bvh", "cpu"] {
+        assert!(!accumulation.contains(layer), "the accumulation imports {layer}: {accumulation:?}");
+    }
+    assert!(imports("kinds").is_empty(), "kinds imports {:?}", imports("kinds"));
+    for user in ["bvh", "device", "gpu"] {
+        assert!(edges.iter().any(|(f, t)| top(f) == user && t.contains("kinds")), "{user} does not use kinds");
+    }
+}

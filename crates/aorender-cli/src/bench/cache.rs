@@ -84,16 +84,47 @@ pub fn encode(stored: &Stored) -> Vec<u8> {
     out
 }
 
-/// Parses [`encode`]'s bytes; the message says what does not fit.
-pub fn decode(bytes: &[u8]) -> std::result::Result<Stored, String> {
+/// Why a stored reference cannot be used (it is then rendered again and replaced).
+#[derive(Debug, thiserror::Error)]
+pub enum CacheError {
+    /// The file could not be read.
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    /// The file ends at this byte, before its data does.
+    #[error("truncated at byte {0}")]
+    Truncated(usize),
+    /// The file does not start with this version's magic.
+    #[error("not a reference file of this version")]
+    Version,
+    /// The adapter's name is not UTF-8.
+    #[error("device name is not UTF-8")]
+    DeviceName,
+    /// Bytes after the image.
+    #[error("{0} bytes past the end of the image")]
+    Trailing(usize),
+    /// A mean or variance that no render makes.
+    #[error("non-finite value or negative variance")]
+    Values,
+    /// A reference of another size or sample count than the one asked for.
+    #[error("holds {}x{} at {} spp, expected {}x{} at {}", held.0, held.1, held.2, expected.0, expected.1, expected.2)]
+    Size {
+        /// Its width, height and samples.
+        held: (u32, u32, u64),
+        /// The width, height and samples asked for.
+        expected: (u32, u32, u32),
+    },
+}
+
+/// Parses [`encode`]'s bytes.
+pub fn decode(bytes: &[u8]) -> std::result::Result<Stored, CacheError> {
     let mut at = 0usize;
-    let mut take = |n: usize| -> std::result::Result<&[u8], String> {
-        let s = bytes.get(at..at + n).ok_or_else(|| format!("truncated at byte {at}"))?;
+    let mut take = |n: usize| -> std::result::Result<&[u8], CacheError> {
+        let s = bytes.get(at..at + n).ok_or(CacheError::Truncated(at))?;
         at += n;
         Ok(s)
     };
     if take(8)? != MAGIC {
-        return Err("not a reference file of this version".into());
+        return Err(CacheError::Version);
     }
     let u32_at = |b: &[u8]| u32::from_le_bytes(b.try_into().expect("4 bytes"));
     let width = u32_at(take(4)?);
@@ -101,37 +132,34 @@ pub fn decode(bytes: &[u8]) -> std::result::Result<Stored, String> {
     let samples = u64::from_le_bytes(take(8)?.try_into().expect("8 bytes"));
     let seconds = f64::from_le_bytes(take(8)?.try_into().expect("8 bytes"));
     let name_len = u32_at(take(4)?) as usize;
-    let device = String::from_utf8(take(name_len)?.to_vec()).map_err(|_| "device name is not UTF-8".to_string())?;
+    let device = String::from_utf8(take(name_len)?.to_vec()).map_err(|_| CacheError::DeviceName)?;
     let pixels = width as usize * height as usize;
-    let mut floats = |n: usize| -> std::result::Result<Vec<f64>, String> {
+    let mut floats = |n: usize| -> std::result::Result<Vec<f64>, CacheError> {
         Ok(take(8 * n)?.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))).collect())
     };
     let mean = floats(pixels)?;
     let variance = floats(pixels)?;
     if at != bytes.len() {
-        return Err(format!("{} bytes past the end of the image", bytes.len() - at));
+        return Err(CacheError::Trailing(bytes.len() - at));
     }
     if mean.iter().chain(&variance).any(|v| !v.is_finite()) || variance.iter().any(|&v| v < 0.0) {
-        return Err("non-finite value or negative variance".into());
+        return Err(CacheError::Values);
     }
     Ok(Stored { reference: Reference { width, height, samples, mean, variance }, seconds, device })
 }
 
 /// The stored reference at `path`: `Ok(None)` when there is none, `Err` with the reason
 /// when the file is there but unusable (it is then rendered again and replaced).
-pub fn load(path: &Path, width: u32, height: u32, samples: u32) -> std::result::Result<Option<Stored>, String> {
+pub fn load(path: &Path, width: u32, height: u32, samples: u32) -> std::result::Result<Option<Stored>, CacheError> {
     let bytes = match std::fs::read(path) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(e.to_string()),
+        Err(e) => return Err(e.into()),
     };
     let stored = decode(&bytes)?;
     let r = &stored.reference;
     if (r.width, r.height, r.samples) != (width, height, samples as u64) {
-        return Err(format!(
-            "holds {}x{} at {} spp, expected {width}x{height} at {samples}",
-            r.width, r.height, r.samples
-        ));
+        return Err(CacheError::Size { held: (r.width, r.height, r.samples), expected: (width, height, samples) });
     }
     Ok(Some(stored))
 }
@@ -168,23 +196,23 @@ mod tests {
         let s = stored();
         let bytes = encode(&s);
         assert_eq!(decode(&bytes).unwrap(), s);
-        assert!(decode(&bytes[..bytes.len() - 1]).unwrap_err().contains("truncated"));
+        assert!(decode(&bytes[..bytes.len() - 1]).unwrap_err().to_string().contains("truncated"));
         let mut longer = bytes.clone();
         longer.push(0);
-        assert!(decode(&longer).unwrap_err().contains("past the end"));
+        assert!(decode(&longer).unwrap_err().to_string().contains("past the end"));
         let mut other = bytes.clone();
         other[7] ^= 1;
-        assert!(decode(&other).unwrap_err().contains("version"));
+        assert!(decode(&other).unwrap_err().to_string().contains("version"));
     }
 
     #[test]
     fn load_checks_the_size_and_tells_a_missing_file_from_a_bad_one() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("r.aoref");
-        assert_eq!(load(&p, 3, 2, 4096), Ok(None));
+        assert_eq!(load(&p, 3, 2, 4096).ok(), Some(None));
         save(&p, &stored()).unwrap();
         assert_eq!(load(&p, 3, 2, 4096).unwrap().unwrap(), stored());
-        assert!(load(&p, 3, 2, 1024).unwrap_err().contains("expected 3x2 at 1024"));
+        assert!(load(&p, 3, 2, 1024).unwrap_err().to_string().contains("expected 3x2 at 1024"));
         std::fs::write(&p, b"junk").unwrap();
         assert!(load(&p, 3, 2, 4096).is_err());
     }

@@ -2,7 +2,7 @@
 //! their files, with the progress, time limit, checkpoints, resuming, sample-range shards
 //! and signal handling of `render`.
 
-use crate::args::{RunArgs, SamplingArgs, SceneArgs, read_shards, write_json};
+use crate::args::{RunArgs, SamplingArgs, SceneArgs, parse_bit_depth, read_shards, write_json};
 use crate::phases::{self, Phases};
 use crate::run::{self, RunControl};
 use crate::{memory, output, signals};
@@ -549,12 +549,4 @@ fn texture_options(args: &BakeArgs, is_scene: bool) -> Result<Option<TextureOpti
         );
     }
     Ok(Some(options))
-}
-
-fn parse_bit_depth(text: &str) -> Result<u8, String> {
-    match text {
-        "8" => Ok(8),
-        "16" => Ok(16),
-        _ => Err(format!("'{text}': a PNG map has 8 or 16 bits per channel")),
-    }
 }

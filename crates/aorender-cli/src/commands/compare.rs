@@ -121,29 +121,48 @@ const BACKGROUND: u8 = 235;
 /// Text grey (sRGB-encoded).
 const INK: u8 = 20;
 
+/// What is wrong with the lists of a comparison, naming the list and the value.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum ListError {
+    /// A list with nothing in it ("sample counts", "hemispheres", "samplers").
+    #[error("the list of {0} is empty")]
+    Empty(&'static str),
+    /// A sample count of zero.
+    #[error("samples per pixel must be at least 1, got 0")]
+    ZeroSamples,
+    /// A sample count given twice.
+    #[error("sample count {0} is listed twice")]
+    SampleCountTwice(u32),
+    /// A hemisphere given twice.
+    #[error("hemisphere '{}' is listed twice", .0.name())]
+    HemisphereTwice(Hemisphere),
+    /// A sampler given twice.
+    #[error("sampler '{}' is listed twice", .0.name())]
+    SamplerTwice(Sampler),
+}
+
 /// Checks the lists of a comparison: none empty, no sample count of zero, no entry twice.
-/// The message names the offending list and value.
-pub fn validate(spps: &[u32], hemispheres: &[Hemisphere], samplers: &[Sampler]) -> std::result::Result<(), String> {
+pub fn validate(spps: &[u32], hemispheres: &[Hemisphere], samplers: &[Sampler]) -> std::result::Result<(), ListError> {
     if spps.is_empty() {
-        return Err("the list of sample counts is empty".into());
+        return Err(ListError::Empty("sample counts"));
     }
     if hemispheres.is_empty() {
-        return Err("the list of hemispheres is empty".into());
+        return Err(ListError::Empty("hemispheres"));
     }
     if samplers.is_empty() {
-        return Err("the list of samplers is empty".into());
+        return Err(ListError::Empty("samplers"));
     }
     if spps.contains(&0) {
-        return Err("samples per pixel must be at least 1, got 0".into());
+        return Err(ListError::ZeroSamples);
     }
     if let Some(n) = first_duplicate(spps) {
-        return Err(format!("sample count {n} is listed twice"));
+        return Err(ListError::SampleCountTwice(n));
     }
     if let Some(h) = first_duplicate(hemispheres) {
-        return Err(format!("hemisphere '{}' is listed twice", h.name()));
+        return Err(ListError::HemisphereTwice(h));
     }
     if let Some(s) = first_duplicate(samplers) {
-        return Err(format!("sampler '{}' is listed twice", s.name()));
+        return Err(ListError::SamplerTwice(s));
     }
     Ok(())
 }
@@ -535,7 +554,7 @@ mod tests {
             (&[1], &h, &[Sampler::Sobol, Sampler::Grid, Sampler::Sobol], "sobol"),
         ];
         for (spps, hemispheres, samplers, expect) in cases {
-            let e = validate(spps, hemispheres, samplers).expect_err("invalid lists");
+            let e = validate(spps, hemispheres, samplers).expect_err("invalid lists").to_string();
             assert!(e.contains(expect) && !e.contains('\n'), "{spps:?} {hemispheres:?} {samplers:?}: {e}");
         }
     }

@@ -210,7 +210,7 @@ pub fn read_probes(path: &Path, limits: &ReadLimits, origin: DVec3) -> Result<(V
 /// Parses the text of a probe file: the probes and their line numbers. Each point is
 /// taken relative to `origin` (the scene's, which its primitives are stored relative to),
 /// subtracted in f64 and rounded once; where that is zero, as given.
-pub fn parse_probes(text: &str, origin: DVec3) -> std::result::Result<(Vec<Probe>, Vec<usize>), String> {
+pub fn parse_probes(text: &str, origin: DVec3) -> std::result::Result<(Vec<Probe>, Vec<usize>), ProbeFileError> {
     let (mut probes, mut lines) = (Vec::new(), Vec::new());
     for (i, line) in text.lines().enumerate() {
         let line = line.split('#').next().unwrap_or("");
@@ -218,30 +218,64 @@ pub fn parse_probes(text: &str, origin: DVec3) -> std::result::Result<(Vec<Probe
         if fields.is_empty() {
             continue;
         }
-        let at = |m: String| format!("line {}: {m}", i + 1);
+        let line = i + 1;
         if fields.len() != 6 {
-            return Err(at(format!("expected 6 numbers (x y z nx ny nz), found {}", fields.len())));
+            return Err(ProbeFileError::Fields { line, found: fields.len() });
         }
+        let not_a_number = |f: &str| ProbeFileError::NotANumber { line, word: f.to_string() };
         let mut v = [0f32; 6];
         for (k, f) in fields.iter().enumerate() {
-            v[k] = f.parse().map_err(|_| at(format!("'{f}' is not a number")))?;
+            v[k] = f.parse().map_err(|_| not_a_number(f))?;
         }
         let mut position = Vec3::new(v[0], v[1], v[2]);
         if origin != DVec3::ZERO {
             let mut p = [0f64; 3];
             for (k, f) in fields[..3].iter().enumerate() {
-                p[k] = f.parse().map_err(|_| at(format!("'{f}' is not a number")))?;
+                p[k] = f.parse().map_err(|_| not_a_number(f))?;
             }
             position = (DVec3::from(p) - origin).as_vec3();
         }
-        let probe = Probe::new(position, Vec3::new(v[3], v[4], v[5])).map_err(|e| at(e.message()))?;
+        let probe = Probe::new(position, Vec3::new(v[3], v[4], v[5]))
+            .map_err(|e| ProbeFileError::Probe { line, message: e.message() })?;
         probes.push(probe);
         lines.push(i + 1);
     }
     if probes.is_empty() {
-        return Err("no probes".into());
+        return Err(ProbeFileError::Empty);
     }
     Ok((probes, lines))
+}
+
+/// What is wrong with a probe file, naming the line (the reader adds the file).
+#[derive(Debug, thiserror::Error)]
+pub enum ProbeFileError {
+    /// A line of other than six numbers.
+    #[error("line {line}: expected 6 numbers (x y z nx ny nz), found {found}")]
+    Fields {
+        /// The line, from 1.
+        line: usize,
+        /// The fields it has.
+        found: usize,
+    },
+    /// A field that is no number.
+    #[error("line {line}: '{word}' is not a number")]
+    NotANumber {
+        /// The line, from 1.
+        line: usize,
+        /// The field.
+        word: String,
+    },
+    /// A point the library refuses (a non-finite coordinate, a zero normal).
+    #[error("line {line}: {message}")]
+    Probe {
+        /// The line, from 1.
+        line: usize,
+        /// The library's reason.
+        message: String,
+    },
+    /// A file without a probe.
+    #[error("no probes")]
+    Empty,
 }
 
 /// The probe values as CSV: `x,y,z,nx,ny,nz,ao,std_error,samples`, the points back in the
@@ -286,7 +320,7 @@ mod tests {
             ("1 2 3 0 0 inf", "line 1: non-finite"),
             ("# nothing\n", "no probes"),
         ] {
-            let e = parse_probes(text, DVec3::ZERO).unwrap_err();
+            let e = parse_probes(text, DVec3::ZERO).unwrap_err().to_string();
             assert!(e.contains(expect), "{text:?}: {e}");
         }
     }

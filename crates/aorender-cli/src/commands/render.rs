@@ -7,7 +7,7 @@ use crate::run::{self, RunControl};
 use crate::{memory, output, signals};
 use anyhow::{Result, bail};
 use aorender::output::{FLOAT_IMAGE_EXTENSIONS, FilePlan, IMAGE_EXTENSIONS, write_error_image, write_image};
-use aorender::{Accumulation, Device, ErrorTarget, ImageRequest, Sampler, Session};
+use aorender::{Accumulation, Device, EndedBy, ErrorTarget, ImageRequest, Sampler, Session};
 
 /// Samples per pixel a render with an error target takes at most, unless --spp says.
 const TARGET_SPP_CAP: u32 = 65536;
@@ -249,7 +249,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         );
         return run::exit_interrupted(&done, checkpoint_path.as_deref());
     }
-    if st.ended_by == "target" {
+    if st.ended_by == EndedBy::Target {
         crate::say!(
             "error target met after {} of at most {} samples per pixel ({:.1} on average; RMSE bound {:.3e})",
             st.samples_per_pixel,
@@ -258,7 +258,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
             st.rmse_bound.unwrap_or(f64::NAN)
         );
     } else if st.samples_per_pixel < st.samples_requested {
-        let why = if target.is_some() && st.ended_by == "time limit" { "; the error target was not met" } else { "" };
+        let why =
+            if target.is_some() && st.ended_by == EndedBy::TimeLimit { "; the error target was not met" } else { "" };
         crate::say!(
             "time limit reached after {} of {} samples per pixel{why}",
             st.samples_per_pixel,

@@ -17,7 +17,7 @@ use crate::error::{Error, Result};
 use crate::output::{normalise, write_output, write_output_with};
 use crate::scene::extension;
 use crate::scene::files::relative_file;
-use crate::scene::gltf::{GltfBytes, json_memory, read_buffers, read_gltf, uri_file};
+use crate::scene::gltf::{GltfBytes, UriError, json_memory, read_buffers, read_gltf, uri_file};
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::one_line;
 use crate::scene::input::{Input, LoadOptions, Meter};
@@ -347,7 +347,7 @@ impl Asset for GltfAsset {
         let fill = match (uvs, buffer) {
             (Some(uvs), Some(buffer)) => {
                 let fill = self.meshes_to_fill(&mut doc, &mut notes);
-                self.split_primitives(&mut doc, &mut data, buffer, &fill, uvs).map_err(fail)?;
+                self.split_primitives(&mut doc, &mut data, buffer, &fill, uvs).map_err(|e| fail(e.to_string()))?;
                 fill
             }
             _ => self.targets.iter().map(|t| t.mesh).collect(),
@@ -581,10 +581,10 @@ impl GltfAsset {
 impl GltfAsset {
     /// The bytes of the image file `uri` names, within the read budget and, unless the
     /// file was read with external URIs allowed, from the file's folder alone.
-    fn read_image(&self, uri: &str, meter: &mut Meter) -> std::result::Result<Vec<u8>, String> {
+    fn read_image(&self, uri: &str, meter: &mut Meter) -> std::result::Result<Vec<u8>, ImageError> {
         let file = uri_file(&self.path, uri, self.options.allow_external_uris, true)?;
-        let input = Input::open_plain(&file, meter.limits()).map_err(|e| e.message())?;
-        input.read_all(&file, meter).map_err(|e| e.message())
+        let input = Input::open_plain(&file, meter.limits()).map_err(ImageError::Read)?;
+        input.read_all(&file, meter).map_err(ImageError::Read)
     }
 
     /// Rewrites each baked primitive (in the meshes `fill` gives each target) on its
@@ -598,23 +598,23 @@ impl GltfAsset {
         buffer: usize,
         fill: &[usize],
         uvs: &GeneratedUvs,
-    ) -> std::result::Result<(), String> {
-        let buffers = read_buffers(&self.path, &self.options).map_err(|e| e.to_string())?;
+    ) -> std::result::Result<(), SplitError> {
+        let buffers = read_buffers(&self.path, &self.options).map_err(SplitError::Buffers)?;
         for (i, (t, mesh)) in self.targets.iter().zip(&self.meshes).enumerate() {
             let Some(generated) = uvs.meshes.get(i).filter(|u| !u.xref.is_empty()) else { continue };
             let primitive = &self.json["meshes"][t.mesh]["primitives"][t.primitive];
-            let fail = |m: String| format!("{}: cannot add texture coordinates: {m}", mesh.label);
+            let fail = |why: AccessorError| SplitError::Primitive { mesh: mesh.label.clone(), why };
             let gather = |doc: &mut Value, data: &mut Vec<u8>, accessor: &Value, position: bool| {
-                let index = accessor.as_u64().ok_or_else(|| fail("an attribute is not an accessor index".into()))?;
+                let index = accessor.as_u64().ok_or_else(|| fail(AccessorError::NotAnIndex))?;
                 let (bytes, size) = accessor_bytes(&self.json, &buffers, index as usize).map_err(fail)?;
                 let mut out = Vec::with_capacity(generated.xref.len() * size);
                 for &v in &generated.xref {
                     let v = v as usize;
                     out.extend_from_slice(
-                        bytes.get(v * size..(v + 1) * size).ok_or_else(|| fail("index past the attribute".into()))?,
+                        bytes.get(v * size..(v + 1) * size).ok_or_else(|| fail(AccessorError::PastAttribute))?,
                     );
                 }
-                Ok::<usize, String>(add_gathered(
+                Ok::<usize, SplitError>(add_gathered(
                     doc,
                     data,
                     buffer,
@@ -647,7 +647,7 @@ impl GltfAsset {
                 .and_then(|p| p.get_mut(t.primitive))
                 .filter(|p| p.is_object())
             else {
-                return Err(fail("the primitive is missing from the JSON".into()));
+                return Err(fail(AccessorError::MissingPrimitive));
             };
             p["attributes"] = attributes;
             p["indices"] = indices.into();
@@ -797,13 +797,69 @@ fn add_accessor(
 }
 
 /// Bytes of one component of glTF's `componentType`.
-fn component_bytes(component_type: Option<u64>) -> std::result::Result<usize, String> {
+fn component_bytes(component_type: Option<u64>) -> std::result::Result<usize, AccessorError> {
     match component_type {
         Some(5120 | 5121) => Ok(1),
         Some(5122 | 5123) => Ok(2),
         Some(5125 | 5126) => Ok(4),
-        t => Err(format!("unknown componentType {t:?}")),
+        t => Err(AccessorError::ComponentType(t)),
     }
+}
+
+/// Why an image of a glTF file could not be read into a GLB.
+#[derive(Debug, thiserror::Error)]
+enum ImageError {
+    /// Its URI names no file the asset may read.
+    #[error(transparent)]
+    Uri(#[from] UriError),
+    /// The file could not be read (the message without the file, which the URI names).
+    #[error("{}", .0.message())]
+    Read(Error),
+}
+
+/// Why the vertices of a baked primitive could not be split along its texture seams.
+#[derive(Debug, thiserror::Error)]
+enum SplitError {
+    /// The asset's buffers could not be read.
+    #[error("{0}")]
+    Buffers(Error),
+    /// A primitive (of the mesh named) whose attributes could not be gathered.
+    #[error("{mesh}: cannot add texture coordinates: {why}")]
+    Primitive { mesh: String, why: AccessorError },
+}
+
+/// What is wrong with an accessor of a primitive being rewritten.
+#[derive(Debug, thiserror::Error)]
+enum AccessorError {
+    #[error("an attribute is not an accessor index")]
+    NotAnIndex,
+    #[error("index past the attribute")]
+    PastAttribute,
+    #[error("the primitive is missing from the JSON")]
+    MissingPrimitive,
+    #[error("a buffer view is missing")]
+    MissingView,
+    #[error("its vertex data is compressed (meshopt)")]
+    Meshopt,
+    #[error("a buffer view lies outside its buffer")]
+    ViewOutside,
+    #[error("accessor {0} is missing")]
+    Missing(usize),
+    #[error("an accessor has no count")]
+    NoCount,
+    /// An accessor whose type (as the JSON gives it) is no vertex attribute's.
+    #[error("accessor {index} has type {ty:?}, not a vertex attribute's")]
+    Type { index: usize, ty: Option<String> },
+    #[error("unknown componentType {0:?}")]
+    ComponentType(Option<u64>),
+    #[error("accessor {0} overruns its view")]
+    Overrun(usize),
+    #[error("accessor {0}: sparse indices overrun")]
+    SparseIndices(usize),
+    #[error("accessor {0}: sparse values overrun")]
+    SparseValues(usize),
+    #[error("accessor {0}: a sparse index is out of range")]
+    SparseIndex(usize),
 }
 
 /// The bytes of buffer view `view`, and its stride when it gives one.
@@ -811,31 +867,35 @@ fn view_bytes<'a>(
     json: &Value,
     buffers: &'a [Vec<u8>],
     view: Option<u64>,
-) -> std::result::Result<(&'a [u8], Option<usize>), String> {
-    let v = view.and_then(|i| json["bufferViews"].get(i as usize)).ok_or("a buffer view is missing")?;
+) -> std::result::Result<(&'a [u8], Option<usize>), AccessorError> {
+    let v = view.and_then(|i| json["bufferViews"].get(i as usize)).ok_or(AccessorError::MissingView)?;
     if v.get("extensions").and_then(Value::as_object).is_some_and(|e| e.keys().any(|k| k.contains("meshopt"))) {
-        return Err("its vertex data is compressed (meshopt)".into());
+        return Err(AccessorError::Meshopt);
     }
     let number = |key: &str| v.get(key).and_then(Value::as_u64).map(|n| n as usize);
     let (offset, length) = (number("byteOffset").unwrap_or(0), number("byteLength").unwrap_or(0));
     let bytes = number("buffer")
         .and_then(|b| buffers.get(b))
         .and_then(|b| b.get(offset..offset + length))
-        .ok_or("a buffer view lies outside its buffer")?;
+        .ok_or(AccessorError::ViewOutside)?;
     Ok((bytes, number("byteStride")))
 }
 
 /// Accessor `index`'s elements, tightly packed (an accessor without a view is zeros, a
 /// sparse one has its substitutions applied), and the bytes of one element.
-fn accessor_bytes(json: &Value, buffers: &[Vec<u8>], index: usize) -> std::result::Result<(Vec<u8>, usize), String> {
-    let a = json["accessors"].get(index).ok_or_else(|| format!("accessor {index} is missing"))?;
-    let count = a["count"].as_u64().ok_or("an accessor has no count")? as usize;
+fn accessor_bytes(
+    json: &Value,
+    buffers: &[Vec<u8>],
+    index: usize,
+) -> std::result::Result<(Vec<u8>, usize), AccessorError> {
+    let a = json["accessors"].get(index).ok_or(AccessorError::Missing(index))?;
+    let count = a["count"].as_u64().ok_or(AccessorError::NoCount)? as usize;
     let components = match a["type"].as_str() {
         Some("SCALAR") => 1,
         Some("VEC2") => 2,
         Some("VEC3") => 3,
         Some("VEC4") => 4,
-        t => return Err(format!("accessor {index} has type {t:?}, not a vertex attribute's")),
+        t => return Err(AccessorError::Type { index, ty: t.map(str::to_string) }),
     };
     let component = component_bytes(a["componentType"].as_u64())?;
     let size = components * component;
@@ -846,7 +906,7 @@ fn accessor_bytes(json: &Value, buffers: &[Vec<u8>], index: usize) -> std::resul
         let (start, stride) = (offset(a), stride.unwrap_or(size));
         for i in 0..count {
             let at = start + i * stride;
-            let element = bytes.get(at..at + size).ok_or_else(|| format!("accessor {index} overruns its view"))?;
+            let element = bytes.get(at..at + size).ok_or(AccessorError::Overrun(index))?;
             out[i * size..(i + 1) * size].copy_from_slice(element);
         }
     }
@@ -858,13 +918,11 @@ fn accessor_bytes(json: &Value, buffers: &[Vec<u8>], index: usize) -> std::resul
         let width = component_bytes(ix["componentType"].as_u64())?;
         for k in 0..n {
             let at = offset(ix) + k * width;
-            let raw = indices.get(at..at + width).ok_or_else(|| format!("accessor {index}: sparse indices overrun"))?;
+            let raw = indices.get(at..at + width).ok_or(AccessorError::SparseIndices(index))?;
             let i = raw.iter().rev().fold(0usize, |acc, &b| (acc << 8) | usize::from(b));
             let at = offset(vx) + k * size;
-            let value = values.get(at..at + size).ok_or_else(|| format!("accessor {index}: sparse values overrun"))?;
-            out.get_mut(i * size..(i + 1) * size)
-                .ok_or_else(|| format!("accessor {index}: a sparse index is out of range"))?
-                .copy_from_slice(value);
+            let value = values.get(at..at + size).ok_or(AccessorError::SparseValues(index))?;
+            out.get_mut(i * size..(i + 1) * size).ok_or(AccessorError::SparseIndex(index))?.copy_from_slice(value);
         }
     }
     Ok((out, size))

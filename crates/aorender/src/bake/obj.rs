@@ -230,7 +230,7 @@ struct Parser {
     largest: [LargestIndex; 3],
     /// The first texture coordinate and normal index out of range, reported only when the
     /// file has some of them: `tobj` ignores the indices of elements a file has none of.
-    deferred: [Option<String>; 3],
+    deferred: [Option<ObjError>; 3],
 }
 
 impl Parser {
@@ -255,9 +255,9 @@ impl Parser {
 
     /// The 0-based index of `word` (1-based, or negative: relative to the elements so far);
     /// `None` for a texture coordinate or normal index out of range (see `deferred`).
-    fn index(&mut self, word: &str, element: Element, line: usize) -> std::result::Result<Option<u32>, String> {
+    fn index(&mut self, word: &str, element: Element, line: usize) -> std::result::Result<Option<u32>, ObjError> {
         let name = element.name();
-        let i: isize = word.parse().map_err(|_| format!("line {line}: '{word}' is not a {name} index"))?;
+        let i: isize = word.parse().map_err(|_| ObjError::NotAnIndexOf { line, word: word.to_string(), name })?;
         match (self.resolve(i, element, line), element) {
             (Ok(index), _) => Ok(Some(index)),
             (Err(e), Element::Vertex) => Err(e),
@@ -269,7 +269,7 @@ impl Parser {
     }
 
     /// The 0-based index of the 1-based or relative index `i`.
-    fn resolve(&mut self, i: isize, element: Element, line: usize) -> std::result::Result<u32, String> {
+    fn resolve(&mut self, i: isize, element: Element, line: usize) -> std::result::Result<u32, ObjError> {
         let name = element.name();
         let count = self.count(element);
         let index = if i > 0 {
@@ -280,59 +280,53 @@ impl Parser {
             }
             index
         } else if i < 0 {
-            count.checked_sub(i.unsigned_abs()).ok_or_else(|| {
-                format!("line {line}: {name} index {i} reaches before the first {name} (only {count} so far)")
-            })? as u64
+            count.checked_sub(i.unsigned_abs()).ok_or(ObjError::BeforeFirst { line, name, index: i, count })? as u64
         } else {
-            return Err(format!("line {line}: {name} index 0 (OBJ counts from 1)"));
+            return Err(ObjError::IndexZero { line, name });
         };
-        u32::try_from(index).map_err(|_| format!("line {line}: {name} index {i} is beyond 2^32"))
+        u32::try_from(index).map_err(|_| ObjError::Beyond32Bits { line, name, index: i })
     }
 
-    fn vertex(&mut self, text: &str, line: usize) -> std::result::Result<(), String> {
+    fn vertex(&mut self, text: &str, line: usize) -> std::result::Result<(), ObjError> {
         let numbers: Vec<&str> = text.split_whitespace().skip(1).collect();
         if !matches!(numbers.len(), 3 | 4 | 6) {
-            return Err(format!(
-                "line {line}: a vertex has 3 coordinates, then a w or a colour (r g b) or nothing; found {} numbers",
-                numbers.len()
-            ));
+            return Err(ObjError::VertexNumbers { line, found: numbers.len() });
         }
         // A colour is replaced, not read.
         if let Some(bad) =
             numbers.iter().take(if numbers.len() == 4 { 4 } else { 3 }).find(|w| w.parse::<f32>().is_err())
         {
-            return Err(format!("line {line}: '{bad}' is not a number"));
+            return Err(ObjError::NotANumber { line, word: bad.to_string() });
         }
         if numbers.len() == 4 && numbers[3].parse::<f32>() == Ok(0.0) {
-            return Err(format!("line {line}: w = 0 (a vertex at infinity)"));
+            return Err(ObjError::AtInfinity { line });
         }
-        let p = parse_vertex_line(text).ok_or_else(|| format!("line {line}: invalid vertex"))?;
-        if let Some(c) = non_finite_coordinate(p) {
-            let number = self.positions.len() + 1;
-            return Err(format!("vertex {number} (line {line}) has a non-finite coordinate ({c})"));
+        let p = parse_vertex_line(text).ok_or(ObjError::InvalidVertex { line })?;
+        if let Some(coordinate) = non_finite_coordinate(p) {
+            return Err(ObjError::NonFinite { vertex: self.positions.len() + 1, line, coordinate });
         }
         self.positions.push(p);
         Ok(())
     }
 
-    fn normal(&mut self, text: &str, line: usize) -> std::result::Result<(), String> {
+    fn normal(&mut self, text: &str, line: usize) -> std::result::Result<(), ObjError> {
         let mut n = [0.0f32; 3];
         let mut words = text.split_whitespace().skip(1);
         for c in &mut n {
-            let word = words.next().ok_or_else(|| format!("line {line}: a normal needs 3 numbers"))?;
-            *c = word.parse().map_err(|_| format!("line {line}: '{word}' is not a number"))?;
+            let word = words.next().ok_or(ObjError::NormalNumbers { line })?;
+            *c = word.parse().map_err(|_| ObjError::NotANumber { line, word: word.to_string() })?;
         }
         self.normals.push(Vec3::from_array(n));
         Ok(())
     }
 
-    fn face(&mut self, text: &str, line: usize) -> std::result::Result<(), String> {
+    fn face(&mut self, text: &str, line: usize) -> std::result::Result<(), ObjError> {
         if text.split_whitespace().count() < 4 {
             // A point or a segment: no surface, and its indices are not resolved, as the
             // scene loader leaves them.
             for word in text.split_whitespace().skip(1) {
                 for part in word.split('/').filter(|p| !p.is_empty()) {
-                    part.parse::<isize>().map_err(|_| format!("line {line}: '{part}' is not an index"))?;
+                    part.parse::<isize>().map_err(|_| ObjError::NotAnIndex { line, word: part.to_string() })?;
                 }
             }
             return Ok(());
@@ -342,7 +336,7 @@ impl Parser {
             let mut parts = word.split('/');
             let v = match parts.next() {
                 Some(v) if !v.is_empty() => self.index(v, Element::Vertex, line)?.unwrap_or_default(),
-                _ => return Err(format!("line {line}: the corner '{word}' names no vertex")),
+                _ => return Err(ObjError::NoVertex { line, corner: word.to_string() }),
             };
             let mut uv = u32::MAX;
             if let Some(vt) = parts.next().filter(|s| !s.is_empty()) {
@@ -355,7 +349,7 @@ impl Parser {
                 self.corner_normals.push((v, n));
             }
             if parts.next().is_some() {
-                return Err(format!("line {line}: the corner '{word}' has more than v/vt/vn"));
+                return Err(ObjError::TooManyParts { line, corner: word.to_string() });
             }
             self.face_indices.push(v);
         }
@@ -366,7 +360,7 @@ impl Parser {
             self.corner_normals.truncate(normals_start);
             return Ok(());
         }
-        let end = u32::try_from(self.face_indices.len()).map_err(|_| format!("line {line}: more than 2^32 corners"))?;
+        let end = u32::try_from(self.face_indices.len()).map_err(|_| ObjError::Corners { line })?;
         if self.face_starts.is_empty() {
             self.face_starts.push(0);
         }
@@ -377,7 +371,7 @@ impl Parser {
     /// Checks the indices against the elements of the whole file (a face may name an
     /// element defined below it); those of texture coordinates and normals only when the
     /// file has some.
-    fn check_indices(&mut self) -> std::result::Result<(), String> {
+    fn check_indices(&mut self) -> std::result::Result<(), ObjError> {
         for element in [Element::Vertex, Element::TexCoord, Element::Normal] {
             let count = self.count(element);
             if !matches!(element, Element::Vertex) && count == 0 {
@@ -389,25 +383,70 @@ impl Parser {
             let LargestIndex { index, line } = self.largest[element as usize];
             if index > count as u64 {
                 let (name, plural) = (element.name(), element.plural());
-                return Err(format!("line {line}: {name} index {index} is out of range ({count} {plural})"));
+                return Err(ObjError::OutOfRange { line, name, index, count, plural });
             }
         }
         Ok(())
     }
 }
 
+/// What is wrong with an OBJ file read for baking: the line and the problem (the reader
+/// adds the file).
+#[derive(Debug, thiserror::Error)]
+enum ObjError {
+    #[error("line {line} is longer than {longest}, the longest line a text file may have")]
+    LongLine { line: usize, longest: String },
+    /// What the file holds is past the read budget.
+    #[error("{}", .0.message())]
+    Budget(Error),
+    #[error("line {line}: '{word}' is not a {name} index")]
+    NotAnIndexOf { line: usize, word: String, name: &'static str },
+    #[error("line {line}: {name} index {index} reaches before the first {name} (only {count} so far)")]
+    BeforeFirst { line: usize, name: &'static str, index: isize, count: usize },
+    #[error("line {line}: {name} index 0 (OBJ counts from 1)")]
+    IndexZero { line: usize, name: &'static str },
+    #[error("line {line}: {name} index {index} is beyond 2^32")]
+    Beyond32Bits { line: usize, name: &'static str, index: isize },
+    #[error("line {line}: {name} index {index} is out of range ({count} {plural})")]
+    OutOfRange { line: usize, name: &'static str, index: u64, count: usize, plural: &'static str },
+    #[error("line {line}: a vertex has 3 coordinates, then a w or a colour (r g b) or nothing; found {found} numbers")]
+    VertexNumbers { line: usize, found: usize },
+    #[error("line {line}: '{word}' is not a number")]
+    NotANumber { line: usize, word: String },
+    #[error("line {line}: w = 0 (a vertex at infinity)")]
+    AtInfinity { line: usize },
+    #[error("line {line}: invalid vertex")]
+    InvalidVertex { line: usize },
+    /// Vertex `vertex` (from 1) with a coordinate (named, with its value) not finite.
+    #[error("vertex {vertex} (line {line}) has a non-finite coordinate ({coordinate})")]
+    NonFinite { vertex: usize, line: usize, coordinate: String },
+    #[error("line {line}: a normal needs 3 numbers")]
+    NormalNumbers { line: usize },
+    #[error("line {line}: a texture coordinate needs 1 to 3 numbers")]
+    TexCoordNumbers { line: usize },
+    #[error("line {line}: '{word}' is not an index")]
+    NotAnIndex { line: usize, word: String },
+    #[error("line {line}: the corner '{corner}' names no vertex")]
+    NoVertex { line: usize, corner: String },
+    #[error("line {line}: the corner '{corner}' has more than v/vt/vn")]
+    TooManyParts { line: usize, corner: String },
+    #[error("line {line}: more than 2^32 corners")]
+    Corners { line: usize },
+    #[error("more than 2^32 vertices")]
+    Vertices,
+}
+
 /// The mesh of an OBJ file's text, what it holds charged to `meter` as it grows (the text
 /// is charged already); an error names the line and the problem.
-fn parse(text: &[u8], label: String, meter: &mut Meter) -> std::result::Result<AssetMesh, String> {
+fn parse(text: &[u8], label: String, meter: &mut Meter) -> std::result::Result<AssetMesh, ObjError> {
     let mut parser = Parser::default();
     let base = meter.used();
-    let budget = |meter: &mut Meter, bytes: u64| meter.hold(Path::new(""), base + bytes).map_err(|e| e.message());
+    let budget = |meter: &mut Meter, bytes: u64| meter.hold(Path::new(""), base + bytes).map_err(ObjError::Budget);
     let longest = meter.limits().line_bytes();
     for (i, bytes) in lines(text).enumerate() {
         let line = i + 1;
         if bytes.len() > longest {
-            let longest = size_text(longest as u64);
-            return Err(format!("line {line} is longer than {longest}, the longest line a text file may have"));
+            return Err(ObjError::LongLine { line, longest: size_text(longest as u64) });
         }
         budget(meter, parser.bytes())?;
         // A comment after the data is not part of it.
@@ -420,7 +459,7 @@ fn parse(text: &[u8], label: String, meter: &mut Meter) -> std::result::Result<A
                 let uv = match (words.next(), words.next()) {
                     (Some(Ok(u)), Some(Ok(v))) => glam::Vec2::new(u, v),
                     (Some(Ok(u)), None) => glam::Vec2::new(u, 0.0),
-                    _ => return Err(format!("line {line}: a texture coordinate needs 1 to 3 numbers")),
+                    _ => return Err(ObjError::TexCoordNumbers { line }),
                 };
                 parser.uvs.push(uv);
             }
@@ -431,7 +470,7 @@ fn parse(text: &[u8], label: String, meter: &mut Meter) -> std::result::Result<A
     }
     parser.check_indices()?;
     if u32::try_from(parser.positions.len()).is_err() {
-        return Err("more than 2^32 vertices".into());
+        return Err(ObjError::Vertices);
     }
     if parser.face_starts.is_empty() {
         parser.face_starts.push(0);

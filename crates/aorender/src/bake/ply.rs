@@ -184,9 +184,9 @@ impl Values {
 
     /// Appends the value of an ascii token (already checked to be a number), parsed as
     /// ply-rs parses it: `str::parse` into the property's type.
-    fn push_token(&mut self, token: &str) -> std::result::Result<(), String> {
+    fn push_token(&mut self, token: &str) -> std::result::Result<(), TokenError> {
         let t = self.scalar_type();
-        let invalid = || format!("'{token}' is not a valid {}", type_name(&t));
+        let invalid = || TokenError { token: token.to_string(), type_name: type_name(&t) };
         with_values!(self, v => v.push(token.parse().map_err(|_| invalid())?));
         Ok(())
     }
@@ -217,6 +217,15 @@ impl Values {
     fn put_ascii(&self, i: usize, out: &mut Vec<u8>) {
         with_values!(self, v => v[i].put_ascii(out))
     }
+}
+
+/// An ascii token that does not parse as its property's type.
+#[derive(Debug, thiserror::Error)]
+#[error("'{token}' is not a valid {type_name}")]
+struct TokenError {
+    token: String,
+    /// The property's PLY type.
+    type_name: &'static str,
 }
 
 /// One property of an element, with its values for every element.
@@ -519,13 +528,13 @@ fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8], meter: &mut Meter) 
             let mut take = || next_token.next().ok_or_else(|| at("fewer values than its properties need".to_string()));
             for column in &mut columns {
                 let Some((_, starts)) = &mut column.list else {
-                    column.values.push_token(take()?).map_err(at)?;
+                    column.values.push_token(take()?).map_err(|e| at(e.to_string()))?;
                     continue;
                 };
                 let n = take()?;
                 let n: usize = n.parse().map_err(|_| at(format!("list {}: '{n}' is not a count", column.name)))?;
                 for _ in 0..n {
-                    column.values.push_token(take()?).map_err(at)?;
+                    column.values.push_token(take()?).map_err(|e| at(e.to_string()))?;
                 }
                 starts.push(column.values.len());
             }

@@ -31,15 +31,8 @@ pub const BVH2_STACK_SIZE: u32 = 64;
 /// 16 KiB of workgroup memory beside the counters (`gpu::layout` checks).
 pub const CWBVH_STACK_SIZE: u32 = 31;
 
-/// The node layout the GPU traverses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum BvhLayout {
-    /// Binary BVH, both children's boxes in each 64-byte node (`shaders/trace_bvh2.wgsl`).
-    Bvh2,
-    /// obvhs's compressed 8-wide BVH, 80-byte nodes (`shaders/trace_cwbvh.wgsl`).
-    #[default]
-    Cwbvh,
-}
+// The layout is named in `kinds`, below the checkpoint format that records it.
+pub use crate::kinds::BvhLayout;
 
 impl BvhLayout {
     /// Most entries of the shader's traversal stack: the deepest tree it can traverse.
@@ -55,14 +48,6 @@ impl BvhLayout {
         match self {
             BvhLayout::Bvh2 => std::mem::size_of::<GpuNode>(),
             BvhLayout::Cwbvh => std::mem::size_of::<CwBvhNode>(),
-        }
-    }
-
-    /// The name used on the command line and in stats.
-    pub fn name(self) -> &'static str {
-        match self {
-            BvhLayout::Bvh2 => "bvh2",
-            BvhLayout::Cwbvh => "cwbvh",
         }
     }
 }

@@ -24,4 +24,6 @@ pub use layout::{
     BvhLayout, CWBVH_STACK_SIZE, GpuBvh, GpuNode, GpuPrimitive, INVALID_INDEX, PRIM_INSTANCE, PRIM_SPHERE,
     PRIM_TRIANGLE, gpu_primitive, mesh_primitive,
 };
+// The crate's own tests and examples name the preset here; the library reads it from `kinds`.
+#[cfg(feature = "testing")]
 pub use quality::BuildQuality;

@@ -9,6 +9,11 @@ use crate::probe::Probe;
 use crate::scene::{Camera, Settings};
 use std::sync::Arc;
 
+/// The most samples a pass of the CPU reference takes: the GPU's cap
+/// (`gpu::MAX_PASS_SAMPLES`), so that a fixed pass size cuts a render into the same passes
+/// on both devices and their statistics compare pass for pass.
+pub(super) const CPU_MAX_PASS_SAMPLES: u32 = 1024;
+
 /// What the CPU reference traces into a film: an image, or probe points.
 pub(super) trait CpuWork {
     /// Adds samples (or probe rounds) `first .. first + count` to `sums`, in the quanta
@@ -70,6 +75,10 @@ impl<W: CpuWork> Passes for CpuTarget<W> {
     fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
         let rays = self.work.pass(&mut self.sums, self.e, first, count, &self.inactive);
         Ok(PassReport { ao_rays: rays, gpu_seconds: None })
+    }
+
+    fn max_pass_samples(&self) -> u32 {
+        CPU_MAX_PASS_SAMPLES
     }
 
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {

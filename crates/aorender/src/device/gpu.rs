@@ -4,8 +4,8 @@
 use super::passes::{PassReport, Passes};
 use crate::error::{Error, Result};
 use crate::film::{BlockSums, ExactSums, INACTIVE_SLOT_BITS};
-use crate::gpu::GpuTarget;
 use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
+use crate::gpu::{GpuTarget, MAX_PASS_SAMPLES};
 
 /// The slots `range` of `exact`: its sums (and replicates' squares, where it has them).
 fn sums_part(exact: &ExactSums, range: std::ops::Range<usize>) -> ExactSums {
@@ -24,6 +24,10 @@ impl Passes for GpuTarget {
     fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
         let c = self.render_pass(first, count)?;
         Ok(PassReport { ao_rays: c.ao_rays, gpu_seconds: c.gpu_seconds })
+    }
+
+    fn max_pass_samples(&self) -> u32 {
+        MAX_PASS_SAMPLES
     }
 
     fn read(&mut self) -> Result<BlockSums> {
@@ -136,6 +140,10 @@ impl GpuChunks {
 }
 
 impl Passes for GpuChunks {
+    fn max_pass_samples(&self) -> u32 {
+        MAX_PASS_SAMPLES
+    }
+
     fn pass(&mut self, first: u32, count: u32) -> Result<PassReport> {
         let mut report = PassReport { ao_rays: 0, gpu_seconds: Some(0.0) };
         for (target, _) in &mut self.targets {

@@ -7,25 +7,8 @@ use crate::host_memory;
 use crate::scene::{Scene, Settings};
 use std::sync::Arc;
 
-/// Which kind of device renders.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum DeviceKind {
-    /// WGSL compute shaders on a wgpu adapter.
-    #[default]
-    Gpu,
-    /// The multi-threaded CPU reference.
-    Cpu,
-}
-
-impl DeviceKind {
-    /// The name used on the command line: `gpu` or `cpu`.
-    pub fn name(self) -> &'static str {
-        match self {
-            DeviceKind::Gpu => "gpu",
-            DeviceKind::Cpu => "cpu",
-        }
-    }
-}
+// The kind is named in `kinds`, below the checkpoint format that records it.
+pub use crate::kinds::DeviceKind;
 
 /// An opened device: an adapter with its device and compiled pipelines, or the CPU
 /// reference. Cheap to clone; sessions on one device share its pipelines.

@@ -20,6 +20,9 @@ pub(crate) trait Passes {
     /// Adds samples (or probe rounds) `first .. first + count` of every slot to the
     /// block.
     fn pass(&mut self, first: u32, count: u32) -> Result<PassReport>;
+    /// The most samples (or probe rounds) one pass may take on this device: the pass
+    /// loop sizes no pass above it.
+    fn max_pass_samples(&self) -> u32;
     /// The block's sums so far.
     fn read(&mut self) -> Result<BlockSums>;
     /// The block's sums, leaving the block empty.

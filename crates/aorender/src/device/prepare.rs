@@ -7,33 +7,18 @@ use super::gpu::GpuChunks;
 use super::open::{Device, DeviceKind, Opened};
 use super::passes::Passes;
 use crate::bvh::ploc::cwbvh_depth;
-use crate::bvh::{BuildQuality, BvhLayout, GpuBvh, build_cwbvh};
+use crate::bvh::{BvhLayout, GpuBvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::Result;
 use crate::film::BlockSums;
-use crate::gpu::{
-    AdapterInfo, FrameUniforms, GeometryStorage, GpuDevice, GpuProbePoint, GpuScene, GpuTarget, Traversal,
-};
+use crate::gpu::{AdapterInfo, FrameUniforms, GpuDevice, GpuProbePoint, GpuScene, GpuTarget};
 use crate::probe::Probe;
 use crate::scene::{Camera, Scene, Settings};
 use std::sync::Arc;
 use std::time::Instant;
 
-/// How the scene is prepared on a device.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct BvhOptions {
-    /// obvhs's build preset.
-    pub quality: BuildQuality,
-    /// The node layout the GPU traverses (the CPU reference always traverses obvhs's
-    /// CWBVH).
-    pub layout: BvhLayout,
-    /// Where the GPU kernel reads the geometry from; `None` is the adapter's preference
-    /// ([`GeometryStorage::preferred`]).
-    pub geometry_storage: Option<GeometryStorage>,
-    /// How the GPU kernel's lanes share the rays; `None` is the adapter's preference where
-    /// the scene allows it.
-    pub traversal: Option<Traversal>,
-}
+// The options are described in `kinds`, where the accumulation reads them.
+pub use crate::kinds::BvhOptions;
 
 /// What preparing a scene on a device took and holds.
 #[derive(Clone, Debug)]

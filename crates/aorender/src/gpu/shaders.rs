@@ -41,18 +41,9 @@ pub fn file_path(name: &str) -> String {
     }
 }
 
-/// How the kernel's invocations share the tracing of rays.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
-pub enum Traversal {
-    /// Each invocation traces its own rays (`trace_bvh2.wgsl`, `trace_cwbvh.wgsl`).
-    #[default]
-    PerLane,
-    /// Groups of eight invocations trace their rays one at a time, together: a node's
-    /// eight children and a leaf's primitives spread over the lanes
-    /// (`trace_cwbvh_group.wgsl`). Needs subgroup operations with subgroups of a multiple
-    /// of eight lanes, the compressed wide BVH and a scene without instances.
-    Cooperative,
-}
+// The traversal and the geometry's storage are named in `kinds`, with the other choices a
+// scene is prepared with; what they mean to the kernel is here.
+pub use crate::kinds::{GeometryStorage, Traversal};
 
 impl Traversal {
     /// Invocations that trace each ray together.
@@ -60,14 +51,6 @@ impl Traversal {
         match self {
             Traversal::PerLane => 1,
             Traversal::Cooperative => GROUP_LANES,
-        }
-    }
-
-    /// Name, as in the stats and on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            Traversal::PerLane => "per-lane",
-            Traversal::Cooperative => "cooperative",
         }
     }
 }
@@ -124,21 +107,6 @@ pub fn compose_with<'a>(name: &str, lookup: &dyn Fn(&str) -> Option<&'a str>) ->
     Ok(out)
 }
 
-/// Where the kernel reads the BVH nodes and the primitives from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
-pub enum GeometryStorage {
-    /// Storage buffers: `array<T>` indexed by element.
-    #[default]
-    Buffers,
-    /// Read-only storage textures (`texture_storage_2d<rgba32uint, read>`), an element in
-    /// consecutive texels of one row, read with `textureLoad`. Mesa's lavapipe (22.x) reads
-    /// a storage buffer at a per-invocation index one lane and one word at a time, behind a
-    /// branch each, but an image load as one inlined gather for all lanes (a sampled
-    /// texture's texel fetch is a call that also handles mip levels): several times faster
-    /// there.
-    Textures,
-}
-
 impl GeometryStorage {
     /// What suits an adapter of this type: textures on a CPU (lavapipe, where they are
     /// several times faster), storage buffers on a GPU (where the renderer was measured
@@ -147,14 +115,6 @@ impl GeometryStorage {
         match device_type {
             wgpu::DeviceType::Cpu => GeometryStorage::Textures,
             _ => GeometryStorage::Buffers,
-        }
-    }
-
-    /// Name, as in the stats and on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            GeometryStorage::Buffers => "buffers",
-            GeometryStorage::Textures => "textures",
         }
     }
 }

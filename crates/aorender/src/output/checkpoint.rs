@@ -61,10 +61,9 @@
 
 use super::policy::write_output_with;
 use crate::accumulation::{Accumulation, FilmLayout, SampleSettings};
-use crate::bvh::{BuildQuality, BvhLayout};
-use crate::device::DeviceKind;
 use crate::error::{Error, Result};
 use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, OUT_OF_RANGE_BIT};
+use crate::kinds::{BuildQuality, BvhLayout, DeviceKind};
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::scene::input::vec_bytes;
@@ -135,7 +134,7 @@ fn layout_code(l: BvhLayout) -> u8 {
 }
 
 fn layout_of(code: u8) -> Option<BvhLayout> {
-    [BvhLayout::Bvh2, BvhLayout::Cwbvh].into_iter().find(|&l| layout_code(l) == code)
+    BvhLayout::ALL.into_iter().find(|&l| layout_code(l) == code)
 }
 
 /// The file's code of a BVH build preset.

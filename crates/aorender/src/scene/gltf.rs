@@ -559,7 +559,7 @@ fn read_uri(
         meter.charge(path, payload.len() as u64 / 4 * 3 + 3)?;
         return BASE64.decode(payload).map_err(|e| fail(format!("invalid base64 data URI: {e}")));
     }
-    let file = uri_file(path, uri, options.allow_external_uris, true).map_err(fail)?;
+    let file = uri_file(path, uri, options.allow_external_uris, true).map_err(|e| fail(e.to_string()))?;
     // Only byteLength bytes are read: a longer file (or a device) gives no more.
     let mut input = Input::open_plain(&file, meter.limits()).map_err(|e| fail(e.to_string()))?;
     let mut bytes = Vec::new();
@@ -576,19 +576,17 @@ fn read_uri(
 /// with `..` is refused without touching the file system, one that leads out through a
 /// link once it is resolved. A file that does not exist is an error when `must_exist`
 /// (a buffer, to be read), else accepted (an image the output refers to, as the input
-/// did). `Err` says why, in words.
+/// did).
 pub(crate) fn uri_file(
     path: &Path,
     uri: &str,
     allow_external: bool,
     must_exist: bool,
-) -> std::result::Result<PathBuf, String> {
+) -> std::result::Result<PathBuf, UriError> {
     if uri.contains(':') {
-        return Err(format!("unsupported URI {:?}: expected a relative file name or a data: URI", one_line(uri)));
+        return Err(UriError::Unsupported(one_line(uri)));
     }
-    let name = percent_encoding::percent_decode_str(uri)
-        .decode_utf8()
-        .map_err(|_| format!("URI {:?} is not UTF-8 once decoded", one_line(uri)))?;
+    let name = percent_encoding::percent_decode_str(uri).decode_utf8().map_err(|_| UriError::NotUtf8(one_line(uri)))?;
     let folder = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
@@ -597,12 +595,7 @@ pub(crate) fn uri_file(
     if allow_external {
         return Ok(file);
     }
-    let outside = |how: &str| {
-        format!(
-            "the URI {:?} leads outside the glTF file's folder{how}; files there are read only when external URIs are allowed (--allow-external-uris)",
-            one_line(uri)
-        )
-    };
+    let outside = |how: &'static str| UriError::Outside { uri: one_line(uri), how };
     let mut depth = 0usize;
     for c in Path::new(&*name).components() {
         match c {
@@ -612,16 +605,36 @@ pub(crate) fn uri_file(
             Component::RootDir | Component::Prefix(_) => return Err(outside("")),
         }
     }
-    let real_folder = folder.canonicalize().map_err(|e| format!("{}: {e}", folder.display()))?;
+    let real_folder = folder.canonicalize().map_err(|e| UriError::Io(folder.to_path_buf(), e))?;
     let real = match file.canonicalize() {
         Ok(real) => real,
         Err(e) if !must_exist && e.kind() == std::io::ErrorKind::NotFound => return Ok(file),
-        Err(e) => return Err(format!("{}: {e}", file.display())),
+        Err(e) => return Err(UriError::Io(file, e)),
     };
     if !real.starts_with(&real_folder) {
         return Err(outside(" through a symbolic link"));
     }
     Ok(real)
+}
+
+/// Why a URI of a glTF file names no file the loader may read ([`uri_file`]).
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum UriError {
+    /// A URI with a scheme other than `data:` (already on one line).
+    #[error("unsupported URI {0:?}: expected a relative file name or a data: URI")]
+    Unsupported(String),
+    /// A URI whose percent-decoded bytes are not UTF-8.
+    #[error("URI {0:?} is not UTF-8 once decoded")]
+    NotUtf8(String),
+    /// A file outside the glTF file's folder (`how`: how it leads there).
+    #[error(
+        "the URI {uri:?} leads outside the glTF file's folder{how}; files there are read only when external URIs \
+         are allowed (--allow-external-uris)"
+    )]
+    Outside { uri: String, how: &'static str },
+    /// The folder or the file could not be resolved.
+    #[error("{}: {}", .0.display(), .1)]
+    Io(PathBuf, std::io::Error),
 }
 
 /// Element `i`, component `c` of an accessor lives at `data[i * stride + c * size]`.
@@ -1281,7 +1294,7 @@ mod tests {
         std::os::unix::fs::symlink("..", d.join("model/up")).unwrap();
         let gltf = d.join("model/m.gltf");
         for uri in ["sub/a.bin", "./sub/../sub/a.bin", "sub%2Fa.bin", "inside.bin"] {
-            assert_eq!(uri_file(&gltf, uri, false, true), Ok(d.join("model/sub/a.bin")), "{uri}");
+            assert_eq!(uri_file(&gltf, uri, false, true).ok(), Some(d.join("model/sub/a.bin")), "{uri}");
         }
         for (uri, how) in [
             ("../secret.bin", ""),
@@ -1291,15 +1304,20 @@ mod tests {
             ("outside.bin", " through a symbolic link"),
             ("up/secret.bin", " through a symbolic link"),
         ] {
-            let e = uri_file(&gltf, uri, false, true).unwrap_err();
+            let e = uri_file(&gltf, uri, false, true).unwrap_err().to_string();
             assert!(e.contains(&format!("leads outside the glTF file's folder{how};")), "{uri}: {e}");
         }
         // Outside but allowed: resolved against the folder, not checked.
-        assert_eq!(uri_file(&gltf, "../secret.bin", true, true), Ok(d.join("model/../secret.bin")));
+        assert_eq!(uri_file(&gltf, "../secret.bin", true, true).ok(), Some(d.join("model/../secret.bin")));
         // A missing file in the folder: an error for a buffer, accepted for an image.
-        assert!(uri_file(&gltf, "missing.png", false, true).unwrap_err().contains("No such file"));
-        assert_eq!(uri_file(&gltf, "missing.png", false, false), Ok(d.join("model/missing.png")));
-        assert!(uri_file(&gltf, "http://example.com/a.bin", false, true).unwrap_err().contains("unsupported URI"));
+        assert!(uri_file(&gltf, "missing.png", false, true).unwrap_err().to_string().contains("No such file"));
+        assert_eq!(uri_file(&gltf, "missing.png", false, false).ok(), Some(d.join("model/missing.png")));
+        assert!(
+            uri_file(&gltf, "http://example.com/a.bin", false, true)
+                .unwrap_err()
+                .to_string()
+                .contains("unsupported URI")
+        );
     }
 
     #[test]

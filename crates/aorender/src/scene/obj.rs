@@ -171,39 +171,38 @@ pub(crate) fn continued_at(line: &[u8]) -> Option<usize> {
 
 /// Checks the numbers of a `v`, `vt` or `vn` line (`words` after its keyword) as `tobj`
 /// reads them: a vertex's x, y, z, then a w (non-zero) or a colour (r g b, not read) or
-/// nothing; a texture coordinate's u (then v and w, optional); a normal's three. `Err`
-/// says what is wrong, in words.
-pub(crate) fn check_numbers(keyword: &str, words: &[&str]) -> std::result::Result<(), String> {
-    let number = |w: &str, what: &str| match w.parse::<f32>() {
+/// nothing; a texture coordinate's u (then v and w, optional); a normal's three.
+pub(crate) fn check_numbers(keyword: &str, words: &[&str]) -> std::result::Result<(), ObjLineError> {
+    let number = |w: &str, what: &'static str| match w.parse::<f32>() {
         Ok(_) => Ok(()),
-        Err(_) => Err(format!("'{}' is not a number ({what})", super::input::one_line(w))),
+        Err(_) => Err(ObjLineError::NotANumber { word: super::input::one_line(w), what }),
     };
     match keyword {
         "v" => {
             let n = words.len();
             if n < 3 {
-                return Err(format!("a vertex position needs 3 numbers, found {n}"));
+                return Err(ObjLineError::PositionNumbers(n));
             }
             if !matches!(n, 3 | 4 | 6) {
-                return Err(format!("a vertex has x y z, then a w or a color (r g b) or nothing; found {n} numbers"));
+                return Err(ObjLineError::VertexNumbers(n));
             }
             words[..3].iter().try_for_each(|w| number(w, "a vertex position coordinate"))?;
             if n == 4 {
                 number(words[3], "a vertex's w")?;
                 if words[3].parse::<f32>() == Ok(0.0) {
-                    return Err("a vertex with w = 0 (at infinity)".to_string());
+                    return Err(ObjLineError::AtInfinity);
                 }
             }
         }
         "vt" => {
             if words.is_empty() {
-                return Err("a texture coordinate needs 1 to 3 numbers, found none".to_string());
+                return Err(ObjLineError::NoTexCoordNumbers);
             }
             words.iter().take(2).try_for_each(|w| number(w, "a texture coordinate"))?;
         }
         "vn" => {
             if words.len() < 3 {
-                return Err(format!("a normal needs 3 numbers, found {}", words.len()));
+                return Err(ObjLineError::NormalNumbers(words.len()));
             }
             words[..3].iter().try_for_each(|w| number(w, "a normal"))?;
         }
@@ -214,14 +213,48 @@ pub(crate) fn check_numbers(keyword: &str, words: &[&str]) -> std::result::Resul
 
 /// One index of a face corner, 1-based or (negative) relative to the elements so far:
 /// `Err` when it is not an integer.
-fn corner_index(part: &str, corner: &str) -> std::result::Result<i64, String> {
-    part.parse::<i64>().map_err(|_| {
-        format!(
-            "the face corner '{}' has '{}', not an index",
-            super::input::one_line(corner),
-            super::input::one_line(part)
-        )
+fn corner_index(part: &str, corner: &str) -> std::result::Result<i64, ObjLineError> {
+    part.parse::<i64>().map_err(|_| ObjLineError::NotAnIndex {
+        corner: super::input::one_line(corner),
+        part: super::input::one_line(part),
     })
+}
+
+/// What is wrong with one line of an OBJ file, as the scene loader checks it before
+/// `tobj` reads it (the loader adds the line number and the file).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub(crate) enum ObjLineError {
+    /// A word of a `v`, `vt` or `vn` line that is no number, and what it stands for.
+    #[error("'{word}' is not a number ({what})")]
+    NotANumber { word: String, what: &'static str },
+    /// A vertex with fewer than three coordinates.
+    #[error("a vertex position needs 3 numbers, found {0}")]
+    PositionNumbers(usize),
+    /// A vertex of neither 3, 4 nor 6 numbers.
+    #[error("a vertex has x y z, then a w or a color (r g b) or nothing; found {0} numbers")]
+    VertexNumbers(usize),
+    /// A vertex whose w is zero.
+    #[error("a vertex with w = 0 (at infinity)")]
+    AtInfinity,
+    /// A `vt` line with no number.
+    #[error("a texture coordinate needs 1 to 3 numbers, found none")]
+    NoTexCoordNumbers,
+    /// A normal with fewer than three numbers.
+    #[error("a normal needs 3 numbers, found {0}")]
+    NormalNumbers(usize),
+    /// A face corner's part that is no integer.
+    #[error("the face corner '{corner}' has '{part}', not an index")]
+    NotAnIndex { corner: String, part: String },
+    /// A face corner without a vertex index.
+    #[error("the face corner '{corner}' names no vertex")]
+    NoVertex { corner: String },
+    /// A face corner of more than three parts.
+    #[error("the face corner '{corner}' has more than v/vt/vn")]
+    TooManyParts { corner: String },
+    /// A face index that names no element: `count` of them `at` (" before it", or where
+    /// the object ends).
+    #[error("{}", out_of_bounds(*element, *index, *count, at))]
+    OutOfBounds { element: Element, index: i64, count: u64, at: String },
 }
 
 /// The face indices of one element since its object began (where `tobj` resolves them):
@@ -389,7 +422,7 @@ impl<'a> ObjLines<'a> {
         let mut words = text.split_whitespace();
         let keyword = words.next().unwrap_or("");
         let number = self.line_number;
-        let fail = |message: String| format!("line {number}: invalid OBJ: {message}");
+        let fail = |e: ObjLineError| format!("line {number}: invalid OBJ: {e}");
         match keyword {
             "v" | "vt" | "vn" => {
                 let numbers: Vec<&str> = words.collect();
@@ -430,7 +463,10 @@ impl<'a> ObjLines<'a> {
     /// Checks the corners of a face (`corners`: the words after `f`) as `tobj` parses
     /// them, and, for a face of three corners or more (fewer make no surface, and `tobj`
     /// leaves their indices alone), keeps its indices to resolve where its object ends.
-    fn check_face<'t>(&mut self, corners: impl Iterator<Item = &'t str> + Clone) -> std::result::Result<(), String> {
+    fn check_face<'t>(
+        &mut self,
+        corners: impl Iterator<Item = &'t str> + Clone,
+    ) -> std::result::Result<(), ObjLineError> {
         let surface = corners.clone().count() >= 3;
         for corner in corners {
             let mut parts = corner.split('/');
@@ -438,7 +474,7 @@ impl<'a> ObjLines<'a> {
                 let part = match parts.next() {
                     Some(p) if !p.is_empty() => p,
                     _ if k == 0 => {
-                        return Err(format!("the face corner '{}' names no vertex", super::input::one_line(corner)));
+                        return Err(ObjLineError::NoVertex { corner: super::input::one_line(corner) });
                     }
                     _ => continue,
                 };
@@ -454,13 +490,13 @@ impl<'a> ObjLines<'a> {
                     }
                 } else if i == 0 || i.unsigned_abs() > count {
                     if element == Element::Vertex {
-                        return Err(out_of_bounds(element, i, count, " before it"));
+                        return Err(ObjLineError::OutOfBounds { element, index: i, count, at: " before it".into() });
                     }
                     pending.before_start.get_or_insert((i, self.line_number, count));
                 }
             }
             if parts.next().is_some() {
-                return Err(format!("the face corner '{}' has more than v/vt/vn", super::input::one_line(corner)));
+                return Err(ObjLineError::TooManyParts { corner: super::input::one_line(corner) });
             }
         }
         Ok(())

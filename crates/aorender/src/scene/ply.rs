@@ -458,13 +458,70 @@ pub(crate) fn scalar_type(word: &str) -> Option<ScalarType> {
     })
 }
 
+/// What is wrong with a PLY header.
+#[derive(Debug, thiserror::Error)]
+enum HeaderError {
+    /// The file could not be read.
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    /// The first line is not `ply`.
+    #[error("not a PLY file: the first line is not 'ply'")]
+    NotPly,
+    /// No `end_header` line.
+    #[error("invalid PLY header: the file ends before 'end_header'")]
+    Unterminated,
+    /// A line that is wrong, with its number and text.
+    #[error("invalid PLY header: line {number} '{text}': {why}")]
+    Line {
+        /// The line's number, from 1.
+        number: usize,
+        /// The line, on one line.
+        text: String,
+        /// What is wrong with it.
+        why: HeaderLineError,
+    },
+    /// A header without a `format` line.
+    #[error("invalid PLY header: no format line")]
+    NoFormat,
+}
+
+/// What is wrong with one line of a PLY header.
+#[derive(Debug, thiserror::Error)]
+enum HeaderLineError {
+    #[error("'ply' may only be the first line")]
+    SecondPly,
+    /// A keyword line with the wrong number of words: its form.
+    #[error("expected '{0}'")]
+    Form(&'static str),
+    #[error("unknown encoding '{0}'")]
+    Encoding(String),
+    #[error("invalid version '{0}'")]
+    Version(String),
+    #[error("invalid element name '{0}'")]
+    ElementName(String),
+    #[error("invalid element count '{0}'")]
+    ElementCount(String),
+    #[error("unknown type '{0}'")]
+    Type(String),
+    #[error("invalid property name '{0}'")]
+    PropertyName(String),
+    #[error("a second, different format line")]
+    SecondFormat,
+    #[error("a second element named '{0}'")]
+    SecondElement(String),
+    #[error("a property before any element")]
+    PropertyBeforeElement,
+    #[error("a second property named '{property}' in element '{element}'")]
+    SecondProperty { property: String, element: String },
+}
+
 /// One header line's meaning, or what is wrong with it.
-fn parse_header_line(words: &[&str]) -> std::result::Result<ParsedLine, String> {
-    let arity = |n: usize, form: &str| {
-        if words.len() == n { Ok(()) } else { Err(format!("expected '{form}'")) }
+fn parse_header_line(words: &[&str]) -> std::result::Result<ParsedLine, HeaderLineError> {
+    let arity = |n: usize, form: &'static str| {
+        if words.len() == n { Ok(()) } else { Err(HeaderLineError::Form(form)) }
     };
     match words[0] {
-        "ply" => Err("'ply' may only be the first line".to_string()),
+        "ply" => Err(HeaderLineError::SecondPly),
         "end_header" => arity(1, "end_header").map(|()| ParsedLine::End),
         "comment" | "obj_info" => Ok(ParsedLine::Text),
         "format" => {
@@ -473,30 +530,30 @@ fn parse_header_line(words: &[&str]) -> std::result::Result<ParsedLine, String> 
                 "ascii" => Encoding::Ascii,
                 "binary_little_endian" => Encoding::BinaryLittleEndian,
                 "binary_big_endian" => Encoding::BinaryBigEndian,
-                other => return Err(format!("unknown encoding '{other}'")),
+                other => return Err(HeaderLineError::Encoding(other.to_string())),
             };
             let version = words[2]
                 .split_once('.')
                 .filter(|(a, b)| [a, b].iter().all(|s| !s.is_empty() && s.bytes().all(|c| c.is_ascii_digit())))
                 .and_then(|(a, b)| Some(Version { major: a.parse().ok()?, minor: b.parse().ok()? }))
-                .ok_or_else(|| format!("invalid version '{}'", words[2]))?;
+                .ok_or_else(|| HeaderLineError::Version(words[2].to_string()))?;
             Ok(ParsedLine::Format(encoding, version))
         }
         "element" => {
             arity(3, "element NAME COUNT")?;
             if !is_name(words[1]) {
-                return Err(format!("invalid element name '{}'", words[1]));
+                return Err(HeaderLineError::ElementName(words[1].to_string()));
             }
             let count = Some(words[2])
                 .filter(|w| w.bytes().all(|c| c.is_ascii_digit()))
                 .and_then(|w| w.parse::<usize>().ok())
-                .ok_or_else(|| format!("invalid element count '{}'", words[2]))?;
+                .ok_or_else(|| HeaderLineError::ElementCount(words[2].to_string()))?;
             let mut def = ElementDef::new(words[1].to_string());
             def.count = count;
             Ok(ParsedLine::Element(def))
         }
         "property" => {
-            let ty = |w: &str| scalar_type(w).ok_or_else(|| format!("unknown type '{w}'"));
+            let ty = |w: &str| scalar_type(w).ok_or_else(|| HeaderLineError::Type(w.to_string()));
             let data_type = if words.get(1) == Some(&"list") {
                 arity(5, "property list COUNT_TYPE ITEM_TYPE NAME")?;
                 PropertyType::List(ty(words[2])?, ty(words[3])?)
@@ -506,7 +563,7 @@ fn parse_header_line(words: &[&str]) -> std::result::Result<ParsedLine, String> 
             };
             let name = words[words.len() - 1];
             if !is_name(name) {
-                return Err(format!("invalid property name '{name}'"));
+                return Err(HeaderLineError::PropertyName(name.to_string()));
             }
             Ok(ParsedLine::Property(PropertyDef::new(name.to_string(), data_type)))
         }
@@ -531,40 +588,37 @@ pub(crate) fn read_header(path: &Path, input: &mut Input) -> Result<PlyHeader> {
     input.set_limit(Some(MAX_HEADER_BYTES));
     let header = read_header_lines(input);
     input.set_limit(None);
-    header.map_err(|message| {
+    header.map_err(|e| {
         let message = if let Some(stream) = input.stream_error() {
             stream.to_string()
         } else if input.at_limit() {
             format!("the PLY header is longer than {MAX_HEADER_BYTES} bytes")
         } else {
-            message
+            e.to_string()
         };
         Error::scene(path, message)
     })
 }
 
-fn read_header_lines(input: &mut Input) -> std::result::Result<PlyHeader, String> {
+fn read_header_lines(input: &mut Input) -> std::result::Result<PlyHeader, HeaderError> {
     let mut raw = Vec::new();
-    let eof = "invalid PLY header: the file ends before 'end_header'".to_string();
-    if input.read_until(b'\n', &mut raw).map_err(|e| e.to_string())? == 0
-        || trim_line(raw.strip_prefix(UTF8_BOM).unwrap_or(&raw)) != b"ply"
-    {
-        return Err("not a PLY file: the first line is not 'ply'".to_string());
+    if input.read_until(b'\n', &mut raw)? == 0 || trim_line(raw.strip_prefix(UTF8_BOM).unwrap_or(&raw)) != b"ply" {
+        return Err(HeaderError::NotPly);
     }
     let mut format = None;
     let mut elements: Vec<ElementDef> = Vec::new();
     let mut lines = Vec::new();
     let mut warnings = Vec::new();
-    for number in 2.. {
+    for number in 2usize.. {
         raw.clear();
-        if input.read_until(b'\n', &mut raw).map_err(|e| e.to_string())? == 0 {
-            return Err(eof);
+        if input.read_until(b'\n', &mut raw)? == 0 {
+            return Err(HeaderError::Unterminated);
         }
         let line = trim_line(&raw);
         let line = &line[line.iter().position(|b| !matches!(b, b' ' | b'\t')).unwrap_or(line.len())..];
         let text = String::from_utf8_lossy(line);
         let words: Vec<&str> = text.split([' ', '\t']).filter(|w| !w.is_empty()).collect();
-        let invalid = |why: String| format!("invalid PLY header: line {number} '{}': {why}", one_line(&text));
+        let invalid = |why: HeaderLineError| HeaderError::Line { number, text: one_line(&text), why };
         if words.is_empty() {
             warnings.push(format!("skipped the empty line {number} of the PLY header"));
             continue;
@@ -581,14 +635,14 @@ fn read_header_lines(input: &mut Input) -> std::result::Result<PlyHeader, String
             }
             ParsedLine::Format(encoding, version) => {
                 if format.is_some_and(|f| f != (encoding, version)) {
-                    return Err(invalid("a second, different format line".to_string()));
+                    return Err(invalid(HeaderLineError::SecondFormat));
                 }
                 format = Some((encoding, version));
                 lines.push(HeaderLine::Format);
             }
             ParsedLine::Element(def) => {
                 if elements.iter().any(|e| e.name == def.name) {
-                    return Err(invalid(format!("a second element named '{}'", def.name)));
+                    return Err(invalid(HeaderLineError::SecondElement(def.name)));
                 }
                 lines.push(HeaderLine::Element(elements.len()));
                 elements.push(def);
@@ -596,20 +650,20 @@ fn read_header_lines(input: &mut Input) -> std::result::Result<PlyHeader, String
             ParsedLine::Property(def) => {
                 let e = elements.len().wrapping_sub(1);
                 let Some(element) = elements.last_mut() else {
-                    return Err(invalid("a property before any element".to_string()));
+                    return Err(invalid(HeaderLineError::PropertyBeforeElement));
                 };
                 if element.properties.contains_key(&def.name) {
-                    return Err(invalid(format!(
-                        "a second property named '{}' in element '{}'",
-                        def.name, element.name
-                    )));
+                    return Err(invalid(HeaderLineError::SecondProperty {
+                        property: def.name,
+                        element: element.name.clone(),
+                    }));
                 }
                 lines.push(HeaderLine::Property(e, element.properties.len()));
                 element.properties.insert(def.name.clone(), def);
             }
         }
     }
-    let (encoding, version) = format.ok_or_else(|| "invalid PLY header: no format line".to_string())?;
+    let (encoding, version) = format.ok_or(HeaderError::NoFormat)?;
     Ok(PlyHeader { encoding, version, elements, lines, warnings })
 }
 
