@@ -20,6 +20,7 @@ use crate::error::{Error, Result};
 use crate::output::write_output_with;
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::{Input, LoadOptions, Meter, vec_bytes};
+use crate::scene::mesh::{IndexedMesh, VertexNames};
 use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
 use glam::Vec3;
 use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
@@ -320,6 +321,13 @@ impl PlyAsset {
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
         let mesh = mesh(path, &header, &elements, label)?;
         Ok(PlyAsset { meshes: vec![mesh], header, elements })
+    }
+
+    /// The mesh the scene loader reads from the file: its faces as fans, vertices
+    /// numbered from 0, the header's warnings.
+    pub(crate) fn scene_mesh(&self) -> IndexedMesh {
+        let warnings = self.header.warnings.clone();
+        super::asset::fan_mesh(&self.meshes[0], VertexNames::FromZero, warnings)
     }
 }
 
