@@ -40,16 +40,6 @@ impl ReadInputs {
         let found = self.assets.iter().find(|(p, allow, _)| *p == object.path && *allow == object.allow_external_uris);
         found.map(|(_, _, asset)| asset.clone())
     }
-
-    /// How many files were read.
-    pub fn len(&self) -> usize {
-        self.assets.len()
-    }
-
-    /// Whether no file was read.
-    pub fn is_empty(&self) -> bool {
-        self.assets.is_empty()
-    }
 }
 
 /// Loads a scene file or a mesh file as [`Scene::load_with`] does, with each mesh file
