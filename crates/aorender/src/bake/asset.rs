@@ -249,8 +249,8 @@ pub fn format_of(path: &Path) -> Option<&'static str> {
     }
 }
 
-/// The scene loader's form of `mesh`, read from a PLY or OBJ file: every vertex, each
-/// face split as a fan (v0, v(k-1), vk) as the loaders split polygons.
+/// The scene loader's form of `mesh`, read from a PLY file: every vertex, each face split
+/// as a fan (v0, v(k-1), vk) as the loader splits polygons.
 pub(crate) fn fan_mesh(mesh: &AssetMesh, names: VertexNames, warnings: Vec<String>) -> IndexedMesh {
     let corners = mesh.face_indices.len();
     let mut triangles = Vec::with_capacity(corners.saturating_sub(2 * mesh.face_count()));

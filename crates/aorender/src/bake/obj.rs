@@ -18,7 +18,6 @@ use crate::scene::input::{
     Input, LoadOptions, Meter, ReadLimits, UTF8_BOM, UTF16_MESSAGE, is_gzip, read_text, size_text, starts_utf16,
     vec_bytes,
 };
-use crate::scene::mesh::{IndexedMesh, VertexNames};
 use crate::scene::obj::{continued_at, non_finite_coordinate, parse_vertex_line};
 use flate2::Compression;
 use flate2::write::GzEncoder;
@@ -56,11 +55,6 @@ impl ObjAsset {
             mesh.repeating_sets = vec![0];
         }
         Ok(ObjAsset { text, meshes: vec![mesh] })
-    }
-
-    /// The mesh the scene loader reads from `path`, this file: its faces as fans.
-    pub(crate) fn scene_mesh(&self, path: &Path) -> IndexedMesh {
-        super::asset::fan_mesh(&self.meshes[0], VertexNames::Obj(path.to_path_buf()), Vec::new())
     }
 }
 
