@@ -2,6 +2,7 @@
 //! the image size, the value parsers and output checks.
 
 use anyhow::{Result, bail};
+use aorender::bake::{ReadInputs, load_for_bake};
 use aorender::{
     Accumulation, BuildQuality, BvhLayout, BvhOptions, Device, DeviceKind, GeometryStorage, Hemisphere, LoadOptions,
     ReadLimits, Sampler, Scene, SkyModel, SkyNormalise, SkySampling, Traversal,
@@ -164,10 +165,25 @@ impl SceneArgs {
     /// The scene with the distance and seed options applied (not yet validated); the
     /// loaders' warnings are printed.
     pub fn load(&self) -> Result<Scene> {
-        let mut scene = match &self.scene {
+        let scene = match &self.scene {
             Some(path) => Scene::load_with(path, &self.load_options()?)?,
             None => Scene::default_scene(),
         };
+        Ok(self.loaded(scene))
+    }
+
+    /// [`SceneArgs::load`] for a bake: each mesh file parsed once, the bake's part of it
+    /// kept for [`Bake::with_inputs`](aorender::bake::Bake::with_inputs).
+    pub fn load_for_bake(&self) -> Result<(Scene, ReadInputs)> {
+        let (scene, read) = match &self.scene {
+            Some(path) => load_for_bake(path, &self.load_options()?)?,
+            None => (Scene::default_scene(), ReadInputs::default()),
+        };
+        Ok((self.loaded(scene), read))
+    }
+
+    /// `scene` with the distance and seed options applied, its warnings printed.
+    fn loaded(&self, mut scene: Scene) -> Scene {
         for w in &scene.warnings {
             crate::say!("aorender: warning: {w}");
         }
@@ -178,7 +194,7 @@ impl SceneArgs {
         if let Some(seed) = self.seed {
             s.sampling.seed = seed;
         }
-        Ok(scene)
+        scene
     }
 
     /// How input files are read: the read budget ([`ReadLimits::from_env`]) and the URI

@@ -285,10 +285,11 @@ pub fn run(args: BakeArgs) -> Result<()> {
 
     let load_start = std::time::Instant::now();
     let limits = ReadLimits::from_env()?;
-    let mut scene = args.scene.load()?;
+    let (mut scene, read) = args.scene.load_for_bake()?;
     args.sampling.apply(&mut scene)?;
     let request = request(&args, texture, &limits)?;
-    let bake = Bake::new(&scene, &input, &request, &mut files)?;
+    let bake = Bake::with_inputs(&scene, &read, &input, &request, &mut files)?;
+    drop(read);
     let load_seconds = load_start.elapsed().as_secs_f64();
     let settings = scene.settings.clone();
     let bvh = args.scene.bvh();

@@ -2,6 +2,7 @@
 //! values it computed for them, and the writing options.
 
 use crate::error::Result;
+use crate::scene::mesh::{IndexedMesh, VertexNames};
 use glam::{Mat3, Vec2, Vec3};
 use std::path::{Path, PathBuf};
 
@@ -246,4 +247,16 @@ pub fn format_of(path: &Path) -> Option<&'static str> {
         "gltf" | "glb" => Some("glTF"),
         _ => None,
     }
+}
+
+/// The scene loader's form of `mesh`, read from a PLY file: every vertex, each face split
+/// as a fan (v0, v(k-1), vk) as the loader splits polygons.
+pub(crate) fn fan_mesh(mesh: &AssetMesh, names: VertexNames, warnings: Vec<String>) -> IndexedMesh {
+    let corners = mesh.face_indices.len();
+    let mut triangles = Vec::with_capacity(corners.saturating_sub(2 * mesh.face_count()));
+    for f in 0..mesh.face_count() {
+        let c = mesh.face(f);
+        triangles.extend((2..c.len()).map(|k| [c[0], c[k - 1], c[k]]));
+    }
+    IndexedMesh { origin: glam::DVec3::ZERO, positions: mesh.positions.clone(), triangles, names, warnings }
 }

@@ -4,8 +4,11 @@
 use super::asset::{Asset, TextureFiles, format_of};
 use crate::error::{Error, Result};
 use crate::output::{FilePlan, OutputRules};
-use crate::scene::{LoadOptions, MeshObject, ReadLimits};
+use crate::scene::input::Meter;
+use crate::scene::mesh::IndexedMesh;
+use crate::scene::{LoadOptions, MeshObject, ReadLimits, Scene};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Reads a mesh file (`.ply`, `.obj`, `.gltf`, `.glb`, each optionally gzipped) for baking,
 /// within the read budget of [`LoadOptions::from_env`], external glTF URIs refused.
@@ -19,8 +22,89 @@ pub fn read_asset_with(path: &Path, options: &LoadOptions) -> Result<Box<dyn Ass
         "ply" => Ok(Box::new(super::ply::PlyAsset::read_with(path, options)?)),
         "obj" => Ok(Box::new(super::obj::ObjAsset::read_with(path, options)?)),
         "gltf" | "glb" => Ok(Box::new(super::gltf::GltfAsset::read_with(path, options)?)),
-        ext => Err(Error::scene(path, format!("cannot bake into '.{ext}' files: expected .ply, .obj, .gltf or .glb"))),
+        ext => Err(not_bakeable(path, ext)),
     }
+}
+
+/// The mesh files of a scene read for baking while the scene was loaded
+/// ([`load_for_bake`]), each parsed once for both.
+#[derive(Clone, Default)]
+pub struct ReadInputs {
+    /// Each file read, with whether its glTF URIs could lead outside its folder.
+    assets: Vec<(PathBuf, bool, Arc<dyn Asset>)>,
+}
+
+impl ReadInputs {
+    /// The file of `object` as it was read, when it was.
+    pub(crate) fn get(&self, object: &MeshObject) -> Option<Arc<dyn Asset>> {
+        let found = self.assets.iter().find(|(p, allow, _)| *p == object.path && *allow == object.allow_external_uris);
+        found.map(|(_, _, asset)| asset.clone())
+    }
+}
+
+/// Loads a scene file or a mesh file as [`Scene::load_with`] does, with each mesh file
+/// parsed once, by the bake's reader, which keeps what writing the file back needs (give
+/// it to [`crate::bake::Bake::with_inputs`]). A file that reader refuses is read again by
+/// the scene's, so that an error is the one the scene's loaders give.
+pub fn load_for_bake(path: &Path, options: &LoadOptions) -> Result<(Scene, ReadInputs)> {
+    let mut inputs = ReadInputs::default();
+    // A scene file far from the origin is placed twice: the second time, each file's mesh
+    // is made again from what was read (a mesh file is placed once).
+    let placed_again = crate::scene::extension(path) == "toml";
+    let mut remakes: Vec<Remake> = Vec::new();
+    let mut reader = |path: &Path, options: &LoadOptions, meter: &mut Meter| -> Result<IndexedMesh> {
+        // tobj resolves an OBJ face's indices where its object ends, which the bake's reader
+        // does not check: the scene keeps tobj's read and its errors, and the bake reads the
+        // file again.
+        if crate::scene::extension(path) == "obj" {
+            return crate::scene::meshes::read_format(path, options, meter);
+        }
+        let key = (path, options.allow_external_uris);
+        if let Some(k) = inputs.assets.iter().position(|(p, allow, _)| (p.as_path(), *allow) == key) {
+            return Ok(remakes[k]());
+        }
+        match read_asset_and_mesh(path, options, placed_again) {
+            Ok((asset, mesh, remake)) => {
+                inputs.assets.push((path.to_path_buf(), options.allow_external_uris, asset));
+                remakes.push(remake);
+                Ok(mesh)
+            }
+            Err(e) => Err(crate::scene::meshes::read_format(path, options, meter).err().unwrap_or(e)),
+        }
+    };
+    let scene = Scene::load_reading(path, options, Some(&mut reader))?;
+    Ok((scene, inputs))
+}
+
+/// Makes the scene's mesh of a file again from what the bake read of it.
+type Remake = Box<dyn Fn() -> IndexedMesh>;
+
+/// Reads a mesh file for baking with the mesh the scene's loader reads from it, and how
+/// to make that mesh again: PLY from its faces, glTF from a copy kept when
+/// `again` (else the remake is never called and makes an empty mesh).
+fn read_asset_and_mesh(
+    path: &Path,
+    options: &LoadOptions,
+    again: bool,
+) -> Result<(Arc<dyn Asset>, IndexedMesh, Remake)> {
+    match crate::scene::extension(path).as_str() {
+        "ply" => {
+            let asset = Arc::new(super::ply::PlyAsset::read_with(path, options)?);
+            let (mesh, kept) = (asset.scene_mesh(), asset.clone());
+            Ok((asset, mesh, Box::new(move || kept.scene_mesh())))
+        }
+        "gltf" | "glb" => {
+            let (asset, mesh) = super::gltf::GltfAsset::read_for_scene(path, options)?;
+            let kept = if again { mesh.clone() } else { IndexedMesh::default() };
+            Ok((Arc::new(asset), mesh, Box::new(move || kept.clone())))
+        }
+        ext => Err(not_bakeable(path, ext)),
+    }
+}
+
+/// The error for a file of extension `ext`, which no bake reads.
+fn not_bakeable(path: &Path, ext: &str) -> Error {
+    Error::scene(path, format!("cannot bake into '.{ext}' files: expected .ply, .obj, .gltf or .glb"))
 }
 
 /// The mesh file of a scene's mesh object read for baking as the scene read it (its glTF

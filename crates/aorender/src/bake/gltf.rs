@@ -21,6 +21,7 @@ use crate::scene::gltf::{GltfBytes, UriError, json_memory, read_buffers, read_gl
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::one_line;
 use crate::scene::input::{Input, LoadOptions, Meter};
+use crate::scene::mesh::IndexedMesh;
 use crate::scene::meshes::stem;
 use ::gltf::json::{Value, deserialize, serialize};
 use flate2::Compression;
@@ -94,6 +95,12 @@ impl GltfAsset {
     /// of `options`. Its buffer URIs are followed, and its image URIs (which the output
     /// refers to) accepted, as `options` allow.
     pub fn read_with(path: &Path, options: &LoadOptions) -> Result<GltfAsset> {
+        GltfAsset::read_for_scene(path, options).map(|(asset, _)| asset)
+    }
+
+    /// [`GltfAsset::read_with`], with the mesh the scene loader reads from the file: one
+    /// parse for both.
+    pub(crate) fn read_for_scene(path: &Path, options: &LoadOptions) -> Result<(GltfAsset, IndexedMesh)> {
         let mut meter = Meter::new(&options.limits, "the glTF file's data");
         let (placed, (json, bin)) = read_gltf(path, true, options, &mut meter, |bytes: GltfBytes| {
             // The JSON as a value, and the binary chunk's copy, are held with the rest.
@@ -158,7 +165,8 @@ impl GltfAsset {
             mesh.repeating_sets = repeating_sets(&json, mesh.material);
         }
         let options = options.clone();
-        Ok(GltfAsset { path: path.to_path_buf(), options, meshes, targets, json, bin, warnings: placed.mesh.warnings })
+        let warnings = placed.mesh.warnings.clone();
+        Ok((GltfAsset { path: path.to_path_buf(), options, meshes, targets, json, bin, warnings }, placed.mesh))
     }
 
     /// Checks there is one set of values per mesh, one value per vertex.
@@ -1295,7 +1303,7 @@ mod tests {
     fn loaded_triangles(path: &Path) -> Vec<[[u32; 3]; 3]> {
         // An output in another folder refers to the input's files there (`../geom.bin`).
         let options = LoadOptions { allow_external_uris: true, ..LoadOptions::from_env().unwrap() };
-        let mesh = read_mesh(path, &options, &mut Meter::unlimited()).unwrap_or_else(|e| panic!("{e}"));
+        let mesh = read_mesh(path, &options, &mut Meter::unlimited(), None).unwrap_or_else(|e| panic!("{e}"));
         mesh.triangles.iter().map(|t| t.map(|i| mesh.positions[i as usize].to_array().map(f32::to_bits))).collect()
     }
 

@@ -7,7 +7,9 @@
 use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureFiles, TextureMap, WriteOptions, format_of, map_path,
 };
-use super::files::{check_mesh_output, is_conversion, output_path, plan_companions, plan_output, read_object};
+use super::files::{
+    ReadInputs, check_mesh_output, is_conversion, output_path, plan_companions, plan_output, read_object,
+};
 use super::plan::{BakePlan, Placement};
 use super::texture::{
     BakedTexture, Coverage, TextureLayout, TextureOptions, TexturePlan, TextureStats, TextureTarget, UvWrap,
@@ -274,6 +276,19 @@ impl Bake {
     /// Plans the bake of `scene`'s mesh objects (read from `input`, a mesh file or a scene
     /// file), entering every file it writes in `files` (which already holds the inputs).
     pub fn new(scene: &Scene, input: &Path, request: &BakeRequest, files: &mut FilePlan) -> Result<Bake> {
+        Bake::with_inputs(scene, &ReadInputs::default(), input, request, files)
+    }
+
+    /// [`Bake::new`] for a scene loaded by [`super::files::load_for_bake`], whose mesh
+    /// files it read as `read` holds them: each file is parsed once, for the scene and
+    /// the bake (a file `read` lacks is read again).
+    pub fn with_inputs(
+        scene: &Scene,
+        read: &ReadInputs,
+        input: &Path,
+        request: &BakeRequest,
+        files: &mut FilePlan,
+    ) -> Result<Bake> {
         let is_scene = input.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
         if scene.mesh_objects.is_empty() {
             return Err(Error::scene(input, "the scene has no mesh objects to bake"));
@@ -288,8 +303,8 @@ impl Bake {
             return Err(Error::settings("a texture bake writes its maps: give it an output"));
         }
         let targets = match (&request.texture, &output) {
-            (_, None) => read_targets(None, &scene.mesh_objects, is_scene, &request)?,
-            (None, Some(output)) => read_targets(Some((files, output)), &scene.mesh_objects, is_scene, &request)?,
+            (_, None) => read_targets(None, &scene.mesh_objects, is_scene, &request, read)?,
+            (None, Some(output)) => read_targets(Some((files, output)), &scene.mesh_objects, is_scene, &request, read)?,
             (Some(_), Some(output)) => {
                 if scene.mesh_objects.len() > 1 {
                     return Err(Error::scene(
@@ -301,7 +316,10 @@ impl Bake {
                     ));
                 }
                 let object = scene.mesh_objects[0].clone();
-                let asset: Arc<dyn Asset> = Arc::from(read_object(&object, &request.limits)?);
+                let asset = match read.get(&object) {
+                    Some(asset) => asset,
+                    None => Arc::from(read_object(&object, &request.limits)?),
+                };
                 vec![BakeTarget { object, asset, output: output.clone() }]
             }
         };
@@ -921,6 +939,7 @@ fn read_targets(
     objects: &[MeshObject],
     is_scene: bool,
     request: &BakeRequest,
+    read: &ReadInputs,
 ) -> Result<Vec<BakeTarget>> {
     let mut assets: Vec<(PathBuf, Arc<dyn Asset>)> = Vec::new();
     let mut targets = Vec::with_capacity(objects.len());
@@ -928,7 +947,10 @@ fn read_targets(
         let asset = match assets.iter().find(|(p, _)| *p == object.path) {
             Some((_, a)) => a.clone(),
             None => {
-                let a: Arc<dyn Asset> = Arc::from(read_object(object, &request.limits)?);
+                let a: Arc<dyn Asset> = match read.get(object) {
+                    Some(a) => a,
+                    None => Arc::from(read_object(object, &request.limits)?),
+                };
                 assets.push((object.path.clone(), a.clone()));
                 a
             }

@@ -26,8 +26,8 @@ pub use asset::{
     format_of, map_path,
 };
 pub use files::{
-    check_mesh_output, check_output, output_path, plan_companions, plan_output, read_asset, read_asset_with,
-    read_object,
+    ReadInputs, check_mesh_output, check_output, load_for_bake, output_path, plan_companions, plan_output, read_asset,
+    read_asset_with, read_object,
 };
 pub use job::{
     Bake, BakeRequest, BakeTarget, BakeTrace, Baked, GenerateUvs, GeneratedReport, TextureReport, TextureRequest,

@@ -20,6 +20,7 @@ use crate::error::{Error, Result};
 use crate::output::write_output_with;
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::{Input, LoadOptions, Meter, vec_bytes};
+use crate::scene::mesh::{IndexedMesh, VertexNames};
 use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
 use glam::Vec3;
 use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
@@ -169,6 +170,21 @@ impl Values {
 
     fn len(&self) -> usize {
         with_values!(self, v => v.len())
+    }
+
+    /// Appends `more`, values of the same type.
+    fn append(&mut self, more: Values) {
+        match (self, more) {
+            (Values::Char(v), Values::Char(m)) => v.extend(m),
+            (Values::UChar(v), Values::UChar(m)) => v.extend(m),
+            (Values::Short(v), Values::Short(m)) => v.extend(m),
+            (Values::UShort(v), Values::UShort(m)) => v.extend(m),
+            (Values::Int(v), Values::Int(m)) => v.extend(m),
+            (Values::UInt(v), Values::UInt(m)) => v.extend(m),
+            (Values::Float(v), Values::Float(m)) => v.extend(m),
+            (Values::Double(v), Values::Double(m)) => v.extend(m),
+            _ => unreachable!("a block's columns have their column's types"),
+        }
     }
 
     /// The bytes its vector holds.
@@ -330,6 +346,13 @@ impl PlyAsset {
         let mesh = mesh(path, &header, &elements, label)?;
         Ok(PlyAsset { meshes: vec![mesh], header, elements })
     }
+
+    /// The mesh the scene loader reads from the file: its faces as fans, vertices
+    /// numbered from 0, the header's warnings.
+    pub(crate) fn scene_mesh(&self) -> IndexedMesh {
+        let warnings = self.header.warnings.clone();
+        super::asset::fan_mesh(&self.meshes[0], VertexNames::FromZero, warnings)
+    }
 }
 
 /// What the mesh needs of the header, checked as the scene loader checks it, and every
@@ -488,55 +511,66 @@ fn is_number(token: &[u8]) -> bool {
     i == token.len()
 }
 
+/// Bytes of ASCII lines one rayon task parses at a time: large enough that a task's
+/// work dwarfs handing it out, small enough that a round of them holds little.
+const ASCII_BLOCK_BYTES: usize = 1 << 20;
+
 /// Reads the data of an ascii file: one line per element, as ply-rs reads it (values
-/// beyond the element's properties are ignored, as it ignores them).
+/// beyond the element's properties are ignored, as it ignores them). The lines are
+/// parsed in blocks on rayon's threads, a round of one block per thread at a time, and
+/// taken in order: an error is the first line's in the file, as a line-at-a-time read
+/// reports it, and what the columns hold is charged to `meter` after each block.
 fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8], meter: &mut Meter) -> Result<Vec<Element>> {
+    use rayon::prelude::*;
     let base = meter.used();
     let longest = meter.limits().line_bytes();
+    let threads = rayon::current_num_threads().max(1);
     let mut rest = data;
-    let mut tokens: Vec<&str> = Vec::new();
     let mut elements = Vec::with_capacity(defs.len());
     for def in defs {
         // Every value takes at least a digit and a separator.
         let min_bytes = 2 * def.properties.len();
         let mut columns = columns(def, capacity(def, rest.len(), min_bytes));
-        for i in 0..def.count {
+        let mut i = 0;
+        while i < def.count {
             if rest.is_empty() {
                 return Err(end_of_file(path, def, i));
             }
             meter.hold(path, base + columns_bytes(&elements, &columns))?;
-            let end = memchr::memchr(b'\n', rest).map_or(rest.len(), |e| e + 1);
-            let (line, next) = rest.split_at(end);
-            rest = next;
-            let line = line.strip_suffix(b"\n").unwrap_or(line);
-            let line = line.strip_suffix(b"\r").unwrap_or(line);
-            let at = |message: String| Error::scene(path, format!("{} {i} of {}: {message}", def.name, def.count));
-            if line.len() > longest {
-                let longest = crate::scene::input::size_text(longest as u64);
-                return Err(at(format!("its line is longer than {longest}, the longest line a text file may have")));
-            }
-            tokens.clear();
-            for token in line.split(|&b| b == b' ' || b == b'\t').filter(|t| !t.is_empty()) {
-                if !is_number(token) {
-                    let text = String::from_utf8_lossy(token);
-                    return Err(at(format!("'{}' is not a number", crate::scene::input::one_line(&text))));
+            // A round: up to one block of whole lines per thread, each block (its first
+            // element's number, its lines).
+            let mut blocks: Vec<(usize, Vec<&[u8]>)> = Vec::with_capacity(threads);
+            while blocks.len() < threads && i < def.count && !rest.is_empty() {
+                let (first, mut bytes, mut lines) = (i, 0, Vec::new());
+                while bytes < ASCII_BLOCK_BYTES && i < def.count && !rest.is_empty() {
+                    let end = memchr::memchr(b'\n', rest).map_or(rest.len(), |e| e + 1);
+                    let (line, next) = rest.split_at(end);
+                    rest = next;
+                    bytes += line.len();
+                    let line = line.strip_suffix(b"\n").unwrap_or(line);
+                    lines.push(line.strip_suffix(b"\r").unwrap_or(line));
+                    i += 1;
                 }
-                // A number is ascii.
-                tokens.push(std::str::from_utf8(token).unwrap_or_default());
+                blocks.push((first, lines));
             }
-            let mut next_token = tokens.iter();
-            let mut take = || next_token.next().ok_or_else(|| at("fewer values than its properties need".to_string()));
-            for column in &mut columns {
-                let Some((_, starts)) = &mut column.list else {
-                    column.values.push_token(take()?).map_err(|e| at(e.to_string()))?;
-                    continue;
-                };
-                let n = take()?;
-                let n: usize = n.parse().map_err(|_| at(format!("list {}: '{n}' is not a count", column.name)))?;
-                for _ in 0..n {
-                    column.values.push_token(take()?).map_err(|e| at(e.to_string()))?;
-                }
-                starts.push(column.values.len());
+            let parsed: Vec<Result<Vec<Column>>> = blocks
+                .par_iter()
+                .map(|(first, lines)| {
+                    let mut block = columns_like(&columns, lines.len());
+                    let mut tokens = Vec::new();
+                    for (k, line) in lines.iter().enumerate() {
+                        let i = first + k;
+                        let at = |message: AsciiLineError| {
+                            Error::scene(path, format!("{} {i} of {}: {message}", def.name, def.count))
+                        };
+                        read_ascii_line(line, longest, &mut block, &mut tokens).map_err(at)?;
+                    }
+                    Ok(block)
+                })
+                .collect();
+            for block in parsed {
+                append_columns(&mut columns, block?);
+                meter.hold(path, base + columns_bytes(&elements, &columns))?;
             }
         }
         elements.push(Element { name: def.name.clone(), count: def.count, columns });
@@ -545,6 +579,81 @@ fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8], meter: &mut Meter) 
         return Err(extra_data(path, data.len() - rest.len() + at));
     }
     Ok(elements)
+}
+
+/// What is wrong with one ascii element's line.
+#[derive(Debug, thiserror::Error)]
+enum AsciiLineError {
+    #[error("its line is longer than {0}, the longest line a text file may have")]
+    TooLong(String),
+    #[error("'{0}' is not a number")]
+    NotANumber(String),
+    #[error("fewer values than its properties need")]
+    Short,
+    #[error("list {column}: '{count}' is not a count")]
+    NotACount { column: String, count: String },
+    #[error(transparent)]
+    Token(#[from] TokenError),
+}
+
+/// Parses one ascii element's `line` (at most `longest` bytes) onto `columns`; `tokens`
+/// is scratch.
+fn read_ascii_line<'l>(
+    line: &'l [u8],
+    longest: usize,
+    columns: &mut [Column],
+    tokens: &mut Vec<&'l str>,
+) -> std::result::Result<(), AsciiLineError> {
+    if line.len() > longest {
+        return Err(AsciiLineError::TooLong(crate::scene::input::size_text(longest as u64)));
+    }
+    tokens.clear();
+    for token in line.split(|&b| b == b' ' || b == b'\t').filter(|t| !t.is_empty()) {
+        if !is_number(token) {
+            let text = String::from_utf8_lossy(token);
+            return Err(AsciiLineError::NotANumber(crate::scene::input::one_line(&text)));
+        }
+        // A number is ascii.
+        tokens.push(std::str::from_utf8(token).unwrap_or_default());
+    }
+    let mut next_token = tokens.iter();
+    let mut take = || next_token.next().ok_or(AsciiLineError::Short);
+    for column in columns {
+        let Some((_, starts)) = &mut column.list else {
+            column.values.push_token(take()?)?;
+            continue;
+        };
+        let n = take()?;
+        let n: usize =
+            n.parse().map_err(|_| AsciiLineError::NotACount { column: column.name.clone(), count: n.to_string() })?;
+        for _ in 0..n {
+            column.values.push_token(take()?)?;
+        }
+        starts.push(column.values.len());
+    }
+    Ok(())
+}
+
+/// Empty columns of the names and types of `columns`, with room for `capacity` elements.
+fn columns_like(columns: &[Column], capacity: usize) -> Vec<Column> {
+    let like = |c: &Column| Column {
+        name: c.name.clone(),
+        list: c.list.as_ref().map(|(count, _)| (count.clone(), vec![0])),
+        values: Values::new(&c.values.scalar_type(), capacity),
+    };
+    columns.iter().map(like).collect()
+}
+
+/// Appends the elements of `block` (columns made by [`columns_like`] of `columns`) to
+/// `columns`.
+fn append_columns(columns: &mut [Column], block: Vec<Column>) {
+    for (column, part) in columns.iter_mut().zip(block) {
+        let offset = column.values.len();
+        if let (Some((_, starts)), Some((_, more))) = (&mut column.list, &part.list) {
+            starts.extend(more[1..].iter().map(|s| s + offset));
+        }
+        column.values.append(part.values);
+    }
 }
 
 /// The column named `name` of `element`.
@@ -1490,5 +1599,76 @@ mod tests {
             }
         }
         assert!(seen >= 10, "the corpus has {seen} PLY files");
+    }
+
+    /// An ASCII file of many blocks (`ASCII_BLOCK_BYTES` of lines each): a vertex
+    /// `float x y z` and `uchar` grey, a face list of triangles and quads.
+    fn many_blocks(vertices: usize) -> (String, Vec<[f32; 3]>, Vec<Vec<i32>>) {
+        let points: Vec<[f32; 3]> =
+            (0..vertices).map(|i| [i as f32 * 0.001, (i % 97) as f32 / 7.0, -(i as f32).sqrt()]).collect();
+        let faces: Vec<Vec<i32>> = (0..vertices as i32 - 3)
+            .map(|i| if i % 5 == 0 { vec![i, i + 1, i + 2, i + 3] } else { vec![i, i + 2, i + 1] })
+            .collect();
+        let mut text = format!(
+            "ply\nformat ascii 1.0\nelement vertex {vertices}\nproperty float x\nproperty float y\nproperty float z\n\
+             property uchar grey\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+            faces.len()
+        );
+        for (i, p) in points.iter().enumerate() {
+            text += &format!("{} {} {} {}\n", p[0], p[1], p[2], i % 256);
+        }
+        for f in &faces {
+            text += &format!("{} {}\n", f.len(), f.iter().map(i32::to_string).collect::<Vec<_>>().join(" "));
+        }
+        (text, points, faces)
+    }
+
+    #[test]
+    fn ascii_blocks_are_read_in_order_and_fail_at_the_first_bad_line() {
+        let n = 200_000;
+        let (text, points, faces) = many_blocks(n);
+        assert!(text.len() > 4 * ASCII_BLOCK_BYTES, "{} bytes", text.len());
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("blocks.ply");
+        std::fs::write(&path, &text).unwrap();
+        let asset = PlyAsset::read(&path).unwrap();
+        let mesh = &asset.meshes()[0];
+        let want: Vec<Vec3> = points.iter().map(|&p| Vec3::from(p)).collect();
+        assert!(
+            mesh.positions
+                .iter()
+                .zip(&want)
+                .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits))
+        );
+        assert_eq!(mesh.positions.len(), n);
+        assert_eq!(mesh.face_count(), faces.len());
+        for (f, face) in faces.iter().enumerate() {
+            assert_eq!(mesh.face(f).iter().map(|&v| v as i32).collect::<Vec<_>>(), *face, "face {f}");
+        }
+        let grey = column(&asset.elements[0], "grey").unwrap();
+        assert!((0..n).all(|i| grey.values.integer(i) == Some((i % 256) as i64)));
+        // Bad lines in several blocks: the first in the file is reported.
+        let lines: Vec<&str> = text.lines().collect();
+        let header = lines.iter().position(|l| *l == "end_header").unwrap() + 1;
+        let edit = |edits: &[(usize, &str)]| {
+            let mut l = lines.clone();
+            for &(k, line) in edits {
+                l[header + k] = line;
+            }
+            l.join("\n") + "\n"
+        };
+        let cases = [
+            (edit(&[(150_000, "1 2 x 4"), (190_000, "y")]), "vertex 150000 of 200000: 'x' is not a number"),
+            (edit(&[(199_999, "1 2")]), "vertex 199999 of 200000: fewer values than its properties need"),
+            (
+                edit(&[(n + 120_000, "3 0 1.5 2"), (n + 130_000, "z")]),
+                "face 120000 of 199997: '1.5' is not a valid int",
+            ),
+            (lines[..header + n + 50_000].join("\n") + "\n", "unexpected end of file in face 50000 of 199997"),
+        ];
+        for (k, (text, expect)) in cases.into_iter().enumerate() {
+            let message = error_of(dir.path(), &format!("bad{k}.ply"), text.as_bytes());
+            assert!(message.ends_with(expect), "{k}: '{message}' does not end with '{expect}'");
+        }
     }
 }

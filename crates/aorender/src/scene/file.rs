@@ -10,7 +10,7 @@ use super::camera::{Camera, Projection};
 use super::frame::grid_origin;
 use super::input::{LoadOptions, Meter, vec_bytes};
 use super::mesh::IndexedMesh;
-use super::meshes::{mesh_bytes, mesh_triangles_within, place_mesh, read_mesh, vertex_name};
+use super::meshes::{MeshReader, mesh_bytes, mesh_triangles_within, place_mesh, read_mesh, vertex_name};
 use super::types::{
     Instance, InstancedMesh, MeshObject as PlacedMesh, Sampling, Scene, Settings, Sphere, Triangle, Warning,
     non_finite_coordinate, place_point,
@@ -283,14 +283,15 @@ fn retained_bytes(triangles: &Vec<Triangle>, meshes: &[InstancedMesh], mesh_uses
 }
 
 /// Parses the text of a scene file read from `path`; mesh paths resolve against `base_dir`.
-/// The meshes are read as `options` say, everything the scene holds at once charged to
-/// `meter` (which holds the text's charge already).
+/// The meshes are read as `options` say (by `reader` when there is one), everything the
+/// scene holds at once charged to `meter` (which holds the text's charge already).
 pub(super) fn parse_scene(
     text: &str,
     path: &Path,
     base_dir: &Path,
     options: &LoadOptions,
     meter: &mut Meter,
+    mut reader: Option<&mut MeshReader>,
 ) -> Result<Scene> {
     let file: SceneFile = toml::from_str(text).map_err(|e| Error::scene(path, toml_error(text, &e)))?;
     let err = |m: String| Error::scene(path, m);
@@ -358,7 +359,8 @@ pub(super) fn parse_scene(
     let mut origin = DVec3::ZERO;
     for pass in 0..3 {
         let mut bounds = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-        let placed = place_objects(&file.objects, path, base_dir, options, meter, origin, &mut bounds);
+        let placed =
+            place_objects(&file.objects, path, (base_dir, reader.as_deref_mut()), options, meter, origin, &mut bounds);
         let wanted = if bounds.0.x <= bounds.1.x { grid_origin(bounds.0, bounds.1) } else { DVec3::ZERO };
         if wanted == origin || pass == 2 {
             let p = placed?;
@@ -395,14 +397,15 @@ struct Placed {
     mesh_objects: Vec<PlacedMesh>,
 }
 
-/// Places `objects` (of the scene file `path`, mesh paths relative to `base_dir`) relative
+/// Places `objects` (of the scene file `path`, mesh paths relative to `base_dir`, read by
+/// `reader` when there is one) relative
 /// to the scene's `origin`, everything held charged to `meter`; `bounds` grows by each
 /// mesh's and sphere's bounds in f64 before the object is placed (so that a failure still
 /// leaves what was seen of the scene).
 fn place_objects(
     objects: &[Object],
     path: &Path,
-    base_dir: &Path,
+    (base_dir, mut reader): (&Path, Option<&mut MeshReader>),
     options: &LoadOptions,
     meter: &mut Meter,
     origin: DVec3,
@@ -463,7 +466,7 @@ fn place_objects(
                 let base = meter.used().saturating_sub(retained_bytes(&triangles, &meshes, &mesh_uses));
                 let entry = mesh_uses.iter_mut().find(|(p, _, _)| *p == path).expect("every mesh path was counted");
                 if entry.1 == 1 && entry.2.is_none() {
-                    let mut read = read_mesh(&path, &options, meter).map_err(in_scene_error)?;
+                    let mut read = read_mesh(&path, &options, meter, reader.as_deref_mut()).map_err(in_scene_error)?;
                     warnings.extend(read.warnings.drain(..).map(|message| Warning { path: path.clone(), message }));
                     grow(placed_bounds(&read, &m));
                     let held = relative_placement(&m, read.origin, origin).map_err(|e| fail(e.0))?;
@@ -487,7 +490,7 @@ fn place_objects(
                     continue;
                 }
                 if entry.2.is_none() {
-                    let mut read = read_mesh(&path, &options, meter).map_err(in_scene_error)?;
+                    let mut read = read_mesh(&path, &options, meter, reader.as_deref_mut()).map_err(in_scene_error)?;
                     warnings.extend(read.warnings.drain(..).map(|message| Warning { path: path.clone(), message }));
                     let tris = read.triangles.iter().map(|t| t.map(|k| read.positions[k as usize]));
                     let tris = mesh_triangles_within(&path, tris, albedo, meter).map_err(in_scene_error)?;

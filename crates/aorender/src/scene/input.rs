@@ -399,6 +399,28 @@ pub(crate) struct Input {
     stream_error: Option<String>,
 }
 
+/// How many times each file was opened by an [`Input`]: tests check that a bake reads
+/// each input once.
+#[cfg(feature = "testing")]
+static OPENED: std::sync::Mutex<Vec<(std::path::PathBuf, usize)>> = std::sync::Mutex::new(Vec::new());
+
+#[cfg(feature = "testing")]
+fn count_open(path: &Path) {
+    let mut opened = OPENED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    match opened.iter_mut().find(|(p, _)| p == path) {
+        Some((_, n)) => *n += 1,
+        None => opened.push((path.to_path_buf(), 1)),
+    }
+}
+
+/// How many times the loaders have opened `path` in this process (every mesh reader
+/// opens its file through one function, which counts).
+#[cfg(feature = "testing")]
+pub fn times_opened(path: &Path) -> usize {
+    let opened = OPENED.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    opened.iter().find(|(p, _)| p == path).map_or(0, |(_, n)| *n)
+}
+
 impl Input {
     /// Opens `path` within `limits`; a `.gz` file is decompressed as it is read.
     pub(crate) fn open(path: &Path, limits: &ReadLimits) -> Result<Input> {
@@ -413,6 +435,8 @@ impl Input {
     /// Opens `path` within `limits`, decompressing it when `gzip` is set.
     fn open_as(path: &Path, limits: &ReadLimits, gzip: bool) -> Result<Input> {
         let file = File::open(path).map_err(|e| Error::scene(path, e))?;
+        #[cfg(feature = "testing")]
+        count_open(path);
         let metadata = file.metadata().map_err(|e| Error::scene(path, e))?;
         let (len, regular) = (metadata.len(), metadata.is_file());
         let (inner, max_total): (Box<dyn BufRead>, u64) = if gzip {

@@ -4,7 +4,7 @@
 use super::camera::{Camera, Projection};
 use super::file::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, parse_scene};
 use super::input::{self, LoadOptions, Meter};
-use super::meshes::{MESH_EXTENSIONS, MESH_FORMATS, extension, place_mesh, read_mesh, stem};
+use super::meshes::{MESH_EXTENSIONS, MESH_FORMATS, MeshReader, extension, place_mesh, read_mesh, stem};
 use super::types::{MeshObject, Scene, Settings, Triangle, Warning};
 use crate::error::{Error, Result};
 use glam::{DVec3, Vec3};
@@ -25,6 +25,11 @@ impl Scene {
     /// [`Scene::load`] with the read budget and URI policy of `options`. The scene and
     /// everything its meshes' readers hold at once must fit in the budget.
     pub fn load_with(path: &Path, options: &LoadOptions) -> Result<Scene> {
+        Scene::load_reading(path, options, None)
+    }
+
+    /// [`Scene::load_with`], every mesh file read by `reader` when there is one.
+    pub(crate) fn load_reading(path: &Path, options: &LoadOptions, reader: Option<&mut MeshReader>) -> Result<Scene> {
         #[cfg(feature = "testing")]
         crate::phase::enter("load");
         match extension(path).as_str() {
@@ -33,9 +38,9 @@ impl Scene {
                 let text = input::read_text(path, &options.limits, SCENE_TEXT_BYTES_PER_BYTE, "the scene")?;
                 let mut meter = Meter::new(&options.limits, "the scene");
                 meter.charge(path, text.len() as u64 * SCENE_TEXT_BYTES_PER_BYTE)?;
-                parse_scene(&text, path, path.parent().unwrap_or(Path::new(".")), options, &mut meter)
+                parse_scene(&text, path, path.parent().unwrap_or(Path::new(".")), options, &mut meter, reader)
             }
-            ext if MESH_EXTENSIONS.contains(&ext) => Scene::from_mesh_file_with(path, options),
+            ext if MESH_EXTENSIONS.contains(&ext) => Scene::from_mesh_file_reading(path, options, reader),
             "" => Err(Error::scene(path, format!("no file extension: expected .toml or {MESH_FORMATS}"))),
             ext => Err(Error::scene(path, format!("unsupported file type '.{ext}': expected .toml or {MESH_FORMATS}"))),
         }
@@ -45,7 +50,8 @@ impl Scene {
     pub fn default_scene() -> Scene {
         let options = LoadOptions { limits: input::ReadLimits::with_memory(u64::MAX), allow_external_uris: false };
         let mut meter = Meter::new(&options.limits, "the scene");
-        let scene = parse_scene(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME), Path::new("."), &options, &mut meter);
+        let scene =
+            parse_scene(DEFAULT_SCENE, Path::new(DEFAULT_SCENE_NAME), Path::new("."), &options, &mut meter, None);
         Scene { path: None, ..scene.expect("the built-in scene is valid") }
     }
 
@@ -54,7 +60,7 @@ impl Scene {
     pub fn from_toml_str(text: &str, path: &Path, base_dir: &Path) -> Result<Scene> {
         let options = LoadOptions::from_env()?;
         let mut meter = Meter::new(&options.limits, "the scene");
-        parse_scene(text, path, base_dir, &options, &mut meter)
+        parse_scene(text, path, base_dir, &options, &mut meter, None)
     }
 
     /// A bare mesh, albedo 1, looked at from eye = centre + normalize(0.6, 0.45, 1.0) ×
@@ -66,8 +72,13 @@ impl Scene {
 
     /// [`Scene::from_mesh_file`] with the read budget and URI policy of `options`.
     pub fn from_mesh_file_with(path: &Path, options: &LoadOptions) -> Result<Scene> {
+        Scene::from_mesh_file_reading(path, options, None)
+    }
+
+    /// [`Scene::from_mesh_file_with`], the mesh read by `reader` when there is one.
+    fn from_mesh_file_reading(path: &Path, options: &LoadOptions, reader: Option<&mut MeshReader>) -> Result<Scene> {
         let mut meter = Meter::new(&options.limits, "the mesh");
-        let mut mesh = read_mesh(path, options, &mut meter)?;
+        let mut mesh = read_mesh(path, options, &mut meter, reader)?;
         let positions = std::mem::take(&mut mesh.positions);
         let triangles = place_mesh(path, positions, &mesh, 1.0, &glam::Mat4::IDENTITY, &mut meter)?;
         let warnings = mesh.warnings.into_iter().map(|message| Warning { path: path.to_path_buf(), message });

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 /// Vertices and triangles of a mesh file, in the file's space (a glTF node hierarchy
 /// already applied). Every index is below `positions.len()`.
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub(crate) struct IndexedMesh {
     /// The point of the file's space the positions are relative to: zero, unless the
     /// loader placed the mesh far from the origin for its size (a glTF node hierarchy,
@@ -24,7 +24,7 @@ pub(crate) struct IndexedMesh {
 
 /// How an error names vertex `k` of an [`IndexedMesh`] in terms of its file
 /// (`meshes::vertex_name` turns it into words).
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub(crate) enum VertexNames {
     /// `vertex k`, counted from 0 as the file's faces count them (PLY).
     #[default]

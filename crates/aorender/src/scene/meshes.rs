@@ -20,23 +20,29 @@ use std::path::Path;
 pub fn load_mesh(path: &Path, albedo: f32, transform: &glam::Mat4) -> Result<Vec<Triangle>> {
     let options = LoadOptions::from_env()?;
     let mut meter = Meter::new(&options.limits, "the mesh");
-    let mut mesh = read_mesh(path, &options, &mut meter)?;
+    let mut mesh = read_mesh(path, &options, &mut meter, None)?;
     let positions = std::mem::take(&mut mesh.positions);
     place_mesh(path, positions, &mesh, albedo, transform, &mut meter)
 }
 
-/// Reads a mesh file as it is stored: its vertices and triangles, checked to index them.
+/// A mesh file's reader that stands in for the format's own and returns the mesh as that
+/// one reads it: a bake's, which keeps what it writes back, so that the file is parsed once.
+pub(crate) type MeshReader<'a> = dyn FnMut(&Path, &LoadOptions, &mut Meter) -> Result<IndexedMesh> + 'a;
+
+/// Reads a mesh file as it is stored: its vertices and triangles, checked to index them,
+/// by `reader` when there is one, else by the format's reader ([`read_format`]).
 /// The readers charge what they hold to `meter`; once the file is read, the mesh alone
 /// stays charged.
-pub(crate) fn read_mesh(path: &Path, options: &LoadOptions, meter: &mut Meter) -> Result<IndexedMesh> {
+pub(crate) fn read_mesh(
+    path: &Path,
+    options: &LoadOptions,
+    meter: &mut Meter,
+    reader: Option<&mut MeshReader>,
+) -> Result<IndexedMesh> {
     let held = meter.used();
-    let mesh = match extension(path).as_str() {
-        "obj" => obj::load_obj(path, meter)?,
-        "ply" => ply::load_ply(path, meter)?,
-        "gltf" | "glb" => gltf::load_gltf(path, options, meter)?,
-        ext => {
-            return Err(Error::scene(path, format!("unsupported mesh format '.{ext}': expected {MESH_FORMATS}")));
-        }
+    let mesh = match reader {
+        Some(read) => read(path, options, meter)?,
+        None => read_format(path, options, meter)?,
     };
     if mesh.triangles.is_empty() {
         return Err(Error::scene(path, "mesh has no triangles"));
@@ -47,6 +53,16 @@ pub(crate) fn read_mesh(path: &Path, options: &LoadOptions, meter: &mut Meter) -
     }
     meter.set_used(held + mesh_bytes(&mesh));
     Ok(mesh)
+}
+
+/// Reads a mesh file by its format's reader, unchecked (see [`read_mesh`]).
+pub(crate) fn read_format(path: &Path, options: &LoadOptions, meter: &mut Meter) -> Result<IndexedMesh> {
+    match extension(path).as_str() {
+        "obj" => obj::load_obj(path, meter),
+        "ply" => ply::load_ply(path, meter),
+        "gltf" | "glb" => gltf::load_gltf(path, options, meter),
+        ext => Err(Error::scene(path, format!("unsupported mesh format '.{ext}': expected {MESH_FORMATS}"))),
+    }
 }
 
 /// The bytes a read mesh holds.

@@ -32,6 +32,8 @@ pub use types::{
 };
 
 #[cfg(feature = "testing")]
+pub use input::times_opened;
+#[cfg(feature = "testing")]
 pub use meshes::load_mesh;
 #[cfg(feature = "testing")]
 pub use ply::read_ply_mesh;
