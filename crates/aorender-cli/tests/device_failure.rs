@@ -85,7 +85,7 @@ fn a_lost_device_leaves_a_checkpoint_that_resumes_to_the_same_bits() {
     assert_eq!(files_besides(d, &["full.ck", "full.pfm"]), ["ck"], "only the checkpoint is written");
 
     let ck = Accumulation::read(&d.join("ck")).expect("the checkpoint is whole");
-    assert!((1..=3).contains(&ck.passes), "the checkpoint holds {} passes", ck.passes);
+    assert!((1..=3).contains(&ck.passes()), "the checkpoint holds {} passes", ck.passes());
     assert!(0 < ck.samples() && ck.samples() < 600, "{} samples", ck.samples());
 
     let resumed = run(&with(&["--resume", "ck", "-o", "resumed.pfm"]), d, &[], None);
@@ -93,7 +93,7 @@ fn a_lost_device_leaves_a_checkpoint_that_resumes_to_the_same_bits() {
     let (full_ck, resumed_ck) =
         (Accumulation::read(&d.join("full.ck")).unwrap(), Accumulation::read(&d.join("ck")).unwrap());
     assert_eq!(resumed_ck.samples(), 600);
-    assert!(resumed_ck.exact == full_ck.exact, "the resumed sums differ from the uninterrupted ones");
+    assert!(resumed_ck.exact() == full_ck.exact(), "the resumed sums differ from the uninterrupted ones");
     assert_eq!(std::fs::read(d.join("resumed.pfm")).unwrap(), std::fs::read(d.join("full.pfm")).unwrap());
 
     // Lost before the first pass: nothing to save, nothing written.

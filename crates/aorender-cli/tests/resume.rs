@@ -150,13 +150,13 @@ fn interrupt_and_resume(device: &str) {
         let from_checkpoint = d.join("from_checkpoint.pfm");
         aorender::output::write_image(&part.film().unwrap(), &from_checkpoint).unwrap();
         assert_eq!(std::fs::read(d.join("part.pfm")).unwrap(), std::fs::read(&from_checkpoint).unwrap());
-        if part.partial.is_some() {
+        if part.partial().is_some() {
             break (part, done);
         }
         stops.push(done);
         assert!(stops.len() < 8, "{device}: every stop fell on a block boundary: after {stops:?} samples");
     };
-    eprintln!("{device}: stopped after {done} samples, {} inside a block", part.partial_samples);
+    eprintln!("{device}: stopped after {done} samples, {} inside a block", part.partial_samples());
 
     run_ok(&args, &["--resume", "ck", "-o", "resumed.pfm", "--stats", "resumed.json"], d);
     let stats = json(&d.join("resumed.json"));
@@ -166,10 +166,10 @@ fn interrupt_and_resume(device: &str) {
 
     let full = Accumulation::read(&d.join("full.ck")).unwrap();
     let resumed = Accumulation::read(&d.join("ck")).unwrap();
-    assert_eq!((resumed.first, resumed.next), (0, spp));
-    assert!(resumed.partial.is_none() && full.partial.is_none());
-    assert!(resumed.exact == full.exact, "{device}: the resumed accumulation differs from the uninterrupted one");
-    assert_eq!(resumed.ao_rays, full.ao_rays, "{device}: AO rays");
+    assert_eq!((resumed.first(), resumed.next()), (0, spp));
+    assert!(resumed.partial().is_none() && full.partial().is_none());
+    assert!(resumed.exact() == full.exact(), "{device}: the resumed accumulation differs from the uninterrupted one");
+    assert_eq!(resumed.ao_rays(), full.ao_rays(), "{device}: AO rays");
     assert_eq!(std::fs::read(d.join("resumed.pfm")).unwrap(), std::fs::read(d.join("full.pfm")).unwrap());
     assert!(leftovers(d).is_empty(), "{device}: {:?}", leftovers(d));
 }
@@ -286,7 +286,7 @@ fn resuming_from_any_pass_gives_the_same_bits() {
         // Passes grow at most eightfold and stop at block ends: 1, 8, 64, then three more.
         assert!(full.stats.passes >= 6, "{what}: {} passes", full.stats.passes);
         assert_eq!(saved.len() as u32, full.stats.passes, "{what}: a checkpoint after every pass");
-        assert!(saved.iter().any(|a| a.partial.is_some()), "{what}: no checkpoint inside a block");
+        assert!(saved.iter().any(|a| a.partial().is_some()), "{what}: no checkpoint inside a block");
         for (k, checkpoint) in saved.iter().enumerate() {
             let path = dir.path().join(format!("{k}.ck"));
             checkpoint.write(&path).unwrap();
@@ -294,8 +294,12 @@ fn resuming_from_any_pass_gives_the_same_bits() {
             let out = render_resumable(&scene, &options, Checkpointing { resume, ..Default::default() }, &mut |_| {})
                 .unwrap();
             let a = &out.accumulation;
-            assert!(a.exact == full.accumulation.exact, "{what}: resumed from sample {} differs", checkpoint.next);
-            assert_eq!(out.film, full.film, "{what}: resumed from sample {}", checkpoint.next);
+            assert!(
+                a.exact() == full.accumulation.exact(),
+                "{what}: resumed from sample {} differs",
+                checkpoint.next()
+            );
+            assert_eq!(out.film, full.film, "{what}: resumed from sample {}", checkpoint.next());
             assert_eq!(out.stats.samples_resumed, checkpoint.samples());
         }
     }
@@ -310,7 +314,7 @@ fn damaged_checkpoint_bytes_are_refused() {
     let options = RenderOptions { device: DeviceKind::Cpu, ..Default::default() };
     let mut last = None;
     let mut save = |a: &Accumulation| {
-        if a.partial.is_some() {
+        if a.partial().is_some() {
             last = Some(a.clone());
         }
         Ok(())
@@ -327,7 +331,7 @@ fn damaged_checkpoint_bytes_are_refused() {
     acc.write(&path).unwrap();
     let bytes = std::fs::read(&path).unwrap();
     let back = Accumulation::from_bytes(&bytes).unwrap();
-    assert!(back.exact == acc.exact && back.partial == acc.partial && back.next == acc.next);
+    assert!(back.exact() == acc.exact() && back.partial() == acc.partial() && back.next() == acc.next());
     for len in 0..bytes.len() {
         let e = Accumulation::from_bytes(&bytes[..len]).unwrap_err().to_string();
         assert!(e.contains("truncated") || e.contains("not an aorender checkpoint"), "length {len}: {e}");
@@ -501,8 +505,8 @@ fn a_finished_render_extends_to_more_samples_exactly() {
     let more =
         render_resumable(&aobench(600), &options, Checkpointing { resume, ..Default::default() }, &mut |_| {}).unwrap();
     let direct = render_resumable(&aobench(600), &options, Checkpointing::default(), &mut |_| {}).unwrap();
-    assert!(more.accumulation.exact == direct.accumulation.exact);
-    assert!(more.accumulation.on_grid);
+    assert!(more.accumulation.exact() == direct.accumulation.exact());
+    assert!(more.accumulation.on_grid());
 }
 
 /// A signal while the scene loads or its BVH builds ends the process at once with

@@ -613,7 +613,7 @@ fn merged_image(
     }
     let expected =
         aorender::Accumulation::image(scene, camera, settings, 0..settings.spp, kind, &BvhOptions::default());
-    let diff = shards[0].1.settings.differences(&expected.settings);
+    let diff = shards[0].1.settings().differences(expected.settings());
     if !diff.is_empty() {
         return Err(PyValueError::new_err(format!(
             "{}: holds samples of another render: {} (checkpoint's value first)",

@@ -21,7 +21,7 @@ use crate::sampler::Sampler;
 use crate::scene::{Camera, Projection, Sampling, Scene, Settings};
 use crate::sky::Sky;
 use glam::Vec3;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Everything a sample's value depends on besides its index and the device: two
 /// accumulations with equal `SampleSettings` hold samples of the same render. Built in
@@ -522,47 +522,67 @@ pub fn max_image_sample(scene: &Scene, background: f32, sky: &Sky) -> f64 {
 #[derive(Clone, Debug)]
 pub struct Accumulation {
     /// What the samples depend on.
-    pub settings: SampleSettings,
+    settings: SampleSettings,
     /// The device that rendered them.
-    pub device: DeviceKind,
+    device: DeviceKind,
     /// BVH layout the GPU traversed.
-    pub bvh_layout: BvhLayout,
+    bvh_layout: BvhLayout,
     /// BVH build preset.
-    pub bvh_quality: BuildQuality,
+    bvh_quality: BuildQuality,
     /// Adapter name (`cpu` for the CPU reference).
-    pub adapter: String,
+    adapter: String,
     /// First sample index of the range rendered.
-    pub first: u32,
+    first: u32,
     /// End of the range asked for.
-    pub end: u32,
+    end: u32,
     /// Samples `first .. next` are in the sums.
-    pub next: u32,
+    next: u32,
     /// Samples of the block in progress (in `partial`, not yet in `exact`).
-    pub partial_samples: u32,
+    partial_samples: u32,
     /// False once the replicates whose sums are taken no longer follow their absolute grid
     /// (a render whose last replicate was cut short by its end, continued past that end:
     /// that replicate is not whole in either part). Always true without replicates: the
     /// sums of blocks cut anywhere add to the same integers.
-    pub on_grid: bool,
+    on_grid: bool,
     /// AO rays traced so far.
-    pub ao_rays: u64,
+    ao_rays: u64,
     /// Passes run so far.
-    pub passes: u32,
+    passes: u32,
     /// Seconds spent rendering so far.
-    pub render_seconds: f64,
+    render_seconds: f64,
     /// Exact sums of the finished blocks.
-    pub exact: ExactSums,
+    exact: ExactSums,
     /// The device's sums of the block in progress, when it has samples.
-    pub partial: Option<BlockSums>,
+    partial: Option<BlockSums>,
     /// The file it was read from, for messages (not stored).
-    pub source: Option<PathBuf>,
+    source: Option<PathBuf>,
     /// The largest magnitude of a sample (`max_sample_value`), for the intervals of an
     /// adaptive render's decisions (not stored: a resumed render takes its own).
-    pub max_value: f64,
+    max_value: f64,
     /// The pixels whose every camera ray misses the geometry ([`crate::footprint::background_pixels`]),
     /// which an adaptive render stops after their first replicate; empty where unknown
     /// (not stored: a resumed render takes its own).
-    pub background: Vec<bool>,
+    background: Vec<bool>,
+}
+
+/// The stored parts of an [`Accumulation`], as a checkpoint holds them.
+pub(crate) struct AccumulationParts {
+    pub(crate) settings: SampleSettings,
+    pub(crate) device: DeviceKind,
+    pub(crate) bvh_layout: BvhLayout,
+    pub(crate) bvh_quality: BuildQuality,
+    pub(crate) adapter: String,
+    pub(crate) first: u32,
+    pub(crate) end: u32,
+    pub(crate) next: u32,
+    pub(crate) partial_samples: u32,
+    pub(crate) on_grid: bool,
+    pub(crate) ao_rays: u64,
+    pub(crate) passes: u32,
+    pub(crate) render_seconds: f64,
+    pub(crate) exact: ExactSums,
+    pub(crate) partial: Option<BlockSums>,
+    pub(crate) max_value: f64,
 }
 
 impl Accumulation {
@@ -599,6 +619,224 @@ impl Accumulation {
             max_value,
             background: Vec::new(),
         }
+    }
+
+    /// An accumulation read back from its stored parts (a checkpoint's): not from a file
+    /// yet, with no background pixels known.
+    pub(crate) fn from_parts(parts: AccumulationParts) -> Accumulation {
+        let AccumulationParts {
+            settings,
+            device,
+            bvh_layout,
+            bvh_quality,
+            adapter,
+            first,
+            end,
+            next,
+            partial_samples,
+            on_grid,
+            ao_rays,
+            passes,
+            render_seconds,
+            exact,
+            partial,
+            max_value,
+        } = parts;
+        Accumulation {
+            settings,
+            device,
+            bvh_layout,
+            bvh_quality,
+            adapter,
+            first,
+            end,
+            next,
+            partial_samples,
+            on_grid,
+            ao_rays,
+            passes,
+            render_seconds,
+            exact,
+            partial,
+            source: None,
+            max_value,
+            background: Vec::new(),
+        }
+    }
+
+    /// What the samples depend on.
+    pub fn settings(&self) -> &SampleSettings {
+        &self.settings
+    }
+
+    /// The device that rendered the samples.
+    pub fn device(&self) -> DeviceKind {
+        self.device
+    }
+
+    /// BVH layout the GPU traversed.
+    pub fn bvh_layout(&self) -> BvhLayout {
+        self.bvh_layout
+    }
+
+    /// BVH build preset.
+    pub fn bvh_quality(&self) -> BuildQuality {
+        self.bvh_quality
+    }
+
+    /// Adapter name (`cpu` for the CPU reference; empty until a device renders).
+    pub fn adapter(&self) -> &str {
+        &self.adapter
+    }
+
+    /// First sample index of the range rendered.
+    pub fn first(&self) -> u32 {
+        self.first
+    }
+
+    /// End of the range asked for.
+    pub fn end(&self) -> u32 {
+        self.end
+    }
+
+    /// The next sample index to render: samples `first .. next` are held.
+    pub fn next(&self) -> u32 {
+        self.next
+    }
+
+    /// Samples of the block in progress (in [`Accumulation::partial`], not yet in the
+    /// exact sums).
+    pub fn partial_samples(&self) -> u32 {
+        self.partial_samples
+    }
+
+    /// Whether the replicates whose sums are taken still follow their absolute grid.
+    pub fn on_grid(&self) -> bool {
+        self.on_grid
+    }
+
+    /// AO rays traced so far.
+    pub fn ao_rays(&self) -> u64 {
+        self.ao_rays
+    }
+
+    /// Passes run so far.
+    pub fn passes(&self) -> u32 {
+        self.passes
+    }
+
+    /// Seconds spent rendering so far.
+    pub fn render_seconds(&self) -> f64 {
+        self.render_seconds
+    }
+
+    /// Exact sums of the finished blocks.
+    pub fn exact(&self) -> &ExactSums {
+        &self.exact
+    }
+
+    /// The device's sums of the block in progress, when they were read back.
+    pub fn partial(&self) -> Option<&BlockSums> {
+        self.partial.as_ref()
+    }
+
+    /// The file the accumulation was read from, for messages.
+    pub fn source(&self) -> Option<&Path> {
+        self.source.as_deref()
+    }
+
+    /// The largest magnitude of a sample, for the intervals of an adaptive render's
+    /// decisions.
+    pub fn max_value(&self) -> f64 {
+        self.max_value
+    }
+
+    /// The pixels whose every camera ray misses the geometry; empty where unknown.
+    pub fn background(&self) -> &[bool] {
+        &self.background
+    }
+
+    /// Names the adapter that renders the samples from here on.
+    pub fn set_adapter(&mut self, name: impl Into<String>) {
+        self.adapter = name.into();
+    }
+
+    /// Names the file the accumulation was read from, for messages.
+    pub(crate) fn set_source(&mut self, path: &Path) {
+        self.source = Some(path.to_path_buf());
+    }
+
+    /// Marks the pixels whose every camera ray misses the geometry.
+    pub(crate) fn set_background(&mut self, background: Vec<bool>) {
+        self.background = background;
+    }
+
+    /// Counts a pass of `count` samples from `next` that traced `ao_rays` AO rays: its
+    /// samples join the block in progress.
+    pub fn record_pass(&mut self, count: u32, ao_rays: u64) {
+        self.ao_rays += ao_rays;
+        self.next += count;
+        self.partial_samples += count;
+        self.passes += 1;
+    }
+
+    /// Counts the block in progress as folded into the exact sums, with `replicates`
+    /// whole replicates more.
+    pub(crate) fn end_block(&mut self, replicates: u64) {
+        self.exact.replicates += replicates;
+        self.partial_samples = 0;
+    }
+
+    /// Sets the seconds spent rendering so far.
+    pub(crate) fn set_render_seconds(&mut self, seconds: f64) {
+        self.render_seconds = seconds;
+    }
+
+    /// Holds `block`, the device's sums of the block in progress (of
+    /// [`Accumulation::partial_samples`] samples), or none once they go back to it.
+    pub fn set_partial(&mut self, block: Option<BlockSums>) {
+        // A block's sums without its samples would be counted as none.
+        debug_assert!(block.is_none() || self.partial_samples > 0, "sums of an empty block");
+        self.partial = block;
+    }
+
+    /// Takes the sums of the block in progress out, to go back onto a device.
+    pub(crate) fn take_partial(&mut self) -> Option<BlockSums> {
+        self.partial.take()
+    }
+
+    /// The exact sums, for a device that keeps them to read its own into.
+    pub(crate) fn exact_mut(&mut self) -> &mut ExactSums {
+        &mut self.exact
+    }
+
+    /// Continues the range to `end`. A last replicate cut short by the old end was taken
+    /// as it was: neither it nor its rest is whole, and its square is lost.
+    pub(crate) fn extend_to(&mut self, end: u32) {
+        if self.end == end {
+            return;
+        }
+        let replicates = self.settings.replicate_plan().is_some();
+        if replicates && self.next == self.end && !self.end.is_multiple_of(self.take_rounds()) {
+            self.on_grid = false;
+        }
+        self.end = end;
+    }
+
+    /// Takes what is not stored from `run`, the render continuing this accumulation: its
+    /// largest sample, background pixels and adapter.
+    pub(crate) fn adopt_run(&mut self, run: &Accumulation) {
+        self.max_value = run.max_value;
+        self.background.clone_from(&run.background);
+        self.adapter.clone_from(&run.adapter);
+    }
+
+    /// Empties the accumulation back to its first sample, keeping what it is of.
+    pub(crate) fn restart(&mut self) {
+        self.exact.clear();
+        (self.next, self.partial_samples, self.on_grid) = (self.first, 0, true);
+        (self.ao_rays, self.passes, self.render_seconds) = (0, 0, 0.0);
+        self.partial = None;
     }
 
     /// An empty accumulation of samples `samples` of an image of `settings` of `scene`

@@ -498,27 +498,17 @@ impl Render {
     /// as a render that never stopped.
     pub fn resume(&mut self, mut saved: Accumulation) -> Result<()> {
         saved.check_resume(&self.acc)?;
-        if saved.end != self.acc.end {
-            // A last replicate cut short by the old end was taken as it was: neither it
-            // nor its rest is whole, and its square is lost.
-            let replicates = saved.settings.replicate_plan().is_some();
-            if replicates && saved.next == saved.end && !saved.end.is_multiple_of(saved.take_rounds()) {
-                saved.on_grid = false;
-            }
-            saved.end = self.acc.end;
-        }
+        saved.extend_to(self.acc.end());
         // An adaptive render's pixels that no longer take samples stay so (marked before
         // the block in progress is loaded, which keeps the marks).
         let inactive = saved.inactive();
         if inactive.iter().any(|&off| off) {
             self.passes.set_inactive(&inactive)?;
         }
-        if let Some(block) = saved.partial.take() {
+        if let Some(block) = saved.take_partial() {
             self.passes.load(&block).map_err(|e| saved.error(e.message()))?;
         }
-        saved.max_value = self.acc.max_value;
-        saved.background.clone_from(&self.acc.background);
-        saved.adapter.clone_from(&self.acc.adapter);
+        saved.adopt_run(&self.acc);
         self.resumed = saved.samples();
         self.acc = saved;
         self.on_device = false;
@@ -530,21 +520,17 @@ impl Render {
     /// request: the render starts again from its first sample (after a warm-up pass that
     /// is not to be measured, say).
     pub fn restart(&mut self) -> Result<()> {
-        if !self.acc.exact.stopped.is_empty() || self.adapting_on_device {
+        if !self.acc.exact().stopped.is_empty() || self.adapting_on_device {
             // Every pixel is sampled again: the film loses its stopped pixels' marks.
             self.passes.set_inactive(&[])?;
             self.passes.take()?;
-        } else if self.acc.partial_samples > 0 {
+        } else if self.acc.partial_samples() > 0 {
             self.passes.take()?;
         }
         self.passes.take_readback_bytes();
         self.on_device = false;
         self.background_stopped = false;
-        let acc = &mut self.acc;
-        acc.exact.clear();
-        (acc.next, acc.partial_samples, acc.on_grid) = (acc.first, 0, true);
-        (acc.ao_rays, acc.passes, acc.render_seconds) = (0, 0, 0.0);
-        acc.partial = None;
+        self.acc.restart();
         self.resumed = 0;
         self.count = 1;
         self.times = PassTimes { gpu_seconds: Some(0.0), ..Default::default() };
@@ -564,10 +550,10 @@ impl Render {
     pub fn replicate_costs(&mut self) -> Result<Option<ReplicateCosts>> {
         const PASS: u32 = 8;
         let acc = &self.acc;
-        if acc.end - acc.first < 16 || acc.next != acc.first || !self.passes.keeps_sums() {
+        if acc.end() - acc.first() < 16 || acc.next() != acc.first() || !self.passes.keeps_sums() {
             return Ok(None);
         }
-        let first = acc.first;
+        let first = acc.first();
         self.passes.pass(first, 1)?;
         let t = Instant::now();
         self.passes.pass(first + 1, 1)?;
@@ -577,9 +563,9 @@ impl Render {
         let several = t.elapsed().as_secs_f64();
         let per_sample = ((several - one) / (PASS - 1) as f64).max(several / (2 * PASS) as f64);
         // The first fold makes the device's sums and compiles their kernels: not timed.
-        self.passes.write_sums(&acc.exact, 0)?;
+        self.passes.write_sums(acc.exact(), 0)?;
         self.passes.fold(true, PASS + 2)?;
-        let exponents = (acc.exact.sum_exponent, acc.exact.sq_exponent);
+        let exponents = (acc.exact().sum_exponent, acc.exact().sq_exponent);
         let mut statistics = f64::INFINITY;
         for _ in 0..2 {
             let t = Instant::now();
@@ -615,7 +601,7 @@ impl Render {
 
     /// Runs passes to the end of the request's range (or until `control` ends it).
     pub fn run(&mut self, control: &mut Control) -> Result<RunEnd> {
-        self.run_to(self.acc.end - self.acc.first, control)
+        self.run_to(self.acc.end() - self.acc.first(), control)
     }
 
     /// Runs passes until `samples` samples per pixel are done (at most the range's
@@ -633,17 +619,17 @@ impl Render {
         if control.adaptive {
             self.acc.check_adaptive(control.target)?;
             if let Some(find) = self.background.take() {
-                self.acc.background = find();
+                self.acc.set_background(find());
             }
         }
         // The device keeps the exact sums of an image, and the counts and decisions of an
         // adaptive run; a run that is not adaptive continuing an adaptive one's pixels
         // (which count their own samples) adds on the host.
         let device_sums = self.passes.keeps_sums()
-            && self.acc.settings.layout == FilmLayout::Image
-            && (control.adaptive || self.acc.exact.pixel_samples.is_empty());
+            && self.acc.settings().layout == FilmLayout::Image
+            && (control.adaptive || self.acc.exact().pixel_samples.is_empty());
         if device_sums && !self.on_device {
-            self.passes.write_sums(&self.acc.exact, self.acc.finished())?;
+            self.passes.write_sums(self.acc.exact(), self.acc.finished())?;
             self.on_device = true;
         } else if !device_sums {
             self.sync()?;
@@ -651,15 +637,15 @@ impl Render {
         }
         self.adapting_on_device |= device_sums && control.adaptive;
         let acc = &mut self.acc;
-        let until = (acc.first + samples.min(acc.end - acc.first)).max(acc.next);
-        let pixels = acc.settings.width as u64 * acc.settings.height as u64;
+        let until = (acc.first() + samples.min(acc.end() - acc.first())).max(acc.next());
+        let pixels = acc.settings().width as u64 * acc.settings().height as u64;
         let start = Instant::now();
-        let seconds_before = acc.render_seconds;
-        let total = acc.end - acc.first;
+        let seconds_before = acc.render_seconds();
+        let total = acc.end() - acc.first();
         let mut passes = 0u32;
         let mut end = RunEnd::Done;
         let (mut last_save, mut save_seconds) = (Instant::now(), 0.0f64);
-        while acc.next < until {
+        while acc.next() < until {
             if control.stop.is_some_and(|s| s.load(Ordering::SeqCst)) {
                 end = RunEnd::Stopped;
                 self.interrupted = true;
@@ -675,37 +661,33 @@ impl Render {
             // A pass stays within one block, and within one replicate when their sums are
             // taken.
             let unit = acc.take_rounds();
-            let block_end = ((acc.next / unit) as u64 + 1) * unit as u64;
-            let block_end = block_end.min(acc.end as u64) as u32;
+            let block_end = ((acc.next() / unit) as u64 + 1) * unit as u64;
+            let block_end = block_end.min(acc.end() as u64) as u32;
             // And within one stretch between two checks of the target.
             let check = control.target.map(|_| acc.target_check_rounds());
             let block_end = match check {
-                Some(c) => block_end.min((((acc.next / c) as u64 + 1) * c as u64).min(u32::MAX as u64) as u32),
+                Some(c) => block_end.min((((acc.next() / c) as u64 + 1) * c as u64).min(u32::MAX as u64) as u32),
                 None => block_end,
             };
             let count = match control.sizing {
                 PassSizing::Timed => self.count,
                 PassSizing::Fixed(n) => n.clamp(1, self.passes.max_pass_samples()),
             };
-            let count = count.min(block_end - acc.next).min(until - acc.next);
+            let count = count.min(block_end - acc.next()).min(until - acc.next());
             let pass_start = Instant::now();
-            let report = self.passes.pass(acc.next, count)?;
+            let report = self.passes.pass(acc.next(), count)?;
             let seconds = pass_start.elapsed().as_secs_f64().max(1e-6);
             self.times.passes += 1;
             self.times.wall_seconds += seconds;
             self.times.gpu_seconds = self.times.gpu_seconds.zip(report.gpu_seconds).map(|(a, b)| a + b);
             self.times.ao_rays += report.ao_rays;
-            acc.ao_rays += report.ao_rays;
-            acc.next += count;
-            acc.partial_samples += count;
-            acc.passes += 1;
+            acc.record_pass(count, report.ao_rays);
             passes += 1;
-            if acc.next == block_end && device_sums {
+            if acc.next() == block_end && device_sums {
                 let t = Instant::now();
-                let whole = acc.whole_replicate(acc.next - acc.partial_samples..acc.next);
-                self.passes.fold(whole, acc.partial_samples)?;
-                acc.exact.replicates += whole as u64;
-                acc.partial_samples = 0;
+                let whole = acc.whole_replicate(acc.next() - acc.partial_samples()..acc.next());
+                self.passes.fold(whole, acc.partial_samples())?;
+                acc.end_block(whole as u64);
                 self.times.host_stats_seconds += t.elapsed().as_secs_f64();
                 if let (true, Some(target)) = (control.adaptive, control.target) {
                     self.times.checks += 1;
@@ -721,13 +703,13 @@ impl Render {
                         break;
                     }
                 }
-            } else if acc.next == block_end {
+            } else if acc.next() == block_end {
                 let t = Instant::now();
                 let block = self.passes.take()?;
                 self.times.readback_seconds += t.elapsed().as_secs_f64();
                 let t = Instant::now();
-                acc.add_taken(&block, acc.next - acc.partial_samples..acc.next)?;
-                acc.partial_samples = 0;
+                acc.add_taken(&block, acc.next() - acc.partial_samples()..acc.next())?;
+                acc.end_block(0);
                 if let (true, Some(target)) = (control.adaptive, control.target) {
                     self.times.checks += 1;
                     if let Some(mask) = acc.adapt(target)? {
@@ -747,17 +729,17 @@ impl Render {
             }
             let per_sample = seconds / count as f64;
             self.count = ((target / per_sample) as u32).clamp(1, (8 * self.count).min(self.passes.max_pass_samples()));
-            acc.render_seconds = seconds_before + start.elapsed().as_secs_f64();
+            acc.set_render_seconds(seconds_before + start.elapsed().as_secs_f64());
             if let Some(progress) = control.progress.as_mut() {
                 progress(&Progress {
                     samples_done: acc.samples(),
                     samples_total: total,
-                    rays: acc.samples() as u64 * pixels + acc.ao_rays,
-                    elapsed: acc.render_seconds,
+                    rays: acc.samples() as u64 * pixels + acc.ao_rays(),
+                    elapsed: acc.render_seconds(),
                 });
             }
             if let Some(save) = control.save.as_mut()
-                && acc.next < acc.end
+                && acc.next() < acc.end()
                 && (control.save_interval <= 0.0
                     || last_save.elapsed().as_secs_f64() >= control.save_interval.max(10.0 * save_seconds))
             {
@@ -765,14 +747,15 @@ impl Render {
                 if device_sums {
                     sync_sums(self.passes.as_mut(), acc, self.adapting_on_device)?;
                 }
-                acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+                acc.set_partial(if acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None });
                 save(acc)?;
-                acc.partial = None;
+                acc.set_partial(None);
                 save_seconds = t.elapsed().as_secs_f64();
                 self.times.checkpoint_seconds += save_seconds;
                 last_save = Instant::now();
             }
-            let due = check.filter(|&c| acc.next.is_multiple_of(c) && check_due(((acc.next - acc.first) / c) as u64));
+            let due =
+                check.filter(|&c| acc.next().is_multiple_of(c) && check_due(((acc.next() - acc.first()) / c) as u64));
             if let (Some(target), Some(_)) = (control.target, due)
                 && device_sums
             {
@@ -780,11 +763,11 @@ impl Render {
                     let t = Instant::now();
                     // A stretch of independent samples is folded whole: no replicate's
                     // square is cut.
-                    if acc.partial_samples > 0 {
-                        self.passes.fold(false, acc.partial_samples)?;
-                        acc.partial_samples = 0;
+                    if acc.partial_samples() > 0 {
+                        self.passes.fold(false, acc.partial_samples())?;
+                        acc.end_block(0);
                     }
-                    let exponents = (acc.exact.sum_exponent, acc.exact.sq_exponent);
+                    let exponents = (acc.exact().sum_exponent, acc.exact().sq_exponent);
                     let (met, bad) = match control.adaptive {
                         true => {
                             let (sums, bad) = self.passes.adapt_check(acc.adapt_query(), exponents)?;
@@ -809,15 +792,15 @@ impl Render {
                 }
             } else if let (Some(target), Some(_)) = (control.target, due) {
                 let t = Instant::now();
-                acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+                acc.set_partial(if acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None });
                 self.times.readback_seconds += t.elapsed().as_secs_f64();
                 let t = Instant::now();
                 // An adaptive render's check is its decisions' rule, on the host's sums.
-                let met = match control.adaptive && acc.partial.is_none() {
+                let met = match control.adaptive && acc.partial().is_none() {
                     true => Ok(acc.adaptive_target_met(target, &acc.adapt_sums())),
                     false => acc.target_met(target),
                 };
-                acc.partial = None;
+                acc.set_partial(None);
                 self.times.host_stats_seconds += t.elapsed().as_secs_f64();
                 self.times.checks += 1;
                 if met? {
@@ -826,7 +809,7 @@ impl Render {
                 }
             }
         }
-        acc.render_seconds = seconds_before + start.elapsed().as_secs_f64();
+        acc.set_render_seconds(seconds_before + start.elapsed().as_secs_f64());
         // Without a pass the last checkpoint is already this accumulation.
         if passes > 0
             && let Some(save) = control.save.as_mut()
@@ -835,9 +818,9 @@ impl Render {
             if device_sums {
                 sync_sums(self.passes.as_mut(), acc, self.adapting_on_device)?;
             }
-            acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+            acc.set_partial(if acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None });
             save(acc)?;
-            acc.partial = None;
+            acc.set_partial(None);
             self.times.checkpoint_seconds += t.elapsed().as_secs_f64();
         }
         self.times.readback_bytes += self.passes.take_readback_bytes();
@@ -856,7 +839,7 @@ impl Render {
         let t = Instant::now();
         self.sync()?;
         let mut acc = self.acc.clone();
-        acc.partial = if acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+        acc.set_partial(if acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None });
         self.times.readback_seconds += t.elapsed().as_secs_f64();
         self.times.readback_bytes += self.passes.take_readback_bytes();
         Ok(acc)
@@ -875,7 +858,7 @@ impl Render {
         // holds (a bake's millions of points).
         let t = Instant::now();
         self.sync()?;
-        let partial = if self.acc.partial_samples > 0 { Some(self.passes.read()?) } else { None };
+        let partial = if self.acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None };
         let mut times = self.times;
         times.readback_seconds += t.elapsed().as_secs_f64();
         times.readback_bytes += self.passes.take_readback_bytes();
@@ -883,17 +866,17 @@ impl Render {
         drop(self.passes);
         let host_stats = Instant::now();
         let mut accumulation = self.acc;
-        accumulation.partial = partial;
+        accumulation.set_partial(partial);
         let film = accumulation.film()?;
         let acc = &accumulation;
-        let s = &acc.settings;
+        let s = acc.settings();
         let info = &self.info;
         let setup = &info.setup;
         let done = acc.samples();
         // Every pixel's samples: fewer than `done` where an adaptive render stopped.
         let pixel_samples: u64 = (0..film.sum.len()).map(|i| film.samples_of(i)).sum();
         let camera_rays = pixel_samples;
-        let rays = camera_rays + acc.ao_rays;
+        let rays = camera_rays + acc.ao_rays();
         let (rmse_estimate, rmse_bound, image_mean) = (film.rmse_estimate(), film.rmse_bound(), film.image_mean());
         let error_estimator = film.error_estimator();
         times.host_stats_seconds += host_stats.elapsed().as_secs_f64();
@@ -901,16 +884,16 @@ impl Render {
         let stats = RenderStats {
             scene: info.scene.clone(),
             samples_per_pixel: done,
-            samples_requested: acc.end - acc.first,
-            first_sample: acc.first,
+            samples_requested: acc.end() - acc.first(),
+            first_sample: acc.first(),
             samples_resumed: self.resumed,
             interrupted: self.interrupted,
             width: s.width,
             height: s.height,
             rays_traced: rays,
             camera_rays,
-            ao_rays: acc.ao_rays,
-            render_seconds: acc.render_seconds,
+            ao_rays: acc.ao_rays(),
+            render_seconds: acc.render_seconds(),
             bvh_build_seconds: setup.bvh_build_seconds,
             setup_seconds: setup.upload_seconds + info.target_seconds,
             upload_seconds: setup.upload_seconds,
@@ -924,7 +907,7 @@ impl Render {
             adapter_seconds: 0.0,
             write_seconds: 0.0,
             process_seconds: None,
-            rays_per_second: rays as f64 / acc.render_seconds.max(1e-9),
+            rays_per_second: rays as f64 / acc.render_seconds().max(1e-9),
             triangles: info.triangles,
             instances: info.instances,
             spheres: info.spheres,
@@ -954,13 +937,13 @@ impl Render {
             },
             heap_peak_bytes: None,
             load_seconds: 0.0,
-            passes: acc.passes,
+            passes: acc.passes(),
             image_mean,
             mean_samples_per_pixel: pixel_samples as f64 / film.sum.len().max(1) as f64,
             adaptive: !film.pixel_samples.is_empty(),
             ended_by: match self.ended {
                 Some((end, _)) => end.into(),
-                None if done == acc.end - acc.first => EndedBy::Samples,
+                None if done == acc.end() - acc.first() => EndedBy::Samples,
                 None => EndedBy::Unfinished,
             },
             target: self.ended.and_then(|(_, t)| t),
@@ -985,13 +968,13 @@ impl Render {
         if !self.on_device {
             return Ok(None);
         }
-        if self.acc.partial_samples > 0 {
+        if self.acc.partial_samples() > 0 {
             // Independent samples only: a replicate cut here would lose its square.
-            assert!(self.acc.settings.replicate_plan().is_none(), "a replicate in progress");
-            self.passes.fold(false, self.acc.partial_samples)?;
-            self.acc.partial_samples = 0;
+            assert!(self.acc.settings().replicate_plan().is_none(), "a replicate in progress");
+            self.passes.fold(false, self.acc.partial_samples())?;
+            self.acc.end_block(0);
         }
-        let exponents = (self.acc.exact.sum_exponent, self.acc.exact.sq_exponent);
+        let exponents = (self.acc.exact().sum_exponent, self.acc.exact().sq_exponent);
         let (sums, bad) = self.passes.check(self.acc.check_query(), exponents)?;
         match bad {
             Some(slot) => Err(out_of_range(&self.acc, slot)),
@@ -1004,10 +987,10 @@ impl Render {
     /// `None` where the device does not keep the sums or no pass has run.
     #[cfg(feature = "testing")]
     pub fn device_adapt_sums(&mut self) -> Result<Option<crate::gpu::stats::AdaptSums>> {
-        if !self.on_device || self.acc.partial_samples > 0 {
+        if !self.on_device || self.acc.partial_samples() > 0 {
             return Ok(None);
         }
-        let exponents = (self.acc.exact.sum_exponent, self.acc.exact.sq_exponent);
+        let exponents = (self.acc.exact().sum_exponent, self.acc.exact().sq_exponent);
         let (sums, bad) = self.passes.adapt_check(self.acc.adapt_query(), exponents)?;
         match bad {
             Some(slot) => Err(out_of_range(&self.acc, slot)),
@@ -1028,13 +1011,13 @@ impl Render {
 /// has any), and with `counts` the per-pixel counts and stopped pixels of an adaptive
 /// render, once one has stopped.
 fn sync_sums(passes: &mut dyn Passes, acc: &mut Accumulation, counts: bool) -> Result<()> {
-    let replicates = acc.exact.replicates > 0 || !acc.exact.replicate_sq.is_empty();
-    if let Some(slot) = passes.read_sums(&mut acc.exact, replicates)? {
+    let replicates = acc.exact().replicates > 0 || !acc.exact().replicate_sq.is_empty();
+    if let Some(slot) = passes.read_sums(acc.exact_mut(), replicates)? {
         return Err(out_of_range(acc, slot));
     }
     if counts {
         let counts = passes.read_counts()?;
-        let x = &mut acc.exact;
+        let x = acc.exact_mut();
         if counts.iter().any(|c| c.2) || !x.pixel_samples.is_empty() {
             x.pixel_samples = counts.iter().map(|c| c.0).collect();
             x.pixel_replicates = counts.iter().map(|c| c.1).collect();
@@ -1054,7 +1037,7 @@ fn adapt_on_device(
     background_stopped: &mut bool,
     times: &mut PassTimes,
 ) -> Result<bool> {
-    if acc.exact.replicates == 0 || matches!(target, ErrorTarget::PointStdError(_)) {
+    if acc.exact().replicates == 0 || matches!(target, ErrorTarget::PointStdError(_)) {
         return Ok(false);
     }
     // The background pixels stop after their first replicate, before the device stops
@@ -1069,11 +1052,11 @@ fn adapt_on_device(
             }
         }
     }
-    if acc.exact.replicates < MIN_TARGET_REPLICATES {
+    if acc.exact().replicates < MIN_TARGET_REPLICATES {
         return Ok(false);
     }
     let t = Instant::now();
-    let (query, exponents) = (acc.adapt_query(), (acc.exact.sum_exponent, acc.exact.sq_exponent));
+    let (query, exponents) = (acc.adapt_query(), (acc.exact().sum_exponent, acc.exact().sq_exponent));
     let (sums, bad) = passes.adapt_check(query, exponents)?;
     if let Some(slot) = bad {
         return Err(out_of_range(acc, slot));
@@ -1095,7 +1078,7 @@ fn adapt_on_device(
 /// The error of a block that held a sample out of range at film slot `slot`, as the
 /// host's exact sums report it.
 fn out_of_range(acc: &Accumulation, slot: u32) -> crate::error::Error {
-    let w = acc.settings.width.max(1);
+    let w = acc.settings().width.max(1);
     acc.error(format!(
         "pixel ({}, {}): a sample was not finite or larger than the scene's albedos and background allow",
         slot % w,

@@ -248,7 +248,7 @@ impl Session {
             range.end,
             max_value,
         );
-        acc.adapter = self.setup.adapter.name.clone();
+        acc.set_adapter(self.setup.adapter.name.clone());
         // In the scene's stored coordinates, where its primitives are.
         let stored = LocalFrame::IDENTITY.camera(&request.camera, self.scene.origin);
         let (scene, shift, (width, height)) =
@@ -341,7 +341,7 @@ impl Session {
             range.end,
             settings.sampling.sky.max_weight(),
         );
-        acc.adapter = self.setup.adapter.name.clone();
+        acc.set_adapter(self.setup.adapter.name.clone());
         Ok(Render::new(passes, acc, self.info(target_seconds)))
     }
 
@@ -403,7 +403,7 @@ impl Session {
         let values = acc.lane_probe_values()?;
         let mut times = render.times();
         times.host_stats_seconds += start.elapsed().as_secs_f64();
-        let (rays, seconds) = (acc.ao_rays, acc.render_seconds);
+        let (rays, seconds) = (acc.ao_rays(), acc.render_seconds());
         Ok(ProbeOutput { values, rays, seconds, adapter, pipeline_seconds, times })
     }
 }

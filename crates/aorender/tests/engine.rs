@@ -148,11 +148,14 @@ fn version_1_checkpoints_resume_to_the_same_bits() {
         let name = kind.name();
         let saved = Accumulation::read(&fixtures.join(format!("checkpoint-v1-{name}.ck"))).expect("fixture reads");
         let device = Device::open(kind, None).expect("device");
-        if device.info().name != saved.adapter {
-            eprintln!("SKIPPED: the {name} fixture was written on {}, not {}", saved.adapter, device.info().name);
+        if device.info().name != saved.adapter() {
+            eprintln!("SKIPPED: the {name} fixture was written on {}, not {}", saved.adapter(), device.info().name);
             continue;
         }
-        assert!(0 < saved.samples() && saved.samples() < 600 && saved.partial.is_some(), "{name}: a block in progress");
+        assert!(
+            0 < saved.samples() && saved.samples() < 600 && saved.partial().is_some(),
+            "{name}: a block in progress"
+        );
         let mut scene = Scene::default_scene();
         let s = &mut scene.settings;
         (s.width, s.height, s.spp, s.sampling.hemisphere, s.sampling.sampler, s.sampling.seed) =

@@ -101,7 +101,7 @@ fn a_banded_render_resumes_and_merges_to_the_unsplit_bits() {
     // Stopped after its first pass (its block in progress in the bands' films), then
     // continued in bands, and on the unsplit device.
     let stopped = render(&banded, &request, &mut Control { time_limit: Some(1e-9), ..Control::default() });
-    assert!(stopped.samples() < 512 && stopped.partial.is_some(), "the first run stopped inside a block");
+    assert!(stopped.samples() < 512 && stopped.partial().is_some(), "the first run stopped inside a block");
     for (session, what) in [(&banded, "resumed in bands"), (&whole, "resumed whole")] {
         let mut resumed = session.render(&request).unwrap();
         resumed.resume(stopped.clone()).unwrap();

@@ -291,10 +291,9 @@ fn checkpoint_bytes() -> Vec<u8> {
     (scene.settings.width, scene.settings.height) = (4, 3);
     let mut acc =
         Accumulation::image(&scene, &scene.camera, &scene.settings, 0..64, DeviceKind::Cpu, &BvhOptions::default());
-    acc.next = 5;
-    acc.partial_samples = 5;
-    acc.partial = Some(BlockSums { sum: vec![5 << 52; 12], sum_sq: vec![5 << 52; 12] });
-    acc.adapter = "cpu".into();
+    acc.record_pass(5, 0);
+    acc.set_partial(Some(BlockSums { sum: vec![5 << 52; 12], sum_sq: vec![5 << 52; 12] }));
+    acc.set_adapter("cpu");
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("seed.ck");
     acc.write(&path).unwrap();

@@ -113,7 +113,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         Some(path) => {
             let saved = Accumulation::read_with(path, &args.scene.load_options()?.limits)?;
             if args.sampling.replicate.is_none() {
-                scene.settings.sampling.replicate = saved.settings.sampling.replicate;
+                scene.settings.sampling.replicate = saved.settings().sampling.replicate;
             }
             // Before any work: the checkpoint must hold samples of this very render.
             let s = &scene.settings;
@@ -144,7 +144,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             s.sampling.sampler.name()
         );
     }
-    let resumed_adapter = resume.as_ref().map(|a| a.adapter.clone());
+    let resumed_adapter = resume.as_ref().map(|a| a.adapter().to_string());
 
     let mut adapter_seconds = 0.0;
     let rc = RunControl {

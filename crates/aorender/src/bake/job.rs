@@ -615,7 +615,7 @@ impl Bake {
         let Some((first, shard)) = shards.first() else {
             return Err(Error::checkpoint("merge", "no accumulations given"));
         };
-        let diff = shard.settings.differences(&expected.settings);
+        let diff = shard.settings().differences(expected.settings());
         if !diff.is_empty() {
             return Err(Error::checkpoint(
                 first,
@@ -813,8 +813,8 @@ impl Session {
             samples_resumed: resumed,
             interrupted: out.stats.interrupted,
             interrupted_block: None,
-            rays: acc.ao_rays,
-            seconds: acc.render_seconds,
+            rays: acc.ao_rays(),
+            seconds: acc.render_seconds(),
             adapter: out.stats.adapter.clone(),
             renders: vec![out.stats],
             host_seconds: start.elapsed().as_secs_f64(),
@@ -876,7 +876,7 @@ impl Session {
                 });
             }
             let acc = &out.accumulation;
-            (rays, seconds) = (rays + acc.ao_rays, seconds + acc.render_seconds);
+            (rays, seconds) = (rays + acc.ao_rays(), seconds + acc.render_seconds());
             let start = Instant::now();
             let values = probe_film_values(&out.film);
             let bent = probe_film_bent_normals(&out.film);

@@ -60,7 +60,7 @@
 //! read.
 
 use super::policy::write_output_with;
-use crate::accumulation::{Accumulation, FilmLayout, SampleSettings};
+use crate::accumulation::{Accumulation, AccumulationParts, FilmLayout, SampleSettings};
 use crate::error::{Error, Result};
 use crate::film::{BLOCK_SAMPLES, BlockSums, ExactSums, OUT_OF_RANGE_BIT};
 use crate::kinds::{BuildQuality, BvhLayout, DeviceKind};
@@ -193,7 +193,7 @@ impl Accumulation {
     }
 
     fn write_body(&self, w: &mut dyn Write) -> std::io::Result<()> {
-        let (s, m) = (&self.settings, &self.settings.sampling);
+        let (s, m) = (self.settings(), &self.settings().sampling);
         w.write_all(&MAGIC)?;
         w.write_all(&VERSION.to_le_bytes())?;
         w.write_all(&s.scene_hash)?;
@@ -203,27 +203,27 @@ impl Accumulation {
         w.write_all(&[
             hemisphere_code(m.hemisphere),
             sampler_code(m.sampler),
-            device_code(self.device),
-            layout_code(self.bvh_layout),
-            quality_code(self.bvh_quality),
+            device_code(self.device()),
+            layout_code(self.bvh_layout()),
+            quality_code(self.bvh_quality()),
             m.max_distance.is_some() as u8,
-            self.partial.is_some() as u8,
-            if self.on_grid { FLAG_ON_GRID } else { 0 }
-                | if self.exact.pixel_samples.is_empty() { 0 } else { FLAG_PER_PIXEL },
+            self.partial().is_some() as u8,
+            if self.on_grid() { FLAG_ON_GRID } else { 0 }
+                | if self.exact().pixel_samples.is_empty() { 0 } else { FLAG_PER_PIXEL },
         ])?;
         w.write_all(&m.max_distance.unwrap_or(0.0).to_le_bytes())?;
         w.write_all(&s.background.to_le_bytes())?;
         w.write_all(&m.seed.to_le_bytes())?;
-        w.write_all(&self.exact.sum_exponent.to_le_bytes())?;
-        w.write_all(&self.exact.sq_exponent.to_le_bytes())?;
+        w.write_all(&self.exact().sum_exponent.to_le_bytes())?;
+        w.write_all(&self.exact().sq_exponent.to_le_bytes())?;
         w.write_all(&BLOCK_SAMPLES.to_le_bytes())?;
-        for v in [self.first, self.end, self.next, self.partial_samples] {
+        for v in [self.first(), self.end(), self.next(), self.partial_samples()] {
             w.write_all(&v.to_le_bytes())?;
         }
-        w.write_all(&self.ao_rays.to_le_bytes())?;
-        w.write_all(&self.passes.to_le_bytes())?;
-        w.write_all(&self.render_seconds.to_le_bytes())?;
-        let name = &self.adapter.as_bytes()[..self.adapter.len().min(MAX_ADAPTER_NAME)];
+        w.write_all(&self.ao_rays().to_le_bytes())?;
+        w.write_all(&self.passes().to_le_bytes())?;
+        w.write_all(&self.render_seconds().to_le_bytes())?;
+        let name = &self.adapter().as_bytes()[..self.adapter().len().min(MAX_ADAPTER_NAME)];
         w.write_all(&(name.len() as u32).to_le_bytes())?;
         w.write_all(name)?;
         w.write_all(&s.replicate().to_le_bytes())?;
@@ -231,8 +231,8 @@ impl Accumulation {
         for v in m.sky.up.to_array().into_iter().chain([m.sky.ground_albedo]) {
             w.write_all(&v.to_le_bytes())?;
         }
-        w.write_all(&self.exact.replicates.to_le_bytes())?;
-        w.write_all(&(self.exact.replicate_sq.len() as u32).to_le_bytes())?;
+        w.write_all(&self.exact().replicates.to_le_bytes())?;
+        w.write_all(&(self.exact().replicate_sq.len() as u32).to_le_bytes())?;
         let mut buf = Vec::with_capacity(1 << 16);
         let flush = |w: &mut dyn Write, buf: &mut Vec<u8>, force: bool| -> std::io::Result<()> {
             if force || buf.len() >= 1 << 16 {
@@ -241,22 +241,22 @@ impl Accumulation {
             }
             Ok(())
         };
-        for v in self.exact.sum.iter().chain(&self.exact.sum_sq).chain(&self.exact.replicate_sq) {
+        for v in self.exact().sum.iter().chain(&self.exact().sum_sq).chain(&self.exact().replicate_sq) {
             buf.extend_from_slice(&v.to_le_bytes());
             flush(w, &mut buf, false)?;
         }
-        for v in self.exact.pixel_samples.iter().chain(&self.exact.pixel_replicates) {
+        for v in self.exact().pixel_samples.iter().chain(&self.exact().pixel_replicates) {
             buf.extend_from_slice(&v.to_le_bytes());
             flush(w, &mut buf, false)?;
         }
-        if !self.exact.pixel_samples.is_empty() {
-            let stopped = |i: usize| self.exact.stopped.get(i).copied().unwrap_or(false);
-            for i in 0..self.exact.pixel_samples.len() {
+        if !self.exact().pixel_samples.is_empty() {
+            let stopped = |i: usize| self.exact().stopped.get(i).copied().unwrap_or(false);
+            for i in 0..self.exact().pixel_samples.len() {
                 buf.push(stopped(i) as u8);
                 flush(w, &mut buf, false)?;
             }
         }
-        if let Some(block) = &self.partial {
+        if let Some(block) = self.partial() {
             for v in &block.sum {
                 buf.extend_from_slice(&v.to_le_bytes());
                 flush(w, &mut buf, false)?;
@@ -283,7 +283,7 @@ impl Accumulation {
         let len = file.metadata().map_err(|e| err(e.to_string()))?.len();
         let mut acc =
             Accumulation::from_stream(&mut std::io::BufReader::new(file), len, limits).map_err(|e| err(e.0))?;
-        acc.source = Some(path.to_path_buf());
+        acc.set_source(path);
         Ok(acc)
     }
 
@@ -296,8 +296,8 @@ impl Accumulation {
 
     /// The bytes of memory the sums of a read checkpoint hold.
     pub fn memory_bytes(&self) -> u64 {
-        let e = &self.exact;
-        let partial = self.partial.as_ref().map_or(0, |b| vec_bytes(&b.sum) + vec_bytes(&b.sum_sq));
+        let e = self.exact();
+        let partial = self.partial().map_or(0, |b| vec_bytes(&b.sum) + vec_bytes(&b.sum_sq));
         vec_bytes(&e.sum)
             + vec_bytes(&e.sum_sq)
             + vec_bytes(&e.replicate_sq)
@@ -504,7 +504,7 @@ impl Accumulation {
         if computed.as_bytes() != &hash {
             return Err("corrupt: its contents do not match their checksum".into());
         }
-        Ok(Accumulation {
+        Ok(Accumulation::from_parts(AccumulationParts {
             settings: SampleSettings {
                 scene_hash,
                 width,
@@ -536,11 +536,9 @@ impl Accumulation {
             render_seconds,
             exact,
             partial,
-            source: None,
             // The power of two the sums' scale was set from: at least the largest sample.
             max_value: 2f64.powi(sum_exponent - ExactSums::exponents(1.0).0),
-            background: Vec::new(),
-        })
+        }))
     }
 }
 
