@@ -311,15 +311,91 @@ impl Accumulation {
     /// header's figures agree with `len` and fit in `limits`, so a damaged or hostile
     /// header cannot ask for more than the file holds or the budget allows.
     fn from_stream(stream: &mut dyn Read, len: u64, limits: &ReadLimits) -> Result<Accumulation, Invalid> {
-        // The fixed fields (through the adapter name's length), the name at most, and the
-        // replicate fields after it.
-        const FIXED_HEADER: usize = 8 + 4 + 32 + 16 + 8 + 12 + 12 + 16 + 20 + 4 + 20 + 16;
-        let mut head = Vec::new();
-        stream
-            .take((FIXED_HEADER + MAX_ADAPTER_NAME) as u64)
-            .read_to_end(&mut head)
-            .map_err(|e| format!("cannot read: {e}"))?;
-        let bytes = &head[..];
+        let head = read_head(stream)?;
+        let header = Header::parse(&head, len)?;
+        header.check()?;
+        header.check_length(len, limits)?;
+        let mut hasher = blake3::Hasher::new();
+        hasher.update(&head[..header.size]);
+        // The rest of the file: what `head` read past the header, then the stream.
+        let mut body = Body { stream: (&head[header.size..]).chain(stream), hasher, len };
+        let exact = header.read_exact_sums(&mut body)?;
+        let partial = header.read_block_in_progress(&mut body, &exact)?;
+        body.check_hash()?;
+        Ok(header.into_accumulation(exact, partial))
+    }
+}
+
+/// The first bytes of a checkpoint: its header whole, at most, and perhaps the start of
+/// its sums.
+fn read_head(stream: &mut dyn Read) -> Result<Vec<u8>, Invalid> {
+    // The fixed fields (through the adapter name's length), the name at most, and the
+    // replicate fields after it.
+    const FIXED_HEADER: usize = 8 + 4 + 32 + 16 + 8 + 12 + 12 + 16 + 20 + 4 + 20 + 16;
+    let mut head = Vec::new();
+    stream
+        .take((FIXED_HEADER + MAX_ADAPTER_NAME) as u64)
+        .read_to_end(&mut head)
+        .map_err(|e| format!("cannot read: {e}"))?;
+    Ok(head)
+}
+
+/// The fields of a checkpoint's header, as read (codes already decoded).
+struct Header {
+    version: u32,
+    scene_hash: [u8; 32],
+    width: u32,
+    height: u32,
+    spp: u32,
+    strata: u32,
+    hemisphere: Hemisphere,
+    sampler: Sampler,
+    device: DeviceKind,
+    bvh_layout: BvhLayout,
+    bvh_quality: BuildQuality,
+    has_max_distance: bool,
+    has_partial: bool,
+    flags: u8,
+    max_distance: f32,
+    background: f32,
+    seed: u32,
+    sum_exponent: i32,
+    sq_exponent: i32,
+    block: u32,
+    first: u32,
+    end: u32,
+    next: u32,
+    partial_samples: u32,
+    ao_rays: u64,
+    passes: u32,
+    render_seconds: f64,
+    adapter: String,
+    replicate: u32,
+    layout: FilmLayout,
+    sky: Sky,
+    replicates: u64,
+    groups: u32,
+    /// The header's bytes: where the sums begin.
+    size: usize,
+}
+
+/// The fields after the adapter name (version 2 on).
+struct ReplicateFields {
+    replicate: u32,
+    layout: FilmLayout,
+    sky: Sky,
+    replicates: u64,
+    groups: u32,
+}
+
+fn invalid(what: &str, code: u8) -> Invalid {
+    Invalid(format!("invalid {what} code {code}"))
+}
+
+impl Header {
+    /// Reads the header's fields from the first bytes of a file of `len` bytes, checking
+    /// the magic, the version, the codes and the flags as they come.
+    fn parse(bytes: &[u8], len: u64) -> Result<Header, Invalid> {
         let mut r = Reader { bytes, at: 0, len };
         if bytes.len() < MAGIC.len() || bytes[..MAGIC.len()] != MAGIC {
             return Err("not an aorender checkpoint (no AOCKPT header)".into());
@@ -334,7 +410,6 @@ impl Accumulation {
         let scene_hash: [u8; 32] = r.take(32)?.try_into().expect("32 bytes");
         let (width, height, spp, strata) = (r.u32()?, r.u32()?, r.u32()?, r.u32()?);
         let codes = r.take(8)?;
-        let invalid = |what: &str, code: u8| Invalid(format!("invalid {what} code {code}"));
         let hemisphere = hemisphere_of(codes[0]).ok_or_else(|| invalid("hemisphere", codes[0]))?;
         let sampler = sampler_of(codes[1]).ok_or_else(|| invalid("sampler", codes[1]))?;
         let device = device_of(codes[2]).ok_or_else(|| invalid("device", codes[2]))?;
@@ -353,28 +428,54 @@ impl Accumulation {
             return Err(format!("adapter name of {name_len} bytes (at most {MAX_ADAPTER_NAME})").into());
         }
         let adapter = String::from_utf8(r.take(name_len)?.to_vec()).map_err(|_| "adapter name is not UTF-8")?;
-        let mut sky = Sky::default();
-        let (replicate, layout, replicates, groups) = if version == 1 {
-            (if sampler == Sampler::Independent { 1 } else { 0 }, FilmLayout::Image, 0, 0)
+        let ReplicateFields { replicate, layout, sky, replicates, groups } = if version == 1 {
+            let replicate = if sampler == Sampler::Independent { 1 } else { 0 };
+            ReplicateFields { replicate, layout: FilmLayout::Image, sky: Sky::default(), replicates: 0, groups: 0 }
         } else {
-            let replicate = r.u32()?;
-            let codes = r.take(4)?;
-            let layout = film_of(codes[0]).ok_or_else(|| invalid("film layout", codes[0]))?;
-            if version < 4 && codes[1..] != [0, 0, 0] {
-                return Err("invalid reserved bytes".into());
-            }
-            if version >= 4 {
-                sky.model = SkyModel::from_code(codes[1]).ok_or_else(|| invalid("sky", codes[1]))?;
-                sky.sampling = SkySampling::from_code(codes[2]).ok_or_else(|| invalid("sky sampling", codes[2]))?;
-                sky.normalise =
-                    SkyNormalise::from_code(codes[3]).ok_or_else(|| invalid("sky normalisation", codes[3]))?;
-                sky.up = glam::Vec3::new(r.f32()?, r.f32()?, r.f32()?);
-                sky.ground_albedo = r.f32()?;
-                sky.validate().map_err(|e| Invalid(format!("invalid sky: {e}")))?;
-            }
-            (replicate, layout, r.u64()?, r.u32()?)
+            read_replicate_fields(&mut r, version)?
         };
+        Ok(Header {
+            version,
+            scene_hash,
+            width,
+            height,
+            spp,
+            strata,
+            hemisphere,
+            sampler,
+            device,
+            bvh_layout,
+            bvh_quality,
+            has_max_distance: has_max_distance == 1,
+            has_partial: has_partial == 1,
+            flags,
+            max_distance,
+            background,
+            seed,
+            sum_exponent,
+            sq_exponent,
+            block,
+            first,
+            end,
+            next,
+            partial_samples,
+            ao_rays,
+            passes,
+            render_seconds,
+            adapter,
+            replicate,
+            layout,
+            sky,
+            replicates,
+            groups,
+            size: r.at,
+        })
+    }
 
+    /// Checks every field's range and their agreement with each other.
+    fn check(&self) -> Result<(), Invalid> {
+        let (width, height, spp, replicate, sampler) =
+            (self.width, self.height, self.spp, self.replicate, self.sampler);
         // An image is at most MAX_IMAGE_SIDE on a side; a probe film (bake: one slot per point) may be
         // long and narrow, within the same number of slots.
         if width == 0 || height == 0 || width as u64 * height as u64 > MAX_SLOTS {
@@ -383,66 +484,89 @@ impl Accumulation {
         if spp == 0
             || sampler.check_replicate(replicate).is_err()
             || replicate != sampler.replicate_samples(Some(replicate))
-            || strata != sampler.strata_per_axis(spp, replicate)
+            || self.strata != sampler.strata_per_axis(spp, replicate)
         {
+            let strata = self.strata;
             return Err(format!("invalid samples per pixel {spp}, strata {strata} or replicate {replicate}").into());
         }
         // A NaN distance is refused too.
-        if (has_max_distance == 1 && (max_distance.is_nan() || max_distance < 0.0)) || !background.is_finite() {
+        if (self.has_max_distance && (self.max_distance.is_nan() || self.max_distance < 0.0))
+            || !self.background.is_finite()
+        {
             return Err("invalid max distance or background".into());
         }
-        if block != BLOCK_SAMPLES {
+        if self.block != BLOCK_SAMPLES {
+            let block = self.block;
             return Err(format!("written with blocks of {block} samples; this aorender uses {BLOCK_SAMPLES}").into());
         }
+        let (sum_exponent, sq_exponent) = (self.sum_exponent, self.sq_exponent);
         let e = sum_exponent - ExactSums::exponents(1.0).0;
         if !(0..=crate::film::MAX_VALUE_EXPONENT).contains(&e)
             || (sum_exponent, sq_exponent) != ExactSums::exponents(2f64.powi(e))
         {
             return Err(format!("invalid sum scales 2^{sum_exponent}, 2^{sq_exponent}").into());
         }
+        let (first, end, next, partial_samples) = (self.first, self.end, self.next, self.partial_samples);
         if !(first <= next && next <= end && end <= spp) {
             return Err(format!("invalid sample range: first {first}, next {next}, end {end}, of {spp}").into());
         }
         if partial_samples > next - first
             || partial_samples > BLOCK_SAMPLES
-            || (partial_samples > 0) != (has_partial == 1)
+            || (partial_samples > 0) != self.has_partial
         {
             return Err(format!("invalid block in progress of {partial_samples} samples").into());
         }
+        let render_seconds = self.render_seconds;
         if !(render_seconds >= 0.0 && render_seconds.is_finite()) {
             return Err(format!("invalid render time {render_seconds}").into());
         }
-        // The length the header implies, checked against the file's before reading the sums.
-        let pixels = width as u64 * height as u64;
+        Ok(())
+    }
+
+    /// The film's slots.
+    fn pixels(&self) -> u64 {
+        self.width as u64 * self.height as u64
+    }
+
+    fn per_pixel(&self) -> bool {
+        self.flags & FLAG_PER_PIXEL != 0
+    }
+
+    /// Checks the length the header implies against the file's `len`, and the memory its
+    /// sums take against `limits`, before any sum is read.
+    fn check_length(&self, len: u64, limits: &ReadLimits) -> Result<(), Invalid> {
+        let pixels = self.pixels();
+        let (replicates, groups) = (self.replicates, self.groups);
         if groups as u64 > pixels || replicates > u32::MAX as u64 {
             return Err(format!("invalid replicates: {replicates} in {groups} groups").into());
         }
-        let per_pixel = flags & FLAG_PER_PIXEL != 0;
-        let expected = r.at as u64
+        let expected = self.size as u64
             + 32 * pixels
             + 16 * groups as u64
-            + if per_pixel { 9 * pixels } else { 0 }
-            + if has_partial == 1 { 16 * pixels } else { 0 }
+            + if self.per_pixel() { 9 * pixels } else { 0 }
+            + if self.has_partial { 16 * pixels } else { 0 }
             + 32;
         if len != expected {
             return Err(format!("truncated or corrupt: {len} bytes, but its header describes {expected}").into());
         }
         // What the sums take in memory: their bytes in the file, but the flags (a byte
         // each in both) and the hashes.
-        let memory = expected - r.at as u64 - 32;
+        let memory = expected - self.size as u64 - 32;
         if memory > limits.memory() {
             return Err(limits.exceeded_message("the checkpoint").into());
         }
-        let mut hasher = blake3::Hasher::new();
-        hasher.update(&bytes[..r.at]);
-        // The rest of the file: what `head` read past the header, then the stream.
-        let mut body = Body { stream: (&bytes[r.at..]).chain(stream), hasher, len };
-        let n = pixels as usize;
-        let sum = body.read_vec(n, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
-        let sum_sq = body.read_vec(n, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
-        let replicate_sq =
-            body.read_vec(groups as usize, 16, |c| i128::from_le_bytes(c.try_into().expect("16 bytes")))?;
-        let (pixel_samples, pixel_replicates, stopped) = if per_pixel {
+        Ok(())
+    }
+
+    /// Reads the exact sums of the finished blocks, the replicate sums and the per-pixel
+    /// counts.
+    fn read_exact_sums(&self, body: &mut Body<impl Read>) -> Result<ExactSums, Invalid> {
+        let n = self.pixels() as usize;
+        let i128_of = |c: &[u8]| i128::from_le_bytes(c.try_into().expect("16 bytes"));
+        let sum = body.read_vec(n, 16, i128_of)?;
+        let sum_sq = body.read_vec(n, 16, i128_of)?;
+        let replicate_sq = body.read_vec(self.groups as usize, 16, i128_of)?;
+        let (pixel_samples, pixel_replicates, stopped) = if self.per_pixel() {
             let u = |c: &[u8]| u32::from_le_bytes(c.try_into().expect("4 bytes"));
             let (samples, replicates) = (body.read_vec(n, 4, u)?, body.read_vec(n, 4, u)?);
             let flags = body.read_vec(n, 1, |c| c[0])?;
@@ -453,93 +577,119 @@ impl Accumulation {
         } else {
             (Vec::new(), Vec::new(), Vec::new())
         };
-        if pixel_samples.iter().any(|&k| k > next - first) {
+        if pixel_samples.iter().any(|&k| k > self.next - self.first) {
             return Err("a pixel holds more samples than the range".into());
         }
-        let exact = ExactSums {
-            width,
-            height,
-            sum_exponent,
-            sq_exponent,
+        Ok(ExactSums {
+            width: self.width,
+            height: self.height,
+            sum_exponent: self.sum_exponent,
+            sq_exponent: self.sq_exponent,
             sum,
             sum_sq,
             replicate_sq,
-            replicates,
+            replicates: self.replicates,
             pixel_samples,
             pixel_replicates,
             stopped,
-        };
-        let partial = match (has_partial, version) {
-            (0, _) => None,
-            (_, 3..) => {
-                let sum = body.read_vec(n, 8, |c| i64::from_le_bytes(c.try_into().expect("8 bytes")))?;
-                let sum_sq = body.read_vec(n, 8, |c| u64::from_le_bytes(c.try_into().expect("8 bytes")))?;
-                if sum_sq.iter().any(|&q| q & OUT_OF_RANGE_BIT != 0) {
-                    return Err("a sum of samples in the block in progress is out of range".into());
-                }
-                Some(BlockSums { sum, sum_sq })
-            }
-            // The device's floats of versions 1 and 2, rounded to the block's quanta.
-            _ => {
-                let e = exact.value_exponent();
-                let floats: Vec<(f64, f64)> = match device {
-                    DeviceKind::Gpu => body.read_vec(n, 16, |c| {
-                        let f = |k: usize| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes")) as f64;
-                        (f(0) + f(1), f(2) + f(3))
-                    })?,
-                    DeviceKind::Cpu => {
-                        let f = |c: &[u8]| f64::from_le_bytes(c.try_into().expect("8 bytes"));
-                        let (sum, sum_sq) = (body.read_vec(n, 8, f)?, body.read_vec(n, 8, f)?);
-                        sum.into_iter().zip(sum_sq).collect()
-                    }
-                };
-                let block = BlockSums::from_floats(floats.into_iter(), e)
-                    .map_err(|e| Invalid(format!("the block in progress: {e}")))?;
-                Some(block)
-            }
-        };
-        let computed = body.hasher.finalize();
-        let mut hash = [0u8; 32];
-        body.stream.read_exact(&mut hash).map_err(|e| body.truncated(e))?;
-        if computed.as_bytes() != &hash {
-            return Err("corrupt: its contents do not match their checksum".into());
+        })
+    }
+
+    /// Reads the sums of the block in progress, when the file holds one.
+    fn read_block_in_progress(
+        &self,
+        body: &mut Body<impl Read>,
+        exact: &ExactSums,
+    ) -> Result<Option<BlockSums>, Invalid> {
+        let n = self.pixels() as usize;
+        if !self.has_partial {
+            return Ok(None);
         }
-        Ok(Accumulation::from_parts(AccumulationParts {
+        if self.version >= 3 {
+            let sum = body.read_vec(n, 8, |c| i64::from_le_bytes(c.try_into().expect("8 bytes")))?;
+            let sum_sq = body.read_vec(n, 8, |c| u64::from_le_bytes(c.try_into().expect("8 bytes")))?;
+            if sum_sq.iter().any(|&q| q & OUT_OF_RANGE_BIT != 0) {
+                return Err("a sum of samples in the block in progress is out of range".into());
+            }
+            return Ok(Some(BlockSums { sum, sum_sq }));
+        }
+        // The device's floats of versions 1 and 2, rounded to the block's quanta.
+        let e = exact.value_exponent();
+        let floats: Vec<(f64, f64)> = match self.device {
+            DeviceKind::Gpu => body.read_vec(n, 16, |c| {
+                let f = |k: usize| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes")) as f64;
+                (f(0) + f(1), f(2) + f(3))
+            })?,
+            DeviceKind::Cpu => {
+                let f = |c: &[u8]| f64::from_le_bytes(c.try_into().expect("8 bytes"));
+                let (sum, sum_sq) = (body.read_vec(n, 8, f)?, body.read_vec(n, 8, f)?);
+                sum.into_iter().zip(sum_sq).collect()
+            }
+        };
+        let block = BlockSums::from_floats(floats.into_iter(), e)
+            .map_err(|e| Invalid(format!("the block in progress: {e}")))?;
+        Ok(Some(block))
+    }
+
+    /// The accumulation the header and its sums describe.
+    fn into_accumulation(self, exact: ExactSums, partial: Option<BlockSums>) -> Accumulation {
+        Accumulation::from_parts(AccumulationParts {
             settings: SampleSettings {
-                scene_hash,
-                width,
-                height,
-                spp,
-                strata,
-                layout,
-                background,
+                scene_hash: self.scene_hash,
+                width: self.width,
+                height: self.height,
+                spp: self.spp,
+                strata: self.strata,
+                layout: self.layout,
+                background: self.background,
                 sampling: Sampling {
-                    hemisphere,
-                    sampler,
-                    max_distance: (has_max_distance == 1).then_some(max_distance),
-                    seed,
-                    replicate: Some(replicate),
-                    sky,
+                    hemisphere: self.hemisphere,
+                    sampler: self.sampler,
+                    max_distance: self.has_max_distance.then_some(self.max_distance),
+                    seed: self.seed,
+                    replicate: Some(self.replicate),
+                    sky: self.sky,
                 },
             },
-            device,
-            bvh_layout,
-            bvh_quality,
-            adapter,
-            first,
-            end,
-            next,
-            partial_samples,
-            on_grid: flags & FLAG_ON_GRID != 0,
-            ao_rays,
-            passes,
-            render_seconds,
+            device: self.device,
+            bvh_layout: self.bvh_layout,
+            bvh_quality: self.bvh_quality,
+            adapter: self.adapter,
+            first: self.first,
+            end: self.end,
+            next: self.next,
+            partial_samples: self.partial_samples,
+            on_grid: self.flags & FLAG_ON_GRID != 0,
+            ao_rays: self.ao_rays,
+            passes: self.passes,
+            render_seconds: self.render_seconds,
             exact,
             partial,
             // The power of two the sums' scale was set from: at least the largest sample.
-            max_value: 2f64.powi(sum_exponent - ExactSums::exponents(1.0).0),
-        }))
+            max_value: 2f64.powi(self.sum_exponent - ExactSums::exponents(1.0).0),
+        })
     }
+}
+
+/// Reads the replicate fields, the film layout and (version 4) the sky that follow the
+/// adapter name in versions 2 on.
+fn read_replicate_fields(r: &mut Reader<'_>, version: u32) -> Result<ReplicateFields, Invalid> {
+    let mut sky = Sky::default();
+    let replicate = r.u32()?;
+    let codes = r.take(4)?;
+    let layout = film_of(codes[0]).ok_or_else(|| invalid("film layout", codes[0]))?;
+    if version < 4 && codes[1..] != [0, 0, 0] {
+        return Err("invalid reserved bytes".into());
+    }
+    if version >= 4 {
+        sky.model = SkyModel::from_code(codes[1]).ok_or_else(|| invalid("sky", codes[1]))?;
+        sky.sampling = SkySampling::from_code(codes[2]).ok_or_else(|| invalid("sky sampling", codes[2]))?;
+        sky.normalise = SkyNormalise::from_code(codes[3]).ok_or_else(|| invalid("sky normalisation", codes[3]))?;
+        sky.up = glam::Vec3::new(r.f32()?, r.f32()?, r.f32()?);
+        sky.ground_albedo = r.f32()?;
+        sky.validate().map_err(|e| Invalid(format!("invalid sky: {e}")))?;
+    }
+    Ok(ReplicateFields { replicate, layout, sky, replicates: r.u64()?, groups: r.u32()? })
 }
 
 /// A writer that hashes what passes through it.
@@ -571,6 +721,17 @@ struct Body<R: Read> {
 impl<R: Read> Body<R> {
     fn truncated(&self, e: std::io::Error) -> Invalid {
         Invalid(format!("truncated or unreadable: {} bytes: {e}", self.len))
+    }
+
+    /// Reads the file's closing hash and compares it with that of every byte before it.
+    fn check_hash(&mut self) -> Result<(), Invalid> {
+        let computed = self.hasher.finalize();
+        let mut hash = [0u8; 32];
+        self.stream.read_exact(&mut hash).map_err(|e| self.truncated(e))?;
+        if computed.as_bytes() != &hash {
+            return Err("corrupt: its contents do not match their checksum".into());
+        }
+        Ok(())
     }
 
     /// `n` elements of `size` bytes each, converted by `convert`.
