@@ -463,6 +463,41 @@ pub struct Render {
     background_stopped: bool,
 }
 
+/// The bookkeeping of one run of passes ([`Render::run_to`]).
+struct RunState {
+    /// The sample index the run stops at.
+    until: u32,
+    /// Samples per pixel of the request's range, for progress.
+    total: u32,
+    /// Film slots, for progress.
+    pixels: u64,
+    start: Instant,
+    /// The accumulation's render seconds before this run.
+    seconds_before: f64,
+    /// Passes this run has made.
+    passes: u32,
+    last_save: Instant,
+    /// Seconds the last save took.
+    save_seconds: f64,
+}
+
+impl RunState {
+    /// A run of `samples` samples per pixel from where `acc` stands (at most to the end of
+    /// its range).
+    fn new(acc: &Accumulation, samples: u32) -> RunState {
+        RunState {
+            until: (acc.first() + samples.min(acc.end() - acc.first())).max(acc.next()),
+            total: acc.end() - acc.first(),
+            pixels: acc.settings().width as u64 * acc.settings().height as u64,
+            start: Instant::now(),
+            seconds_before: acc.render_seconds(),
+            passes: 0,
+            last_save: Instant::now(),
+            save_seconds: 0.0,
+        }
+    }
+}
+
 /// What finds a render's background pixels ([`crate::footprint::background_pixels`]).
 pub(crate) type BackgroundPixels = Box<dyn FnOnce() -> Vec<bool> + Send>;
 
@@ -613,6 +648,61 @@ impl Render {
     }
 
     fn run_passes(&mut self, samples: u32, control: &mut Control) -> Result<RunEnd> {
+        self.check_control(control)?;
+        let device_sums = self.place_sums(control.adaptive)?;
+        let mut run = RunState::new(&self.acc, samples);
+        let end = loop {
+            if self.acc.next() >= run.until {
+                break RunEnd::Done;
+            }
+            if let Some(end) = self.interruption(control, &run) {
+                break end;
+            }
+            let (block_end, check) = self.stretch_end(control);
+            let count = self.pass_count(control, block_end, run.until);
+            let seconds = self.run_pass(count)?;
+            run.passes += 1;
+            let all_met = match (self.acc.next() == block_end, device_sums) {
+                (true, true) => self.end_block_on_device(control)?,
+                (true, false) => self.end_block_on_host(control)?,
+                (false, _) => false,
+            };
+            if all_met {
+                break RunEnd::TargetMet;
+            }
+            self.size_next_pass(control, &run, seconds, count);
+            self.acc.set_render_seconds(run.seconds_before + run.start.elapsed().as_secs_f64());
+            self.report_progress(control, &run);
+            self.save_if_due(control, device_sums, &mut run)?;
+            let acc = &self.acc;
+            let due =
+                check.filter(|&c| acc.next().is_multiple_of(c) && check_due(((acc.next() - acc.first()) / c) as u64));
+            if let (Some(target), Some(_)) = (control.target, due) {
+                let met = match device_sums {
+                    true => self.check_target_on_device(control.adaptive, target)?,
+                    false => self.check_target_on_host(control.adaptive, target)?,
+                };
+                if met {
+                    break RunEnd::TargetMet;
+                }
+            }
+        };
+        self.acc.set_render_seconds(run.seconds_before + run.start.elapsed().as_secs_f64());
+        // Without a pass the last checkpoint is already this accumulation.
+        if run.passes > 0
+            && let Some(save) = control.save.as_mut()
+        {
+            let t = Instant::now();
+            self.save_with(&mut **save, device_sums)?;
+            self.times.checkpoint_seconds += t.elapsed().as_secs_f64();
+        }
+        self.times.readback_bytes += self.passes.take_readback_bytes();
+        Ok(end)
+    }
+
+    /// Checks a run's target and adaptive sampling against the accumulation, and finds
+    /// the background pixels the first time an adaptive run needs them.
+    fn check_control(&mut self, control: &Control) -> Result<()> {
         if let Some(target) = control.target {
             self.acc.check_target(target)?;
         }
@@ -622,12 +712,18 @@ impl Render {
                 self.acc.set_background(find());
             }
         }
+        Ok(())
+    }
+
+    /// Puts the exact sums where this run adds to them, and says whether that is the
+    /// device.
+    fn place_sums(&mut self, adaptive: bool) -> Result<bool> {
         // The device keeps the exact sums of an image, and the counts and decisions of an
         // adaptive run; a run that is not adaptive continuing an adaptive one's pixels
         // (which count their own samples) adds on the host.
         let device_sums = self.passes.keeps_sums()
             && self.acc.settings().layout == FilmLayout::Image
-            && (control.adaptive || self.acc.exact().pixel_samples.is_empty());
+            && (adaptive || self.acc.exact().pixel_samples.is_empty());
         if device_sums && !self.on_device {
             self.passes.write_sums(self.acc.exact(), self.acc.finished())?;
             self.on_device = true;
@@ -635,196 +731,214 @@ impl Render {
             self.sync()?;
             self.on_device = false;
         }
-        self.adapting_on_device |= device_sums && control.adaptive;
+        self.adapting_on_device |= device_sums && adaptive;
+        Ok(device_sums)
+    }
+
+    /// How the run ends before its next pass, if it does: a stop asked for, or the time
+    /// limit reached after at least one pass.
+    fn interruption(&mut self, control: &Control, run: &RunState) -> Option<RunEnd> {
+        if control.stop.is_some_and(|s| s.load(Ordering::SeqCst)) {
+            self.interrupted = true;
+            return Some(RunEnd::Stopped);
+        }
+        if let Some(limit) = control.time_limit
+            && run.start.elapsed().as_secs_f64() >= limit
+            && run.passes > 0
+        {
+            return Some(RunEnd::TimeLimit);
+        }
+        None
+    }
+
+    /// Where the next pass must stop at the latest, and the samples between two checks of
+    /// the target (with one).
+    fn stretch_end(&self, control: &Control) -> (u32, Option<u32>) {
+        let acc = &self.acc;
+        // A pass stays within one block, and within one replicate when their sums are
+        // taken.
+        let unit = acc.take_rounds();
+        let block_end = ((acc.next() / unit) as u64 + 1) * unit as u64;
+        let block_end = block_end.min(acc.end() as u64) as u32;
+        // And within one stretch between two checks of the target.
+        let check = control.target.map(|_| acc.target_check_rounds());
+        let block_end = match check {
+            Some(c) => block_end.min((((acc.next() / c) as u64 + 1) * c as u64).min(u32::MAX as u64) as u32),
+            None => block_end,
+        };
+        (block_end, check)
+    }
+
+    /// The samples per pixel of the next pass.
+    fn pass_count(&self, control: &Control, block_end: u32, until: u32) -> u32 {
+        let count = match control.sizing {
+            PassSizing::Timed => self.count,
+            PassSizing::Fixed(n) => n.clamp(1, self.passes.max_pass_samples()),
+        };
+        count.min(block_end - self.acc.next()).min(until - self.acc.next())
+    }
+
+    /// Runs one pass of `count` samples per pixel and records it; returns its seconds.
+    fn run_pass(&mut self, count: u32) -> Result<f64> {
+        let pass_start = Instant::now();
+        let report = self.passes.pass(self.acc.next(), count)?;
+        let seconds = pass_start.elapsed().as_secs_f64().max(1e-6);
+        self.times.passes += 1;
+        self.times.wall_seconds += seconds;
+        self.times.gpu_seconds = self.times.gpu_seconds.zip(report.gpu_seconds).map(|(a, b)| a + b);
+        self.times.ao_rays += report.ao_rays;
+        self.acc.record_pass(count, report.ao_rays);
+        Ok(seconds)
+    }
+
+    /// Folds a finished block into the device's exact sums and, in an adaptive run, takes
+    /// the device's decisions; true when every pixel has stopped.
+    fn end_block_on_device(&mut self, control: &Control) -> Result<bool> {
         let acc = &mut self.acc;
-        let until = (acc.first() + samples.min(acc.end() - acc.first())).max(acc.next());
-        let pixels = acc.settings().width as u64 * acc.settings().height as u64;
-        let start = Instant::now();
-        let seconds_before = acc.render_seconds();
-        let total = acc.end() - acc.first();
-        let mut passes = 0u32;
-        let mut end = RunEnd::Done;
-        let (mut last_save, mut save_seconds) = (Instant::now(), 0.0f64);
-        while acc.next() < until {
-            if control.stop.is_some_and(|s| s.load(Ordering::SeqCst)) {
-                end = RunEnd::Stopped;
-                self.interrupted = true;
-                break;
+        let t = Instant::now();
+        let whole = acc.whole_replicate(acc.next() - acc.partial_samples()..acc.next());
+        self.passes.fold(whole, acc.partial_samples())?;
+        acc.end_block(whole as u64);
+        self.times.host_stats_seconds += t.elapsed().as_secs_f64();
+        if let (true, Some(target)) = (control.adaptive, control.target) {
+            self.times.checks += 1;
+            let all =
+                adapt_on_device(self.passes.as_mut(), acc, target, &mut self.background_stopped, &mut self.times)?;
+            if all {
+                return Ok(true);
             }
-            if let Some(limit) = control.time_limit
-                && start.elapsed().as_secs_f64() >= limit
-                && passes > 0
-            {
-                end = RunEnd::TimeLimit;
-                break;
-            }
-            // A pass stays within one block, and within one replicate when their sums are
-            // taken.
-            let unit = acc.take_rounds();
-            let block_end = ((acc.next() / unit) as u64 + 1) * unit as u64;
-            let block_end = block_end.min(acc.end() as u64) as u32;
-            // And within one stretch between two checks of the target.
-            let check = control.target.map(|_| acc.target_check_rounds());
-            let block_end = match check {
-                Some(c) => block_end.min((((acc.next() / c) as u64 + 1) * c as u64).min(u32::MAX as u64) as u32),
-                None => block_end,
-            };
-            let count = match control.sizing {
-                PassSizing::Timed => self.count,
-                PassSizing::Fixed(n) => n.clamp(1, self.passes.max_pass_samples()),
-            };
-            let count = count.min(block_end - acc.next()).min(until - acc.next());
-            let pass_start = Instant::now();
-            let report = self.passes.pass(acc.next(), count)?;
-            let seconds = pass_start.elapsed().as_secs_f64().max(1e-6);
-            self.times.passes += 1;
-            self.times.wall_seconds += seconds;
-            self.times.gpu_seconds = self.times.gpu_seconds.zip(report.gpu_seconds).map(|(a, b)| a + b);
-            self.times.ao_rays += report.ao_rays;
-            acc.record_pass(count, report.ao_rays);
-            passes += 1;
-            if acc.next() == block_end && device_sums {
-                let t = Instant::now();
-                let whole = acc.whole_replicate(acc.next() - acc.partial_samples()..acc.next());
-                self.passes.fold(whole, acc.partial_samples())?;
-                acc.end_block(whole as u64);
-                self.times.host_stats_seconds += t.elapsed().as_secs_f64();
-                if let (true, Some(target)) = (control.adaptive, control.target) {
-                    self.times.checks += 1;
-                    let all = adapt_on_device(
-                        self.passes.as_mut(),
-                        acc,
-                        target,
-                        &mut self.background_stopped,
-                        &mut self.times,
-                    )?;
-                    if all {
-                        end = RunEnd::TargetMet;
-                        break;
-                    }
-                }
-            } else if acc.next() == block_end {
-                let t = Instant::now();
-                let block = self.passes.take()?;
-                self.times.readback_seconds += t.elapsed().as_secs_f64();
-                let t = Instant::now();
-                acc.add_taken(&block, acc.next() - acc.partial_samples()..acc.next())?;
-                acc.end_block(0);
-                if let (true, Some(target)) = (control.adaptive, control.target) {
-                    self.times.checks += 1;
-                    if let Some(mask) = acc.adapt(target)? {
-                        self.passes.set_inactive(&mask)?;
-                        if mask.iter().all(|&off| off) {
-                            self.times.host_stats_seconds += t.elapsed().as_secs_f64();
-                            end = RunEnd::TargetMet;
-                            break;
-                        }
-                    }
-                }
-                self.times.host_stats_seconds += t.elapsed().as_secs_f64();
-            }
-            let mut target = PASS_TARGET_SECONDS;
-            if let Some(limit) = control.time_limit {
-                target = target.min((limit - start.elapsed().as_secs_f64()).max(0.0));
-            }
-            let per_sample = seconds / count as f64;
-            self.count = ((target / per_sample) as u32).clamp(1, (8 * self.count).min(self.passes.max_pass_samples()));
-            acc.set_render_seconds(seconds_before + start.elapsed().as_secs_f64());
-            if let Some(progress) = control.progress.as_mut() {
-                progress(&Progress {
-                    samples_done: acc.samples(),
-                    samples_total: total,
-                    rays: acc.samples() as u64 * pixels + acc.ao_rays(),
-                    elapsed: acc.render_seconds(),
-                });
-            }
-            if let Some(save) = control.save.as_mut()
-                && acc.next() < acc.end()
-                && (control.save_interval <= 0.0
-                    || last_save.elapsed().as_secs_f64() >= control.save_interval.max(10.0 * save_seconds))
-            {
-                let t = Instant::now();
-                if device_sums {
-                    sync_sums(self.passes.as_mut(), acc, self.adapting_on_device)?;
-                }
-                acc.set_partial(if acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None });
-                save(acc)?;
-                acc.set_partial(None);
-                save_seconds = t.elapsed().as_secs_f64();
-                self.times.checkpoint_seconds += save_seconds;
-                last_save = Instant::now();
-            }
-            let due =
-                check.filter(|&c| acc.next().is_multiple_of(c) && check_due(((acc.next() - acc.first()) / c) as u64));
-            if let (Some(target), Some(_)) = (control.target, due)
-                && device_sums
-            {
-                if acc.target_replicates() >= MIN_TARGET_REPLICATES {
-                    let t = Instant::now();
-                    // A stretch of independent samples is folded whole: no replicate's
-                    // square is cut.
-                    if acc.partial_samples() > 0 {
-                        self.passes.fold(false, acc.partial_samples())?;
-                        acc.end_block(0);
-                    }
-                    let exponents = (acc.exact().sum_exponent, acc.exact().sq_exponent);
-                    let (met, bad) = match control.adaptive {
-                        true => {
-                            let (sums, bad) = self.passes.adapt_check(acc.adapt_query(), exponents)?;
-                            (acc.adaptive_target_met(target, &sums), bad)
-                        }
-                        false => {
-                            let (sums, bad) = self.passes.check(acc.check_query(), exponents)?;
-                            (acc.target_met_by(target, &sums), bad)
-                        }
-                    };
-                    self.times.readback_seconds += t.elapsed().as_secs_f64();
-                    if let Some(slot) = bad {
-                        return Err(out_of_range(acc, slot));
-                    }
-                    let t = Instant::now();
+        }
+        Ok(false)
+    }
+
+    /// Reads a finished block back into the host's exact sums and, in an adaptive run,
+    /// stops the pixels within the target; true when every pixel has stopped.
+    fn end_block_on_host(&mut self, control: &Control) -> Result<bool> {
+        let acc = &mut self.acc;
+        let t = Instant::now();
+        let block = self.passes.take()?;
+        self.times.readback_seconds += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        acc.add_taken(&block, acc.next() - acc.partial_samples()..acc.next())?;
+        acc.end_block(0);
+        if let (true, Some(target)) = (control.adaptive, control.target) {
+            self.times.checks += 1;
+            if let Some(mask) = acc.adapt(target)? {
+                self.passes.set_inactive(&mask)?;
+                if mask.iter().all(|&off| off) {
                     self.times.host_stats_seconds += t.elapsed().as_secs_f64();
-                    self.times.checks += 1;
-                    if met {
-                        end = RunEnd::TargetMet;
-                        break;
-                    }
-                }
-            } else if let (Some(target), Some(_)) = (control.target, due) {
-                let t = Instant::now();
-                acc.set_partial(if acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None });
-                self.times.readback_seconds += t.elapsed().as_secs_f64();
-                let t = Instant::now();
-                // An adaptive render's check is its decisions' rule, on the host's sums.
-                let met = match control.adaptive && acc.partial().is_none() {
-                    true => Ok(acc.adaptive_target_met(target, &acc.adapt_sums())),
-                    false => acc.target_met(target),
-                };
-                acc.set_partial(None);
-                self.times.host_stats_seconds += t.elapsed().as_secs_f64();
-                self.times.checks += 1;
-                if met? {
-                    end = RunEnd::TargetMet;
-                    break;
+                    return Ok(true);
                 }
             }
         }
-        acc.set_render_seconds(seconds_before + start.elapsed().as_secs_f64());
-        // Without a pass the last checkpoint is already this accumulation.
-        if passes > 0
-            && let Some(save) = control.save.as_mut()
+        self.times.host_stats_seconds += t.elapsed().as_secs_f64();
+        Ok(false)
+    }
+
+    /// Sizes the next timed pass from the last one's seconds per sample.
+    fn size_next_pass(&mut self, control: &Control, run: &RunState, seconds: f64, count: u32) {
+        let mut target = PASS_TARGET_SECONDS;
+        if let Some(limit) = control.time_limit {
+            target = target.min((limit - run.start.elapsed().as_secs_f64()).max(0.0));
+        }
+        let per_sample = seconds / count as f64;
+        self.count = ((target / per_sample) as u32).clamp(1, (8 * self.count).min(self.passes.max_pass_samples()));
+    }
+
+    /// Tells the progress callback where the run stands.
+    fn report_progress(&self, control: &mut Control, run: &RunState) {
+        let acc = &self.acc;
+        if let Some(progress) = control.progress.as_mut() {
+            progress(&Progress {
+                samples_done: acc.samples(),
+                samples_total: run.total,
+                rays: acc.samples() as u64 * run.pixels + acc.ao_rays(),
+                elapsed: acc.render_seconds(),
+            });
+        }
+    }
+
+    /// Saves the accumulation when the save interval has passed (and the range is not
+    /// done: the run's end saves it then).
+    fn save_if_due(&mut self, control: &mut Control, device_sums: bool, run: &mut RunState) -> Result<()> {
+        if let Some(save) = control.save.as_mut()
+            && self.acc.next() < self.acc.end()
+            && (control.save_interval <= 0.0
+                || run.last_save.elapsed().as_secs_f64() >= control.save_interval.max(10.0 * run.save_seconds))
         {
             let t = Instant::now();
-            if device_sums {
-                sync_sums(self.passes.as_mut(), acc, self.adapting_on_device)?;
-            }
-            acc.set_partial(if acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None });
-            save(acc)?;
-            acc.set_partial(None);
-            self.times.checkpoint_seconds += t.elapsed().as_secs_f64();
+            self.save_with(&mut **save, device_sums)?;
+            run.save_seconds = t.elapsed().as_secs_f64();
+            self.times.checkpoint_seconds += run.save_seconds;
+            run.last_save = Instant::now();
         }
-        self.times.readback_bytes += self.passes.take_readback_bytes();
-        Ok(end)
+        Ok(())
+    }
+
+    /// Hands `save` the accumulation with the device's sums and its block in progress.
+    fn save_with(&mut self, save: &mut dyn FnMut(&Accumulation) -> Result<()>, device_sums: bool) -> Result<()> {
+        let acc = &mut self.acc;
+        if device_sums {
+            sync_sums(self.passes.as_mut(), acc, self.adapting_on_device)?;
+        }
+        acc.set_partial(if acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None });
+        save(acc)?;
+        acc.set_partial(None);
+        Ok(())
+    }
+
+    /// Checks the target on the device's exact sums (once enough replicates are done);
+    /// true when it is met.
+    fn check_target_on_device(&mut self, adaptive: bool, target: ErrorTarget) -> Result<bool> {
+        let acc = &mut self.acc;
+        if acc.target_replicates() < MIN_TARGET_REPLICATES {
+            return Ok(false);
+        }
+        let t = Instant::now();
+        // A stretch of independent samples is folded whole: no replicate's
+        // square is cut.
+        if acc.partial_samples() > 0 {
+            self.passes.fold(false, acc.partial_samples())?;
+            acc.end_block(0);
+        }
+        let exponents = (acc.exact().sum_exponent, acc.exact().sq_exponent);
+        let (met, bad) = match adaptive {
+            true => {
+                let (sums, bad) = self.passes.adapt_check(acc.adapt_query(), exponents)?;
+                (acc.adaptive_target_met(target, &sums), bad)
+            }
+            false => {
+                let (sums, bad) = self.passes.check(acc.check_query(), exponents)?;
+                (acc.target_met_by(target, &sums), bad)
+            }
+        };
+        self.times.readback_seconds += t.elapsed().as_secs_f64();
+        if let Some(slot) = bad {
+            return Err(out_of_range(acc, slot));
+        }
+        let t = Instant::now();
+        self.times.host_stats_seconds += t.elapsed().as_secs_f64();
+        self.times.checks += 1;
+        Ok(met)
+    }
+
+    /// Checks the target on the host's sums with the block in progress read back; true
+    /// when it is met.
+    fn check_target_on_host(&mut self, adaptive: bool, target: ErrorTarget) -> Result<bool> {
+        let acc = &mut self.acc;
+        let t = Instant::now();
+        acc.set_partial(if acc.partial_samples() > 0 { Some(self.passes.read()?) } else { None });
+        self.times.readback_seconds += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        // An adaptive render's check is its decisions' rule, on the host's sums.
+        let met = match adaptive && acc.partial().is_none() {
+            true => Ok(acc.adaptive_target_met(target, &acc.adapt_sums())),
+            false => acc.target_met(target),
+        };
+        acc.set_partial(None);
+        self.times.host_stats_seconds += t.elapsed().as_secs_f64();
+        self.times.checks += 1;
+        met
     }
 
     /// Runs passes to the end of the range (or until `control` ends them) and finishes:
