@@ -7,7 +7,10 @@ use crate::run::{self, RunControl};
 use crate::{memory, output, signals};
 use anyhow::{Result, bail};
 use aorender::output::{FLOAT_IMAGE_EXTENSIONS, FilePlan, IMAGE_EXTENSIONS, write_error_image, write_image};
-use aorender::{Accumulation, Device, EndedBy, ErrorTarget, ImageRequest, Sampler, Session};
+use aorender::{
+    Accumulation, BvhOptions, Control, Device, EndedBy, ErrorTarget, ImageRequest, RenderOutput, RenderStats, Sampler,
+    Scene, Session,
+};
 
 /// Samples per pixel a render with an error target takes at most, unless --spp says.
 const TARGET_SPP_CAP: u32 = 65536;
@@ -60,7 +63,60 @@ pub fn run(args: RenderArgs) -> Result<()> {
     // Before loading: a signal while a large scene loads or its BVH builds ends the process.
     let stop = Arc::new(AtomicBool::new(false));
     signals::install(stop.clone())?;
-    // Before any work: no output onto an input or another output, nor onto a directory.
+    plan_files(&args)?;
+    let load_start = std::time::Instant::now();
+    let mut scene = args.scene.load()?;
+    let load_seconds = load_start.elapsed().as_secs_f64();
+    args.size.apply(&mut scene);
+    let (target, measure_replicate) = apply_settings(&args, &mut scene)?;
+    let checkpoint_path = args.run.check(scene.settings.spp, "pixel")?;
+    check_output_extension(&args.output, &IMAGE_EXTENSIONS)?;
+    let bvh = args.scene.bvh();
+    if let Some(path) = &args.error_image {
+        check_output_extension(path, &FLOAT_IMAGE_EXTENSIONS)?;
+    }
+    let resume = read_resume(&args, &mut scene, target, &bvh)?;
+    check_error_estimate(&args, &scene)?;
+    let resumed_adapter = resume.as_ref().map(|a| a.adapter().to_string());
+
+    let rc = RunControl {
+        stop: &stop,
+        run: &args.run,
+        checkpoint: checkpoint_path.as_deref(),
+        total: scene.settings.spp,
+        unit: "spp",
+        target,
+        adaptive: args.adaptive,
+    };
+    let (mut out, adapter_seconds) =
+        run::traced(rc, |control| render_image(&args, scene, &bvh, resume, measure_replicate, control))?;
+    out.stats.load_seconds = load_seconds;
+    out.stats.adapter_seconds = adapter_seconds;
+    out.stats.heap_peak_bytes = memory::heap_peak_bytes();
+    if out.stats.samples_per_pixel == 0 {
+        run::exit_before_any_sample("rendered");
+    }
+    let json = write_outputs(&args, &mut out)?;
+    let st = &out.stats;
+    say_summary(&args, st, target, resumed_adapter);
+    output::print(&format!("{json}\n"))?;
+    if st.interrupted {
+        let mut written = vec![args.output.display().to_string()];
+        written.extend(args.run.stats.as_ref().map(|p| p.display().to_string()));
+        let done = format!(
+            "{} of {} samples per pixel; {} hold them",
+            st.samples_per_pixel,
+            st.samples_requested,
+            written.join(" and ")
+        );
+        return run::exit_interrupted(&done, checkpoint_path.as_deref());
+    }
+    say_ending(st, target);
+    Ok(())
+}
+
+/// Before any work: no output onto an input or another output, nor onto a directory.
+fn plan_files(args: &RenderArgs) -> Result<()> {
     let mut plan = FilePlan::new();
     output::plan_scene(&mut plan, args.scene.scene.as_deref());
     output::plan_resume(&mut plan, &args.run);
@@ -69,10 +125,12 @@ pub fn run(args: RenderArgs) -> Result<()> {
         plan.output(path, "--error-image")?;
     }
     output::plan_run(&mut plan, &args.run)?;
-    let load_start = std::time::Instant::now();
-    let mut scene = args.scene.load()?;
-    let load_seconds = load_start.elapsed().as_secs_f64();
-    args.size.apply(&mut scene);
+    Ok(())
+}
+
+/// Applies the sampling options and the error target to the scene's settings; returns
+/// the target and whether the replicate size is to be measured.
+fn apply_settings(args: &RenderArgs, scene: &mut Scene) -> Result<(Option<ErrorTarget>, bool)> {
     let target = match (args.target_error, args.target_relative_error) {
         (Some(e), _) => Some(ErrorTarget::Rmse(e)),
         (_, Some(r)) => Some(ErrorTarget::RelativeRmse(r)),
@@ -84,7 +142,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         (None, Some(_)) => s.spp = TARGET_SPP_CAP,
         (None, None) => {}
     }
-    args.sampling.apply(&mut scene)?;
+    args.sampling.apply(scene)?;
     if args.adaptive && target.is_none() {
         bail!("invalid option: --adaptive needs --target-error or --target-relative-error");
     }
@@ -103,12 +161,18 @@ pub fn run(args: RenderArgs) -> Result<()> {
         measure_replicate = args.replicate_by_cost && args.run.sample_range.is_none() && args.run.resume.is_none();
     }
     scene.settings.validate().map_err(invalid_option)?;
-    let checkpoint_path = args.run.check(scene.settings.spp, "pixel")?;
-    check_output_extension(&args.output, &IMAGE_EXTENSIONS)?;
-    let bvh = args.scene.bvh();
-    if let Some(path) = &args.error_image {
-        check_output_extension(path, &FLOAT_IMAGE_EXTENSIONS)?;
-    }
+    Ok((target, measure_replicate))
+}
+
+/// Reads `--resume`'s checkpoint and checks that it holds samples of this very render
+/// (taking its replicate size unless `--replicate` says), and that the target suits the
+/// render, before any work.
+fn read_resume(
+    args: &RenderArgs,
+    scene: &mut Scene,
+    target: Option<ErrorTarget>,
+    bvh: &BvhOptions,
+) -> Result<Option<Accumulation>> {
     let resume = match &args.run.resume {
         Some(path) => {
             let saved = Accumulation::read_with(path, &args.scene.load_options()?.limits)?;
@@ -118,7 +182,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
             // Before any work: the checkpoint must hold samples of this very render.
             let s = &scene.settings;
             let range = args.run.sample_range.clone().unwrap_or(0..s.spp);
-            let expected = Accumulation::image(&scene, &scene.camera, s, range, args.scene.device.kind(), &bvh);
+            let expected = Accumulation::image(scene, &scene.camera, s, range, args.scene.device.kind(), bvh);
             saved.check_resume(&expected)?;
             if let Some(t) = target {
                 expected.check_target(t).map_err(invalid_option)?;
@@ -129,13 +193,18 @@ pub fn run(args: RenderArgs) -> Result<()> {
             if let Some(t) = target {
                 let s = &scene.settings;
                 let kind = args.scene.device.kind();
-                Accumulation::image(&scene, &scene.camera, s, 0..s.spp, kind, &bvh)
+                Accumulation::image(scene, &scene.camera, s, 0..s.spp, kind, bvh)
                     .check_target(t)
                     .map_err(invalid_option)?;
             }
             None
         }
     };
+    Ok(resume)
+}
+
+/// `--error-image` needs samples in replicates.
+fn check_error_estimate(args: &RenderArgs, scene: &Scene) -> Result<()> {
     let s = &scene.settings;
     if args.error_image.is_some() && s.sampling.sampler.replicate_samples(s.sampling.replicate) == 0 {
         bail!(
@@ -144,56 +213,54 @@ pub fn run(args: RenderArgs) -> Result<()> {
             s.sampling.sampler.name()
         );
     }
-    let resumed_adapter = resume.as_ref().map(|a| a.adapter().to_string());
+    Ok(())
+}
 
-    let mut adapter_seconds = 0.0;
-    let rc = RunControl {
-        stop: &stop,
-        run: &args.run,
-        checkpoint: checkpoint_path.as_deref(),
-        total: scene.settings.spp,
-        unit: "spp",
-        target,
-        adaptive: args.adaptive,
-    };
-    let mut out = run::traced(rc, |control| {
-        let opening = std::time::Instant::now();
-        let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
-        adapter_seconds = opening.elapsed().as_secs_f64();
-        // The film's memory is known before the BVH is built: a film past the budget is
-        // refused before that work.
-        device.check_image_budget(&scene, &scene.settings)?;
-        let session = Session::new(&device, scene, &bvh)?;
-        let mut request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
-        let mut render = session.render(&request)?;
-        if measure_replicate && let Some(costs) = render.replicate_costs()? {
-            let s = &request.settings;
-            let least = s.sampling.replicate.unwrap_or(1);
-            let chosen = s.sampling.sampler.replicate_by_cost(
-                least,
-                s.sampling.sampler.replicate_for(s.spp, 16),
-                costs.per_sample,
-                costs.per_replicate,
-            );
-            if chosen != least {
-                drop(render);
-                request.settings.sampling.replicate = Some(chosen);
-                render = session.render(&request)?;
-            }
+/// Opens the device, builds the session and renders under `control` (resuming, and with
+/// the replicate size measured when asked); returns the output and the seconds the
+/// adapter took to open.
+fn render_image(
+    args: &RenderArgs,
+    scene: Scene,
+    bvh: &BvhOptions,
+    resume: Option<Accumulation>,
+    measure_replicate: bool,
+    control: &mut Control,
+) -> aorender::Result<(RenderOutput, f64)> {
+    let opening = std::time::Instant::now();
+    let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
+    let adapter_seconds = opening.elapsed().as_secs_f64();
+    // The film's memory is known before the BVH is built: a film past the budget is
+    // refused before that work.
+    device.check_image_budget(&scene, &scene.settings)?;
+    let session = Session::new(&device, scene, bvh)?;
+    let mut request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
+    let mut render = session.render(&request)?;
+    if measure_replicate && let Some(costs) = render.replicate_costs()? {
+        let s = &request.settings;
+        let least = s.sampling.replicate.unwrap_or(1);
+        let chosen = s.sampling.sampler.replicate_by_cost(
+            least,
+            s.sampling.sampler.replicate_for(s.spp, 16),
+            costs.per_sample,
+            costs.per_replicate,
+        );
+        if chosen != least {
+            drop(render);
+            request.settings.sampling.replicate = Some(chosen);
+            render = session.render(&request)?;
         }
-        if let Some(acc) = resume {
-            render.resume(acc)?;
-        }
-        render.run(control)?;
-        render.finish()
-    })?;
-    out.stats.load_seconds = load_seconds;
-    out.stats.adapter_seconds = adapter_seconds;
-    out.stats.heap_peak_bytes = memory::heap_peak_bytes();
-    let st = &out.stats;
-    if st.samples_per_pixel == 0 {
-        run::exit_before_any_sample("rendered");
     }
+    if let Some(acc) = resume {
+        render.resume(acc)?;
+    }
+    render.run(control)?;
+    Ok((render.finish()?, adapter_seconds))
+}
+
+/// Writes the image, the error image and the statistics file; returns the statistics
+/// as JSON.
+fn write_outputs(args: &RenderArgs, out: &mut RenderOutput) -> Result<String> {
     let writing = std::time::Instant::now();
     write_image(&out.film, &args.output)?;
     if let Some(path) = &args.error_image {
@@ -201,11 +268,15 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     out.stats.write_seconds = writing.elapsed().as_secs_f64();
     out.stats.process_seconds = Some(phases::process_seconds());
-    let st = &out.stats;
     let json = serde_json::to_string_pretty(&out.stats)?;
     if let Some(path) = &args.run.stats {
         write_json(path, &json)?;
     }
+    Ok(json)
+}
+
+/// Says in a line what was rendered, and whether a resumed render changed adapters.
+fn say_summary(args: &RenderArgs, st: &RenderStats, target: Option<ErrorTarget>, resumed_adapter: Option<String>) {
     // Copies the BVH left out cost nothing and change nothing, but the user may want to know.
     let copies = match st.duplicates_dropped {
         0 => String::new(),
@@ -237,18 +308,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
             st.adapter
         );
     }
-    output::print(&format!("{json}\n"))?;
-    if st.interrupted {
-        let mut written = vec![args.output.display().to_string()];
-        written.extend(args.run.stats.as_ref().map(|p| p.display().to_string()));
-        let done = format!(
-            "{} of {} samples per pixel; {} hold them",
-            st.samples_per_pixel,
-            st.samples_requested,
-            written.join(" and ")
-        );
-        return run::exit_interrupted(&done, checkpoint_path.as_deref());
-    }
+}
+
+/// Says how a render that ran to its end ended: target met, out of time, or target not met.
+fn say_ending(st: &RenderStats, target: Option<ErrorTarget>) {
     if st.ended_by == EndedBy::Target {
         crate::say!(
             "error target met after {} of at most {} samples per pixel ({:.1} on average; RMSE bound {:.3e})",
@@ -268,5 +331,4 @@ pub fn run(args: RenderArgs) -> Result<()> {
     } else if target.is_some() {
         crate::say!("the error target was not met within {} samples per pixel", st.samples_requested);
     }
-    Ok(())
 }
