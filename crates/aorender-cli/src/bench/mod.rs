@@ -796,6 +796,25 @@ fn load_scene(sp: &ScenePlan) -> Result<Scene> {
     })
 }
 
+/// A scene's measurement under way: the plans it follows and its label in progress lines.
+struct SceneBench<'a> {
+    plan: &'a Plan,
+    sp: &'a ScenePlan,
+    prefix: &'a str,
+}
+
+/// A GPU configuration's request, its measurement, and whether it is the baseline.
+type GpuRun = (ImageRequest, RawRun, bool);
+
+/// The reference image of a scene and where it came from.
+struct ReferenceRun {
+    stored: cache::Stored,
+    /// Whether it was read from the cache.
+    cached: bool,
+    file: PathBuf,
+    seed: u32,
+}
+
 /// Measures one scene; BVH presets and scaling series go into `results`.
 fn bench_scene(
     gpu: &Device,
@@ -805,6 +824,7 @@ fn bench_scene(
     tracker: &mut Tracker,
     results: &mut Results,
 ) -> Result<SceneResult> {
+    let bench = SceneBench { plan, sp, prefix };
     tracker.stage(format!("{prefix}: loading"));
     let t = Instant::now();
     let mut scene = load_scene(sp)?;
@@ -816,7 +836,6 @@ fn bench_scene(
     scene.settings.height = height;
     scene.settings.validate()?;
     let name = sp.label.clone();
-    let px = width as u64 * height as u64;
     let targets = checkpoints(sp.max_spp);
 
     tracker.stage(format!("{prefix}: building the BVH ({} triangles)", scene.world_triangle_count()));
@@ -827,30 +846,11 @@ fn bench_scene(
     let cpu_session = sessions.next();
     let setup = session.setup().clone();
 
-    let mut raw_runs: Vec<(ImageRequest, RawRun, bool)> = Vec::new();
-    for config in configs(plan, &samplings) {
-        let (h, s) = (config.hemisphere.name(), config.sampler.name());
-        let sky = config.sky.map_or(String::new(), |m| format!(", {} sky sampling", m.name()));
-        tracker.stage(format!("{prefix}: GPU {h}/{s}{sky} to {} spp", sp.max_spp));
-        let request = configured(&session, config, sp.max_spp, plan.seed);
-        let raw = measure(&session, &request, &targets, tracker)?;
-        raw_runs.push((request, raw, config == base));
-    }
+    let raw_runs = bench.gpu_runs(&session, &samplings, base, &targets, tracker)?;
     let default_config = configured(&session, base, sp.max_spp, plan.seed);
     let mut scaling = Vec::new();
-    let sized = |session: &Session, r: u32| {
-        let mut sized = configured(session, base, plan.scaling_spp, plan.seed);
-        sized.settings.width = r;
-        sized.settings.height = r;
-        sized
-    };
     if sp.resolutions {
-        for &r in &plan.resolutions {
-            tracker.stage(format!("{prefix}: GPU at {r}x{r}"));
-            let request = sized(&session, r);
-            let raw = measure(&session, &request, &[plan.scaling_spp], tracker)?;
-            scaling.push(resolution_point(&name, "gpu", &request, &raw));
-        }
+        scaling.extend(bench.resolution_series(&session, "gpu", base, tracker)?);
     }
 
     let mut cpu_raw = None;
@@ -858,68 +858,13 @@ fn bench_scene(
         tracker.stage(format!("{prefix}: CPU cosine/independent to {} spp", sp.max_spp));
         cpu_raw = Some(measure(cpu, &default_config, &targets, tracker)?);
         if sp.resolutions {
-            for &r in &plan.resolutions {
-                tracker.stage(format!("{prefix}: CPU at {r}x{r}"));
-                let request = sized(cpu, r);
-                let raw = measure(cpu, &request, &[plan.scaling_spp], tracker)?;
-                scaling.push(resolution_point(&name, "cpu", &request, &raw));
-            }
+            scaling.extend(bench.resolution_series(cpu, "cpu", base, tracker)?);
         }
     }
 
-    // The reference: cached, or rendered on whichever device traced faster.
-    let ref_seed = reference_seed(plan.seed);
-    let ref_request = configured(&session, base, sp.reference_spp, ref_seed);
-    let sampling = cache::ReferenceSampling { samples: sp.reference_spp, seed: ref_seed };
-    let mut ref_scene = session.scene().clone();
-    ref_scene.settings = ref_request.settings.clone();
-    let key = cache::key(&ref_scene, sampling);
-    let file = cache::path(&plan.cache_dir, &ref_scene, &key);
-    drop(ref_scene);
-    let (stored, cached) = match cache::load(&file, width, height, sp.reference_spp) {
-        Ok(Some(stored)) => {
-            tracker.skip(sp.reference_spp as u64 * px);
-            (stored, true)
-        }
-        found => {
-            if let Err(why) = found {
-                tracker.stage(format!("{prefix}: {}: {why}; rendering it again", file.display()));
-            }
-            let gpu_default = raw_runs.iter().find(|(_, _, baseline)| *baseline).map(|(_, r, _)| r);
-            let speed = |r: &RawRun| {
-                let c = r.checkpoints.last().expect("checkpoints");
-                c.rays as f64 / c.wall_seconds.max(1e-12)
-            };
-            let on_cpu = match (&cpu_session, &cpu_raw, gpu_default) {
-                (Some(_), Some(c), Some(g)) => speed(c) > speed(g),
-                (Some(_), Some(_), None) => true,
-                _ => false,
-            };
-            tracker.stage(format!(
-                "{prefix}: reference, {} spp on the {}",
-                sp.reference_spp,
-                if on_cpu { "CPU" } else { "GPU" }
-            ));
-            let t = Instant::now();
-            let (film, device) = match (&cpu_session, on_cpu) {
-                (Some(cpu), true) => (measure(cpu, &ref_request, &[sp.reference_spp], tracker)?.film, "cpu".into()),
-                _ => (
-                    measure(&session, &ref_request, &[sp.reference_spp], tracker)?.film,
-                    format!("gpu: {}", setup.adapter.name),
-                ),
-            };
-            let reference = Reference {
-                width,
-                height,
-                samples: film.samples,
-                mean: film.mean(),
-                variance: film.std_error().iter().map(|e| e * e).collect(),
-            };
-            let stored = cache::Stored { reference, seconds: t.elapsed().as_secs_f64(), device };
-            cache::save(&file, &stored)?;
-            (stored, false)
-        }
-    };
+    let cpu = cpu_session.as_ref().zip(cpu_raw.as_ref());
+    let ReferenceRun { stored, cached, file, seed: ref_seed } =
+        bench.reference(&session, cpu, base, &raw_runs, tracker)?;
     let reference = &stored.reference;
 
     let mut runs: Vec<Run> = raw_runs.iter().map(|(r, raw, b)| measured(raw, "gpu", r, *b, reference)).collect();
@@ -928,42 +873,14 @@ fn bench_scene(
     if let Some(raw) = &cpu_raw {
         let cpu = measured(raw, "cpu", &default_config, true, reference);
         if let Some(g) = gpu_default {
-            let (gr, cr) = (&runs[g], cpu.last());
-            let g_last = gr.last();
-            let g_raw = &raw_runs[g].1;
-            let (gi, ci) = (&g_raw.film.mean(), &raw.film.mean());
-            let differences: Vec<f64> = gi.iter().zip(ci).map(|(a, b)| (a - b).abs()).collect();
-            let max_abs_difference = differences.iter().copied().fold(0.0, f64::max);
-            let matching_pixels =
-                differences.iter().filter(|&&d| d <= 1e-4).count() as f64 / differences.len().max(1) as f64;
-            let wall_rps = g_last.rays as f64 / g_last.wall_seconds.max(1e-12);
-            gpu_cpu = Some(GpuCpu {
-                gpu_rays_per_second: g_last.rays_per_second,
-                gpu_wall_rays_per_second: wall_rps,
-                cpu_rays_per_second: cr.rays_per_second,
-                ratio: g_last.rays_per_second / cr.rays_per_second,
-                wall_ratio: wall_rps / cr.rays_per_second,
-                max_abs_difference,
-                matching_pixels,
-            });
+            gpu_cpu = Some(compare_gpu_cpu(&runs[g], &raw_runs[g].1, &cpu, raw));
         }
         runs.push(cpu);
     }
     for r in runs.iter().filter(|r| r.baseline) {
         scaling.extend(spp_scaling(&name, width, height, r));
     }
-    let default_eff = gpu_default.and_then(|g| runs[g].last().efficiency);
-    let best = runs
-        .iter()
-        .filter(|r| r.device == "gpu" && r.unbiased)
-        .filter_map(|r| r.last().efficiency.map(|e| (r, e)))
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .map(|(r, e)| Best {
-            hemisphere: r.distribution(),
-            sampler: r.sampler.clone(),
-            efficiency: e,
-            over_default: default_eff.map(|d| e / d),
-        });
+    let best = best_run(&runs, gpu_default);
 
     let scene = session.scene();
     let sky = default_config.settings.sampling.sky.describe();
@@ -1005,6 +922,156 @@ fn bench_scene(
         gpu_cpu,
         best,
     })
+}
+
+impl SceneBench<'_> {
+    /// Measures every configuration on the GPU to the scene's most samples.
+    fn gpu_runs(
+        &self,
+        session: &Session,
+        samplings: &[SkySampling],
+        base: Config,
+        targets: &[u32],
+        tracker: &mut Tracker,
+    ) -> Result<Vec<GpuRun>> {
+        let (plan, sp, prefix) = (self.plan, self.sp, self.prefix);
+        let mut raw_runs = Vec::new();
+        for config in configs(plan, samplings) {
+            let (h, s) = (config.hemisphere.name(), config.sampler.name());
+            let sky = config.sky.map_or(String::new(), |m| format!(", {} sky sampling", m.name()));
+            tracker.stage(format!("{prefix}: GPU {h}/{s}{sky} to {} spp", sp.max_spp));
+            let request = configured(session, config, sp.max_spp, plan.seed);
+            let raw = measure(session, &request, targets, tracker)?;
+            raw_runs.push((request, raw, config == base));
+        }
+        Ok(raw_runs)
+    }
+
+    /// Measures the baseline at every square resolution of the plan on `session`, whose
+    /// device is named `device` ("gpu", "cpu").
+    fn resolution_series(
+        &self,
+        session: &Session,
+        device: &str,
+        base: Config,
+        tracker: &mut Tracker,
+    ) -> Result<Vec<ScalingPoint>> {
+        let plan = self.plan;
+        let mut scaling = Vec::new();
+        for &r in &plan.resolutions {
+            tracker.stage(format!("{}: {} at {r}x{r}", self.prefix, device.to_uppercase()));
+            let mut request = configured(session, base, plan.scaling_spp, plan.seed);
+            request.settings.width = r;
+            request.settings.height = r;
+            let raw = measure(session, &request, &[plan.scaling_spp], tracker)?;
+            scaling.push(resolution_point(&self.sp.label, device, &request, &raw));
+        }
+        Ok(scaling)
+    }
+
+    /// The reference image: cached, or rendered on whichever device traced faster (the
+    /// CPU's session and its measurement, with one).
+    fn reference(
+        &self,
+        session: &Session,
+        cpu: Option<(&Session, &RawRun)>,
+        base: Config,
+        raw_runs: &[GpuRun],
+        tracker: &mut Tracker,
+    ) -> Result<ReferenceRun> {
+        let (plan, sp, prefix) = (self.plan, self.sp, self.prefix);
+        let ref_seed = reference_seed(plan.seed);
+        let ref_request = configured(session, base, sp.reference_spp, ref_seed);
+        let (width, height) = (ref_request.settings.width, ref_request.settings.height);
+        let px = width as u64 * height as u64;
+        let sampling = cache::ReferenceSampling { samples: sp.reference_spp, seed: ref_seed };
+        let mut ref_scene = session.scene().clone();
+        ref_scene.settings = ref_request.settings.clone();
+        let key = cache::key(&ref_scene, sampling);
+        let file = cache::path(&plan.cache_dir, &ref_scene, &key);
+        drop(ref_scene);
+        let (stored, cached) = match cache::load(&file, width, height, sp.reference_spp) {
+            Ok(Some(stored)) => {
+                tracker.skip(sp.reference_spp as u64 * px);
+                (stored, true)
+            }
+            found => {
+                if let Err(why) = found {
+                    tracker.stage(format!("{prefix}: {}: {why}; rendering it again", file.display()));
+                }
+                let gpu_default = raw_runs.iter().find(|(_, _, baseline)| *baseline).map(|(_, r, _)| r);
+                let speed = |r: &RawRun| {
+                    let c = r.checkpoints.last().expect("checkpoints");
+                    c.rays as f64 / c.wall_seconds.max(1e-12)
+                };
+                let on_cpu = match (cpu, gpu_default) {
+                    (Some((_, c)), Some(g)) => speed(c) > speed(g),
+                    (Some(_), None) => true,
+                    _ => false,
+                };
+                tracker.stage(format!(
+                    "{prefix}: reference, {} spp on the {}",
+                    sp.reference_spp,
+                    if on_cpu { "CPU" } else { "GPU" }
+                ));
+                let t = Instant::now();
+                let (film, device) = match (cpu, on_cpu) {
+                    (Some((cpu, _)), true) => {
+                        (measure(cpu, &ref_request, &[sp.reference_spp], tracker)?.film, "cpu".into())
+                    }
+                    _ => (
+                        measure(session, &ref_request, &[sp.reference_spp], tracker)?.film,
+                        format!("gpu: {}", session.setup().adapter.name),
+                    ),
+                };
+                let reference = Reference {
+                    width,
+                    height,
+                    samples: film.samples,
+                    mean: film.mean(),
+                    variance: film.std_error().iter().map(|e| e * e).collect(),
+                };
+                let stored = cache::Stored { reference, seconds: t.elapsed().as_secs_f64(), device };
+                cache::save(&file, &stored)?;
+                (stored, false)
+            }
+        };
+        Ok(ReferenceRun { stored, cached, file, seed: ref_seed })
+    }
+}
+
+/// The GPU's baseline against the CPU reference's: speeds and how closely the images agree.
+fn compare_gpu_cpu(gpu: &Run, gpu_raw: &RawRun, cpu: &Run, cpu_raw: &RawRun) -> GpuCpu {
+    let (g_last, cr) = (gpu.last(), cpu.last());
+    let (gi, ci) = (&gpu_raw.film.mean(), &cpu_raw.film.mean());
+    let differences: Vec<f64> = gi.iter().zip(ci).map(|(a, b)| (a - b).abs()).collect();
+    let max_abs_difference = differences.iter().copied().fold(0.0, f64::max);
+    let matching_pixels = differences.iter().filter(|&&d| d <= 1e-4).count() as f64 / differences.len().max(1) as f64;
+    let wall_rps = g_last.rays as f64 / g_last.wall_seconds.max(1e-12);
+    GpuCpu {
+        gpu_rays_per_second: g_last.rays_per_second,
+        gpu_wall_rays_per_second: wall_rps,
+        cpu_rays_per_second: cr.rays_per_second,
+        ratio: g_last.rays_per_second / cr.rays_per_second,
+        wall_ratio: wall_rps / cr.rays_per_second,
+        max_abs_difference,
+        matching_pixels,
+    }
+}
+
+/// The unbiased GPU run of the best efficiency, and its gain over the baseline's.
+fn best_run(runs: &[Run], gpu_default: Option<usize>) -> Option<Best> {
+    let default_eff = gpu_default.and_then(|g| runs[g].last().efficiency);
+    runs.iter()
+        .filter(|r| r.device == "gpu" && r.unbiased)
+        .filter_map(|r| r.last().efficiency.map(|e| (r, e)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(r, e)| Best {
+            hemisphere: r.distribution(),
+            sampler: r.sampler.clone(),
+            efficiency: e,
+            over_default: default_eff.map(|d| e / d),
+        })
 }
 
 fn resolution_point(scene: &str, device: &str, request: &ImageRequest, raw: &RawRun) -> ScalingPoint {
