@@ -12,9 +12,9 @@ use aorender::bake::{
     UvWrap, check_mesh_output, check_output, is_map, sibling,
 };
 use aorender::output::{FilePlan, OutputRules};
-use aorender::{Accumulation, Device, ReadLimits, Session};
+use aorender::{Accumulation, Device, ReadLimits, Scene, Session};
 use clap::ValueEnum;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -240,48 +240,8 @@ pub fn run(args: BakeArgs) -> Result<()> {
     signals::install(stop.clone())?;
     let is_scene = input.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"));
     let texture = texture_options(&args, is_scene)?;
-    if !is_scene && (texture.is_none() || !is_map(&args.output)) {
-        // A bake into vertices or faces writes any mesh format; a texture bake its input's.
-        if texture.is_some() {
-            check_output(&input, &args.output, args.overwrite)?;
-        } else {
-            check_mesh_output(&input, &args.output, args.overwrite)?;
-        }
-    }
-    // Before any work: no output onto an input or another output. A scene's outputs are
-    // known once its objects are, and the files written beside a mesh once it is read.
-    let mut files = FilePlan::new();
-    files.scene(&input);
-    for path in &args.merge {
-        files.input(path, "a checkpoint --merge adds");
-    }
-    output::plan_resume(&mut files, &args.run);
-    let new_directories = OutputRules { new_directories: true, ..OutputRules::default() };
-    if texture.is_some() && is_map(&args.output) {
-        files.output_with(&args.output, "-o", new_directories)?;
-        if args.bent_normals {
-            files.output_with(
-                &sibling(&args.output, "_bent_normals.png"),
-                "the bent normals map beside -o",
-                new_directories,
-            )?;
-        }
-    } else if !is_scene {
-        let replacing = args.overwrite.then_some(input.as_path());
-        files.output_with(&args.output, "-o", OutputRules { replacing, ..new_directories })?;
-    }
-    output::plan_run(&mut files, &args.run)?;
-    if args.samples == 0 {
-        bail!("invalid option: --samples must be at least 1");
-    }
-    let checkpoint_path = args.run.check(args.samples, "point")?;
-    if !args.merge.is_empty()
-        && (args.run.resume.is_some() || args.run.checkpoint.is_some() || args.run.sample_range.is_some())
-    {
-        bail!(
-            "invalid option: --merge writes the bake from finished shards: it takes no --resume, --checkpoint or --sample-range"
-        );
-    }
+    let mut files = plan_files(&args, &input, is_scene, texture.is_some())?;
+    let checkpoint_path = check_run_options(&args)?;
 
     let load_start = std::time::Instant::now();
     let limits = ReadLimits::from_env()?;
@@ -292,8 +252,6 @@ pub fn run(args: BakeArgs) -> Result<()> {
     drop(read);
     let load_seconds = load_start.elapsed().as_secs_f64();
     let settings = scene.settings.clone();
-    let bvh = args.scene.bvh();
-    let kind = args.scene.device.kind();
     let at = request.at;
 
     let mut stats = BakeStats::new(&input, &bake, &settings, load_seconds);
@@ -301,53 +259,9 @@ pub fn run(args: BakeArgs) -> Result<()> {
 
     // The sums: from the shards', or traced.
     let trace = if args.merge.is_empty() {
-        let resume = match &args.run.resume {
-            Some(path) => {
-                let saved = Accumulation::read_with(path, &limits)?;
-                saved.check_resume(&bake.expected(&scene, kind, &bvh)?)?;
-                Some(saved)
-            }
-            None => None,
-        };
-        let mut adapter_seconds = 0.0;
-        let rc = RunControl {
-            stop: &stop,
-            run: &args.run,
-            checkpoint: checkpoint_path.as_deref(),
-            total: args.samples * bake.blocks() as u32,
-            unit: "samples",
-            target: None,
-            adaptive: false,
-        };
-        let trace = run::traced(rc, |control| {
-            let opening = Instant::now();
-            let device = Device::open(kind, args.scene.adapter.as_deref())?;
-            adapter_seconds = opening.elapsed().as_secs_f64();
-            let session = Session::new(&device, scene, &bvh)?;
-            session.bake(&bake, resume, control)
-        })?;
-        stats.phases.adapter_seconds = adapter_seconds;
-        if let Some(b) = trace.interrupted_block {
-            let signal = signals::stop_signal();
-            crate::say!(
-                "aorender: interrupted by {} in block {} of {}; nothing was written",
-                signals::signal_name(signal),
-                b + 1,
-                bake.blocks()
-            );
-            std::process::exit(128 + signal);
-        }
-        if trace.samples == 0 {
-            run::exit_before_any_sample("traced");
-        }
-        trace
+        trace(&args, &stop, checkpoint_path.as_deref(), scene, &bake, &limits, &mut stats)?
     } else {
-        let start = Instant::now();
-        let shards = read_shards(&args.merge, &limits)?;
-        stats.phases.load_seconds += start.elapsed().as_secs_f64();
-        let expected = bake.expected(&scene, kind, &bvh)?;
-        drop(scene);
-        bake.merge(&shards, &expected)?
+        merge_shards(&args, scene, &bake, &limits, &mut stats)?
     };
     stats.add_trace(&trace, &bake);
 
@@ -367,9 +281,162 @@ pub fn run(args: BakeArgs) -> Result<()> {
     stats.outputs = written.files.clone();
     stats.end();
     let files: Vec<String> = written.files.iter().map(|p| p.display().to_string()).collect();
-    match (written.texture, bake.texture_options()) {
+    say_written(&files, written.texture, &bake, at, &mut stats);
+    let json = serde_json::to_string_pretty(&stats)?;
+    if let Some(path) = &args.run.stats {
+        write_json(path, &json)?;
+    }
+    output::print(&format!("{json}\n"))?;
+    if stats.interrupted {
+        let done = format!(
+            "{} of {} samples per point; {} {} them",
+            stats.samples_per_point,
+            stats.samples_requested,
+            files.join(" and "),
+            if files.len() == 1 { "holds" } else { "hold" }
+        );
+        return run::exit_interrupted(&done, checkpoint_path.as_deref());
+    }
+    if stats.samples_per_point < stats.samples_requested {
+        crate::say!(
+            "time limit reached after {} of {} samples per point",
+            stats.samples_per_point,
+            stats.samples_requested
+        );
+    }
+    Ok(())
+}
+
+/// Checks the output against the input, and plans the files before any work: no output
+/// onto an input or another output. A scene's outputs are known once its objects are,
+/// and the files written beside a mesh once it is read.
+fn plan_files(args: &BakeArgs, input: &Path, is_scene: bool, texture: bool) -> Result<FilePlan> {
+    if !is_scene && (!texture || !is_map(&args.output)) {
+        // A bake into vertices or faces writes any mesh format; a texture bake its input's.
+        if texture {
+            check_output(input, &args.output, args.overwrite)?;
+        } else {
+            check_mesh_output(input, &args.output, args.overwrite)?;
+        }
+    }
+    let mut files = FilePlan::new();
+    files.scene(input);
+    for path in &args.merge {
+        files.input(path, "a checkpoint --merge adds");
+    }
+    output::plan_resume(&mut files, &args.run);
+    let new_directories = OutputRules { new_directories: true, ..OutputRules::default() };
+    if texture && is_map(&args.output) {
+        files.output_with(&args.output, "-o", new_directories)?;
+        if args.bent_normals {
+            files.output_with(
+                &sibling(&args.output, "_bent_normals.png"),
+                "the bent normals map beside -o",
+                new_directories,
+            )?;
+        }
+    } else if !is_scene {
+        let replacing = args.overwrite.then_some(input);
+        files.output_with(&args.output, "-o", OutputRules { replacing, ..new_directories })?;
+    }
+    output::plan_run(&mut files, &args.run)?;
+    Ok(files)
+}
+
+/// Checks the samples, the checkpoint options and that `--merge` comes alone; returns
+/// where checkpoints are saved.
+fn check_run_options(args: &BakeArgs) -> Result<Option<PathBuf>> {
+    if args.samples == 0 {
+        bail!("invalid option: --samples must be at least 1");
+    }
+    let checkpoint_path = args.run.check(args.samples, "point")?;
+    if !args.merge.is_empty()
+        && (args.run.resume.is_some() || args.run.checkpoint.is_some() || args.run.sample_range.is_some())
+    {
+        bail!(
+            "invalid option: --merge writes the bake from finished shards: it takes no --resume, --checkpoint or --sample-range"
+        );
+    }
+    Ok(checkpoint_path)
+}
+
+/// Traces the bake's samples (resuming `--resume`'s checkpoint) under the run's control;
+/// a stop inside a block, or before any sample, ends the process with nothing written.
+fn trace(
+    args: &BakeArgs,
+    stop: &AtomicBool,
+    checkpoint_path: Option<&Path>,
+    scene: Scene,
+    bake: &Bake,
+    limits: &ReadLimits,
+    stats: &mut BakeStats,
+) -> Result<BakeTrace> {
+    let bvh = args.scene.bvh();
+    let kind = args.scene.device.kind();
+    let resume = match &args.run.resume {
+        Some(path) => {
+            let saved = Accumulation::read_with(path, limits)?;
+            saved.check_resume(&bake.expected(&scene, kind, &bvh)?)?;
+            Some(saved)
+        }
+        None => None,
+    };
+    let mut adapter_seconds = 0.0;
+    let rc = RunControl {
+        stop,
+        run: &args.run,
+        checkpoint: checkpoint_path,
+        total: args.samples * bake.blocks() as u32,
+        unit: "samples",
+        target: None,
+        adaptive: false,
+    };
+    let trace = run::traced(rc, |control| {
+        let opening = Instant::now();
+        let device = Device::open(kind, args.scene.adapter.as_deref())?;
+        adapter_seconds = opening.elapsed().as_secs_f64();
+        let session = Session::new(&device, scene, &bvh)?;
+        session.bake(bake, resume, control)
+    })?;
+    stats.phases.adapter_seconds = adapter_seconds;
+    if let Some(b) = trace.interrupted_block {
+        let signal = signals::stop_signal();
+        crate::say!(
+            "aorender: interrupted by {} in block {} of {}; nothing was written",
+            signals::signal_name(signal),
+            b + 1,
+            bake.blocks()
+        );
+        std::process::exit(128 + signal);
+    }
+    if trace.samples == 0 {
+        run::exit_before_any_sample("traced");
+    }
+    Ok(trace)
+}
+
+/// The bake's sums from `--merge`'s finished shards.
+fn merge_shards(
+    args: &BakeArgs,
+    scene: Scene,
+    bake: &Bake,
+    limits: &ReadLimits,
+    stats: &mut BakeStats,
+) -> Result<BakeTrace> {
+    let start = Instant::now();
+    let shards = read_shards(&args.merge, limits)?;
+    stats.phases.load_seconds += start.elapsed().as_secs_f64();
+    let expected = bake.expected(&scene, args.scene.device.kind(), &args.scene.bvh())?;
+    drop(scene);
+    Ok(bake.merge(&shards, &expected)?)
+}
+
+/// Says in a line what was written (a texture bake's report, or the points baked and any
+/// without a usable normal).
+fn say_written(files: &[String], texture: Option<TextureReport>, bake: &Bake, at: BakeAt, stats: &mut BakeStats) {
+    match (texture, bake.texture_options()) {
         (Some(report), Some(options)) => {
-            say_texture(&files, options, &report, &stats);
+            say_texture(files, options, &report, stats);
             stats.texture = Some(report);
         }
         _ => {
@@ -394,29 +461,6 @@ pub fn run(args: BakeArgs) -> Result<()> {
             }
         }
     }
-    let json = serde_json::to_string_pretty(&stats)?;
-    if let Some(path) = &args.run.stats {
-        write_json(path, &json)?;
-    }
-    output::print(&format!("{json}\n"))?;
-    if stats.interrupted {
-        let done = format!(
-            "{} of {} samples per point; {} {} them",
-            stats.samples_per_point,
-            stats.samples_requested,
-            files.join(" and "),
-            if files.len() == 1 { "holds" } else { "hold" }
-        );
-        return run::exit_interrupted(&done, checkpoint_path.as_deref());
-    }
-    if stats.samples_per_point < stats.samples_requested {
-        crate::say!(
-            "time limit reached after {} of {} samples per point",
-            stats.samples_per_point,
-            stats.samples_requested
-        );
-    }
-    Ok(())
 }
 
 /// The library's request for `args`.
