@@ -5,6 +5,7 @@
 //! crate), and bad input is refused in one line before any work, with nothing written.
 
 mod common;
+use aorender::bake::MAX_TEXTURE_SIZE;
 use common::*;
 use glam::{DVec2, DVec3};
 use std::path::Path;
@@ -351,14 +352,16 @@ fn bad_input_is_refused_in_one_line_with_nothing_written() {
     std::fs::write(d.join("wide.ply"), ply(&v, &f)).unwrap();
     std::fs::write(d.join("wide.gltf"), serde_json::to_vec(&gltf_fixture(1.5, false)).unwrap()).unwrap();
     std::fs::copy(repo().join("scenes/bunny.obj"), d.join("bunny.obj")).unwrap();
+    let largest = MAX_TEXTURE_SIZE.to_string();
+    let sizes = format!("1 to {MAX_TEXTURE_SIZE} texels");
     for (args, expect) in [
         (&["bunny.obj", "-o", "b.png", "--texture", "256", "--generate-uvs", "never"][..], "of set 0 (it has none)"),
         (&["floor.ply", "-o", "f.png", "--texture", "64", "--uv-set", "1"][..], "of set 1 (it has set 0)"),
         (&["wide.ply", "-o", "f.png", "--texture", "64"][..], "outside [0, 1]"),
         (&["wide.gltf", "-o", "f.glb", "--texture", "64"][..], "outside [0, 1]"),
-        (&["floor.ply", "-o", "f.png", "--texture", "16384", "--texel-points", "256"][..], "GiB"),
-        (&["floor.ply", "-o", "f.png", "--texture", "0"][..], "1 to 16384 texels"),
-        (&["floor.ply", "-o", "f.png", "--texture", "100000"][..], "1 to 16384 texels"),
+        (&["floor.ply", "-o", "f.png", "--texture", largest.as_str(), "--texel-points", "256"][..], "GiB"),
+        (&["floor.ply", "-o", "f.png", "--texture", "0"][..], sizes.as_str()),
+        (&["floor.ply", "-o", "f.png", "--texture", "100000"][..], sizes.as_str()),
         (&["floor.ply", "-o", "f.png", "--texture", "big"][..], "expected a size in texels"),
         (&["floor.ply", "-o", "f.png", "--texture", "64", "--texel-points", "0"][..], "points per texel"),
         (&["floor.ply", "-o", "f.png"][..], "--texture SIZE"),

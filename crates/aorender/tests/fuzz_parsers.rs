@@ -21,12 +21,14 @@
 //! runs over a minute and names that file.
 
 use aorender::film::BlockSums;
+use aorender::scene::MAX_IMAGE_SIDE;
 use aorender::{Accumulation, BvhOptions, DeviceKind, Scene};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::{Path, PathBuf};
+use std::sync::LazyLock;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -315,8 +317,8 @@ fn mesh_files() -> Vec<(&'static str, Vec<u8>)> {
 // Mutations.
 
 /// Fragments that parsers treat specially: numbers at the edges of their types, syntax,
-/// and declarations of huge counts.
-const TOKENS: &[&str] = &[
+/// and declarations of huge counts ([`LARGEST_IMAGE`] stands for the largest image's size).
+const TOKEN_TEXT: &[&str] = &[
     "0",
     "-1",
     "-0",
@@ -379,10 +381,19 @@ const TOKENS: &[&str] = &[
     "[[object]]\ntype = \"sphere\"\ncenter = [0, 0, 0]\nradius = 1e-45\n",
     "transform = { matrix = [[0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 1]] }\n",
     "transform = { scale = 1e30 }\n",
-    "width = 16384\nheight = 16384\n",
+    LARGEST_IMAGE,
     "a = [[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[",
     "x = {a = {a = {a = {a = {a = {a = {a = {a = {a = {a = {a = {a = {a = {a = {a = {a = {a = {",
 ];
+
+/// The place of the largest image's size among [`TOKEN_TEXT`].
+const LARGEST_IMAGE: &str = "the largest image";
+
+/// [`TOKEN_TEXT`] with the largest image's size written from the library's limit.
+static TOKENS: LazyLock<Vec<String>> = LazyLock::new(|| {
+    let largest = format!("width = {MAX_IMAGE_SIDE}\nheight = {MAX_IMAGE_SIDE}\n");
+    TOKEN_TEXT.iter().map(|&t| if t == LARGEST_IMAGE { largest.clone() } else { t.to_string() }).collect()
+});
 
 #[derive(Clone, Debug)]
 enum Mutation {
