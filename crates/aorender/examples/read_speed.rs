@@ -5,10 +5,13 @@
 //! wall time, and of CPU time (user and system, all threads: the speed per core, which a
 //! machine shared with other work changes less than the wall time).
 //! A measurement, not a test: it asserts only that both readers give the same mesh.
-//! `READERS=bulk` times the bulk readers alone (for a profiler).
+//! `READERS=bulk` times the bulk readers alone (for a profiler). `READER=bake` times the
+//! bake's PLY reader instead of the scene loader's: the whole file kept, every property in
+//! its own type, one element and one `str::parse` at a time against runs and fast parsers.
 //!
 //! `cargo run --release -p aorender --features testing --example read_speed -- FILE.ply [FILE.ply.gz ...]`
 
+use aorender::bake::{Asset, PlyAsset};
 use aorender::scene::{ReadLimits, load_mesh, read_ply_mesh};
 use std::time::Instant;
 
@@ -33,6 +36,8 @@ fn main() -> anyhow::Result<()> {
     let rounds: usize = std::env::var("ROUNDS").ok().and_then(|r| r.parse().ok()).unwrap_or(5);
     let limits = ReadLimits::from_env()?;
     let bulk_only = std::env::var("READERS").is_ok_and(|r| r == "bulk");
+    let bake = std::env::var("READER").is_ok_and(|r| r == "bake");
+    let options = aorender::scene::LoadOptions { limits: limits.clone(), allow_external_uris: false };
     println!("| file | MB | element at a time, MB/s (per CPU second) | bulk, MB/s (per CPU second) | speed-up |");
     println!("|---|---|---|---|---|");
     for arg in std::env::args().skip(1) {
@@ -46,7 +51,14 @@ fn main() -> anyhow::Result<()> {
                     continue;
                 }
                 let (start, cpu) = (Instant::now(), cpu_seconds());
-                let triangles = if ply {
+                let triangles = if ply && bake {
+                    let asset = if fast {
+                        PlyAsset::read_with(path, &options)?
+                    } else {
+                        PlyAsset::read_reference(path, &options)?
+                    };
+                    asset.meshes()[0].face_indices.len() / 3
+                } else if ply {
                     read_ply_mesh(path, &limits, fast)?.1.len()
                 } else {
                     load_mesh(path, 1.0, &glam::Mat4::IDENTITY)?.len()
@@ -57,7 +69,7 @@ fn main() -> anyhow::Result<()> {
             }
         }
         anyhow::ensure!(
-            bulk_only || !ply || read_ply_mesh(path, &limits, false)? == read_ply_mesh(path, &limits, true)?,
+            bulk_only || !ply || bake || read_ply_mesh(path, &limits, false)? == read_ply_mesh(path, &limits, true)?,
             "{arg}: meshes differ"
         );
         let speeds = times.map(

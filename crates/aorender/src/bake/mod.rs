@@ -34,6 +34,8 @@ pub use job::{
     Written, is_map, sibling, singular,
 };
 pub use plan::{BakePlan, Placement, UNUSABLE_VALUE};
+#[cfg(feature = "testing")]
+pub use ply::PlyAsset;
 pub use texture::{
     BYTES_PER_TEXEL, BakedTexture, Coverage, MAX_TEXTURE_SIZE, TextureLayout, TextureOptions, TexturePlan,
     TextureStats, TextureTarget, UvWrap, bytes_per_point, texture_targets,

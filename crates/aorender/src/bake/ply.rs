@@ -22,6 +22,7 @@ use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::{Input, LoadOptions, Meter, vec_bytes};
 use crate::scene::mesh::{IndexedMesh, VertexNames};
 use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
+use crate::scene::ply_data::{Ty, ascii_int};
 use glam::Vec3;
 use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
 use std::io::Write;
@@ -37,6 +38,10 @@ trait Scalar: Copy + std::str::FromStr + Into<f64> {
 
     /// The value at `data[*pos..]`, advancing `pos`; `None` when too few bytes are left.
     fn read(data: &[u8], pos: &mut usize, big_endian: bool) -> Option<Self>;
+
+    /// The value at the start of `bytes` (at least [`Scalar::SIZE`] of them), in the byte
+    /// order `BIG` says.
+    fn at<const BIG: bool>(bytes: &[u8]) -> Self;
 
     /// Appends the value's little-endian bytes.
     fn put_le(self, out: &mut Vec<u8>);
@@ -54,6 +59,13 @@ macro_rules! scalar {
                 let bytes: [u8; std::mem::size_of::<$t>()] = data.get(*pos..*pos + Self::SIZE)?.try_into().ok()?;
                 *pos += Self::SIZE;
                 Some(if big_endian { <$t>::from_be_bytes(bytes) } else { <$t>::from_le_bytes(bytes) })
+            }
+
+            #[inline(always)]
+            fn at<const BIG: bool>(bytes: &[u8]) -> Self {
+                let mut b = [0u8; std::mem::size_of::<$t>()];
+                b.copy_from_slice(&bytes[..Self::SIZE]);
+                if BIG { <$t>::from_be_bytes(b) } else { <$t>::from_le_bytes(b) }
             }
 
             fn put_le(self, out: &mut Vec<u8>) {
@@ -199,12 +211,51 @@ impl Values {
     }
 
     /// Appends the value of an ascii token (already checked to be a number), parsed as
-    /// ply-rs parses it: `str::parse` into the property's type.
-    fn push_token(&mut self, token: &str) -> std::result::Result<(), TokenError> {
+    /// ply-rs parses it, `str::parse` into the property's type: floats by `fast-float2`
+    /// (correctly rounded too, so the same bits), plain integers by the scene loader's
+    /// digit loop, anything else by `str::parse` itself; all by `str::parse` unless `fast`
+    /// (the reference the fast parsers are compared with).
+    fn push_token(&mut self, token: &str, fast: bool) -> std::result::Result<(), TokenError> {
         let t = self.scalar_type();
         let invalid = || TokenError { token: token.to_string(), type_name: type_name(&t) };
-        with_values!(self, v => v.push(token.parse().map_err(|_| invalid())?));
+        if !fast {
+            with_values!(self, v => v.push(token.parse().map_err(|_| invalid())?));
+            return Ok(());
+        }
+        let ty = Ty::of(&t);
+        macro_rules! integer {
+            ($v:expr) => {{
+                // `ascii_int` keeps to the type's range, so the conversion cannot fail.
+                let fast = ascii_int(token.as_bytes(), ty).and_then(|i| i.try_into().ok());
+                $v.push(fast.map_or_else(|| token.parse().map_err(|_| invalid()), Ok)?)
+            }};
+        }
+        match self {
+            Values::Char(v) => integer!(v),
+            Values::UChar(v) => integer!(v),
+            Values::Short(v) => integer!(v),
+            Values::UShort(v) => integer!(v),
+            Values::Int(v) => integer!(v),
+            Values::UInt(v) => integer!(v),
+            Values::Float(v) => v.push(fast_float2::parse(token).or_else(|_| token.parse()).map_err(|_| invalid())?),
+            Values::Double(v) => v.push(fast_float2::parse(token).or_else(|_| token.parse()).map_err(|_| invalid())?),
+        }
         Ok(())
+    }
+
+    /// Room for more values without growing.
+    fn spare(&self) -> usize {
+        with_values!(self, v => v.capacity() - v.len())
+    }
+
+    /// Appends the `items` values at byte `offset` of each element of `block` (whole
+    /// binary elements of `stride` bytes), in the byte order `big` says.
+    fn extend_from_elements(&mut self, block: &[u8], stride: usize, offset: usize, items: usize, big: bool) {
+        with_values!(self, v => if big {
+            gather::<_, true>(v, block, stride, offset, items)
+        } else {
+            gather::<_, false>(v, block, stride, offset, items)
+        })
     }
 
     /// Value `i` as `f32`, converted as the scene loader converts coordinates (the
@@ -232,6 +283,18 @@ impl Values {
 
     fn put_ascii(&self, i: usize, out: &mut Vec<u8>) {
         with_values!(self, v => v[i].put_ascii(out))
+    }
+}
+
+/// Appends the `items` values at byte `offset` of each element of `block` to `v`.
+#[inline]
+fn gather<T: Scalar, const BIG: bool>(v: &mut Vec<T>, block: &[u8], stride: usize, offset: usize, items: usize) {
+    let elements = block.chunks_exact(stride);
+    if items == 1 {
+        v.extend(elements.map(|e| T::at::<BIG>(&e[offset..])));
+    } else {
+        let end = offset + items * T::SIZE;
+        v.extend(elements.flat_map(|e| e[offset..end].chunks_exact(T::SIZE).map(T::at::<BIG>)));
     }
 }
 
@@ -332,19 +395,68 @@ impl PlyAsset {
     /// Reads `path` (`.ply` or `.ply.gz`, any of the three encodings) for baking: the
     /// file's data and its columns must fit in the read budget of `options`.
     pub fn read_with(path: &Path, options: &LoadOptions) -> Result<PlyAsset> {
+        PlyAsset::read_in(path, options, true)
+    }
+
+    /// [`PlyAsset::read_with`], binary data through the bulk runs and ascii numbers through
+    /// the fast parsers where `bulk` is set, else one element and one `str::parse` at a
+    /// time (the reference they are compared with).
+    fn read_in(path: &Path, options: &LoadOptions, bulk: bool) -> Result<PlyAsset> {
         let mut meter = Meter::new(&options.limits, "the mesh");
         let mut input = Input::open(path, &options.limits)?;
         let header = read_header(path, &mut input)?;
         check_header(path, &header)?;
         let data = input.read_all(path, &mut meter)?;
         let elements = match header.encoding {
-            Encoding::Ascii => read_ascii(path, &header.elements, &data, &mut meter)?,
-            encoding => read_binary(path, &header.elements, &data, encoding == Encoding::BinaryBigEndian, &mut meter)?,
+            Encoding::Ascii => read_ascii(path, &header.elements, &data, &mut meter, bulk)?,
+            encoding => {
+                let big_endian = encoding == Encoding::BinaryBigEndian;
+                read_binary(path, &header.elements, &data, big_endian, &mut meter, bulk)?
+            }
         };
         drop(data);
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
         let mesh = mesh(path, &header, &elements, label)?;
         Ok(PlyAsset { meshes: vec![mesh], header, elements })
+    }
+
+    /// [`PlyAsset::read_with`] one element and one `str::parse` at a time: the reference
+    /// the binary runs and fast ascii parsers are compared with.
+    #[cfg(feature = "testing")]
+    pub fn read_reference(path: &Path, options: &LoadOptions) -> Result<PlyAsset> {
+        PlyAsset::read_in(path, options, false)
+    }
+
+    /// Everything read from `path` for a bake, as bytes to compare (every element's
+    /// columns, in their own types and little-endian, and the mesh, as bits): through the
+    /// binary runs and fast ascii parsers where `bulk` is set, else one element and one
+    /// `str::parse` at a time, their reference.
+    #[cfg(feature = "testing")]
+    pub fn read_bits(path: &Path, options: &LoadOptions, bulk: bool) -> Result<Vec<u8>> {
+        let asset = PlyAsset::read_in(path, options, bulk)?;
+        let mut out = Vec::new();
+        let words = |out: &mut Vec<u8>, words: &mut dyn Iterator<Item = u32>| {
+            words.for_each(|w| out.extend_from_slice(&w.to_le_bytes()))
+        };
+        for element in &asset.elements {
+            out.extend_from_slice(format!("{} {}\n", element.name, element.count).as_bytes());
+            for column in &element.columns {
+                out.extend_from_slice(column.header_line().as_bytes());
+                if let Some((_, starts)) = &column.list {
+                    starts.iter().for_each(|&s| out.extend_from_slice(&(s as u64).to_le_bytes()));
+                }
+                (0..column.values.len()).for_each(|i| column.values.put_le(i, &mut out));
+            }
+        }
+        let mesh = &asset.meshes[0];
+        let vec3 = |v: &Vec3| v.to_array().map(f32::to_bits);
+        words(&mut out, &mut mesh.positions.iter().flat_map(vec3));
+        words(&mut out, &mut mesh.normals.iter().flatten().flat_map(vec3));
+        words(&mut out, &mut mesh.face_starts.iter().chain(&mesh.face_indices).copied());
+        for set in &mesh.uv_sets {
+            words(&mut out, &mut set.corners.iter().flat_map(|c| c.to_array().map(f32::to_bits)));
+        }
+        Ok(out)
     }
 
     /// The mesh the scene loader reads from the file: its faces as fans, vertices
@@ -414,13 +526,17 @@ fn columns_bytes(elements: &[Element], columns: &[Column]) -> u64 {
 }
 
 /// Reads the data of a binary file; the columns, as they grow, are charged to `meter` (on
-/// top of what it holds already: the data).
+/// top of what it holds already: the data). With `bulk`, runs of elements of the same
+/// shape are taken a column at a time ([`binary_run`]); every other element, and all of
+/// them without it, one at a time ([`read_binary_element`]): the reference the runs are
+/// compared with. Both charge the same bytes before each element, so they fail alike.
 fn read_binary(
     path: &Path,
     defs: &[ElementDef],
     data: &[u8],
     big_endian: bool,
     meter: &mut Meter,
+    bulk: bool,
 ) -> Result<Vec<Element>> {
     let base = meter.used();
     let mut pos = 0;
@@ -436,31 +552,17 @@ fn read_binary(
         let mut columns = columns(def, capacity(def, data.len() - pos, min_bytes));
         // Elements without properties take no bytes.
         let count = if columns.is_empty() { 0 } else { def.count };
-        for i in 0..count {
+        let mut i = 0;
+        while i < count {
+            // What the columns hold changes only when one grows, which a run never does:
+            // one charge before a run is the charge before each of its elements.
             meter.hold(path, base + columns_bytes(&elements, &columns))?;
-            for column in &mut columns {
-                let Some((count_type, starts)) = &mut column.list else {
-                    column.values.push_binary(data, &mut pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
-                    continue;
-                };
-                let mut n = Values::new(count_type, 1);
-                n.push_binary(data, &mut pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
-                let n = n.integer(0).unwrap_or(0);
-                let item_bytes = scalar_bytes(&column.values.scalar_type());
-                let Some(n) = usize::try_from(n).ok().filter(|n| n.saturating_mul(item_bytes) <= data.len() - pos)
-                else {
-                    return Err(if n < 0 {
-                        let message = format!("{} {i} of {}: list {} has {n} items", def.name, def.count, column.name);
-                        Error::scene(path, message)
-                    } else {
-                        end_of_file(path, def, i)
-                    });
-                };
-                for _ in 0..n {
-                    column.values.push_binary(data, &mut pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
-                }
-                starts.push(column.values.len());
+            let taken = if bulk { binary_run(&mut columns, data, &mut pos, count - i, big_endian) } else { 0 };
+            if taken == 0 {
+                read_binary_element(path, def, i, &mut columns, data, &mut pos, big_endian)?;
+                i += 1;
             }
+            i += taken;
         }
         elements.push(Element { name: def.name.clone(), count: def.count, columns });
     }
@@ -468,6 +570,110 @@ fn read_binary(
         return Err(extra_data(path, pos));
     }
     Ok(elements)
+}
+
+/// Reads element `i` of `def` at `data[*pos..]` onto `columns`, one value at a time.
+fn read_binary_element(
+    path: &Path,
+    def: &ElementDef,
+    i: usize,
+    columns: &mut [Column],
+    data: &[u8],
+    pos: &mut usize,
+    big_endian: bool,
+) -> Result<()> {
+    for column in columns {
+        let Some((count_type, starts)) = &mut column.list else {
+            column.values.push_binary(data, pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
+            continue;
+        };
+        let mut n = Values::new(count_type, 1);
+        n.push_binary(data, pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
+        let n = n.integer(0).unwrap_or(0);
+        let item_bytes = scalar_bytes(&column.values.scalar_type());
+        let Some(n) = usize::try_from(n).ok().filter(|n| n.saturating_mul(item_bytes) <= data.len() - *pos) else {
+            return Err(if n < 0 {
+                let message = format!("{} {i} of {}: list {} has {n} items", def.name, def.count, column.name);
+                Error::scene(path, message)
+            } else {
+                end_of_file(path, def, i)
+            });
+        };
+        for _ in 0..n {
+            column.values.push_binary(data, pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
+        }
+        starts.push(column.values.len());
+    }
+    Ok(())
+}
+
+/// A binary list count of integer type `t` at the start of `bytes`; `None` when `bytes`
+/// is too short.
+#[inline(always)]
+fn count_at(bytes: &[u8], t: Ty, big_endian: bool) -> Option<i64> {
+    (bytes.len() >= t.size()).then(|| t.i64_at(bytes, big_endian))
+}
+
+/// Takes the whole elements at `data[*pos..]`, at most `most`, while each has the list
+/// lengths of the first and no column must grow to hold them (so that what the columns
+/// hold is what was charged before them); each column is filled in one pass over the
+/// elements, the byte order converted as each value is taken. The number of elements
+/// taken: none where the first is cut off or has a negative list length, which the
+/// element-at-a-time reader then reports.
+fn binary_run(columns: &mut [Column], data: &[u8], pos: &mut usize, most: usize, big_endian: bool) -> usize {
+    let rest = &data[*pos..];
+    // Each column's byte offset and item count in the first element, and each list's
+    // count: its offset, type and value.
+    let mut shape = Vec::with_capacity(columns.len());
+    let mut lists = Vec::new();
+    let mut at = 0usize;
+    for column in columns.iter() {
+        let size = scalar_bytes(&column.values.scalar_type());
+        let Some((count_type, _)) = &column.list else {
+            shape.push((at, 1));
+            at += size;
+            continue;
+        };
+        let count_type = Ty::of(count_type);
+        let Some(n) = rest.get(at..).and_then(|b| count_at(b, count_type, big_endian)) else {
+            return 0;
+        };
+        let Ok(n) = usize::try_from(n) else {
+            return 0;
+        };
+        lists.push((at, count_type, n as i64));
+        at += count_type.size();
+        shape.push((at, n));
+        at = at.saturating_add(n.saturating_mul(size));
+    }
+    let stride = at;
+    if stride == 0 || stride > rest.len() {
+        return 0;
+    }
+    let mut n = most.min(rest.len() / stride);
+    for (column, &(_, items)) in columns.iter().zip(&shape) {
+        n = n.min(column.values.spare().checked_div(items).unwrap_or(usize::MAX));
+        if let Some((_, starts)) = &column.list {
+            n = n.min(starts.capacity() - starts.len());
+        }
+    }
+    if !lists.is_empty() {
+        let same = |e: &[u8]| lists.iter().all(|&(offset, t, n)| count_at(&e[offset..], t, big_endian) == Some(n));
+        n = rest[..n * stride].chunks_exact(stride).position(|e| !same(e)).unwrap_or(n);
+    }
+    if n == 0 {
+        return 0;
+    }
+    let block = &rest[..n * stride];
+    for (column, &(offset, items)) in columns.iter_mut().zip(&shape) {
+        column.values.extend_from_elements(block, stride, offset, items, big_endian);
+        if let Some((_, starts)) = &mut column.list {
+            let first = starts.last().copied().unwrap_or(0);
+            starts.extend((1..=n).map(|k| first + k * items));
+        }
+    }
+    *pos += n * stride;
+    n
 }
 
 fn extra_data(path: &Path, at: usize) -> Error {
@@ -520,7 +726,7 @@ const ASCII_BLOCK_BYTES: usize = 1 << 20;
 /// parsed in blocks on rayon's threads, a round of one block per thread at a time, and
 /// taken in order: an error is the first line's in the file, as a line-at-a-time read
 /// reports it, and what the columns hold is charged to `meter` after each block.
-fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8], meter: &mut Meter) -> Result<Vec<Element>> {
+fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8], meter: &mut Meter, fast: bool) -> Result<Vec<Element>> {
     use rayon::prelude::*;
     let base = meter.used();
     let longest = meter.limits().line_bytes();
@@ -563,7 +769,7 @@ fn read_ascii(path: &Path, defs: &[ElementDef], data: &[u8], meter: &mut Meter) 
                         let at = |message: AsciiLineError| {
                             Error::scene(path, format!("{} {i} of {}: {message}", def.name, def.count))
                         };
-                        read_ascii_line(line, longest, &mut block, &mut tokens).map_err(at)?;
+                        read_ascii_line(line, longest, &mut block, &mut tokens, fast).map_err(at)?;
                     }
                     Ok(block)
                 })
@@ -596,13 +802,15 @@ enum AsciiLineError {
     Token(#[from] TokenError),
 }
 
-/// Parses one ascii element's `line` (at most `longest` bytes) onto `columns`; `tokens`
-/// is scratch.
+/// Parses one ascii element's `line` (at most `longest` bytes) onto `columns`, the values
+/// by the fast parsers where `fast` is set (see [`Values::push_token`]); `tokens` is
+/// scratch.
 fn read_ascii_line<'l>(
     line: &'l [u8],
     longest: usize,
     columns: &mut [Column],
     tokens: &mut Vec<&'l str>,
+    fast: bool,
 ) -> std::result::Result<(), AsciiLineError> {
     if line.len() > longest {
         return Err(AsciiLineError::TooLong(crate::scene::input::size_text(longest as u64)));
@@ -620,14 +828,14 @@ fn read_ascii_line<'l>(
     let mut take = || next_token.next().ok_or(AsciiLineError::Short);
     for column in columns {
         let Some((_, starts)) = &mut column.list else {
-            column.values.push_token(take()?)?;
+            column.values.push_token(take()?, fast)?;
             continue;
         };
         let n = take()?;
         let n: usize =
             n.parse().map_err(|_| AsciiLineError::NotACount { column: column.name.clone(), count: n.to_string() })?;
         for _ in 0..n {
-            column.values.push_token(take()?)?;
+            column.values.push_token(take()?, fast)?;
         }
         starts.push(column.values.len());
     }
@@ -677,42 +885,41 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
         return Err(Error::scene(path, "no vertex or no face element"));
     };
     let xyz = scalar_columns(vertex, ["x", "y", "z"]).ok_or_else(|| Error::scene(path, "no x, y or z"))?;
-    let mut positions = Vec::with_capacity(vertex.count);
-    for i in 0..vertex.count {
-        let p = Vec3::from(xyz.map(|c| c.values.f32(i)));
-        if let Some(c) = non_finite_coordinate(p) {
-            return Err(Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})")));
+    let positions = match xyz.map(|c| &c.values) {
+        [Values::Float(x), Values::Float(y), Values::Float(z)] => {
+            positions(path, vertex.count, |i| Vec3::new(x[i], y[i], z[i]))?
         }
-        positions.push(p);
-    }
-    let normals = scalar_columns(vertex, ["nx", "ny", "nz"])
-        .map(|n| (0..vertex.count).map(|i| Vec3::from(n.map(|c| c.values.f32(i)))).collect());
+        _ => positions(path, vertex.count, |i| Vec3::from(xyz.map(|c| c.values.f32(i))))?,
+    };
+    let normals = scalar_columns(vertex, ["nx", "ny", "nz"]).map(|n| match n.map(|c| &c.values) {
+        [Values::Float(x), Values::Float(y), Values::Float(z)] => {
+            (0..vertex.count).map(|i| Vec3::new(x[i], y[i], z[i])).collect()
+        }
+        _ => (0..vertex.count).map(|i| Vec3::from(n.map(|c| c.values.f32(i)))).collect(),
+    });
 
     let face_def = header.element("face").ok_or_else(|| Error::scene(path, "no face element"))?;
     let list = column(face, &index_list_name(path, face_def)?).ok_or_else(|| Error::scene(path, "no face list"))?;
-    let mut face_starts = Vec::with_capacity(face.count + 1);
-    let mut face_indices = Vec::with_capacity(list.values.len());
-    face_starts.push(0);
-    for i in 0..face.count {
-        let items = list.items(i);
-        if items.len() < 3 {
-            let n = items.len();
-            return Err(Error::scene(path, format!("face {i} has {n} vertices; a face needs at least 3")));
+    let scalar_starts: Vec<usize>;
+    let starts = match &list.list {
+        Some((_, starts)) => starts,
+        None => {
+            scalar_starts = (0..=face.count).collect();
+            &scalar_starts
         }
-        for item in items {
-            let v = list.values.integer(item).unwrap_or(-1);
-            let Some(v) = usize::try_from(v).ok().filter(|&v| v < vertex.count).and_then(|v| u32::try_from(v).ok())
-            else {
-                let count = vertex.count;
-                let message = format!("face {i}: vertex index {v} is out of range (the file has {count} vertices)");
-                return Err(Error::scene(path, message));
-            };
-            face_indices.push(v);
-        }
-        let end = u32::try_from(face_indices.len())
-            .map_err(|_| Error::scene(path, "more than 4294967295 face corners: too many for a mesh"))?;
-        face_starts.push(end);
-    }
+    };
+    let n = vertex.count;
+    let (face_starts, face_indices) = match &list.values {
+        Values::Char(v) => corners(path, starts, v, n, i64::from),
+        Values::UChar(v) => corners(path, starts, v, n, i64::from),
+        Values::Short(v) => corners(path, starts, v, n, i64::from),
+        Values::UShort(v) => corners(path, starts, v, n, i64::from),
+        Values::Int(v) => corners(path, starts, v, n, i64::from),
+        Values::UInt(v) => corners(path, starts, v, n, i64::from),
+        // Not an index.
+        Values::Float(v) => corners(path, starts, v, n, |_| -1),
+        Values::Double(v) => corners(path, starts, v, n, |_| -1),
+    }?;
     // Per-corner texture coordinates (MeshLab's face `texcoord` list, u v per corner), else
     // per-vertex ones under the names the common writers use.
     let wedge = column(face, "texcoord").filter(|c| c.list.is_some()).map(|c| {
@@ -754,6 +961,58 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
         material: None,
         repeating_sets: Vec::new(),
     })
+}
+
+/// The positions `at(0..count)`, each checked to be finite.
+fn positions(path: &Path, count: usize, at: impl Fn(usize) -> Vec3) -> Result<Vec<Vec3>> {
+    let mut positions = Vec::with_capacity(count);
+    for i in 0..count {
+        let p = at(i);
+        if !p.is_finite()
+            && let Some(c) = non_finite_coordinate(p)
+        {
+            return Err(Error::scene(path, format!("vertex {i} has a non-finite coordinate ({c})")));
+        }
+        positions.push(p);
+    }
+    Ok(positions)
+}
+
+/// The faces of an index list (face `i`'s indices `values[starts[i]..starts[i + 1]]`, each
+/// as `index` reads it), checked as the scene loader checks them: at least 3 corners,
+/// each naming one of the `vertex_count` vertices. The faces' starts and their corners.
+fn corners<T: Copy>(
+    path: &Path,
+    starts: &[usize],
+    values: &[T],
+    vertex_count: usize,
+    index: impl Fn(T) -> i64,
+) -> Result<(Vec<u32>, Vec<u32>)> {
+    let faces = starts.len() - 1;
+    let mut face_starts = Vec::with_capacity(faces + 1);
+    let mut face_indices = Vec::with_capacity(values.len());
+    face_starts.push(0);
+    for (i, items) in starts.windows(2).enumerate() {
+        let items = &values[items[0]..items[1]];
+        if items.len() < 3 {
+            let n = items.len();
+            return Err(Error::scene(path, format!("face {i} has {n} vertices; a face needs at least 3")));
+        }
+        for &item in items {
+            let v = index(item);
+            let Some(v) = usize::try_from(v).ok().filter(|&v| v < vertex_count).and_then(|v| u32::try_from(v).ok())
+            else {
+                let message =
+                    format!("face {i}: vertex index {v} is out of range (the file has {vertex_count} vertices)");
+                return Err(Error::scene(path, message));
+            };
+            face_indices.push(v);
+        }
+        let end = u32::try_from(face_indices.len())
+            .map_err(|_| Error::scene(path, "more than 4294967295 face corners: too many for a mesh"))?;
+        face_starts.push(end);
+    }
+    Ok((face_starts, face_indices))
 }
 
 /// AO as a grey colour channel in type `t`: 0 to 1 for the floating-point types, 0 to 255

@@ -14,7 +14,7 @@ pub(crate) mod mesh;
 pub(crate) mod meshes;
 pub(crate) mod obj;
 pub(crate) mod ply;
-mod ply_data;
+pub(crate) mod ply_data;
 mod types;
 
 pub use crate::geometry::Plane;

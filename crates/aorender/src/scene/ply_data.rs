@@ -25,7 +25,7 @@ pub(super) const LIST_ITEM_BYTES: u64 = 8 + 8;
 
 /// A scalar type of the file.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(super) enum Ty {
+pub(crate) enum Ty {
     I8,
     U8,
     I16,
@@ -37,7 +37,8 @@ pub(super) enum Ty {
 }
 
 impl Ty {
-    fn of(t: &ScalarType) -> Ty {
+    /// The type of a header's scalar type.
+    pub(crate) fn of(t: &ScalarType) -> Ty {
         match t {
             ScalarType::Char => Ty::I8,
             ScalarType::UChar => Ty::U8,
@@ -51,7 +52,7 @@ impl Ty {
     }
 
     /// Bytes one value takes in a binary file.
-    fn size(self) -> usize {
+    pub(crate) fn size(self) -> usize {
         match self {
             Ty::I8 | Ty::U8 => 1,
             Ty::I16 | Ty::U16 => 2,
@@ -82,7 +83,7 @@ impl Ty {
 
     /// The integer at the start of `b` (an integer type, at least [`Ty::size`] bytes).
     #[inline(always)]
-    fn i64_at(self, b: &[u8], big: bool) -> i64 {
+    pub(crate) fn i64_at(self, b: &[u8], big: bool) -> i64 {
         let u16_at = |b: &[u8]| {
             let bytes = [b[0], b[1]];
             if big { u16::from_be_bytes(bytes) } else { u16::from_le_bytes(bytes) }
@@ -553,7 +554,7 @@ fn is_number(token: &[u8]) -> bool {
 
 /// An integer token as `str::parse` reads it for type `t`, when it is plain digits with
 /// an optional `-` (signed types) and in range; `None` for anything else.
-fn ascii_int(token: &[u8], t: Ty) -> Option<i64> {
+pub(crate) fn ascii_int(token: &[u8], t: Ty) -> Option<i64> {
     let (negative, digits) = match token.strip_prefix(b"-") {
         Some(rest) => (true, rest),
         None => (false, token),

@@ -1,0 +1,427 @@
+//! The bake's PLY reader in runs against its element-at-a-time reader: every element and
+//! column the bake keeps (in the file's own types) and the mesh it traces, byte for byte,
+//! on the shipped dragons, the shared scenes, the test corpus and the dragon written in
+//! other layouts (binary of either byte order and ASCII, doubles, normals and colours,
+//! polygons, lists before and after the index list, elements the mesh does not use); the
+//! same error, word for word, on truncated, lying, corrupt, over-budget and endless input.
+
+use aorender::bake::PlyAsset;
+use aorender::scene::{LoadOptions, ReadLimits, read_ply_mesh};
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn options(limits: ReadLimits) -> LoadOptions {
+    LoadOptions { limits, allow_external_uris: false }
+}
+
+/// Both readers' results for `path`, checked to agree: the same bytes, or the same
+/// message. The bytes, or the message.
+fn agree(path: &Path, limits: &ReadLimits) -> Result<Vec<u8>, String> {
+    let options = options(limits.clone());
+    let reference = PlyAsset::read_bits(path, &options, false).map_err(|e| e.to_string());
+    let bulk = PlyAsset::read_bits(path, &options, true).map_err(|e| e.to_string());
+    match (&reference, &bulk) {
+        (Ok(a), Ok(b)) => {
+            let first = a.iter().zip(b).position(|(x, y)| x != y);
+            assert!(a == b, "{}: {} and {} bytes, first difference at {first:?}", path.display(), a.len(), b.len());
+        }
+        _ => assert_eq!(reference.as_ref().err(), bulk.as_ref().err(), "{}", path.display()),
+    }
+    bulk
+}
+
+/// How a test file lays the dragon out.
+#[derive(Clone, Copy, Debug)]
+enum Layout {
+    /// `float x y z`, `list uchar int vertex_indices`, as most writers do.
+    Plain,
+    /// Normals and an RGBA colour per vertex; a quad every 7 faces, `uint` indices.
+    Normals,
+    /// Doubles, a colour between the coordinates, a list after them, a flag and two lists
+    /// in each face (a quad every third), and elements of scalars and of lists the mesh
+    /// does not use.
+    Rich,
+}
+
+const LAYOUTS: [Layout; 3] = [Layout::Plain, Layout::Normals, Layout::Rich];
+const FORMATS: [&str; 3] = ["ascii", "binary_little_endian", "binary_big_endian"];
+
+/// The dragon (`positions`, `triangles`) written as PLY in `format` and `layout`.
+fn write_ply(positions: &[glam::Vec3], triangles: &[[u32; 3]], format: &str, layout: Layout) -> Vec<u8> {
+    let (nv, nf) = (positions.len(), triangles.len());
+    let mut header = format!("ply\nformat {format} 1.0\ncomment bake reader test\n");
+    match layout {
+        Layout::Plain => write!(
+            header,
+            "element vertex {nv}\nproperty float x\nproperty float y\nproperty float z\n\
+             element face {nf}\nproperty list uchar int vertex_indices\n"
+        ),
+        Layout::Normals => write!(
+            header,
+            "element vertex {nv}\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\n\
+             property float ny\nproperty float nz\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n\
+             property uchar alpha\nelement face {nf}\nproperty list uchar uint vertex_indices\n"
+        ),
+        Layout::Rich => write!(
+            header,
+            "element vertex {nv}\nproperty double x\nproperty float y\nproperty uchar red\nproperty double z\n\
+             property list uchar float uv\nelement material 2\nproperty float shine\nproperty short id\n\
+             element face {nf}\nproperty uchar flags\nproperty list ushort uint vertex_index\n\
+             property list char float texcoord\nelement edge 3\nproperty list uint short ends\n"
+        ),
+    }
+    .unwrap();
+    header.push_str("end_header\n");
+    let mut out = header.into_bytes();
+    let ascii = format == "ascii";
+    let big = format == "binary_big_endian";
+    macro_rules! put {
+        ($v:expr, $fmt:literal) => {{
+            let v = $v;
+            if ascii {
+                write!(out, $fmt, v).unwrap();
+            } else if big {
+                out.extend_from_slice(&v.to_be_bytes());
+            } else {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }};
+    }
+    let end = |out: &mut Vec<u8>| {
+        if ascii {
+            out.push(b'\n');
+        }
+    };
+    for (k, p) in positions.iter().enumerate() {
+        match layout {
+            Layout::Plain => {
+                put!(p.x, "{} ");
+                put!(p.y, "{} ");
+                put!(p.z, "{}");
+            }
+            Layout::Normals => {
+                put!(p.x, "{} ");
+                put!(p.y, "{} ");
+                put!(p.z, "{} ");
+                // Not unit length, some in exponent form.
+                put!(p.y * 3.0, "{:e} ");
+                put!(-p.x, "{} ");
+                put!(1.0f32 / (k as f32 + 1.0), "{} ");
+                for c in [(k % 256) as u8, 7, 255, (k / 256 % 256) as u8] {
+                    put!(c, "{} ");
+                }
+            }
+            Layout::Rich => {
+                // Some values in exponent form, some doubles that are no f32.
+                put!(f64::from(p.x) + 1e-12, "{:e} ");
+                put!(p.y, "{}\t");
+                put!((k % 256) as u8, "{} ");
+                put!(f64::from(p.z), "{} ");
+                put!(2u8, "{} ");
+                put!(0.5f32, "{} ");
+                put!(-0.25f32, "{}");
+            }
+        }
+        end(&mut out);
+    }
+    if let Layout::Rich = layout {
+        for id in [7i16, -3] {
+            put!(1.5f32, "{} ");
+            put!(id, "{}");
+            end(&mut out);
+        }
+    }
+    for (k, t) in triangles.iter().enumerate() {
+        match layout {
+            Layout::Plain => {
+                put!(3u8, "{} ");
+                for &i in t {
+                    put!(i as i32, "{} ");
+                }
+            }
+            Layout::Normals => {
+                // Every seventh face a quad of its triangle and the next one's first corner.
+                let quad = k % 7 == 0 && k + 1 < nf;
+                put!(if quad { 4u8 } else { 3 }, "{} ");
+                for &i in t.iter().chain(quad.then(|| &triangles[k + 1][0])) {
+                    put!(i, "{} ");
+                }
+            }
+            Layout::Rich => {
+                put!(1u8, "{} ");
+                let quad = k % 3 == 0 && k + 1 < nf;
+                put!(if quad { 4u16 } else { 3 }, "{} ");
+                for &i in t.iter().chain(quad.then(|| &triangles[k + 1][0])) {
+                    put!(i, "{} ");
+                }
+                put!(2i8, "{} ");
+                put!(0.75f32, "{} ");
+                put!(k as f32, "{}");
+            }
+        }
+        end(&mut out);
+    }
+    if let Layout::Rich = layout {
+        for e in 0..3u32 {
+            put!(2u32, "{} ");
+            put!(e as i16, "{} ");
+            put!(-(e as i16), "{}");
+            end(&mut out);
+        }
+    }
+    out
+}
+
+/// The dragon of `name` in `scenes/`, as the scene loader reads it.
+fn dragon(name: &str) -> (Vec<glam::Vec3>, Vec<[u32; 3]>) {
+    read_ply_mesh(&root().join("scenes").join(name), &ReadLimits::with_memory(1 << 30), true).unwrap()
+}
+
+#[test]
+fn runs_give_the_reference_on_the_dragons_the_shared_scenes_and_the_corpus() {
+    let limits = ReadLimits::with_memory(4 << 30);
+    let mut dragons = 0;
+    // The shared scenes are those of a checkout beside this one, where there is one.
+    for dir in [root().join("scenes"), root().join("../shared/scenes")] {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for entry in entries {
+            let path = entry.unwrap().path();
+            if path.to_string_lossy().ends_with(".ply.gz") || path.to_string_lossy().ends_with(".ply") {
+                let bytes = agree(&path, &limits).unwrap_or_else(|e| panic!("{e}"));
+                assert!(bytes.len() > 100_000, "{}: {} bytes", path.display(), bytes.len());
+                dragons += 1;
+            }
+        }
+    }
+    assert!(dragons >= 4, "{dragons} PLY files in scenes/");
+    let tests = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");
+    let (mut corpus, mut read) = (0, 0);
+    for dir in ["malformed", "fuzz_regressions", "data"] {
+        let Ok(entries) = std::fs::read_dir(tests.join(dir)) else {
+            continue;
+        };
+        for entry in entries {
+            let path = entry.unwrap().path();
+            if path.to_string_lossy().contains(".ply") {
+                read += usize::from(agree(&path, &limits).is_ok());
+                corpus += 1;
+            }
+        }
+    }
+    assert!(corpus >= 15, "{corpus} PLY files in the corpus");
+    assert!(read < corpus, "every file of the malformed corpus read");
+}
+
+#[test]
+fn runs_give_the_reference_in_every_layout() {
+    let limits = ReadLimits::with_memory(4 << 30);
+    let (positions, triangles) = dragon("dragon_vrip_res2.ply.gz");
+    let dir = tempfile::tempdir().unwrap();
+    let mut sizes = Vec::new();
+    for format in FORMATS {
+        for layout in LAYOUTS {
+            let path = dir.path().join(format!("{format}-{layout:?}.ply"));
+            std::fs::write(&path, write_ply(&positions, &triangles, format, layout)).unwrap();
+            let bytes = agree(&path, &limits).unwrap_or_else(|e| panic!("{format} {layout:?}: {e}"));
+            sizes.push((format, layout, bytes.len()));
+        }
+    }
+    // Every encoding of a layout holds the same values, so the same number of bytes.
+    for (k, &(format, layout, size)) in sizes.iter().enumerate() {
+        assert_eq!(size, sizes[k % LAYOUTS.len()].2, "{format} {layout:?}");
+    }
+}
+
+/// A small dragon in every format and layout, with its header's length.
+fn small_files() -> Vec<(String, Vec<u8>, usize)> {
+    let (positions, triangles) = dragon("dragon_vrip_res4.ply.gz");
+    let mut files = Vec::new();
+    for format in FORMATS {
+        for layout in LAYOUTS {
+            let bytes = write_ply(&positions, &triangles, format, layout);
+            let header = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+            files.push((format!("{format}-{layout:?}"), bytes, header));
+        }
+    }
+    files
+}
+
+#[test]
+fn truncated_lying_and_corrupt_files_fail_as_before() {
+    let limits = ReadLimits::with_memory(1 << 30);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cut.ply");
+    let mut failures = 0;
+    for (name, bytes, header) in small_files() {
+        // Cut anywhere in the data: in a value, between elements, in a list.
+        let data = bytes.len() - header;
+        for k in 0..=97 {
+            let end = header + data * k / 97 - usize::from(k > 0 && k < 97) * (k % 5);
+            std::fs::write(&path, &bytes[..end]).unwrap();
+            failures += usize::from(agree(&path, &limits).is_err());
+        }
+        // Counts that do not match the data, either way.
+        let text = String::from_utf8_lossy(&bytes[..header]).to_string();
+        for element in ["vertex", "face"] {
+            let line = text.lines().find(|l| l.starts_with(&format!("element {element} "))).unwrap();
+            let n: usize = line.rsplit(' ').next().unwrap().parse().unwrap();
+            for lie in [n - 1, n + 1, n / 2, n * 3] {
+                let header = text.replace(line, &format!("element {element} {lie}"));
+                std::fs::write(&path, [header.as_bytes(), &bytes[text.len()..]].concat()).unwrap();
+                assert!(agree(&path, &limits).is_err(), "{name}: {element} {lie} of {n} read");
+                failures += 1;
+            }
+        }
+        // Corrupt data: a byte in the first vertex, in a late face (an index or a count),
+        // near the end.
+        for (at, byte) in [(header + 2, 0xffu8), (bytes.len() - 30, 0x7f), (bytes.len() - 9, 0x80)] {
+            let mut bad = bytes.clone();
+            bad[at] = byte;
+            std::fs::write(&path, &bad).unwrap();
+            let _ = agree(&path, &limits);
+        }
+        let gz = dir.path().join("cut.ply.gz");
+        let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        encoder.write_all(&bytes).unwrap();
+        let compressed = encoder.finish().unwrap();
+        for end in [compressed.len() / 3, compressed.len() - 5] {
+            std::fs::write(&gz, &compressed[..end]).unwrap();
+            assert!(agree(&gz, &limits).is_err(), "{name}: a truncated gzip stream read");
+        }
+    }
+    assert!(failures > 9 * 97, "{failures} failures");
+}
+
+#[test]
+fn binary_runs_give_way_to_polygons_bad_counts_bad_indices_and_bad_coordinates_as_before() {
+    let limits = ReadLimits::with_memory(1 << 30);
+    let (positions, triangles) = dragon("dragon_vrip_res4.ply.gz");
+    let (nv, nf) = (positions.len(), triangles.len());
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("plain.ply");
+    let mut refused = 0;
+    for format in ["binary_little_endian", "binary_big_endian"] {
+        let bytes = write_ply(&positions, &triangles, format, Layout::Plain);
+        let header = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        let word = |v: u32| if format == "binary_big_endian" { v.to_be_bytes() } else { v.to_le_bytes() };
+        let face = |k: usize| header + nv * 12 + k * 13;
+        // (byte offset, bytes written there, whether the file still reads): a face's
+        // count of 4, of 2 and of 0 (the faces after it misread), an index of -1 and of
+        // the vertex count, a NaN and an infinite coordinate, in the middle and at the end.
+        let edits: Vec<(usize, Vec<u8>)> = vec![
+            (face(nf / 2), vec![4]),
+            (face(nf / 3), vec![2]),
+            (face(nf / 4), vec![0]),
+            (face(nf / 2) + 5, word(u32::MAX).to_vec()),
+            (face(nf - 1) + 9, word(nv as u32).to_vec()),
+            (header + 12 * (nv / 2) + 4, word(f32::NAN.to_bits()).to_vec()),
+            (header + 12 * (nv - 1) + 8, word(f32::INFINITY.to_bits()).to_vec()),
+        ];
+        for (at, patch) in edits {
+            let mut bad = bytes.clone();
+            bad[at..at + patch.len()].copy_from_slice(&patch);
+            std::fs::write(&path, &bad).unwrap();
+            let message = agree(&path, &limits).map(|_| ()).unwrap_err();
+            assert!(message.contains("plain.ply"), "{format}: {message}");
+            refused += 1;
+        }
+        // A quad every 1000 faces, read whole.
+        let mut quads = bytes[..face(0)].to_vec();
+        for (k, t) in triangles.iter().enumerate() {
+            let quad = k % 1000 == 999 && k + 1 < nf;
+            quads.push(if quad { 4 } else { 3 });
+            for &i in t.iter().chain(quad.then(|| &triangles[k + 1][0])) {
+                quads.extend_from_slice(&word(i));
+            }
+        }
+        std::fs::write(&path, &quads).unwrap();
+        agree(&path, &limits).unwrap_or_else(|e| panic!("{format}: {e}"));
+    }
+    assert_eq!(refused, 14);
+}
+
+#[test]
+fn over_budget_files_fail_as_before() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("budget.ply");
+    for (name, bytes, _) in small_files() {
+        std::fs::write(&path, &bytes).unwrap();
+        // Budgets from a fifth to eight times the file's size: refused while the data is
+        // read, while the columns grow in either reader, or read.
+        let mut refused = 0;
+        for k in 1..=40 {
+            let budget = bytes.len() as u64 * k / 5;
+            refused += usize::from(agree(&path, &ReadLimits::with_memory(budget)).is_err());
+        }
+        assert!((4..40).contains(&refused), "{name}: {refused} budgets of 40 refused");
+    }
+}
+
+/// A pipe that delivers `header` and then `element` for ever, as `name` in `dir`.
+fn endless(dir: &Path, name: &str, header: &str, element: &'static [u8]) -> (PathBuf, std::thread::JoinHandle<()>) {
+    let path = dir.join(name);
+    let c_path = std::ffi::CString::new(path.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a valid, NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0, "mkfifo");
+    let (writer_path, header) = (path.clone(), header.to_string());
+    let writer = std::thread::spawn(move || {
+        let mut pipe = std::fs::OpenOptions::new().write(true).open(writer_path).unwrap();
+        let block: Vec<u8> = element.iter().copied().cycle().take(element.len() * 4096).collect();
+        // Until the reader stops reading and closes the pipe.
+        if pipe.write_all(header.as_bytes()).is_ok() {
+            while pipe.write_all(&block).is_ok() {}
+        }
+    });
+    (path, writer)
+}
+
+#[test]
+fn endless_input_fails_as_before() {
+    let dir = tempfile::tempdir().unwrap();
+    let limits = ReadLimits::with_memory(1 << 20);
+    let cases: [(&str, &str, &'static [u8]); 3] = [
+        // Faces (0, 0, 0) after 13 vertices (12 copies of the element), far more of them
+        // than the header says.
+        (
+            "binary_little_endian",
+            "element vertex 13\nproperty float x\nproperty float y\nproperty float z\n\
+             element face 80000\nproperty list uchar int vertex_indices\n",
+            &[3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0],
+        ),
+        // A vertex whose list goes on for ever.
+        (
+            "binary_big_endian",
+            "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+             property list uint uchar v\nelement face 1\nproperty list uchar int vertex_indices\n",
+            &[0xff],
+        ),
+        // Lines of an element before the faces, past the input cap.
+        (
+            "ascii",
+            "element vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+             element junk 1000000000000\nproperty float v\nelement face 1\n\
+             property list uchar int vertex_indices\n",
+            b"0 0 0\n",
+        ),
+    ];
+    for (k, (format, elements, element)) in cases.into_iter().enumerate() {
+        let header = format!("ply\nformat {format} 1.0\n{elements}end_header\n");
+        let mut messages = Vec::new();
+        for bulk in [false, true] {
+            let (path, writer) = endless(dir.path(), &format!("endless-{k}.ply"), &header, element);
+            let message = PlyAsset::read_bits(&path, &options(limits.clone()), bulk).unwrap_err().to_string();
+            drop(std::fs::remove_file(&path));
+            writer.join().unwrap();
+            messages.push(message);
+        }
+        assert_eq!(messages[0], messages[1], "case {k}");
+        assert!(messages[1].contains(&format!("endless-{k}.ply")), "case {k}: {}", messages[1]);
+    }
+}
