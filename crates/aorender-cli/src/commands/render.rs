@@ -69,7 +69,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
         plan.output(path, "--error-image")?;
     }
     output::plan_run(&mut plan, &args.run)?;
-    let load_start = std::time::Instant::now();
+    let (load_start, start_seconds) = (std::time::Instant::now(), phases::process_seconds());
     let mut scene = args.scene.load()?;
     let load_seconds = load_start.elapsed().as_secs_f64();
     args.size.apply(&mut scene);
@@ -146,7 +146,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     }
     let resumed_adapter = resume.as_ref().map(|a| a.adapter().to_string());
 
-    let mut adapter_seconds = 0.0;
+    let (mut adapter_seconds, mut teardown_seconds) = (0.0, 0.0);
     let rc = RunControl {
         stop: &stop,
         run: &args.run,
@@ -185,8 +185,14 @@ pub fn run(args: RenderArgs) -> Result<()> {
             render.resume(acc)?;
         }
         render.run(control)?;
-        render.finish()
+        let out = render.finish();
+        let teardown = std::time::Instant::now();
+        drop((session, device));
+        teardown_seconds = teardown.elapsed().as_secs_f64();
+        out
     })?;
+    out.stats.start_seconds = start_seconds;
+    out.stats.teardown_seconds += teardown_seconds;
     out.stats.load_seconds = load_seconds;
     out.stats.adapter_seconds = adapter_seconds;
     out.stats.heap_peak_bytes = memory::heap_peak_bytes();
@@ -200,7 +206,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
         write_error_image(&out.film, path)?;
     }
     out.stats.write_seconds = writing.elapsed().as_secs_f64();
-    out.stats.process_seconds = Some(phases::process_seconds());
+    let mut phases = Phases::of_render(&out.stats);
+    phases.close();
+    (out.stats.process_seconds, out.stats.other_seconds) = (Some(phases.process_seconds), phases.other_seconds);
     let st = &out.stats;
     let json = serde_json::to_string_pretty(&out.stats)?;
     if let Some(path) = &args.run.stats {
