@@ -281,12 +281,13 @@ fn error_targets_and_error_images() {
     assert_rejected(&[&sobol[..], &["--error-image", "se.pfm"]].concat(), d, &["--error-image", "--replicate"]);
 }
 
-/// A render's statistics account for its process phase by phase on both devices (load,
-/// BVH, adapter, upload, pipeline, passes, read-back, host statistics, checkpoints,
-/// writing): each finite and non-negative, together within the whole process and, on a
-/// render whose passes outweigh the fixed costs, at least 80 % of it (what is left out is
-/// parsing the command line and checking options: milliseconds); the GPU reads back at
-/// least the film; a render with an error target counts its checks and says how many.
+/// A render's statistics account for its process phase by phase on both devices (start,
+/// load, BVH, scene, adapter, upload, pipeline, request, passes, read-back, host
+/// statistics, checkpoints, writing, teardown): each finite and non-negative, together
+/// within the whole process and, on a render whose passes outweigh the fixed costs, at
+/// least 80 % of it, `other_seconds` the rest, and the summary line names each in order;
+/// the GPU reads back at least the film; a render with an error target counts its checks
+/// and says how many.
 #[test]
 fn render_stats_account_for_every_phase() {
     let dir = temp_dir();
