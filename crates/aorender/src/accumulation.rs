@@ -1496,7 +1496,7 @@ mod tests {
             normal: Vec3::new(0.0, 1.0, 1e-3 * i as f32),
             error: 1e-6 * i as f32,
             // Every third without a surface normal: those hash fewer bytes.
-            surface_normal: if i % 3 == 0 { Vec3::ZERO } else { Vec3::Y },
+            surface_normal: if i.is_multiple_of(3) { Vec3::ZERO } else { Vec3::Y },
         };
         // Enough probes to fill the gathered updates several times.
         let probes: Vec<_> = (0..10_000).map(probe).collect();
