@@ -23,16 +23,30 @@ pub fn process_seconds() -> f64 {
 /// taking the block's sums from the tracer's film, and `readback_bytes` 0.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Phases {
+    /// From the process's start to loading: starting the program, reading the command
+    /// line, checking the outputs.
+    pub start_seconds: f64,
     /// Reading and parsing the input (and, for a bake, placing its points).
     pub load_seconds: f64,
     /// Building the BVH, its conversion to the GPU's layout included.
     pub bvh_build_seconds: f64,
+    /// The session's setup beside the BVH and the upload: the scene moved to its local
+    /// frame and back, the build's host copies freed.
+    pub scene_seconds: f64,
     /// Opening the device.
     pub adapter_seconds: f64,
     /// Uploading the geometry (GPU) or laying out the tracer's records (CPU).
     pub upload_seconds: f64,
-    /// Making the films and pipelines of the requests.
+    /// Making the films and pipelines of the requests (a bake's points uploaded).
     pub pipeline_seconds: f64,
+    /// Of `pipeline_seconds`: compiling pipelines.
+    pub compile_seconds: f64,
+    /// The driver's pipeline cache on disk: `hit`, `miss`, `rejected`, `off`,
+    /// `unsupported`; empty on the CPU.
+    pub pipeline_cache: String,
+    /// The requests beside their films, pipelines and passes: checks, the hashes that
+    /// name their checkpoints, their accumulations.
+    pub request_seconds: f64,
     /// The passes: submitting them and waiting for the rays.
     pub pass_seconds: f64,
     /// Reading films back from the device.
@@ -46,8 +60,12 @@ pub struct Phases {
     pub checkpoint_seconds: f64,
     /// Writing the outputs (not the statistics file, written last).
     pub write_seconds: f64,
+    /// Freeing the session once traced: the device's buffers and the device, the scene.
+    pub teardown_seconds: f64,
     /// The whole process from its start to the statistics.
     pub process_seconds: f64,
+    /// The whole process less every phase above: what no phase accounts for.
+    pub other_seconds: f64,
     /// Times an error target was checked.
     pub checks: u32,
 }
@@ -56,24 +74,38 @@ impl Phases {
     /// The phases a render's statistics hold.
     pub fn of_render(st: &RenderStats) -> Phases {
         Phases {
+            start_seconds: st.start_seconds,
             load_seconds: st.load_seconds,
             bvh_build_seconds: st.bvh_build_seconds,
+            scene_seconds: st.scene_seconds,
             adapter_seconds: st.adapter_seconds,
             upload_seconds: st.upload_seconds,
             pipeline_seconds: st.pipeline_seconds,
+            compile_seconds: st.compile_seconds,
+            pipeline_cache: st.pipeline_cache.clone(),
+            request_seconds: st.request_seconds,
             pass_seconds: st.pass_seconds,
             readback_seconds: st.readback_seconds,
             readback_bytes: st.readback_bytes,
             host_stats_seconds: st.host_stats_seconds,
             checkpoint_seconds: st.checkpoint_seconds,
             write_seconds: st.write_seconds,
+            teardown_seconds: st.teardown_seconds,
             process_seconds: st.process_seconds.unwrap_or(0.0),
+            other_seconds: st.other_seconds,
             checks: st.checks,
         }
     }
 
+    /// Sets the whole process's seconds, now, and what no phase accounts for.
+    pub fn close(&mut self) {
+        self.process_seconds = process_seconds();
+        self.other_seconds = (self.process_seconds - self.accounted_seconds()).max(0.0);
+    }
+
     /// Adds a request's passes, read-back, statistics and checkpoints.
     pub fn add_times(&mut self, times: &PassTimes) {
+        self.upload_seconds += times.upload_seconds;
         self.pass_seconds += times.wall_seconds;
         self.readback_seconds += times.readback_seconds;
         self.readback_bytes += times.readback_bytes;
@@ -86,6 +118,12 @@ impl Phases {
     pub fn add_render(&mut self, st: &RenderStats) {
         self.upload_seconds += st.upload_seconds;
         self.pipeline_seconds += st.pipeline_seconds;
+        self.compile_seconds += st.compile_seconds;
+        self.request_seconds += st.request_seconds;
+        self.teardown_seconds += st.teardown_seconds;
+        // The session's, once for all its requests.
+        self.scene_seconds = st.scene_seconds;
+        self.pipeline_cache.clone_from(&st.pipeline_cache);
         self.pass_seconds += st.pass_seconds;
         self.readback_seconds += st.readback_seconds;
         self.readback_bytes += st.readback_bytes;
@@ -96,8 +134,10 @@ impl Phases {
 
     /// The phases that account for the process, in seconds.
     pub fn accounted_seconds(&self) -> f64 {
-        self.load_seconds
+        self.start_seconds
+            + self.load_seconds
             + self.bvh_build_seconds
+            + self.scene_seconds
             + self.adapter_seconds
             + self.upload_seconds
             + self.pipeline_seconds
@@ -106,16 +146,25 @@ impl Phases {
             + self.host_stats_seconds
             + self.checkpoint_seconds
             + self.write_seconds
+            + self.request_seconds
+            + self.teardown_seconds
     }
 
     /// The phases in words, for the summary line: `load 0.41 s, BVH 0.20 s, …, whole 1.50 s`.
     pub fn line(&self) -> String {
+        let cache = match self.pipeline_cache.as_str() {
+            "" => String::new(),
+            state => format!(", cache {state}"),
+        };
         let mut parts = vec![
+            format!("start {:.2} s", self.start_seconds),
             format!("load {:.2} s", self.load_seconds),
             format!("BVH {:.2} s", self.bvh_build_seconds),
+            format!("scene {:.2} s", self.scene_seconds),
             format!("adapter {:.2} s", self.adapter_seconds),
             format!("upload {:.2} s", self.upload_seconds),
-            format!("pipeline {:.2} s", self.pipeline_seconds),
+            format!("pipeline {:.2} s (compiling {:.2} s{cache})", self.pipeline_seconds, self.compile_seconds),
+            format!("request {:.2} s", self.request_seconds),
             format!("passes {:.2} s", self.pass_seconds),
             format!("read-back {:.2} s ({})", self.readback_seconds, bytes(self.readback_bytes)),
             format!("statistics {:.2} s", self.host_stats_seconds),
@@ -124,6 +173,8 @@ impl Phases {
             parts.push(format!("checkpoints {:.2} s", self.checkpoint_seconds));
         }
         parts.push(format!("writing {:.2} s", self.write_seconds));
+        parts.push(format!("teardown {:.2} s", self.teardown_seconds));
+        parts.push(format!("other {:.2} s", self.other_seconds));
         parts.push(format!("whole {:.2} s", self.process_seconds));
         parts.join(", ")
     }
@@ -165,20 +216,28 @@ mod tests {
     #[test]
     fn accounted_seconds_add_every_phase_but_the_whole() {
         let p = Phases {
+            start_seconds: 1024.0,
             load_seconds: 1.0,
             bvh_build_seconds: 2.0,
+            scene_seconds: 2048.0,
             adapter_seconds: 4.0,
             upload_seconds: 8.0,
             pipeline_seconds: 16.0,
+            compile_seconds: 10.0,
+            pipeline_cache: "hit".into(),
+            request_seconds: 4096.0,
             pass_seconds: 32.0,
             readback_seconds: 64.0,
             readback_bytes: 7,
             host_stats_seconds: 128.0,
             checkpoint_seconds: 256.0,
             write_seconds: 512.0,
-            process_seconds: 5000.0,
+            teardown_seconds: 8192.0,
+            process_seconds: 50000.0,
+            other_seconds: 0.0,
             checks: 3,
         };
-        assert_eq!(p.accounted_seconds(), 1023.0);
+        // Compiling is part of the pipeline's seconds, not a phase of its own.
+        assert_eq!(p.accounted_seconds(), 16383.0);
     }
 }

@@ -555,5 +555,6 @@ fn bake_stats_account_for_every_phase() {
         assert!(stats["triangles"].as_u64().unwrap() > 0 && stats["write_seconds"].as_f64().unwrap() > 0.0);
         assert_eq!(stats["checks"], 0);
         assert!(stderr.contains("read-back ") && stderr.contains("writing ") && stderr.contains("whole "), "{stderr}");
+        check_summary(&stderr, device);
     }
 }

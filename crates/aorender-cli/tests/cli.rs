@@ -281,12 +281,13 @@ fn error_targets_and_error_images() {
     assert_rejected(&[&sobol[..], &["--error-image", "se.pfm"]].concat(), d, &["--error-image", "--replicate"]);
 }
 
-/// A render's statistics account for its process phase by phase on both devices (load,
-/// BVH, adapter, upload, pipeline, passes, read-back, host statistics, checkpoints,
-/// writing): each finite and non-negative, together within the whole process and, on a
-/// render whose passes outweigh the fixed costs, at least 80 % of it (what is left out is
-/// parsing the command line and checking options: milliseconds); the GPU reads back at
-/// least the film; a render with an error target counts its checks and says how many.
+/// A render's statistics account for its process phase by phase on both devices (start,
+/// load, BVH, scene, adapter, upload, pipeline, request, passes, read-back, host
+/// statistics, checkpoints, writing, teardown): each finite and non-negative, together
+/// within the whole process and, on a render whose passes outweigh the fixed costs, at
+/// least 80 % of it, `other_seconds` the rest, and the summary line names each in order;
+/// the GPU reads back at least the film; a render with an error target counts its checks
+/// and says how many.
 #[test]
 fn render_stats_account_for_every_phase() {
     let dir = temp_dir();
@@ -326,6 +327,7 @@ fn render_stats_account_for_every_phase() {
         ] {
             assert!(stderr.contains(phase), "{device}: the summary lacks {phase}: {stderr}");
         }
+        check_summary(&stderr, device);
 
         let args = ["render", "--width", "24", "--height", "16", "--sampler", "sobol", "--target-error", "0.02"];
         let out = aorender(&[&args[..], &["-o", "t.pfm", "--stats", "t.json", "--device", device]].concat(), d);
@@ -340,4 +342,66 @@ fn render_stats_account_for_every_phase() {
         assert!((1..=replicates).contains(&checks), "{device}: {checks} checks of {replicates} replicates");
         assert!(stderr.contains(&format!(", {checks} checks)")), "{device}: {stderr}");
     }
+}
+
+/// The driver's pipeline cache is kept on disk where the backend has one (Vulkan): the
+/// first render on an adapter starts the file (`miss`), the next reads it (`hit`); a
+/// damaged file, or one wgpu refuses (another adapter, driver or format), is ignored
+/// (`rejected`) and replaced; `off` keeps none. The image is the same bits every time.
+#[test]
+fn the_pipeline_cache_on_disk_is_read_back_and_a_damaged_one_ignored() {
+    if !gpu_available() {
+        return;
+    }
+    let dir = temp_dir();
+    let d = dir.path();
+    let cache = d.join("cache");
+    let render = |name: &str, setting: &std::path::Path| {
+        let args = ["render", "--width", "32", "--height", "24", "--spp", "4", "--device", "gpu", "-o"];
+        let (image, json) = (format!("{name}.pfm"), format!("{name}.json"));
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_aorender"))
+            .args([&args[..], &[&image, "--stats", &json]].concat())
+            .current_dir(d)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .env(aorender::gpu::pipeline::PIPELINE_CACHE_ENV, setting)
+            .output()
+            .expect("aorender runs");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{name}: {stderr}");
+        let stats = stats_json(d, &json);
+        assert!(stderr.contains(&format!(", cache {})", stats["pipeline_cache"].as_str().unwrap())), "{stderr}");
+        (stats["pipeline_cache"].as_str().unwrap().to_string(), std::fs::read(d.join(&image)).unwrap())
+    };
+    let (first, image) = render("first", &cache);
+    if first == "unsupported" {
+        eprintln!("SKIPPED: the adapter's backend keeps no pipeline cache");
+        return;
+    }
+    assert_eq!(first, "miss");
+    let files: Vec<_> = std::fs::read_dir(&cache).unwrap().map(|e| e.unwrap().path()).collect();
+    assert_eq!(files.len(), 1, "one cache file and no temporary one: {files:?}");
+    let file = &files[0];
+    let saved = std::fs::read(file).unwrap();
+    assert!(saved.starts_with(b"AOPLC001") && saved.len() > 48, "{} bytes", saved.len());
+    assert_eq!(render("second", &cache), ("hit".to_string(), image.clone()));
+
+    // A flipped bit in wgpu's data: the file's hash no longer holds.
+    let mut damaged = saved.clone();
+    *damaged.last_mut().unwrap() ^= 1;
+    // wgpu's own header naming another adapter, behind a hash that holds: wgpu refuses it.
+    let mut foreign = saved.clone();
+    let at = 48 + foreign[48..].windows(8).position(|w| w == b"WGPUPLCH").expect("wgpu's header") + 8 + 4 + 4 + 4;
+    foreign[at..at + 8].iter_mut().for_each(|b| *b ^= 0x5a);
+    let hash = *blake3::hash(&foreign[48..]).as_bytes();
+    foreign[16..48].copy_from_slice(&hash);
+    for (name, bytes) in [("truncated", &saved[..saved.len() / 2]), ("damaged", &damaged[..]), ("foreign", &foreign)] {
+        std::fs::write(file, bytes).unwrap();
+        assert_eq!(render(name, &cache), ("rejected".to_string(), image.clone()), "{name}");
+        let now = std::fs::read(file).unwrap();
+        assert!(now.starts_with(b"AOPLC001") && now != bytes, "{name}: the file is not replaced by this driver's");
+    }
+    assert_eq!(render("again", &cache), ("hit".to_string(), image.clone()));
+    let (off, image_off) = render("off", std::path::Path::new("off"));
+    assert_eq!((off.as_str(), image_off), ("off", image));
+    assert!(!d.join("off").exists());
 }

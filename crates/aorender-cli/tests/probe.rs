@@ -90,6 +90,7 @@ fn probe_stats_account_for_every_phase() {
         check_phases(&stats, device, Some(3));
         assert_eq!((stats["points"].as_u64(), stats["checks"].as_u64()), (Some(3), Some(0)), "{device}: {stats}");
         assert!(stderr.contains("read-back ") && stderr.contains("whole "), "{device}: {stderr}");
+        check_summary(&stderr, device);
 
         let args = ["probe", "--points", "points.txt", "-o", "ao.csv", "--samples", "65536", "--device", device];
         let out = aorender(&[&args[..], &["--target-error", "0.02", "--stats", "t.json"]].concat(), d);

@@ -3,6 +3,7 @@
 //! samples ([`BlockSums`]) and the exact fixed-point sums of finished blocks
 //! ([`ExactSums`]).
 
+use rayon::prelude::*;
 /// Per-pixel sums over the samples rendered so far. Pixel `(x, y)` is at `y * width + x`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Film {
@@ -291,7 +292,11 @@ impl Film {
 
     /// Per-pixel estimates (sample means).
     pub fn mean(&self) -> Vec<f64> {
-        (0..self.sum.len()).map(|i| self.sum[i] / self.samples_of(i).max(1) as f64).collect()
+        (0..self.sum.len())
+            .into_par_iter()
+            .with_min_len(PAR_MIN_PIXELS)
+            .map(|i| self.sum[i] / self.samples_of(i).max(1) as f64)
+            .collect()
     }
 
     /// How [`Film::std_error`] estimates the error.
@@ -311,20 +316,25 @@ impl Film {
     pub fn std_error(&self) -> Vec<f64> {
         let estimator = self.error_estimator().or_samples();
         (0..self.sum.len())
-            .map(|i| {
-                let r = self.replicate_sq.get(i).copied().unwrap_or(0.0);
-                let e = match estimator {
-                    ErrorEstimator::Replicates { size, .. } => {
-                        ErrorEstimator::Replicates { size, count: self.replicates_of(i) }
-                    }
-                    e => e,
-                };
-                if self.is_exact(i) {
-                    return 0.0;
-                }
-                standard_error(e, self.samples_of(i), self.sum[i], self.sum_sq[i], r)
-            })
+            .into_par_iter()
+            .with_min_len(PAR_MIN_PIXELS)
+            .map(|i| self.std_error_of(estimator, i))
             .collect()
+    }
+
+    /// Pixel `i`'s standard error of the mean by `estimator` ([`Film::std_error`]).
+    fn std_error_of(&self, estimator: ErrorEstimator, i: usize) -> f64 {
+        let r = self.replicate_sq.get(i).copied().unwrap_or(0.0);
+        let e = match estimator {
+            ErrorEstimator::Replicates { size, .. } => {
+                ErrorEstimator::Replicates { size, count: self.replicates_of(i) }
+            }
+            e => e,
+        };
+        if self.is_exact(i) {
+            return 0.0;
+        }
+        standard_error(e, self.samples_of(i), self.sum[i], self.sum_sq[i], r)
     }
 
     /// Whether pixel `i`'s value is exact (`exact`).
@@ -370,6 +380,8 @@ impl Film {
         let (mean, se) = (self.mean(), self.std_error());
         Some(
             (0..mean.len())
+                .into_par_iter()
+                .with_min_len(PAR_MIN_PIXELS)
                 .map(|i| {
                     let n = self.samples_of(i);
                     if self.is_exact(i) {
@@ -552,6 +564,90 @@ mod tests {
         let s = 16.0 * 0.1f32 as f64;
         assert!((film.replicate_sq[1] - s * s).abs() <= pow2(2 - 85), "{} against {}", film.replicate_sq[1], s * s);
     }
+
+    /// Sums of several films' worth of pixels (more than one rayon task's), with values
+    /// that round differently in every pixel, counted per pixel, some pixels stopped.
+    fn varied_sums() -> ExactSums {
+        let (w, h) = (301, 173);
+        let mut exact = ExactSums::new(w, h, 1.0);
+        let mut block = BlockSums::new((w * h) as usize);
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        for _ in 0..7 {
+            for i in 0..block.len() {
+                // xorshift: a sample in [0, 1) whose low bits differ in every pixel.
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                block.add(i, (x >> 40) as f32 / (1u64 << 24) as f32, 0);
+            }
+        }
+        exact.add_block(&block).unwrap();
+        exact.add_block(&block).unwrap();
+        let groups: Vec<i128> = block.sum.iter().map(|&s| s as i128).collect();
+        exact.add_replicates(&groups, 1).unwrap();
+        exact.count_per_pixel(14);
+        for i in (0..exact.sum.len()).step_by(97) {
+            exact.stopped[i] = true;
+            exact.pixel_replicates[i] = 1;
+            exact.pixel_samples[i] = 7;
+        }
+        exact
+    }
+
+    #[test]
+    fn the_parallel_film_conversion_is_the_serial_one_bit_for_bit() {
+        let exact = varied_sums();
+        assert!(exact.sum.len() > 2 * PAR_MIN_PIXELS, "the sums span several rayon tasks");
+        let (film, serial) = (exact.to_film(14, 7), exact.to_film_serial(14, 7));
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<u64>>();
+        assert_eq!(bits(&film.sum), bits(&serial.sum));
+        assert_eq!(bits(&film.sum_sq), bits(&serial.sum_sq));
+        assert_eq!(bits(&film.replicate_sq), bits(&serial.replicate_sq));
+        assert!(serial.exact.iter().any(|&e| e) && serial.exact.iter().any(|&e| !e));
+        assert_eq!(film, serial);
+        // The per-pixel values made from the film, likewise.
+        let n = film.sum.len();
+        let mean: Vec<f64> = (0..n).map(|i| film.sum[i] / film.samples_of(i).max(1) as f64).collect();
+        assert_eq!(bits(&film.mean()), bits(&mean));
+        let estimator = film.error_estimator().or_samples();
+        let se: Vec<f64> = (0..n).map(|i| film.std_error_of(estimator, i)).collect();
+        assert!(se.iter().any(|&e| e > 0.0) && se.contains(&0.0));
+        assert_eq!(bits(&film.std_error()), bits(&se));
+        // Sums counted per image convert alike.
+        let mut image = varied_sums();
+        (image.pixel_samples, image.pixel_replicates, image.stopped) = (Vec::new(), Vec::new(), Vec::new());
+        assert_eq!(image.to_film(14, 1), image.to_film_serial(14, 1));
+    }
+
+    #[test]
+    fn a_block_added_in_parallel_is_added_pixel_by_pixel_and_names_the_first_bad_pixel() {
+        let exact = varied_sums();
+        let mut block = BlockSums::new(exact.sum.len());
+        for i in 0..block.len() {
+            block.add(i, (i % 1000) as f32 / 1000.0, 0);
+            block.add(i, -((i % 7) as f32) / 8.0, 0);
+        }
+        let mut serial = exact.clone();
+        for i in 0..block.len() {
+            serial.sum[i] += (block.sum[i] as i128) << BLOCK_SHIFT;
+            serial.sum_sq[i] += (block.sum_sq[i] as i128) << BLOCK_SHIFT;
+        }
+        let mut parallel = exact.clone();
+        parallel.add_block(&block).unwrap();
+        assert_eq!(parallel, serial);
+        // Bad pixels in two rayon tasks: the error names the earlier one.
+        let (w, late, early) = (exact.width as usize, 3 * PAR_MIN_PIXELS + 5, PAR_MIN_PIXELS + 11);
+        block.add(late, f32::INFINITY, 0);
+        block.add(early, f32::NAN, 0);
+        let e = exact.clone().add_block(&block).unwrap_err();
+        assert!(e.0.starts_with(&format!("pixel ({}, {}): a sample was not", early % w, early / w)), "{e}");
+        let mut full = exact.clone();
+        full.sum[late] = i128::MAX;
+        let mut one = BlockSums::new(exact.sum.len());
+        one.add(late, 1.0, 0);
+        let e = full.add_block(&one).unwrap_err();
+        assert_eq!(e.0, format!("pixel ({}, {}): a sum of samples is out of range", late % w, late / w));
+    }
 }
 
 /// Samples per block, the unit of a device's sums: block `k` holds sample indices
@@ -669,7 +765,8 @@ impl BlockSums {
     /// complement), then of Σv².
     pub fn to_words(&self) -> Vec<[u32; 4]> {
         self.sum
-            .iter()
+            .par_iter()
+            .with_min_len(PAR_MIN_PIXELS)
             .zip(&self.sum_sq)
             .map(|(&s, &q)| [s as u32, (s as u64 >> 32) as u32, q as u32, (q >> 32) as u32])
             .collect()
@@ -678,10 +775,11 @@ impl BlockSums {
     /// The sums of a GPU film's words ([`BlockSums::to_words`]).
     pub fn from_words(words: &[[u32; 4]]) -> BlockSums {
         let word = |lo: u32, hi: u32| lo as u64 | (hi as u64) << 32;
-        BlockSums {
-            sum: words.iter().map(|w| word(w[0], w[1]) as i64).collect(),
-            sum_sq: words.iter().map(|w| word(w[2], w[3])).collect(),
-        }
+        let (sum, sum_sq) = rayon::join(
+            || words.par_iter().with_min_len(PAR_MIN_PIXELS).map(|w| word(w[0], w[1]) as i64).collect(),
+            || words.par_iter().with_min_len(PAR_MIN_PIXELS).map(|w| word(w[2], w[3])).collect(),
+        );
+        BlockSums { sum, sum_sq }
     }
 
     /// Slot `i`'s Σv and Σv² as f64, in the units of the samples (2^`e` their bound).
@@ -715,6 +813,10 @@ const MAGNITUDE_LOG2: i32 = 125;
 /// alike): a block's sums shift into the exact sums without rounding.
 const BLOCK_SHIFT: i32 = MAGNITUDE_LOG2 - MAX_SAMPLES_LOG2 - SAMPLE_FRACTION_BITS;
 const _: () = assert!(BLOCK_SHIFT > 0);
+
+/// Pixels a rayon task converts or adds at least: enough that a small film stays on one
+/// thread, few enough that a 1080p film spreads over every core.
+const PAR_MIN_PIXELS: usize = 1 << 14;
 
 /// 2^n as f64, exactly, for n in -1022..=1023.
 fn pow2(n: i32) -> f64 {
@@ -857,20 +959,41 @@ impl ExactSums {
         if block.len() != self.sum.len() || block.sum_sq.len() != block.sum.len() {
             return Err(SumsError(format!("a block of {} pixels added to sums of {}", block.len(), self.sum.len())));
         }
-        let w = self.width.max(1) as usize;
-        for i in 0..self.sum.len() {
-            let (s, q) = (block.sum[i], block.sum_sq[i]);
-            let bad = |why: &str| SumsError(format!("pixel ({}, {}): {why}", i % w, i / w));
-            if q & OUT_OF_RANGE_BIT != 0 {
-                return Err(bad("a sample was not finite or larger than the scene's albedos and background allow"));
+        // Chunks of pixels on rayon's threads; of the chunks that fail, the first names its
+        // first bad pixel, as a pass pixel after pixel would.
+        let bad = self
+            .sum
+            .par_chunks_mut(PAR_MIN_PIXELS)
+            .zip(self.sum_sq.par_chunks_mut(PAR_MIN_PIXELS))
+            .enumerate()
+            .map(|(c, (sums, sqs))| {
+                let first = c * PAR_MIN_PIXELS;
+                let (bs, bq) = (&block.sum[first..first + sums.len()], &block.sum_sq[first..first + sums.len()]);
+                for (k, (((a, b), &s), &q)) in sums.iter_mut().zip(sqs.iter_mut()).zip(bs).zip(bq).enumerate() {
+                    if q & OUT_OF_RANGE_BIT != 0 {
+                        return Some((
+                            first + k,
+                            "a sample was not finite or larger than the scene's albedos and background allow",
+                        ));
+                    }
+                    let (Some(s), Some(q)) =
+                        (a.checked_add((s as i128) << BLOCK_SHIFT), b.checked_add((q as i128) << BLOCK_SHIFT))
+                    else {
+                        return Some((first + k, "a sum of samples is out of range"));
+                    };
+                    (*a, *b) = (s, q);
+                }
+                None
+            })
+            .find_first(|bad| bad.is_some())
+            .flatten();
+        match bad {
+            Some((i, why)) => {
+                let w = self.width.max(1) as usize;
+                Err(SumsError(format!("pixel ({}, {}): {why}", i % w, i / w)))
             }
-            let overflow = || bad("a sum of samples is out of range");
-            let s = (s as i128) << BLOCK_SHIFT;
-            let q = (q as i128) << BLOCK_SHIFT;
-            self.sum[i] = self.sum[i].checked_add(s).ok_or_else(overflow)?;
-            self.sum_sq[i] = self.sum_sq[i].checked_add(q).ok_or_else(overflow)?;
+            None => Ok(()),
         }
-        Ok(())
     }
 
     /// Adds the sums of other samples of the same pixels, exactly.
@@ -910,8 +1033,44 @@ impl ExactSums {
     }
 
     /// The sums as a [`Film`] of `samples` samples per pixel in replicates of
-    /// `replicate` samples (each sum rounded once to f64).
+    /// `replicate` samples (each sum rounded once to f64). Pixels are converted on
+    /// rayon's threads: each is on its own, so the film is the same bit for bit.
     pub fn to_film(&self, samples: u64, replicate: u32) -> Film {
+        let (qs, qq) = (pow2(self.sum_exponent), pow2(self.sq_exponent));
+        let qr = pow2(self.sq_exponent + REPLICATE_SQ_SHIFT);
+        let scaled = |v: &[i128], q: f64| -> Vec<f64> {
+            v.par_iter().with_min_len(PAR_MIN_PIXELS).map(|&s| s as f64 * q).collect()
+        };
+        let (sum, sum_sq) = rayon::join(|| scaled(&self.sum, qs), || scaled(&self.sum_sq, qq));
+        Film {
+            width: self.width,
+            height: self.height,
+            samples,
+            sum,
+            sum_sq,
+            replicate,
+            replicates: self.replicate_count(),
+            replicate_sq: scaled(&self.replicate_sq, qr),
+            pixel_samples: self.pixel_samples.par_iter().with_min_len(PAR_MIN_PIXELS).map(|&n| n as u64).collect(),
+            pixel_replicates: self
+                .pixel_replicates
+                .par_iter()
+                .with_min_len(PAR_MIN_PIXELS)
+                .map(|&n| n as u64)
+                .collect(),
+            exact: match self.pixel_replicates.par_iter().any(|&k| k < 2) {
+                true => {
+                    (0..self.sum.len()).into_par_iter().with_min_len(PAR_MIN_PIXELS).map(|i| self.is_exact(i)).collect()
+                }
+                false => Vec::new(),
+            },
+        }
+    }
+
+    /// [`ExactSums::to_film`] on one thread, pixel after pixel: the reference the parallel
+    /// conversion is held to.
+    #[cfg(test)]
+    fn to_film_serial(&self, samples: u64, replicate: u32) -> Film {
         let (qs, qq) = (pow2(self.sum_exponent), pow2(self.sq_exponent));
         let qr = pow2(self.sq_exponent + REPLICATE_SQ_SHIFT);
         Film {

@@ -242,7 +242,8 @@ pub struct RenderStats {
     /// tracer's records (CPU).
     pub setup_seconds: f64,
     /// Of `setup_seconds`: seconds to upload the geometry to the device (GPU), or to lay
-    /// out the tracer's records (CPU).
+    /// out the tracer's records (CPU); with the exact sums written to a device that keeps
+    /// them.
     pub upload_seconds: f64,
     /// Of `setup_seconds`: seconds to make the request's film and pipeline (compiling the
     /// kernel the first time the adapter sees its specialisation; on the CPU, the film).
@@ -272,6 +273,27 @@ pub struct RenderStats {
     /// Seconds of the whole process from its start to the statistics: set by a program
     /// (`aorender render` does), `None` otherwise.
     pub process_seconds: Option<f64>,
+    /// Seconds from the process's start to loading the scene (starting the program,
+    /// reading the command line, checking outputs): set by a program, 0 otherwise.
+    pub start_seconds: f64,
+    /// Seconds of the session's setup beside the BVH build and the upload: moving the
+    /// scene to its local frame and back, freeing the build's host copies.
+    pub scene_seconds: f64,
+    /// Seconds of the request beside its film and pipeline: checks, the scene's hash that
+    /// names its checkpoints, its accumulation.
+    pub request_seconds: f64,
+    /// Of `pipeline_seconds`: seconds compiling pipelines (0 when the adapter had them).
+    pub compile_seconds: f64,
+    /// `hit` when the driver's pipeline cache was read from disk and taken; `miss`
+    /// (none yet), `rejected` (damaged or another driver's), `off`, or `unsupported`
+    /// (the backend keeps none); empty on the CPU.
+    pub pipeline_cache: String,
+    /// Seconds freeing the request's device buffers, and the session's (the device, the
+    /// scene) where a program sets it.
+    pub teardown_seconds: f64,
+    /// Seconds of the process in no phase above: `process_seconds` less the sum of the
+    /// phases (set with it).
+    pub other_seconds: f64,
     /// rays_traced / render_seconds.
     pub rays_per_second: f64,
     /// Triangles in the scene.
@@ -394,6 +416,10 @@ pub(crate) struct RenderInfo {
     pub setup: Setup,
     /// Seconds to make this request's film and pipeline.
     pub target_seconds: f64,
+    /// Of those, seconds compiling pipelines.
+    pub compile_seconds: f64,
+    /// Seconds of the request beside its film and pipeline.
+    pub request_seconds: f64,
 }
 
 /// Seconds and rays of the passes run so far.
@@ -420,6 +446,8 @@ pub struct PassTimes {
     pub host_stats_seconds: f64,
     /// Seconds spent saving checkpoints (their block's read-back included).
     pub checkpoint_seconds: f64,
+    /// Seconds spent writing the exact sums to a device that keeps them, before its passes.
+    pub upload_seconds: f64,
     /// Times an error target was checked (after a stretch of replicates, and an adaptive
     /// render's masks, each decided once a replicate).
     pub checks: u32,
@@ -725,7 +753,9 @@ impl Render {
             && self.acc.settings().layout == FilmLayout::Image
             && (adaptive || self.acc.exact().pixel_samples.is_empty());
         if device_sums && !self.on_device {
+            let t = Instant::now();
             self.passes.write_sums(self.acc.exact(), self.acc.finished())?;
+            self.times.upload_seconds += t.elapsed().as_secs_f64();
             self.on_device = true;
         } else if !device_sums {
             self.sync()?;
@@ -977,7 +1007,9 @@ impl Render {
         times.readback_seconds += t.elapsed().as_secs_f64();
         times.readback_bytes += self.passes.take_readback_bytes();
         let device_bytes = self.passes.device_bytes();
+        let teardown = Instant::now();
         drop(self.passes);
+        let teardown_seconds = teardown.elapsed().as_secs_f64();
         let host_stats = Instant::now();
         let mut accumulation = self.acc;
         accumulation.set_partial(partial);
@@ -1010,7 +1042,7 @@ impl Render {
             render_seconds: acc.render_seconds(),
             bvh_build_seconds: setup.bvh_build_seconds,
             setup_seconds: setup.upload_seconds + info.target_seconds,
-            upload_seconds: setup.upload_seconds,
+            upload_seconds: setup.upload_seconds + times.upload_seconds,
             pipeline_seconds: info.target_seconds,
             pass_seconds: times.wall_seconds,
             readback_seconds: times.readback_seconds,
@@ -1021,6 +1053,13 @@ impl Render {
             adapter_seconds: 0.0,
             write_seconds: 0.0,
             process_seconds: None,
+            start_seconds: 0.0,
+            scene_seconds: setup.scene_seconds,
+            request_seconds: info.request_seconds,
+            compile_seconds: info.compile_seconds,
+            pipeline_cache: setup.pipeline_cache.into(),
+            teardown_seconds,
+            other_seconds: 0.0,
             rays_per_second: rays as f64 / acc.render_seconds().max(1e-9),
             triangles: info.triangles,
             instances: info.instances,

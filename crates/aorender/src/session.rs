@@ -52,6 +52,11 @@ pub struct ProbeOutput {
     pub adapter: String,
     /// Seconds to make the request's film and pipeline.
     pub pipeline_seconds: f64,
+    /// Of `pipeline_seconds`: seconds compiling pipelines.
+    pub compile_seconds: f64,
+    /// Seconds of the request beside its film, pipeline and passes: checks, the probes'
+    /// hash, the accumulation.
+    pub request_seconds: f64,
     /// The passes' seconds and rays, the film's read-back and the host's statistics
     /// (making the values from the sums included).
     pub times: PassTimes,
@@ -88,7 +93,12 @@ impl Session {
     /// them), the BVH built once for all and the scene shared.
     pub fn on_devices(devices: &[Device], scene: Scene, options: &BvhOptions) -> Result<Vec<Session>> {
         let mut scene = scene;
-        let (frame, prepared) = prepare_in_local_frame(devices, &mut scene, options)?;
+        let start = Instant::now();
+        let (frame, mut prepared) = prepare_in_local_frame(devices, &mut scene, options)?;
+        let seconds = start.elapsed().as_secs_f64();
+        for (_, setup) in &mut prepared {
+            setup.scene_seconds = (seconds - setup.bvh_build_seconds - setup.upload_seconds).max(0.0);
+        }
         let scene = Arc::new(scene);
         Ok(devices
             .iter()
@@ -202,7 +212,7 @@ impl Session {
     }
 
     /// What every render of this session reports about the scene and its setup.
-    fn info(&self, target_seconds: f64) -> RenderInfo {
+    fn info(&self, target_seconds: f64, compile_seconds: f64, request_seconds: f64) -> RenderInfo {
         let scene = &self.scene;
         RenderInfo {
             scene: scene.name.clone(),
@@ -213,6 +223,8 @@ impl Session {
             scene_bytes: scene.geometry_bytes(),
             setup: self.setup.clone(),
             target_seconds,
+            compile_seconds,
+            request_seconds,
         }
     }
 
@@ -220,6 +232,7 @@ impl Session {
     /// pipeline, the first time this adapter sees its specialisation). Run it with
     /// [`Render::run`].
     pub fn render(&self, request: &ImageRequest) -> Result<Render> {
+        let begun = Instant::now();
         let s = &request.settings;
         s.validate()?;
         request.camera.validate()?;
@@ -234,10 +247,11 @@ impl Session {
         camera.validate_f32()?;
         let what = format!("a {}x{} image", s.width, s.height);
         self.check_film_budget(what, s.width as u64 * s.height as u64, s.sampling.replicate_samples() >= 2)?;
-        let start = Instant::now();
+        let (start, compiled) = (Instant::now(), self.prepared.compile_seconds());
         let max_value = max_image_sample(&self.scene, s.background, &s.sampling.sky);
         let passes = self.prepared.image(&camera, s, value_exponent(max_value))?;
         let target_seconds = start.elapsed().as_secs_f64();
+        let compile_seconds = self.prepared.compile_seconds() - compiled;
         let settings = SampleSettings::image(self.scene_hash(&request.camera), s);
         let mut acc = Accumulation::new(
             settings,
@@ -254,7 +268,9 @@ impl Session {
         let (scene, shift, (width, height)) =
             (self.scene.clone(), self.frame.surface_shift as f64, (s.width, s.height));
         let background = Box::new(move || background_pixels(&scene, &stored, width, height, shift));
-        Ok(Render::new(passes, acc, self.info(target_seconds)).with_background(background))
+        let request_seconds = begun.elapsed().as_secs_f64() - target_seconds;
+        let info = self.info(target_seconds, compile_seconds, request_seconds);
+        Ok(Render::new(passes, acc, info).with_background(background))
     }
 
     /// AO at `probes` as a render that runs, saves, resumes and merges like an image: one
@@ -288,6 +304,7 @@ impl Session {
         settings: &Settings,
         bent_normals: bool,
     ) -> Result<Render> {
+        let begun = Instant::now();
         settings.sampling.validate()?;
         if spp == 0 {
             return Err(Error::settings("samples per point must be at least 1"));
@@ -312,12 +329,13 @@ impl Session {
         }
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * slots as u64, settings.sampling.replicate_samples() >= 2)?;
-        let start = Instant::now();
+        let (start, compiled) = (Instant::now(), self.prepared.compile_seconds());
         let e = value_exponent(settings.sampling.sky.max_weight());
         let local = self.local_probes(&probes);
         let passes = self.prepared.probes(&local, first_point, slots, spp, settings, bent_normals, e)?;
         drop(local);
         let target_seconds = start.elapsed().as_secs_f64();
+        let compile_seconds = self.prepared.compile_seconds() - compiled;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let layout = if bent_normals { FilmLayout::BentProbes } else { FilmLayout::Probes };
         let mut hash = probes_hash(geometry, &probes);
@@ -342,7 +360,8 @@ impl Session {
             settings.sampling.sky.max_weight(),
         );
         acc.set_adapter(self.setup.adapter.name.clone());
-        Ok(Render::new(passes, acc, self.info(target_seconds)))
+        let request_seconds = begun.elapsed().as_secs_f64() - target_seconds;
+        Ok(Render::new(passes, acc, self.info(target_seconds, compile_seconds, request_seconds)))
     }
 
     /// Estimates AO at every probe with `samples` samples each, with the hemisphere,
@@ -364,6 +383,7 @@ impl Session {
         settings: &Settings,
         control: &mut Control,
     ) -> Result<ProbeOutput> {
+        let begun = Instant::now();
         settings.sampling.validate()?;
         if samples == 0 {
             return Err(Error::settings("samples per probe must be at least 1"));
@@ -371,17 +391,28 @@ impl Session {
         let probes = &checked(probes)?[..];
         let adapter = self.setup.adapter.name.clone();
         if probes.is_empty() {
-            let (pipeline_seconds, times) = (0.0, PassTimes::default());
-            return Ok(ProbeOutput { values: Vec::new(), rays: 0, seconds: 0.0, adapter, pipeline_seconds, times });
+            let (pipeline_seconds, compile_seconds, times) = (0.0, 0.0, PassTimes::default());
+            let request_seconds = begun.elapsed().as_secs_f64();
+            return Ok(ProbeOutput {
+                values: Vec::new(),
+                rays: 0,
+                seconds: 0.0,
+                adapter,
+                pipeline_seconds,
+                compile_seconds,
+                request_seconds,
+                times,
+            });
         }
         let lanes = lanes_for(probes.len(), samples);
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * lanes as u64, settings.sampling.replicate_samples() >= 2)?;
         let rounds = samples.div_ceil(lanes);
         let e = value_exponent(settings.sampling.sky.max_weight());
-        let start = Instant::now();
+        let (start, compiled) = (Instant::now(), self.prepared.compile_seconds());
         let passes = self.prepared.probes(&self.local_probes(probes), 0, lanes, samples, settings, false, e)?;
         let pipeline_seconds = start.elapsed().as_secs_f64();
+        let compile_seconds = self.prepared.compile_seconds() - compiled;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
         let hash = probes_hash(geometry, probes);
         let (points, background) = (probes.len() as u32, settings.background);
@@ -396,7 +427,8 @@ impl Session {
             rounds,
             settings.sampling.sky.max_weight(),
         );
-        let mut render = Render::new(passes, acc, self.info(pipeline_seconds));
+        let request_seconds = begun.elapsed().as_secs_f64() - pipeline_seconds;
+        let mut render = Render::new(passes, acc, self.info(pipeline_seconds, compile_seconds, request_seconds));
         render.run(control)?;
         let acc = render.accumulation()?;
         let start = Instant::now();
@@ -404,7 +436,7 @@ impl Session {
         let mut times = render.times();
         times.host_stats_seconds += start.elapsed().as_secs_f64();
         let (rays, seconds) = (acc.ao_rays(), acc.render_seconds());
-        Ok(ProbeOutput { values, rays, seconds, adapter, pipeline_seconds, times })
+        Ok(ProbeOutput { values, rays, seconds, adapter, pipeline_seconds, compile_seconds, request_seconds, times })
     }
 }
 

@@ -228,7 +228,7 @@ impl BakeStats {
         self.host_peak_bytes = aorender::peak_rss_bytes().unwrap_or(0);
         self.host_peak_bytes_per_triangle = phases::per(self.host_peak_bytes, self.triangles as u64);
         self.host_peak_bytes_per_point = phases::per(self.host_peak_bytes, self.points_traced as u64);
-        self.phases.process_seconds = phases::process_seconds();
+        self.phases.close();
     }
 }
 
@@ -243,7 +243,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let mut files = plan_files(&args, &input, is_scene, texture.is_some())?;
     let checkpoint_path = check_run_options(&args)?;
 
-    let load_start = std::time::Instant::now();
+    let (load_start, start_seconds) = (std::time::Instant::now(), phases::process_seconds());
     let limits = ReadLimits::from_env()?;
     let (mut scene, read) = args.scene.load_for_bake()?;
     args.sampling.apply(&mut scene)?;
@@ -255,6 +255,7 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let at = request.at;
 
     let mut stats = BakeStats::new(&input, &bake, &settings, load_seconds);
+    stats.phases.start_seconds = start_seconds;
     stats.triangles = scene.world_triangle_count();
 
     // The sums: from the shards', or traced.
@@ -381,7 +382,7 @@ fn trace(
         }
         None => None,
     };
-    let mut adapter_seconds = 0.0;
+    let (mut adapter_seconds, mut teardown_seconds) = (0.0, 0.0);
     let rc = RunControl {
         stop,
         run: &args.run,
@@ -396,9 +397,13 @@ fn trace(
         let device = Device::open(kind, args.scene.adapter.as_deref())?;
         adapter_seconds = opening.elapsed().as_secs_f64();
         let session = Session::new(&device, scene, &bvh)?;
-        session.bake(bake, resume, control)
+        let trace = session.bake(bake, resume, control);
+        let teardown = Instant::now();
+        drop((session, device));
+        teardown_seconds = teardown.elapsed().as_secs_f64();
+        trace
     })?;
-    stats.phases.adapter_seconds = adapter_seconds;
+    (stats.phases.adapter_seconds, stats.phases.teardown_seconds) = (adapter_seconds, teardown_seconds);
     if let Some(b) = trace.interrupted_block {
         let signal = signals::stop_signal();
         crate::say!(

@@ -77,7 +77,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     if let Some(path) = &args.stats {
         plan.output(path, "--stats")?;
     }
-    let mut phases = Phases::default();
+    let mut phases = Phases { start_seconds: phases::process_seconds(), ..Phases::default() };
     let loading = Instant::now();
     let mut scene = args.scene.load()?;
     args.sampling.apply(&mut scene)?;
@@ -106,6 +106,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     let session = Session::new(&device, scene, &args.scene.bvh())?;
     let setup = session.setup();
     (phases.bvh_build_seconds, phases.upload_seconds) = (setup.bvh_build_seconds, setup.upload_seconds);
+    (phases.scene_seconds, phases.pipeline_cache) = (setup.scene_seconds, setup.pipeline_cache.to_string());
     let mut control = Control { target, ..Control::default() };
     // Placing the points on their surfaces is part of reading them.
     let locating = Instant::now();
@@ -115,7 +116,8 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         aorender::Error::Settings { .. } => anyhow!("invalid option: {}", e.message()),
         e => e.into(),
     })?;
-    phases.pipeline_seconds = out.pipeline_seconds;
+    (phases.pipeline_seconds, phases.compile_seconds) = (out.pipeline_seconds, out.compile_seconds);
+    phases.request_seconds = out.request_seconds;
     phases.add_times(&out.times);
     let writing = Instant::now();
     let csv = to_csv(&probes, &out.values, session.scene().origin);
@@ -128,8 +130,11 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     let samples = out.values.first().map_or(0, |v| v.samples);
     let most = out.values.iter().map(|v| v.std_error).fold(0.0, f64::max);
     let triangles = session.scene().world_triangle_count();
+    let teardown = Instant::now();
+    drop((session, device));
+    phases.teardown_seconds = teardown.elapsed().as_secs_f64();
     let host_peak_bytes = aorender::peak_rss_bytes().unwrap_or(0);
-    phases.process_seconds = phases::process_seconds();
+    phases.close();
     let line = phases.line();
     let stats = ProbeStats {
         points: probes.len(),

@@ -64,7 +64,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     signals::install(stop.clone())?;
     plan_files(&args)?;
-    let load_start = std::time::Instant::now();
+    let (load_start, start_seconds) = (std::time::Instant::now(), phases::process_seconds());
     let mut scene = args.scene.load()?;
     let load_seconds = load_start.elapsed().as_secs_f64();
     args.size.apply(&mut scene);
@@ -88,8 +88,10 @@ pub fn run(args: RenderArgs) -> Result<()> {
         target,
         adaptive: args.adaptive,
     };
-    let (mut out, adapter_seconds) =
+    let (mut out, adapter_seconds, teardown_seconds) =
         run::traced(rc, |control| render_image(&args, scene, &bvh, resume, measure_replicate, control))?;
+    out.stats.start_seconds = start_seconds;
+    out.stats.teardown_seconds += teardown_seconds;
     out.stats.load_seconds = load_seconds;
     out.stats.adapter_seconds = adapter_seconds;
     out.stats.heap_peak_bytes = memory::heap_peak_bytes();
@@ -218,7 +220,7 @@ fn check_error_estimate(args: &RenderArgs, scene: &Scene) -> Result<()> {
 
 /// Opens the device, builds the session and renders under `control` (resuming, and with
 /// the replicate size measured when asked); returns the output and the seconds the
-/// adapter took to open.
+/// adapter took to open and the session and device took to free.
 fn render_image(
     args: &RenderArgs,
     scene: Scene,
@@ -226,7 +228,7 @@ fn render_image(
     resume: Option<Accumulation>,
     measure_replicate: bool,
     control: &mut Control,
-) -> aorender::Result<(RenderOutput, f64)> {
+) -> aorender::Result<(RenderOutput, f64, f64)> {
     let opening = std::time::Instant::now();
     let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
     let adapter_seconds = opening.elapsed().as_secs_f64();
@@ -255,7 +257,10 @@ fn render_image(
         render.resume(acc)?;
     }
     render.run(control)?;
-    Ok((render.finish()?, adapter_seconds))
+    let out = render.finish()?;
+    let teardown = std::time::Instant::now();
+    drop((session, device));
+    Ok((out, adapter_seconds, teardown.elapsed().as_secs_f64()))
 }
 
 /// Writes the image, the error image and the statistics file; returns the statistics
@@ -267,7 +272,9 @@ fn write_outputs(args: &RenderArgs, out: &mut RenderOutput) -> Result<String> {
         write_error_image(&out.film, path)?;
     }
     out.stats.write_seconds = writing.elapsed().as_secs_f64();
-    out.stats.process_seconds = Some(phases::process_seconds());
+    let mut phases = Phases::of_render(&out.stats);
+    phases.close();
+    (out.stats.process_seconds, out.stats.other_seconds) = (Some(phases.process_seconds), phases.other_seconds);
     let json = serde_json::to_string_pretty(&out.stats)?;
     if let Some(path) = &args.run.stats {
         write_json(path, &json)?;

@@ -252,10 +252,12 @@ pub fn gltf_output(args: &[&str]) -> Option<(String, Option<String>)> {
 }
 
 /// The phases `--stats` gives a render, probe or bake, in seconds: together they account
-/// for the process (`process_seconds`).
-pub const PHASES: [&str; 10] = [
+/// for the process (`process_seconds`) with `other_seconds`, what none of them holds.
+pub const PHASES: [&str; 14] = [
+    "start_seconds",
     "load_seconds",
     "bvh_build_seconds",
+    "scene_seconds",
     "adapter_seconds",
     "upload_seconds",
     "pipeline_seconds",
@@ -264,7 +266,47 @@ pub const PHASES: [&str; 10] = [
     "host_stats_seconds",
     "checkpoint_seconds",
     "write_seconds",
+    "request_seconds",
+    "teardown_seconds",
 ];
+
+/// The phases as the summary line names them, in its order.
+pub const SUMMARY_PHASES: [&str; 16] = [
+    "start ",
+    "load ",
+    "BVH ",
+    "scene ",
+    "adapter ",
+    "upload ",
+    "pipeline ",
+    "request ",
+    "passes ",
+    "read-back ",
+    "statistics ",
+    "writing ",
+    "teardown ",
+    "other ",
+    "whole ",
+    " s (compiling ",
+];
+
+/// Checks that the summary line in `stderr` names every phase, in order.
+pub fn check_summary(stderr: &str, device: &str) {
+    let line =
+        stderr.lines().find(|l| l.contains(" whole ")).unwrap_or_else(|| panic!("{device}: no summary: {stderr}"));
+    let mut at = 0;
+    for phase in &SUMMARY_PHASES[..SUMMARY_PHASES.len() - 1] {
+        let found = line[at..]
+            .find(phase)
+            .unwrap_or_else(|| panic!("{device}: the summary lacks {phase:?} after {at}: {line}"));
+        at += found + phase.len();
+    }
+    assert!(line.contains(SUMMARY_PHASES[SUMMARY_PHASES.len() - 1]), "{device}: {line}");
+    match device {
+        "cpu" => assert!(!line.contains(", cache "), "{device}: {line}"),
+        _ => assert!(line.contains(", cache "), "{device}: the pipeline cache's state is not said: {line}"),
+    }
+}
 
 /// Checks the accounting of a command's statistics on `device` ("cpu" or "gpu"): every
 /// phase present, finite and non-negative, their sum within the whole process (to the
@@ -281,6 +323,19 @@ pub fn check_phases(stats: &serde_json::Value, device: &str, points: Option<u64>
     let whole = seconds("process_seconds");
     assert!(whole > 0.0, "{device}: the process took no time");
     assert!(sum <= whole * (1.0 + 1e-6) + 1e-3, "{device}: phases {sum} s, whole {whole} s");
+    // What no phase holds is named: the phases and it add up to the whole.
+    let other = seconds("other_seconds");
+    match sum <= whole {
+        true => assert!((sum + other - whole).abs() <= 1e-9 * whole, "{device}: {sum} + {other} s, whole {whole} s"),
+        false => assert_eq!(other, 0.0, "{device}: phases {sum} s past the whole {whole} s"),
+    }
+    let compile = seconds("compile_seconds");
+    assert!(compile <= seconds("pipeline_seconds"), "{device}: compiling {compile} s outside the pipeline's");
+    let cache = stats["pipeline_cache"].as_str().unwrap_or_else(|| panic!("{device}: stats lack pipeline_cache"));
+    match device {
+        "cpu" => assert_eq!(cache, "", "the CPU reference has no pipeline cache"),
+        _ => assert!(["hit", "miss", "rejected", "off", "unsupported"].contains(&cache), "{device}: cache {cache}"),
+    }
     let readback = stats["readback_bytes"].as_u64().expect("readback_bytes");
     match device {
         "cpu" => assert_eq!(readback, 0, "the CPU reference reads nothing back"),

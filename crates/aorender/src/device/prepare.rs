@@ -53,6 +53,12 @@ pub struct Setup {
     pub geometry_storage: &'static str,
     /// `per-lane` or `cooperative` on the GPU, empty on the CPU.
     pub traversal: &'static str,
+    /// What became of the driver's pipeline cache on disk (`CacheState::name`; empty on
+    /// the CPU).
+    pub pipeline_cache: &'static str,
+    /// Seconds of the session's setup beside the BVH build and the upload (set by the
+    /// session).
+    pub scene_seconds: f64,
 }
 
 /// A scene prepared on a device: its BVH built and uploaded, ready for requests.
@@ -111,6 +117,8 @@ impl Prepared {
                         geometry_bindings: gpu_scene.geometry_bindings(),
                         geometry_storage: storage.name(),
                         traversal: gpu_scene.traversal.name(),
+                        pipeline_cache: dev.pipelines.cache_state().name(),
+                        scene_seconds: 0.0,
                     };
                     out.push((Prepared::Gpu { scene: gpu_scene, dev: dev.clone() }, setup));
                 }
@@ -138,12 +146,22 @@ impl Prepared {
                         geometry_bindings: 0,
                         geometry_storage: "",
                         traversal: "",
+                        pipeline_cache: "",
+                        scene_seconds: 0.0,
                     };
                     out.push((Prepared::Cpu(Arc::new(tracer)), setup));
                 }
             }
         }
         Ok(out)
+    }
+
+    /// Seconds the adapter has spent compiling pipelines so far (0 on the CPU).
+    pub(crate) fn compile_seconds(&self) -> f64 {
+        match self {
+            Prepared::Gpu { dev, .. } => dev.pipelines.compile_seconds(),
+            Prepared::Cpu(_) => 0.0,
+        }
     }
 
     /// The film of an image of `settings` seen by `camera`, whose samples are at most

@@ -148,8 +148,10 @@ impl GpuContext {
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("aorender"),
             // Pass times from timestamp queries, and a traversal budget counted per
-            // SIMD batch from subgroup operations, where the adapter has them.
-            required_features: adapter.features() & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SUBGROUP),
+            // SIMD batch from subgroup operations, and a driver pipeline cache kept on disk,
+            // where the adapter has them.
+            required_features: adapter.features()
+                & (wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SUBGROUP | wgpu::Features::PIPELINE_CACHE),
             // wgpu's defaults cap a storage binding at 128 MiB: ask for what the adapter has.
             required_limits: adapter.limits(),
             ..Default::default()

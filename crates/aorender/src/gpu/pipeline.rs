@@ -2,7 +2,9 @@
 //! once per adapter and kept: many sessions and requests on one adapter (the accuracy
 //! suite's thousands of probe runs, a comparison grid's cells) compile each variant once.
 //! An opened adapter with the pipelines compiled on it ([`GpuDevice`]) is what every
-//! session on the adapter shares.
+//! session on the adapter shares. Where the backend keeps a driver pipeline cache
+//! (Vulkan), it is kept on disk between processes ([`DiskCache`]), so that a later
+//! process on the same adapter and driver skips the driver's compilation.
 
 use super::context::GpuContext;
 use super::layout::{Access, BINDINGS, node_binding, primitive_binding};
@@ -12,7 +14,15 @@ use crate::bvh::BvhLayout;
 use crate::error::Result;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+/// The environment variable that places the pipeline cache: `off` (or `0`) keeps none on
+/// disk; a directory keeps it there. Unset: `$XDG_CACHE_HOME/aorender`, else
+/// `~/.cache/aorender`.
+pub const PIPELINE_CACHE_ENV: &str = "AORENDER_PIPELINE_CACHE";
 
 /// What the AO pipeline computes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -102,17 +112,57 @@ pub struct Pipeline {
     pub fresh: bool,
 }
 
-/// The pipelines compiled on one adapter, by key.
+/// The pipelines compiled on one adapter, by key, and the driver's cache they are
+/// compiled through.
 #[derive(Debug, Default)]
-pub struct Pipelines(Mutex<Vec<(PipelineKey, wgpu::BindGroupLayout, wgpu::ComputePipeline)>>);
+pub struct Pipelines {
+    /// The pipelines compiled so far.
+    compiled: Mutex<Vec<(PipelineKey, wgpu::BindGroupLayout, wgpu::ComputePipeline)>>,
+    /// The driver's pipeline cache, kept on disk (`None` where there is none).
+    disk: Option<DiskCache>,
+    /// What became of the cache on disk when the adapter was opened.
+    state: CacheState,
+    /// Nanoseconds spent compiling pipelines so far.
+    compile_nanos: AtomicU64,
+}
 
 impl Pipelines {
+    /// No pipelines yet, compiled through the cache on disk of `ctx`'s adapter where the
+    /// backend has one and [`PIPELINE_CACHE_ENV`] does not turn it off.
+    pub fn new(ctx: &GpuContext) -> Pipelines {
+        let (disk, state) = DiskCache::open(ctx, cache_dir().as_deref());
+        Pipelines { disk, state, ..Pipelines::default() }
+    }
+
+    /// What became of the cache on disk when the adapter was opened.
+    pub fn cache_state(&self) -> CacheState {
+        self.state
+    }
+
+    /// Seconds spent compiling pipelines on this adapter so far.
+    pub fn compile_seconds(&self) -> f64 {
+        self.compile_nanos.load(Ordering::Relaxed) as f64 * 1e-9
+    }
+
     /// The pipeline of `key`, compiled on first use.
     pub fn get(&self, ctx: &GpuContext, key: PipelineKey) -> Result<Pipeline> {
-        let mut cache = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let mut cache = self.compiled.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((_, l, p)) = cache.iter().find(|(k, _, _)| *k == key) {
             return Ok(Pipeline { bind_group_layout: l.clone(), pipeline: p.clone(), fresh: false });
         }
+        let start = Instant::now();
+        let compiled = self.compile(ctx, key);
+        self.compile_nanos.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        let (bind_group_layout, pipeline) = compiled?;
+        if let Some(disk) = &self.disk {
+            disk.save();
+        }
+        cache.push((key, bind_group_layout.clone(), pipeline.clone()));
+        Ok(Pipeline { bind_group_layout, pipeline, fresh: true })
+    }
+
+    /// Compiles the pipeline of `key` (through the driver's cache, where there is one).
+    fn compile(&self, ctx: &GpuContext, key: PipelineKey) -> Result<(wgpu::BindGroupLayout, wgpu::ComputePipeline)> {
         let PipelineKey { layout, traversal, kernel, chunks, stack_size, .. } = key;
         let source = compose("ao.wgsl", layout, traversal, chunks, stack_size, ctx.shared_steps())?;
         let device = &ctx.device;
@@ -162,11 +212,174 @@ impl Pipelines {
             module: &module,
             entry_point: Some(kernel.entry_point()),
             compilation_options: wgpu::PipelineCompilationOptions { constants: &key.constants(), ..Default::default() },
-            cache: None,
+            cache: self.disk.as_ref().map(|d| &d.cache),
         });
-        cache.push((key, bind_group_layout.clone(), pipeline.clone()));
-        Ok(Pipeline { bind_group_layout, pipeline, fresh: true })
+        Ok((bind_group_layout, pipeline))
     }
+}
+
+/// What became of the pipeline cache on disk when an adapter was opened.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum CacheState {
+    /// No cache on disk: [`PIPELINE_CACHE_ENV`] turned it off, or no cache directory.
+    #[default]
+    Off,
+    /// The backend keeps no pipeline cache (only Vulkan does, in wgpu).
+    Unsupported,
+    /// No cache file yet: this process's pipelines start one.
+    Miss,
+    /// The cache file was read and the driver took it.
+    Hit,
+    /// The cache file was damaged, or made by another adapter, driver or wgpu: ignored,
+    /// and replaced by this process's.
+    Rejected,
+}
+
+impl CacheState {
+    /// The state in one word, as the statistics give it.
+    pub fn name(self) -> &'static str {
+        match self {
+            CacheState::Off => "off",
+            CacheState::Unsupported => "unsupported",
+            CacheState::Miss => "miss",
+            CacheState::Hit => "hit",
+            CacheState::Rejected => "rejected",
+        }
+    }
+}
+
+/// The directory of the pipeline cache ([`PIPELINE_CACHE_ENV`]); `None` when turned off
+/// or when there is no home.
+fn cache_dir() -> Option<PathBuf> {
+    let nonempty = |v: std::ffi::OsString| (!v.is_empty()).then(|| PathBuf::from(v));
+    match std::env::var_os(PIPELINE_CACHE_ENV) {
+        Some(v) if v == "off" || v == "0" => None,
+        Some(v) if !v.is_empty() => Some(PathBuf::from(v)),
+        _ => std::env::var_os("XDG_CACHE_HOME")
+            .and_then(nonempty)
+            .or_else(|| std::env::var_os("HOME").and_then(nonempty).map(|h| h.join(".cache")))
+            .map(|d| d.join("aorender")),
+    }
+}
+
+/// The file's first bytes: what it is and its layout's version.
+const CACHE_MAGIC: &[u8; 8] = b"AOPLC001";
+/// The magic, the payload's length (u64, little-endian) and its BLAKE3 hash.
+const CACHE_HEADER: usize = 8 + 8 + 32;
+
+/// A driver pipeline cache kept in a file: wgpu's data (which carries its own header
+/// naming the backend, adapter, driver and wgpu's format, checked when it is loaded),
+/// behind a header with a hash of it, so that a damaged file is never handed to the
+/// driver.
+#[derive(Debug)]
+pub struct DiskCache {
+    /// The cache the pipelines are compiled through.
+    cache: wgpu::PipelineCache,
+    /// Its file.
+    path: PathBuf,
+    /// The hash of the data as last read or written (nothing to write while it is the same).
+    saved: Mutex<Option<[u8; 32]>>,
+}
+
+impl DiskCache {
+    /// The cache of `ctx`'s adapter in `dir` (none without a directory or where the backend
+    /// has no pipeline cache), and what became of its file.
+    fn open(ctx: &GpuContext, dir: Option<&Path>) -> (Option<DiskCache>, CacheState) {
+        let device = &ctx.device;
+        let key = wgpu::util::pipeline_cache_key(&ctx.adapter.get_info());
+        let (Some(dir), Some(key)) = (dir, key) else {
+            return (None, if dir.is_none() { CacheState::Off } else { CacheState::Unsupported });
+        };
+        if !device.features().contains(wgpu::Features::PIPELINE_CACHE) {
+            return (None, CacheState::Unsupported);
+        }
+        let path = dir.join(format!("{key}.bin"));
+        let create = |data: Option<&[u8]>| {
+            // Refused data (another adapter, driver or wgpu) is a validation error: caught
+            // here, and the cache made empty instead.
+            let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+            // SAFETY: the data is what `PipelineCache::get_data` gave a process of this
+            // program, as its hash in the file's header shows; wgpu checks its own header
+            // (backend, adapter, driver, format) before the driver sees it.
+            let cache = unsafe {
+                device.create_pipeline_cache(&wgpu::PipelineCacheDescriptor {
+                    label: Some("aorender pipelines"),
+                    data,
+                    fallback: false,
+                })
+            };
+            (cache, pollster::block_on(scope.pop()).is_none())
+        };
+        let (data, mut state) = match std::fs::read(&path) {
+            Ok(bytes) => match unwrap_cache_file(&bytes) {
+                Some(data) => (Some(data.to_vec()), CacheState::Hit),
+                None => (None, CacheState::Rejected),
+            },
+            Err(_) => (None, CacheState::Miss),
+        };
+        let (mut cache, mut taken) = create(data.as_deref());
+        if !taken && data.is_some() {
+            state = CacheState::Rejected;
+            (cache, taken) = create(None);
+        }
+        if !taken {
+            return (None, CacheState::Unsupported);
+        }
+        let saved = match state {
+            CacheState::Hit => data.as_deref().map(|d| *blake3::hash(d).as_bytes()),
+            _ => None,
+        };
+        (Some(DiskCache { cache, path, saved: Mutex::new(saved) }), state)
+    }
+
+    /// Writes the cache's data to its file where it changed: whole or not at all (a
+    /// temporary file renamed over it). A cache that cannot be written is left as it is:
+    /// it only saves time.
+    fn save(&self) {
+        let Some(data) = self.cache.get_data() else { return };
+        let hash = *blake3::hash(&data).as_bytes();
+        let mut saved = self.saved.lock().unwrap_or_else(|e| e.into_inner());
+        if *saved == Some(hash) {
+            return;
+        }
+        if write_cache_file(&self.path, &data, &hash).is_ok() {
+            *saved = Some(hash);
+        }
+    }
+}
+
+/// The payload of a cache file whose header and hash hold (`None` for any other file).
+fn unwrap_cache_file(bytes: &[u8]) -> Option<&[u8]> {
+    let (header, data) = (bytes.get(..CACHE_HEADER)?, &bytes[CACHE_HEADER..]);
+    let len = u64::from_le_bytes(header[8..16].try_into().ok()?);
+    let ok = &header[..8] == CACHE_MAGIC && len == data.len() as u64 && header[16..] == *blake3::hash(data).as_bytes();
+    ok.then_some(data)
+}
+
+/// Writes `data` (of hash `hash`) to `path` with its header, atomically: to a temporary
+/// file beside it (named for the process and the write, as adapters of several processes
+/// and threads may save at once), renamed over it.
+fn write_cache_file(path: &Path, data: &[u8], hash: &[u8; 32]) -> std::io::Result<()> {
+    use std::io::Write;
+    static WRITES: AtomicU64 = AtomicU64::new(0);
+    let dir = path.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir)?;
+    let n = WRITES.fetch_add(1, Ordering::Relaxed);
+    let name = path.file_name().unwrap_or_default().to_string_lossy();
+    let tmp = dir.join(format!(".{name}.{}.{n}.tmp", std::process::id()));
+    let result = (|| {
+        let mut file = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        file.write_all(CACHE_MAGIC)?;
+        file.write_all(&(data.len() as u64).to_le_bytes())?;
+        file.write_all(hash)?;
+        file.write_all(data)?;
+        file.into_inner().map_err(|e| e.into_error())?;
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
 }
 
 /// An adapter's context and its compiled pipelines (dropped before the context, whose
@@ -183,7 +396,7 @@ pub struct GpuDevice {
 impl GpuDevice {
     /// Wraps an opened context (after any test limits were set on it).
     pub fn new(ctx: GpuContext) -> GpuDevice {
-        GpuDevice { pipelines: Pipelines::default(), ctx, stats: Default::default() }
+        GpuDevice { pipelines: Pipelines::new(&ctx), ctx, stats: Default::default() }
     }
 
     /// The statistics kernels (`stats.wgsl`), compiled on first use.
