@@ -36,6 +36,16 @@ fn mul32(a: u32, b: u32) -> vec2u {
     return vec2u((p00 & 0xffffu) | (mid << 16u), p11 + (p01 >> 16u) + (p10 >> 16u) + (mid >> 16u));
 }
 
+// x + y and x − y, 64 bits, wrapping (sums.wgsl's are not imported: this file stands alone).
+fn exact_add64(x: vec2u, y: vec2u) -> vec2u {
+    let lo = x.x + y.x;
+    return vec2u(lo, x.y + y.y + select(0u, 1u, lo < x.x));
+}
+
+fn exact_sub64(x: vec2u, y: vec2u) -> vec2u {
+    return vec2u(x.x - y.x, x.y - y.y - select(0u, 1u, x.x < y.x));
+}
+
 // -1, 0 or 1 as the 64-bit x is below, equal to or above y.
 fn compare64(x: vec2u, y: vec2u) -> i32 {
     if (x.y != y.y) {
@@ -124,14 +134,20 @@ fn div_rounded(a: f32, b: f32, ratio: f32) -> f32 {
     let s = d - g; // in -1..=24
     let twice = exact_shl(pa.m, u32(s + 1));
     var q = u32(max(ldexp(ratio, s), 0.0));
+    // 2 q mb, moved by 2 mb with q: (2q ± 1) mb is it ± mb.
+    var p = mul32(2u * q, pb.m);
+    let mb = vec2u(pb.m, 0u);
+    let mb2 = vec2u(2u * pb.m, 0u);
     for (var step = 0u; step < EXACT_STEPS; step++) {
-        let above = compare64(twice, mul32(2u * q + 1u, pb.m));
-        let below = select(1, compare64(twice, mul32(2u * q - 1u, pb.m)), q > 0u);
+        let above = compare64(twice, exact_add64(p, mb));
+        let below = select(1, compare64(twice, exact_sub64(p, mb)), q > 0u);
         let odd = (q & 1u) == 1u;
         if (above > 0 || (above == 0 && odd)) {
             q += 1u;
+            p = exact_add64(p, mb2);
         } else if (below < 0 || (below == 0 && odd)) {
             q -= 1u;
+            p = exact_sub64(p, mb2);
         } else {
             break;
         }
@@ -172,12 +188,16 @@ fn sqrt_rounded(x: f32, root: f32) -> f32 {
     let e = select(p.e - 1, p.e, odd);
     let twice = exact_shl(m, 25u);
     var r = u32(max(ldexp(root, 23), 0.0));
+    // 4 r², moved with r: (2r ± 1)² is it ± 4r + 1.
+    var w = mul32(2u * r, 2u * r);
     for (var step = 0u; step < EXACT_STEPS; step++) {
-        let up = 2u * r + 1u;
-        let down = 2u * r - 1u;
-        if (compare64(mul32(up, up), twice) < 0) {
+        let up = exact_add64(w, vec2u(4u * r + 1u, 0u));
+        let down = exact_add64(exact_sub64(w, vec2u(4u * r, 0u)), vec2u(1u, 0u));
+        if (compare64(up, twice) < 0) {
+            w = exact_add64(w, vec2u(8u * r + 4u, 0u));
             r += 1u;
-        } else if (r > 0u && compare64(mul32(down, down), twice) > 0) {
+        } else if (r > 0u && compare64(down, twice) > 0) {
+            w = exact_add64(exact_sub64(w, vec2u(8u * r, 0u)), vec2u(4u, 0u));
             r -= 1u;
         } else {
             break;
