@@ -61,7 +61,9 @@ struct StatsParams {
 @group(0) @binding(1) var<storage, read_write> stats_sum: array<vec4u>;
 @group(0) @binding(2) var<storage, read_write> stats_square: array<vec4u>;
 @group(0) @binding(3) var<storage, read_write> stats_replicate: array<vec4u>;
-@group(0) @binding(4) var<uniform> stats_params: StatsParams;
+// A storage buffer, not a uniform one: lavapipe would recompile the kernels at every
+// dispatch for the uniform values they branch on (shaders/bindings.wgsl).
+@group(0) @binding(4) var<storage, read> stats_params: StatsParams;
 // One partial sum (Σv, Σv², Σ mean, Σσ) per workgroup of `reduce`, then the total.
 @group(0) @binding(5) var<storage, read_write> stats_partial: array<vec4f>;
 // [0]: 2^32 − 1 − the first pixel whose block held a sample out of range (0: none).

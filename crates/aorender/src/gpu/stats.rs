@@ -19,7 +19,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Invocations of a workgroup of the statistics kernels (`stats.wgsl`).
 const STATS_WORKGROUP: u32 = 256;
-/// Bytes of the uniforms (`StatsParams`).
+/// Bytes of the parameters (`StatsParams`).
 const PARAMS_BYTES: u64 = 80;
 /// Bytes a check reads back: the total (Σv, Σv², Σ mean, 0) and the status word.
 const CHECK_BYTES: u64 = 32;
@@ -49,7 +49,7 @@ impl StatsPipelines {
         };
         let storage = wgpu::BufferBindingType::Storage { read_only: false };
         let mut entries: Vec<_> = (0..4).map(|b| entry(b, storage)).collect();
-        entries.push(entry(4, wgpu::BufferBindingType::Uniform));
+        entries.push(entry(4, wgpu::BufferBindingType::Storage { read_only: true }));
         entries.extend((5..8).map(|b| entry(b, storage)));
         let layout = device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("stats"), entries: &entries });
@@ -85,7 +85,7 @@ impl StatsPipelines {
     }
 }
 
-/// The uniforms of `stats.wgsl` (`StatsParams`).
+/// The parameters of `stats.wgsl` (`StatsParams`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 struct StatsParams {
@@ -227,7 +227,7 @@ impl DeviceSums {
             .map(|l| buffer(l, bytes.max(16), wgpu::BufferUsages::STORAGE | copy));
         let groups = slots.div_ceil(STATS_WORKGROUP).max(1);
         let row_groups = groups.min(device.limits().max_compute_workgroups_per_dimension);
-        let params = buffer("stats params", PARAMS_BYTES, wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST);
+        let params = buffer("stats params", PARAMS_BYTES, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
         let partial = buffer("stats partial sums", (groups as u64 + 1) * 16, wgpu::BufferUsages::STORAGE | copy);
         let status = buffer("stats status", 16, wgpu::BufferUsages::STORAGE | copy);
         let readback =
