@@ -1,7 +1,7 @@
 // Resources of the AO kernel. The structs and bindings are generated from src/gpu/layout.rs
 // (the header and resources.wgsl); this file adds the private copies the functions read.
 //#import resources.wgsl
-//#import unfused.wgsl
+//#import exact.wgsl
 
 // Every binding is a storage buffer, none a uniform buffer: Mesa's lavapipe (22.x) inlines
 // the uniform-buffer values a shader branches on and recompiles the kernel each time a
@@ -18,7 +18,7 @@ var<private> dispatch: Dispatch;
 fn load_constants() {
     frame = frame_binding;
     dispatch = dispatch_binding;
-    runtime_one = frame.one;
+    opaque_zero = frame.zero;
 }
 // Bindings 2 and 3, and 8 and up, hold the BVH nodes and the primitives, split into
 // chunks that each fit one binding: the composer generates them with load_node and

@@ -1,4 +1,4 @@
-//#import unfused.wgsl
+//#import exact.wgsl
 // Ray-primitive intersection: the WGSL twin of src/geometry.rs. Each returns the hit
 // distance in (t_min, t_max) or INF.
 
@@ -13,8 +13,8 @@
 // operations are IEEE. A shared edge's edge function is computed from the same sheared
 // vertices with its operands swapped, so neighbours see exactly opposite values. That
 // needs a*b - c*d kept as two rounded products, which a compiler that fuses one of them
-// into the subtraction breaks (NVIDIA's does: rays leaked through shared edges of a
-// closed mesh on an H200); every product here goes through `unfused`. There is no f64
+// into the subtraction breaks (rays leaked through shared edges of a closed mesh on an
+// H200); every product here goes through exact.wgsl's `exact_mul`. There is no f64
 // fallback for edge functions that round to zero: rounding is monotone, so an f32 edge
 // function has the right sign or is 0, and a 0 counts as either sign. That keeps the
 // test conservative (a ray on an edge or vertex hits every triangle there) without f64,
@@ -81,16 +81,16 @@ fn triangle_test_sheared(op: vec3f, sh: Shear, t_min: f32, t_max: f32, v0: vec3f
     let b = permute_axes(v1, sh.k) - op;
     let c = permute_axes(v2, sh.k) - op;
     // Sheared to the ray's frame: the ray is the z axis.
-    let ax = a.x - unfused(sx * a.z);
-    let ay = a.y - unfused(sy * a.z);
-    let bx = b.x - unfused(sx * b.z);
-    let by = b.y - unfused(sy * b.z);
-    let cx = c.x - unfused(sx * c.z);
-    let cy = c.y - unfused(sy * c.z);
+    let ax = a.x - exact_mul(sx, a.z);
+    let ay = a.y - exact_mul(sy, a.z);
+    let bx = b.x - exact_mul(sx, b.z);
+    let by = b.y - exact_mul(sy, b.z);
+    let cx = c.x - exact_mul(sx, c.z);
+    let cy = c.y - exact_mul(sy, c.z);
     // Scaled barycentrics: twice the signed areas seen from the ray.
-    let u = unfused(cx * by) - unfused(cy * bx);
-    let v = unfused(ax * cy) - unfused(ay * cx);
-    let w = unfused(bx * ay) - unfused(by * ax);
+    let u = exact_mul(cx, by) - exact_mul(cy, bx);
+    let v = exact_mul(ax, cy) - exact_mul(ay, cx);
+    let w = exact_mul(bx, ay) - exact_mul(by, ax);
     let miss = vec4f(INF, u, v, w);
     if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0)) {
         return miss;
@@ -102,7 +102,7 @@ fn triangle_test_sheared(op: vec3f, sh: Shear, t_min: f32, t_max: f32, v0: vec3f
     let az = sz * a.z;
     let bz = sz * b.z;
     let cz = sz * c.z;
-    let t = (unfused(u * az) + unfused(v * bz) + unfused(w * cz)) / det;
+    let t = (exact_mul(u, az) + exact_mul(v, bz) + exact_mul(w, cz)) / det;
     if (!(t > t_min && t < t_max)) {
         return miss;
     }

@@ -20,6 +20,7 @@
 // and `mark` writes the stopped flags into the counts before they are read.
 
 //#import sums.wgsl
+//#import exact.wgsl
 
 struct StatsParams {
     // Film slots.
@@ -35,7 +36,8 @@ struct StatsParams {
     n: f32,
     k: f32,
     b: f32,
-    _pad: f32,
+    // 0, exact.wgsl's `opaque_zero`.
+    zero: u32,
     // Exponents of the quanta of Σv, Σv² and the replicates' squares.
     sum_exponent: i32,
     square_exponent: i32,
@@ -59,7 +61,9 @@ struct StatsParams {
 @group(0) @binding(1) var<storage, read_write> stats_sum: array<vec4u>;
 @group(0) @binding(2) var<storage, read_write> stats_square: array<vec4u>;
 @group(0) @binding(3) var<storage, read_write> stats_replicate: array<vec4u>;
-@group(0) @binding(4) var<uniform> stats_params: StatsParams;
+// A storage buffer, not a uniform one: lavapipe would recompile the kernels at every
+// dispatch for the uniform values they branch on (shaders/bindings.wgsl).
+@group(0) @binding(4) var<storage, read> stats_params: StatsParams;
 // One partial sum (Σv, Σv², Σ mean, Σσ) per workgroup of `reduce`, then the total.
 @group(0) @binding(5) var<storage, read_write> stats_partial: array<vec4f>;
 // [0]: 2^32 − 1 − the first pixel whose block held a sample out of range (0: none).
@@ -98,20 +102,6 @@ fn widen_shifted(x: vec2u, signed: bool) -> vec4u {
     let sign = select(0u, 0xffffffffu, signed && (x.y >> 31u) == 1u);
     let k = BLOCK_SHIFT_BITS;
     return vec4u(0u, x.x << k, (x.y << k) | (x.x >> (32u - k)), (sign << k) | (x.y >> (32u - k)));
-}
-
-// a × b, 64 bits.
-fn mul32(a: u32, b: u32) -> vec2u {
-    let a0 = a & 0xffffu;
-    let a1 = a >> 16u;
-    let b0 = b & 0xffffu;
-    let b1 = b >> 16u;
-    let p00 = a0 * b0;
-    let p01 = a0 * b1;
-    let p10 = a1 * b0;
-    let p11 = a1 * b1;
-    let mid = (p00 >> 16u) + (p01 & 0xffffu) + (p10 & 0xffffu);
-    return vec2u((p00 & 0xffffu) | (mid << 16u), p11 + (p01 >> 16u) + (p10 >> 16u) + (mid >> 16u));
 }
 
 // A replicate's Σv (two's complement, below 2^63 in magnitude) squared exactly and
@@ -166,27 +156,30 @@ fn fold(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) lo
 fn wide_to_f32(x: vec4u, e: i32) -> f32 {
     let negative = (x.w >> 31u) == 1u;
     let m = select(x, neg128(x), negative);
-    let f = ldexp(f32(m.w), e + 96) + ldexp(f32(m.z), e + 64) + ldexp(f32(m.y), e + 32) + ldexp(f32(m.x), e);
+    // ldexp is an exact scaling; `exact` keeps a driver from fusing it as a product.
+    let f = exact(ldexp(f32(m.w), e + 96)) + exact(ldexp(f32(m.z), e + 64)) + exact(ldexp(f32(m.y), e + 32))
+        + exact(ldexp(f32(m.x), e));
     return select(f, -f, negative);
 }
 
 // Pixel i's (variance of its mean, mean): film.rs `standard_error` squared, in f32.
 fn pixel_variance(i: u32) -> vec2f {
     let p = stats_params;
-    let mean = wide_to_f32(stats_sum[i], p.sum_exponent) / p.n;
+    let mean = exact_div(wide_to_f32(stats_sum[i], p.sum_exponent), p.n);
     var v: f32;
     if (p.replicate == 1u) {
         let r = wide_to_f32(stats_replicate[i], p.replicate_exponent);
-        v = max((r / (p.b * p.b) - p.k * mean * mean) / (p.k - 1.0), 0.0) * p.b / p.n;
+        let spread = exact_div(r, p.b * p.b) - exact_mul(p.k * mean, mean);
+        v = exact_div(max(exact_div(spread, p.k - 1.0), 0.0) * p.b, p.n);
     } else {
         let q = wide_to_f32(stats_square[i], p.square_exponent);
-        v = max((q - p.n * mean * mean) / (p.n - 1.0), 0.0) / p.n;
+        v = exact_div(max(exact_div(q - exact_mul(p.n * mean, mean), p.n - 1.0), 0.0), p.n);
     }
     return vec2f(v, mean);
 }
 
 // The 97.5 % quantile of Student's t with `dof` ≥ 1 degrees of freedom, in f32
-// (film.rs `t_quantile_975`).
+// (film.rs `t_quantile_975`), each division correctly rounded (accumulation.rs `t975`).
 fn t975(dof: u32) -> f32 {
     switch dof {
         case 1u: { return 12.7062047; }
@@ -197,8 +190,8 @@ fn t975(dof: u32) -> f32 {
         case 6u: { return 2.44691185; }
         default: {
             let v = f32(dof);
-            return 1.95996404 + 2.3722713 / v + 2.82249856 / (v * v) + 2.55584979 / (v * v * v)
-                + 1.58953404 / ((v * v) * (v * v));
+            return 1.95996404 + exact_div(2.3722713, v) + exact_div(2.82249856, v * v)
+                + exact_div(2.55584979, v * v * v) + exact_div(1.58953404, (v * v) * (v * v));
         }
     }
 }
@@ -206,14 +199,16 @@ fn t975(dof: u32) -> f32 {
 // An adaptive render's view of pixel i: (v, mean, σ, replicates), v its variance of the
 // mean and σ the standard deviation of a replicate's mean the allocation takes (both 0
 // before a second replicate: an exact pixel's, or no estimate yet, which the fewest
-// replicates tell apart); accumulation.rs `pixel_sigma`.
+// replicates tell apart); accumulation.rs `pixel_sigma`, step for step. Every division
+// and root is exact.wgsl's, correctly rounded, and every product that feeds a sum is
+// kept apart from it, so the host's IEEE f32 steps give the same bits.
 fn adaptive_pixel(i: u32) -> vec4f {
     let p = stats_params;
     let c = stats_counts[i];
     let kk = c.y & 0x7fffffffu;
     let n = f32(c.x);
     let s = wide_to_f32(stats_sum[i], p.sum_exponent);
-    let mean = select(0.0, s / n, c.x > 0u);
+    let mean = select(0.0, exact_div(s, n), c.x > 0u);
     if (kk < 2u) {
         return vec4f(0.0, mean, 0.0, f32(kk));
     }
@@ -221,12 +216,12 @@ fn adaptive_pixel(i: u32) -> vec4f {
     let r = wide_to_f32(stats_replicate[i], p.replicate_exponent);
     let k = f32(kk);
     let b = p.b;
-    let variance = max((r / (b * b) - (k * mean) * mean) / (k - 1.0), 0.0);
-    let v = (variance * b) / n;
-    let se = sqrt(v);
+    let variance = max(exact_div(exact_div(r, b * b) - exact_mul(k * mean, mean), k - 1.0), 0.0);
+    let v = exact_div(variance * b, n);
+    let se = exact_sqrt(v);
     var upper = p.max_value;
     if (p.range == 0u && s > 0.0 && q > 0.0) {
-        upper = min(q / s, p.max_value);
+        upper = min(exact_div(q, s), p.max_value);
     }
     var lower = min(mean, 0.0);
     if (p.range == 2u) {
@@ -238,22 +233,23 @@ fn adaptive_pixel(i: u32) -> vec4f {
         let lo = min(lower, mean);
         let hi = max(upper, mean);
         let range = hi - lo;
-        let share = (mean - lo) / range;
-        let e = se / range;
-        let spread = share * (1.0 - share);
+        let share = exact_div(mean - lo, range);
+        let e = exact_div(se, range);
+        let spread = exact_mul(share, 1.0 - share);
         if (range > 0.0 && spread > 0.0) {
-            let kw = ((t * t) * (e * e)) / spread;
-            let centre = (share + 0.5 * kw) / (1.0 + kw);
-            let half = sqrt(kw * (spread + 0.25 * kw)) / (1.0 + kw);
+            let kw = exact_div((t * t) * (e * e), spread);
+            let centre = exact_div(share + exact_mul(0.5, kw), 1.0 + kw);
+            let half = exact_div(exact_sqrt(kw * (spread + exact_mul(0.25, kw))), 1.0 + kw);
             width = range * (min(centre + half, 1.0) - max(centre - half, 0.0));
         } else {
             width = 2.0 * (t * se);
         }
     } else {
-        let jeffreys = min(3.8414588 / (2.0 * n + 1.0), 1.0);
-        width = jeffreys * max(mean, 0.0) + jeffreys * max(upper - mean, 0.0);
+        let jeffreys = min(exact_div(3.8414588, exact_mul(2.0, n) + 1.0), 1.0);
+        width = exact_mul(jeffreys, max(mean, 0.0)) + exact_mul(jeffreys, max(upper - mean, 0.0));
     }
-    let sigma = max(se, width / 3.92) * sqrt(k);
+    // Kept apart from the sums `reduce` adds it to.
+    let sigma = exact_mul(max(se, exact_div(width, 3.92)), exact_sqrt(k));
     return vec4f(v, mean, sigma, k);
 }
 
@@ -270,11 +266,12 @@ fn reduce_shared(local: u32) {
 
 @compute @workgroup_size(256)
 fn reduce(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
+    opaque_zero = stats_params.zero;
     let i = stats_slot(group, local);
     var x = vec4f(0.0);
     if (i < stats_params.slots && stats_params.per_pixel == 1u) {
         let a = adaptive_pixel(i);
-        x = vec4f(a.x, a.x * a.x, a.y, a.z);
+        x = vec4f(a.x, exact_mul(a.x, a.x), a.y, a.z);
         let kk = stats_counts[i].y & 0x7fffffffu;
         if (!(stats_film[i].w == INACTIVE_SLOT && kk < 2u)) {
             atomicMax(&stats_status[2], 0xffffffffu - kk);
@@ -282,7 +279,7 @@ fn reduce(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) 
         atomicMax(&stats_status[3], kk);
     } else if (i < stats_params.slots) {
         let vm = pixel_variance(i);
-        x = vec4f(vm.x, vm.x * vm.x, vm.y, 0.0);
+        x = vec4f(vm.x, exact_mul(vm.x, vm.x), vm.y, 0.0);
     }
     stats_shared[local] = x;
     reduce_shared(local);
@@ -310,6 +307,7 @@ fn reduce_groups(@builtin(local_invocation_index) local: u32) {
 // the allocation gives them: k ≥ σ × per_sigma.
 @compute @workgroup_size(256)
 fn allocate(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
+    opaque_zero = stats_params.zero;
     let i = stats_slot(group, local);
     if (i >= stats_params.slots || stats_film[i].w == INACTIVE_SLOT) {
         return;

@@ -261,7 +261,7 @@ impl Probe {
         let tri_words: Vec<[u32; 4]> = triangles.iter().flat_map(|t| t.map(|v| bits(v, 0.0))).collect();
         self.0.run(
             "intersect",
-            [triangles.len() as u32, count, 1f32.to_bits(), 0],
+            [triangles.len() as u32, count, 0, 0],
             &[bytemuck::cast_slice(&ray_words), bytemuck::cast_slice(&tri_words)],
             count,
             1,

@@ -94,8 +94,8 @@ gpu_struct! {
         pub sky_up: [f32; 3] = "vec3f",
         /// Albedo of the ground below the horizon.
         pub ground_albedo: f32 = "f32",
-        /// 1.0, read rather than known by the kernel, so products stay unfused (intersect.wgsl).
-        pub one: f32 = "f32",
+        /// 0, read rather than known by the kernel, so products stay unfused (exact.wgsl).
+        pub zero: u32 = "u32",
         /// Padding to 16 bytes.
         pub _pad: [u32; 3] = "array<u32, 3>",
     }
@@ -168,7 +168,7 @@ impl FrameUniforms {
             sky_normalise: s.sky.normalise.code() as u32,
             sky_up: s.sky.unit_up().to_array(),
             ground_albedo: s.sky.ground_albedo,
-            one: 1.0,
+            zero: 0,
             ..bytemuck::Zeroable::zeroed()
         }
     }

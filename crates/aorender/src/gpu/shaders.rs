@@ -14,6 +14,7 @@ pub const FILES: &[(&str, &str)] = &[
     ("bindings.wgsl", include_str!("../../shaders/bindings.wgsl")),
     ("cwbvh.wgsl", include_str!("../../shaders/cwbvh.wgsl")),
     ("cwbvh_node.wgsl", crate::bvh::cwbvh::NODE_WGSL),
+    ("exact.wgsl", include_str!("../../shaders/exact.wgsl")),
     ("intersect.wgsl", include_str!("../../shaders/intersect.wgsl")),
     ("lanes.wgsl", include_str!("../../shaders/lanes.wgsl")),
     ("per_lane.wgsl", include_str!("../../shaders/per_lane.wgsl")),
@@ -25,7 +26,6 @@ pub const FILES: &[(&str, &str)] = &[
     ("trace_common.wgsl", include_str!("../../shaders/trace_common.wgsl")),
     ("trace_cwbvh.wgsl", include_str!("../../shaders/trace_cwbvh.wgsl")),
     ("trace_cwbvh_group.wgsl", include_str!("../../shaders/trace_cwbvh_group.wgsl")),
-    ("unfused.wgsl", include_str!("../../shaders/unfused.wgsl")),
 ];
 
 /// The shader files outside `shaders/`, by name, and their paths in the crate: the CWBVH

@@ -19,7 +19,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Invocations of a workgroup of the statistics kernels (`stats.wgsl`).
 const STATS_WORKGROUP: u32 = 256;
-/// Bytes of the uniforms (`StatsParams`).
+/// Bytes of the parameters (`StatsParams`).
 const PARAMS_BYTES: u64 = 80;
 /// Bytes a check reads back: the total (Σv, Σv², Σ mean, 0) and the status word.
 const CHECK_BYTES: u64 = 32;
@@ -49,7 +49,7 @@ impl StatsPipelines {
         };
         let storage = wgpu::BufferBindingType::Storage { read_only: false };
         let mut entries: Vec<_> = (0..4).map(|b| entry(b, storage)).collect();
-        entries.push(entry(4, wgpu::BufferBindingType::Uniform));
+        entries.push(entry(4, wgpu::BufferBindingType::Storage { read_only: true }));
         entries.extend((5..8).map(|b| entry(b, storage)));
         let layout = device
             .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("stats"), entries: &entries });
@@ -85,7 +85,7 @@ impl StatsPipelines {
     }
 }
 
-/// The uniforms of `stats.wgsl` (`StatsParams`).
+/// The parameters of `stats.wgsl` (`StatsParams`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
 struct StatsParams {
@@ -96,7 +96,8 @@ struct StatsParams {
     n: f32,
     k: f32,
     b: f32,
-    _pad0: f32,
+    /// 0: `exact.wgsl`'s opaque zero, which keeps products out of fused sums.
+    zero: u32,
     sum_exponent: i32,
     square_exponent: i32,
     replicate_exponent: i32,
@@ -226,7 +227,7 @@ impl DeviceSums {
             .map(|l| buffer(l, bytes.max(16), wgpu::BufferUsages::STORAGE | copy));
         let groups = slots.div_ceil(STATS_WORKGROUP).max(1);
         let row_groups = groups.min(device.limits().max_compute_workgroups_per_dimension);
-        let params = buffer("stats params", PARAMS_BYTES, wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST);
+        let params = buffer("stats params", PARAMS_BYTES, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
         let partial = buffer("stats partial sums", (groups as u64 + 1) * 16, wgpu::BufferUsages::STORAGE | copy);
         let status = buffer("stats status", 16, wgpu::BufferUsages::STORAGE | copy);
         let readback =
@@ -274,27 +275,34 @@ impl DeviceSums {
         })
     }
 
-    /// Runs `pipeline` over the slots (or one workgroup for `None` slots) with `params`.
+    /// An encoder over the slots with `params`, which every pass it records reads.
+    fn encoder(&self, ctx: &GpuContext, params: StatsParams) -> wgpu::CommandEncoder {
+        ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") })
+    }
+
+    /// Records `pipeline` over the slots (`whole`) or in one workgroup.
+    fn pass(&self, encoder: &mut wgpu::CommandEncoder, pipeline: &wgpu::ComputePipeline, whole: bool) {
+        let mut pass =
+            encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("stats"), timestamp_writes: None });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &self.bind_group, &[]);
+        if whole {
+            pass.dispatch_workgroups(self.row_groups, self.groups.div_ceil(self.row_groups), 1);
+        } else {
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+    }
+
+    /// An encoder that runs `pipeline` over the slots with `params`.
     fn dispatch(
         &self,
         ctx: &GpuContext,
         pipeline: &wgpu::ComputePipeline,
         params: StatsParams,
-        whole: bool,
     ) -> wgpu::CommandEncoder {
-        ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
-        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") });
-        {
-            let mut pass = encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("stats"), timestamp_writes: None });
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, &self.bind_group, &[]);
-            if whole {
-                pass.dispatch_workgroups(self.row_groups, self.groups.div_ceil(self.row_groups), 1);
-            } else {
-                pass.dispatch_workgroups(1, 1, 1);
-            }
-        }
+        let mut encoder = self.encoder(ctx, params);
+        self.pass(&mut encoder, pipeline, true);
         encoder
     }
 
@@ -307,7 +315,7 @@ impl DeviceSums {
     /// to the replicates' squares.
     pub fn fold(&self, ctx: &GpuContext, replicate: bool, taken: u32) -> Result<()> {
         let params = StatsParams { replicate: replicate as u32, taken, ..self.params() };
-        let encoder = self.dispatch(ctx, &self.pipelines.fold, params, true);
+        let encoder = self.dispatch(ctx, &self.pipelines.fold, params);
         ctx.submit([encoder.finish()])
     }
 
@@ -331,19 +339,7 @@ impl DeviceSums {
             replicate_exponent: exponents.1 + REPLICATE_SQ_SHIFT,
             ..self.params()
         };
-        let mut encoder = self.dispatch(ctx, &self.pipelines.reduce, params, true);
-        {
-            let mut pass = encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("stats"), timestamp_writes: None });
-            pass.set_pipeline(&self.pipelines.reduce_groups);
-            pass.set_bind_group(0, &self.bind_group, &[]);
-            pass.dispatch_workgroups(1, 1, 1);
-        }
-        encoder.copy_buffer_to_buffer(&self.partial, self.groups as u64 * 16, &self.readback, 0, Some(16));
-        encoder.copy_buffer_to_buffer(&self.status, 0, &self.readback, 16, Some(16));
-        ctx.submit([encoder.finish()])?;
-        let words: Vec<u32> = ctx.read(&self.readback)?;
-        readback_bytes.fetch_add(CHECK_BYTES, Ordering::Relaxed);
+        let words = self.reduce_and_read(ctx, params, &self.pipelines.reduce, readback_bytes)?;
         let f = |i: usize| f32::from_bits(words[i]) as f64;
         let sums = CheckSums { variance: f(0), variance_sq: f(1), mean: f(2), pixels: self.slots as u64 };
         Ok((sums, bad_slot(words[4])))
@@ -415,7 +411,7 @@ impl DeviceSums {
 
     /// Clears the status words past the first, runs `pipeline` over the slots (with the
     /// workgroups' sums reduced after it, for `reduce`) and reads back the total and the
-    /// status.
+    /// status: one submission.
     fn reduce_and_read(
         &self,
         ctx: &GpuContext,
@@ -423,16 +419,11 @@ impl DeviceSums {
         pipeline: &wgpu::ComputePipeline,
         readback_bytes: &AtomicU64,
     ) -> Result<Vec<u32>> {
-        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") });
+        let mut encoder = self.encoder(ctx, params);
         encoder.clear_buffer(&self.status, 4, Some(12));
-        ctx.submit([encoder.finish()])?;
-        let mut encoder = self.dispatch(ctx, pipeline, params, true);
+        self.pass(&mut encoder, pipeline, true);
         if std::ptr::eq(pipeline, &self.pipelines.reduce) {
-            let mut pass = encoder
-                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("stats"), timestamp_writes: None });
-            pass.set_pipeline(&self.pipelines.reduce_groups);
-            pass.set_bind_group(0, &self.bind_group, &[]);
-            pass.dispatch_workgroups(1, 1, 1);
+            self.pass(&mut encoder, &self.pipelines.reduce_groups, false);
         }
         encoder.copy_buffer_to_buffer(&self.partial, self.groups as u64 * 16, &self.readback, 0, Some(16));
         encoder.copy_buffer_to_buffer(&self.status, 0, &self.readback, 16, Some(16));
@@ -450,7 +441,7 @@ impl DeviceSums {
         staging: &wgpu::Buffer,
         readback_bytes: &AtomicU64,
     ) -> Result<Vec<(u32, u32, bool)>> {
-        let mut encoder = self.dispatch(ctx, &self.pipelines.mark, self.params(), true);
+        let mut encoder = self.dispatch(ctx, &self.pipelines.mark, self.params());
         encoder.copy_buffer_to_buffer(&self.counts, 0, staging, 0, Some(self.slots as u64 * 8));
         ctx.submit([encoder.finish()])?;
         let words: Vec<[u32; 2]> = ctx.read(staging)?;

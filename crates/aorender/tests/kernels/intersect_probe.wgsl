@@ -10,7 +10,7 @@
 struct Params {
     triangle_count: u32,
     count: u32, // rays x triangles
-    one: f32, // 1.0, for intersect.wgsl's `runtime_one`
+    zero: u32, // 0, for exact.wgsl's `opaque_zero`
     _pad1: u32,
 }
 
@@ -30,7 +30,7 @@ fn intersect(@builtin(global_invocation_id) gid: vec3u, @builtin(num_workgroups)
     if (i >= params.count) {
         return;
     }
-    runtime_one = params.one;
+    opaque_zero = params.zero;
     let r = i / params.triangle_count;
     let k = i % params.triangle_count;
     let od = rays[2u * r];
