@@ -332,6 +332,8 @@ struct Whole {
 struct Block {
     /// Physical lines (line ends, and a last line without one).
     lines: u64,
+    /// `v` lines.
+    vertices: u64,
     positions: Vec<Vec3>,
     uvs: Vec<Vec2>,
     texcoords: u64,
@@ -489,9 +491,13 @@ fn parse_line(
                 }
             }
             if let Some(coordinate) = non_finite_coordinate(p) {
-                return Err(Problem::NonFinite { vertex: block.positions.len() as u64 + 1, coordinate });
+                return Err(Problem::NonFinite { vertex: block.vertices + 1, coordinate });
             }
-            block.positions.push(p);
+            block.vertices += 1;
+            // A parse from the start only looks for problems: it keeps nothing.
+            if whole.is_none() {
+                block.positions.push(p);
+            }
         }
         Some("vt") => {
             let what = "a texture coordinate";
@@ -507,7 +513,7 @@ fn parse_line(
                 None => 0.0,
             };
             block.texcoords += 1;
-            if attributes {
+            if attributes && whole.is_none() {
                 block.uvs.push(Vec2::new(u, v));
             }
         }
@@ -532,7 +538,7 @@ fn parse_line(
                 return Err(line_error(ObjLineError::NotANumber { word, what: "a normal" }));
             }
             block.normal_count += 1;
-            if attributes {
+            if attributes && whole.is_none() {
                 block.normals.push(Vec3::from_array(n));
             }
         }
@@ -573,7 +579,7 @@ fn parse_face<'t>(
         if parts.next().is_some() {
             return Err(ObjLineError::TooManyParts { corner: super::input::one_line(corner) });
         }
-        if surface {
+        if surface && whole.is_none() {
             block.corners.push(resolved[0]);
             if attributes {
                 block.corner_uvs.push(resolved[1]);
@@ -581,7 +587,7 @@ fn parse_face<'t>(
             }
         }
     }
-    if surface {
+    if surface && whole.is_none() {
         let size = block.corners.len() - start;
         block.face_sizes.push(u32::try_from(size).unwrap_or(u32::MAX));
     }
@@ -591,7 +597,7 @@ fn parse_face<'t>(
 impl Block {
     fn count(&self, element: Element) -> u64 {
         match element {
-            Element::Vertex => self.positions.len() as u64,
+            Element::Vertex => self.vertices,
             Element::TexCoord => self.texcoords,
             Element::Normal => self.normal_count,
         }
@@ -791,7 +797,12 @@ pub(crate) fn read_obj_in_blocks(path: &Path, meter: &mut Meter, keep: Keep, blo
         } else {
             match cut(unparsed, usize::MAX) {
                 Some(end) => end,
-                None if unparsed.len() > 4 * longest + 4 => unparsed.len(),
+                None if unparsed.len() > 4 * longest + 4 => {
+                    // One line longer than any may be, even joined: the parse from the start finds it.
+                    parsed = text.len();
+                    found.wrong = true;
+                    break;
+                }
                 None => 0,
             }
         };
@@ -802,7 +813,11 @@ pub(crate) fn read_obj_in_blocks(path: &Path, meter: &mut Meter, keep: Keep, blo
             blocks.push(&rest[..n]);
             rest = &rest[n..];
         }
-        meter.charge(path, (end as u64).saturating_mul(factor))?;
+        if let Err(e) = meter.charge(path, (end as u64).saturating_mul(factor)) {
+            // Past the budget: the parse from the start says whether a line before failed.
+            (read_error, found.wrong, parsed) = (Some(e), true, parsed + end);
+            break;
+        }
         let parse = |b: &&[u8]| parse_block(b, keep.attributes, longest, None);
         let results: Vec<Block> =
             if blocks.len() > 1 { blocks.par_iter().map(parse).collect() } else { blocks.iter().map(parse).collect() };
