@@ -119,7 +119,8 @@ fn every_obj_file_reads_as_tobj_read_it() {
 #[test]
 fn a_large_mesh_with_every_index_form_reads_as_tobj_read_it() {
     let dragon = repo().join("scenes/dragon_vrip_res2.ply.gz");
-    let (positions, triangles) = aorender::scene::read_ply_mesh(&dragon, &ReadLimits::with_memory(1 << 32), true).unwrap();
+    let (positions, triangles) =
+        aorender::scene::read_ply_mesh(&dragon, &ReadLimits::with_memory(1 << 32), true).unwrap();
     let mut text = String::from("# the dragon\nmtllib dragon.mtl\n");
     let mut written = 0;
     for (k, t) in triangles.iter().enumerate() {

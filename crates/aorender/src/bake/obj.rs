@@ -817,7 +817,10 @@ mod tests {
             (format!("{tri}vn 0 1 z\n"), "line 4: invalid OBJ: 'z' is not a number"),
             (format!("{tri}f 1 2 0\n"), "line 4: invalid OBJ: face vertex index out of bounds (0: OBJ counts from 1)"),
             (format!("{tri}f 1 2 4\n"), "line 4: invalid OBJ: face vertex index out of bounds (4, with 3 vertices)"),
-            (format!("{tri}f 1 2 -4\n"), "line 4: invalid OBJ: face vertex index out of bounds (-4, with 3 vertices before it)"),
+            (
+                format!("{tri}f 1 2 -4\n"),
+                "line 4: invalid OBJ: face vertex index out of bounds (-4, with 3 vertices before it)",
+            ),
             (format!("{tri}f 1 2 3.5\n"), "line 4: invalid OBJ: the face corner '3.5' has '3.5', not an index"),
             (
                 format!("{tri}vt 0 0\nf 1/2 2 3\n"),
@@ -828,11 +831,17 @@ mod tests {
                 "line 4: invalid OBJ: face texture coordinate index out of bounds (-1, with 0 texture coordinates before it)",
             ),
             (format!("{tri}f 1/x 2 3\n"), "line 4: invalid OBJ: the face corner '1/x' has 'x', not an index"),
-            (format!("{tri}vn 0 0 1\nf 1//2 2 3\n"), "line 5: invalid OBJ: face normal index out of bounds (2, with 1 normals)"),
+            (
+                format!("{tri}vn 0 0 1\nf 1//2 2 3\n"),
+                "line 5: invalid OBJ: face normal index out of bounds (2, with 1 normals)",
+            ),
             (format!("{tri}vn 0 0 1\nf 1//0 2 3\n"), "line 5: invalid OBJ: face normal index out of bounds (0"),
             (format!("{tri}f 1/1/1/1 2 3\n"), "line 4: invalid OBJ: the face corner '1/1/1/1' has more than v/vt/vn"),
             (format!("{tri}f /1 2 3\n"), "line 4: invalid OBJ: the face corner '/1' names no vertex"),
-            (format!("{tri}f 1 2 99999999999\n"), "line 4: invalid OBJ: face vertex index out of bounds (99999999999, with 3 vertices)"),
+            (
+                format!("{tri}f 1 2 99999999999\n"),
+                "line 4: invalid OBJ: face vertex index out of bounds (99999999999, with 3 vertices)",
+            ),
         ];
         for (text, want) in cases {
             let (_dir, path) = file("bad.obj", text.as_bytes());

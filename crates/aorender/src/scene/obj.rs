@@ -196,7 +196,9 @@ impl Problem {
             Problem::Line(e) => format!("line {line}: invalid OBJ: {e}"),
             Problem::Long => format!("line {line} is longer than {longest}, the longest line a text file may have"),
             Problem::LongContinued => {
-                format!("line {line}, continued with '\\', is longer than {longest}, the longest line a text file may have")
+                format!(
+                    "line {line}, continued with '\\', is longer than {longest}, the longest line a text file may have"
+                )
             }
             Problem::Nul { starts: true } => format!("line {line}: a NUL byte: {UTF16_MESSAGE}"),
             Problem::Nul { starts: false } => format!("line {line}: invalid OBJ: a NUL byte"),
@@ -475,9 +477,8 @@ fn parse_line(
                 return Err(line_error(ObjLineError::VertexNumbers(n)));
             }
             let number = |w: &str, what: &'static str| {
-                parse_f32(w).ok_or_else(|| {
-                    line_error(ObjLineError::NotANumber { word: super::input::one_line(w), what })
-                })
+                parse_f32(w)
+                    .ok_or_else(|| line_error(ObjLineError::NotANumber { word: super::input::one_line(w), what }))
             };
             let what = "a vertex position coordinate";
             let mut p = Vec3::new(number(numbers[0], what)?, number(numbers[1], what)?, number(numbers[2], what)?);
@@ -503,9 +504,8 @@ fn parse_line(
             let what = "a texture coordinate";
             let u = words.next().ok_or(line_error(ObjLineError::NoTexCoordNumbers))?;
             let number = |w: &str| {
-                parse_f32(w).ok_or_else(|| {
-                    line_error(ObjLineError::NotANumber { word: super::input::one_line(w), what })
-                })
+                parse_f32(w)
+                    .ok_or_else(|| line_error(ObjLineError::NotANumber { word: super::input::one_line(w), what }))
             };
             let u = number(u)?;
             let v = match words.next() {
@@ -783,7 +783,8 @@ pub(crate) fn read_obj_in_blocks(path: &Path, meter: &mut Meter, keep: Keep, blo
     loop {
         meter.hold(path, base + data.bytes() + vec_bytes(&text))?;
         // A round's parsed data must fit in what is left of the budget.
-        let round = (block_bytes * threads * BLOCKS_PER_THREAD).min((meter.left() / (factor + 1)) as usize).max(1 << 16);
+        let round =
+            (block_bytes * threads * BLOCKS_PER_THREAD).min((meter.left() / (factor + 1)) as usize).max(1 << 16);
         let before = text.len();
         if let Err(e) = input.read_into(path, &mut text, meter, 1, round as u64) {
             read_error = Some(e);
@@ -1140,27 +1141,54 @@ mod tests {
         assert_eq!(t[0], t[1]);
         assert_eq!(t[0], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]].map(|p| p.map(f32::to_bits)));
         let past = b"v 0 0 0\nv 1 0 0\nf 1 2 3\nf 1 2 4\no next\nv 0 1 0\n";
-        assert_eq!(triangles(past, 1 << 20).unwrap_err(), "line 4: invalid OBJ: face vertex index out of bounds (4, with 3 vertices)");
+        assert_eq!(
+            triangles(past, 1 << 20).unwrap_err(),
+            "line 4: invalid OBJ: face vertex index out of bounds (4, with 3 vertices)"
+        );
     }
 
     #[test]
     fn errors_name_the_first_line_in_error() {
         for (text, want) in [
-            (format!("{SQUARE}vt 0 0\nf 1/2 2/1 3/1\n"), "line 6: invalid OBJ: face texture coordinate index out of bounds (2, with 1 texture coordinates)"),
-            (format!("{SQUARE}f 1//-1 2 3\nvn 0 0 1\n"), "line 5: invalid OBJ: face normal index out of bounds (-1, with 0 normals before it)"),
-            (format!("{SQUARE}f 1 2 -5\n"), "line 5: invalid OBJ: face vertex index out of bounds (-5, with 4 vertices before it)"),
-            (format!("{SQUARE}f 1 2 0\n"), "line 5: invalid OBJ: face vertex index out of bounds (0: OBJ counts from 1)"),
+            (
+                format!("{SQUARE}vt 0 0\nf 1/2 2/1 3/1\n"),
+                "line 6: invalid OBJ: face texture coordinate index out of bounds (2, with 1 texture coordinates)",
+            ),
+            (
+                format!("{SQUARE}f 1//-1 2 3\nvn 0 0 1\n"),
+                "line 5: invalid OBJ: face normal index out of bounds (-1, with 0 normals before it)",
+            ),
+            (
+                format!("{SQUARE}f 1 2 -5\n"),
+                "line 5: invalid OBJ: face vertex index out of bounds (-5, with 4 vertices before it)",
+            ),
+            (
+                format!("{SQUARE}f 1 2 0\n"),
+                "line 5: invalid OBJ: face vertex index out of bounds (0: OBJ counts from 1)",
+            ),
             (format!("# c\n\n{SQUARE}vn 0 1\n"), "line 7: invalid OBJ: a normal needs 3 numbers, found 2"),
             (format!("{SQUARE}v 1 2 3 0\n"), "line 5: invalid OBJ: a vertex with w = 0 (at infinity)"),
-            ("v 1 \\\n2 3\nv x 0 0\n".to_string(), "line 3: invalid OBJ: 'x' is not a number (a vertex position coordinate)"),
+            (
+                "v 1 \\\n2 3\nv x 0 0\n".to_string(),
+                "line 3: invalid OBJ: 'x' is not a number (a vertex position coordinate)",
+            ),
             (format!("{SQUARE}v 0 nan 0\nf 1 2 x\n"), "vertex 5 (line 5) has a non-finite coordinate (y = NaN)"),
             (format!("{SQUARE}f 1 2 x\nv 0 nan 0\n"), "line 5: invalid OBJ: the face corner 'x' has 'x', not an index"),
             (format!("{SQUARE}f 1 2 9\nf 1 2 3 x\n"), "line 6: invalid OBJ: the face corner 'x' has 'x', not an index"),
-            (format!("{SQUARE}f 1 2 9\nf 1 2 3\n"), "line 5: invalid OBJ: face vertex index out of bounds (9, with 4 vertices)"),
+            (
+                format!("{SQUARE}f 1 2 9\nf 1 2 3\n"),
+                "line 5: invalid OBJ: face vertex index out of bounds (9, with 4 vertices)",
+            ),
             (format!("{SQUARE}v 0 0\u{0}0\n"), "line 5: invalid OBJ: a NUL byte"),
-            (format!("{SQUARE}f 1/1/1/1 2 3\n"), "line 5: invalid OBJ: the face corner '1/1/1/1' has more than v/vt/vn"),
+            (
+                format!("{SQUARE}f 1/1/1/1 2 3\n"),
+                "line 5: invalid OBJ: the face corner '1/1/1/1' has more than v/vt/vn",
+            ),
             (format!("{SQUARE}f /1 2 3\n"), "line 5: invalid OBJ: the face corner '/1' names no vertex"),
-            (format!("{SQUARE}v 0 0 0 1 1\n"), "line 5: invalid OBJ: a vertex has x y z, then a w or a color (r g b) or nothing; found 5 numbers"),
+            (
+                format!("{SQUARE}v 0 0 0 1 1\n"),
+                "line 5: invalid OBJ: a vertex has x y z, then a w or a color (r g b) or nothing; found 5 numbers",
+            ),
             (format!("{SQUARE}vt\n"), "line 5: invalid OBJ: a texture coordinate needs 1 to 3 numbers, found none"),
         ] {
             // In one block, and in blocks of a few lines: the same first error.
