@@ -307,10 +307,11 @@ fn malformed_variants_are_refused_in_one_line_naming_the_file_and_line() {
             "line 2: invalid OBJ: a vertex position needs 3 numbers, found 2",
         ),
         (
-            // `tobj` resolves a group's faces where it ends: the vertex comes too late.
-            "late.obj",
-            b"v 0 0 0\nv 1 0 0\nf 1 2 3\no next\nv 0 1 0\nf 1 2 3\n".to_vec(),
-            "line 3: invalid OBJ: face vertex index out of bounds (3, with 2 vertices by line 4, where its object ends)",
+            // Vertices are numbered through the whole file (a face may name one a later
+            // object defines): an index past the file's last vertex is named at its line.
+            "past.obj",
+            b"v 0 0 0\nv 1 0 0\nf 1 2 3\no next\nv 0 1 0\nf 1 2 4\n".to_vec(),
+            "line 6: invalid OBJ: face vertex index out of bounds (4, with 3 vertices)",
         ),
         (
             "zero.obj",

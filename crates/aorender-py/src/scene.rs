@@ -3,7 +3,10 @@
 
 use crate::arrays::{faces, out, relative_vec3s, vec3s};
 use crate::engine::{device, interruptible, sampling, to_py};
-use aorender::bake::{AssetMesh, Bake, BakeAt, BakeRequest, GenerateUvs, TextureOptions, TextureRequest, UvWrap};
+use aorender::bake::{
+    AssetMesh, Bake, BakeAt, BakeRequest, GenerateUvs, ReadInputs, TextureOptions, TextureRequest, UvWrap,
+    load_for_bake,
+};
 use aorender::output::{FilePlan, OutputRules};
 use aorender::scene::mesh_triangles;
 use aorender::{
@@ -34,6 +37,9 @@ pub struct PyScene {
     source: Option<PathBuf>,
     /// The read budget it was loaded within, for the bake's reads of its files.
     limits: ReadLimits,
+    /// The mesh files of a loaded scene as its bakes take them, read with the scene: a
+    /// bake parses no file again.
+    read: ReadInputs,
     /// One session per device, by kind and adapter name.
     sessions: Mutex<Vec<(String, Arc<Session>)>>,
 }
@@ -54,7 +60,14 @@ impl PyScene {
             ..AssetMesh::default()
         };
         let limits = ReadLimits::with_memory(u64::MAX);
-        Ok(PyScene { scene, arrays: Some(mesh), source: None, limits, sessions: Mutex::new(Vec::new()) })
+        Ok(PyScene {
+            scene,
+            arrays: Some(mesh),
+            source: None,
+            limits,
+            read: ReadInputs::default(),
+            sessions: Mutex::new(Vec::new()),
+        })
     }
 
     /// The session on the device `name` names, made the first time (BVH built and
@@ -229,7 +242,8 @@ impl PyScene {
     /// invalid files raise OSError naming the file, and so does a file that needs more
     /// memory than the read budget: `read_budget` bytes, else AORENDER_READ_BUDGET, else
     /// half of the available memory. A glTF file's buffers and images must lie in its
-    /// folder unless `allow_external_uris`.
+    /// folder unless `allow_external_uris`. What was read of the mesh files is kept for
+    /// `bake`, which parses no file again.
     #[staticmethod]
     #[pyo3(signature = (path, *, allow_external_uris = false, read_budget = None))]
     fn load(py: Python<'_>, path: PathBuf, allow_external_uris: bool, read_budget: Option<u64>) -> PyResult<PyScene> {
@@ -239,8 +253,9 @@ impl PyScene {
             None => ReadLimits::from_env().map_err(to_py)?,
         };
         let options = LoadOptions { limits: limits.clone(), allow_external_uris };
-        let scene = py.allow_threads(|| Scene::load_with(&path, &options)).map_err(to_py)?;
-        Ok(PyScene { scene, arrays: None, source: Some(path), limits, sessions: Mutex::new(Vec::new()) })
+        // The mesh files are parsed once, for the scene and for any bake of it.
+        let (scene, read) = py.allow_threads(|| load_for_bake(&path, &options)).map_err(to_py)?;
+        Ok(PyScene { scene, arrays: None, source: Some(path), limits, read, sessions: Mutex::new(Vec::new()) })
     }
 
     /// The scene's name (the file's stem, or the name given to from_arrays).
@@ -482,7 +497,8 @@ impl PyScene {
                     let rules = OutputRules { replacing: overwrite.then_some(input.as_path()), new_directories: true };
                     files.output_with(path, "output", rules).map_err(value_error)?;
                 }
-                py.allow_threads(|| Bake::new(&self.scene, &input, &request, &mut files)).map_err(value_error)?
+                py.allow_threads(|| Bake::with_inputs(&self.scene, &self.read, &input, &request, &mut files))
+                    .map_err(value_error)?
             }
         };
         let session = self.session(py, device)?;

@@ -1,8 +1,8 @@
 //! A bake parses each input once: the scene it traces and the file it writes back come
-//! from one read of every PLY and glTF file (PLY in each encoding and gzipped, glTF with
-//! an external buffer, GLB, and a scene file placing meshes twice and far from the origin;
-//! OBJ is still read by `tobj` for the scene and again for the bake), and what it writes
-//! is byte for byte what a bake that reads its inputs twice writes.
+//! from one read of every mesh file (PLY in each encoding and gzipped, OBJ plain and
+//! gzipped, glTF with an external buffer, GLB, and a scene file placing meshes twice and
+//! far from the origin), and what it writes is byte for byte what a bake that reads its
+//! inputs twice writes.
 
 use aorender::bake::{Bake, BakeRequest, ReadInputs, load_for_bake};
 use aorender::output::FilePlan;
@@ -171,6 +171,9 @@ fn a_bake_of_each_mesh_format_opens_its_input_once() {
         (write("ascii.ply", &ply_ascii(1.0)), "ascii.ply"),
         (write("binary.ply", &ply_binary(1.0)), "binary.ply"),
         (write("box.ply.gz", &gzip(&ply_ascii(1.0))), "box.ply.gz"),
+        (write("box.obj", &obj(1.0)), "box.obj"),
+        (write("box.obj.gz", &gzip(&obj(1.0))), "gzipped.obj"),
+        (repo().join("scenes/teapot.obj"), "teapot.obj"),
         (repo().join("scenes/2CylinderEngine.glb"), "engine.glb"),
     ];
     for (input, output) in cases {
@@ -216,11 +219,11 @@ fn a_bake_of_a_scene_file_opens_each_mesh_once() {
     };
     let near = d.join("near.toml");
     std::fs::write(&near, objects(0.0)).unwrap();
-    check(d, &near, &[ply.clone(), gltf_path.clone()], "near", 2);
+    check(d, &near, &[ply.clone(), obj_path.clone(), gltf_path.clone()], "near", 2);
     let far = d.join("far.toml");
     std::fs::write(&far, objects(1.0e6)).unwrap();
     let scene = Scene::load(&far).unwrap();
     assert_ne!(scene.origin, glam::DVec3::ZERO, "the scene is placed about its own origin");
     // Its loader reads each mesh for both placements, and the bake once more.
-    check(d, &far, &[ply, gltf_path], "far", 3);
+    check(d, &far, &[ply, obj_path, gltf_path], "far", 3);
 }

@@ -53,12 +53,6 @@ pub fn load_for_bake(path: &Path, options: &LoadOptions) -> Result<(Scene, ReadI
     let placed_again = crate::scene::extension(path) == "toml";
     let mut remakes: Vec<Remake> = Vec::new();
     let mut reader = |path: &Path, options: &LoadOptions, meter: &mut Meter| -> Result<IndexedMesh> {
-        // tobj resolves an OBJ face's indices where its object ends, which the bake's reader
-        // does not check: the scene keeps tobj's read and its errors, and the bake reads the
-        // file again.
-        if crate::scene::extension(path) == "obj" {
-            return crate::scene::meshes::read_format(path, options, meter);
-        }
         let key = (path, options.allow_external_uris);
         if let Some(k) = inputs.assets.iter().position(|(p, allow, _)| (p.as_path(), *allow) == key) {
             return Ok(remakes[k]());
@@ -80,7 +74,7 @@ pub fn load_for_bake(path: &Path, options: &LoadOptions) -> Result<(Scene, ReadI
 type Remake = Box<dyn Fn() -> IndexedMesh>;
 
 /// Reads a mesh file for baking with the mesh the scene's loader reads from it, and how
-/// to make that mesh again: PLY from its faces, glTF from a copy kept when
+/// to make that mesh again: PLY and OBJ from their faces, glTF from a copy kept when
 /// `again` (else the remake is never called and makes an empty mesh).
 fn read_asset_and_mesh(
     path: &Path,
@@ -92,6 +86,11 @@ fn read_asset_and_mesh(
             let asset = Arc::new(super::ply::PlyAsset::read_with(path, options)?);
             let (mesh, kept) = (asset.scene_mesh(), asset.clone());
             Ok((asset, mesh, Box::new(move || kept.scene_mesh())))
+        }
+        "obj" => {
+            let asset = Arc::new(super::obj::ObjAsset::read_with(path, options)?);
+            let (mesh, kept, path) = (asset.scene_mesh(path), asset.clone(), path.to_path_buf());
+            Ok((asset, mesh, Box::new(move || kept.scene_mesh(&path))))
         }
         "gltf" | "glb" => {
             let (asset, mesh) = super::gltf::GltfAsset::read_for_scene(path, options)?;

@@ -14,11 +14,9 @@ use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
 };
 use crate::error::{Error, Result};
-use crate::scene::input::{
-    Input, LoadOptions, Meter, ReadLimits, UTF8_BOM, UTF16_MESSAGE, is_gzip, read_text, size_text, starts_utf16,
-    vec_bytes,
-};
-use crate::scene::obj::{continued_at, non_finite_coordinate, parse_vertex_line};
+use crate::scene::input::{LoadOptions, Meter, ReadLimits, UTF8_BOM, UTF16_MESSAGE, is_gzip, read_text, starts_utf16};
+use crate::scene::mesh::IndexedMesh;
+use crate::scene::obj::{Keep, ObjData, continued_at, read_obj};
 use flate2::Compression;
 use flate2::write::GzEncoder;
 use glam::Vec3;
@@ -40,22 +38,62 @@ impl ObjAsset {
         ObjAsset::read_with(path, &LoadOptions::from_env()?)
     }
 
-    /// Reads `path` (`.obj` or `.obj.gz`) for baking: positions as the scene loader reads
-    /// them, the faces of `f` lines (polygons kept; `l` and `p` lines and faces of fewer than
-    /// three corners ignored, as the scene loader ignores them), and per-vertex normals from
-    /// the `vn` the faces reference (see [`vertex_normals`]). The file and what is read from
-    /// it must fit in the read budget of `options`.
+    /// Reads `path` (`.obj` or `.obj.gz`) for baking with the scene loader's reader
+    /// (`scene::obj`): its positions, the faces of `f` lines (polygons kept; `l` and `p`
+    /// lines and faces of fewer than three corners ignored, as the scene ignores them), the
+    /// texture coordinates of each corner, and per-vertex normals from the `vn` the faces
+    /// reference (see [`vertex_normals`]). The file and what is read from it must fit in the
+    /// read budget of `options`.
     pub fn read_with(path: &Path, options: &LoadOptions) -> Result<ObjAsset> {
         let mut meter = Meter::new(&options.limits, "the mesh");
-        let text = Input::open(path, &options.limits)?.read_all(path, &mut meter)?;
-        let text = as_read(text, path, &mut meter)?;
+        let mut data = read_obj(path, &mut meter, Keep { text: true, attributes: true })?;
+        let text = as_read(std::mem::take(&mut data.text), path, &mut meter)?;
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
-        let mut mesh = parse(&text, label, &mut meter).map_err(|e| Error::scene(path, e))?;
+        let mut mesh = asset_mesh(data, label, path, &mut meter)?;
         if textures_repeat(path, &text, &options.limits) {
             mesh.repeating_sets = vec![0];
         }
         Ok(ObjAsset { text, meshes: vec![mesh] })
     }
+
+    /// The mesh the scene loader reads from `path`, this file: the vertices its faces use,
+    /// each face split as a fan.
+    pub(crate) fn scene_mesh(&self, path: &Path) -> IndexedMesh {
+        let m = &self.meshes[0];
+        crate::scene::obj::scene_mesh(path, &m.positions, &m.face_starts, &m.face_indices)
+    }
+}
+
+/// The bake's mesh of what was read of an OBJ file, the memory it takes beyond that
+/// charged to `meter`: per-vertex normals when the file has `vn` lines, per-corner texture
+/// coordinates when it has `vt` lines (a corner without one NaN).
+fn asset_mesh(data: ObjData, label: String, path: &Path, meter: &mut Meter) -> Result<AssetMesh> {
+    let corners = data.face_indices.len() as u64;
+    let normals_bytes = if data.normal_count > 0 { 12 * data.positions.len() as u64 + 8 * corners } else { 0 };
+    let uv_bytes = if data.texcoord_count > 0 { 8 * corners } else { 0 };
+    meter.charge(path, normals_bytes + uv_bytes)?;
+    let normals = (data.normal_count > 0).then(|| {
+        let pairs = data.face_indices.iter().zip(&data.corner_normals).filter(|(_, n)| **n != u32::MAX);
+        vertex_normals(data.positions.len(), &data.normals, pairs.map(|(&v, &n)| (v, n)).collect())
+    });
+    let uv_sets = if data.texcoord_count == 0 {
+        Vec::new()
+    } else {
+        let uv = |&k: &u32| data.uvs.get(k as usize).copied().unwrap_or(glam::Vec2::NAN);
+        vec![UvSet { set: 0, corners: data.corner_uvs.iter().map(uv).collect() }]
+    };
+    Ok(AssetMesh {
+        label,
+        positions: data.positions,
+        normals,
+        face_starts: data.face_starts,
+        face_indices: data.face_indices,
+        to_file: glam::Mat3::IDENTITY,
+        uv_sets,
+        uv_v_down: false,
+        material: None,
+        repeating_sets: Vec::new(),
+    })
 }
 
 /// The text of the material library `name` in the folder `dir`, within `limits`; `None`
@@ -176,329 +214,6 @@ fn lines(text: &[u8]) -> impl Iterator<Item = &[u8]> {
 /// The first word of `line`, as `tobj` splits it.
 fn keyword(line: &str) -> Option<&str> {
     line.split_whitespace().next()
-}
-
-/// What the face indices of a file refer to.
-#[derive(Clone, Copy)]
-enum Element {
-    Vertex,
-    TexCoord,
-    Normal,
-}
-
-impl Element {
-    fn name(self) -> &'static str {
-        match self {
-            Element::Vertex => "vertex",
-            Element::TexCoord => "texture coordinate",
-            Element::Normal => "normal",
-        }
-    }
-
-    fn plural(self) -> &'static str {
-        match self {
-            Element::Vertex => "vertices",
-            Element::TexCoord => "texture coordinates",
-            Element::Normal => "normals",
-        }
-    }
-}
-
-/// The largest absolute index a face line gave for one element, and the first line that
-/// gave it: checked against the element's count at the end of the file (`tobj` resolves
-/// indices when a group ends, so a face may name a vertex defined below it).
-#[derive(Clone, Copy, Default)]
-struct LargestIndex {
-    index: u64,
-    line: usize,
-}
-
-/// The parser's state between lines.
-#[derive(Default)]
-struct Parser {
-    positions: Vec<Vec3>,
-    texcoords: usize,
-    /// The `vt` coordinates (u, v; a missing v is 0, a w is ignored).
-    uvs: Vec<glam::Vec2>,
-    /// The `vt` index of every corner (`u32::MAX` for none or one out of range).
-    corner_uvs: Vec<u32>,
-    normals: Vec<Vec3>,
-    face_starts: Vec<u32>,
-    face_indices: Vec<u32>,
-    /// (vertex, normal) of every corner that names a normal.
-    corner_normals: Vec<(u32, u32)>,
-    largest: [LargestIndex; 3],
-    /// The first texture coordinate and normal index out of range, reported only when the
-    /// file has some of them: `tobj` ignores the indices of elements a file has none of.
-    deferred: [Option<ObjError>; 3],
-}
-
-impl Parser {
-    /// The bytes its vectors hold.
-    fn bytes(&self) -> u64 {
-        vec_bytes(&self.positions)
-            + vec_bytes(&self.uvs)
-            + vec_bytes(&self.corner_uvs)
-            + vec_bytes(&self.normals)
-            + vec_bytes(&self.face_starts)
-            + vec_bytes(&self.face_indices)
-            + vec_bytes(&self.corner_normals)
-    }
-
-    fn count(&self, element: Element) -> usize {
-        match element {
-            Element::Vertex => self.positions.len(),
-            Element::TexCoord => self.texcoords,
-            Element::Normal => self.normals.len(),
-        }
-    }
-
-    /// The 0-based index of `word` (1-based, or negative: relative to the elements so far);
-    /// `None` for a texture coordinate or normal index out of range (see `deferred`).
-    fn index(&mut self, word: &str, element: Element, line: usize) -> std::result::Result<Option<u32>, ObjError> {
-        let name = element.name();
-        let i: isize = word.parse().map_err(|_| ObjError::NotAnIndexOf { line, word: word.to_string(), name })?;
-        match (self.resolve(i, element, line), element) {
-            (Ok(index), _) => Ok(Some(index)),
-            (Err(e), Element::Vertex) => Err(e),
-            (Err(e), _) => {
-                self.deferred[element as usize].get_or_insert(e);
-                Ok(None)
-            }
-        }
-    }
-
-    /// The 0-based index of the 1-based or relative index `i`.
-    fn resolve(&mut self, i: isize, element: Element, line: usize) -> std::result::Result<u32, ObjError> {
-        let name = element.name();
-        let count = self.count(element);
-        let index = if i > 0 {
-            let index = i as u64 - 1;
-            let largest = &mut self.largest[element as usize];
-            if i as u64 > largest.index {
-                *largest = LargestIndex { index: i as u64, line };
-            }
-            index
-        } else if i < 0 {
-            count.checked_sub(i.unsigned_abs()).ok_or(ObjError::BeforeFirst { line, name, index: i, count })? as u64
-        } else {
-            return Err(ObjError::IndexZero { line, name });
-        };
-        u32::try_from(index).map_err(|_| ObjError::Beyond32Bits { line, name, index: i })
-    }
-
-    fn vertex(&mut self, text: &str, line: usize) -> std::result::Result<(), ObjError> {
-        let numbers: Vec<&str> = text.split_whitespace().skip(1).collect();
-        if !matches!(numbers.len(), 3 | 4 | 6) {
-            return Err(ObjError::VertexNumbers { line, found: numbers.len() });
-        }
-        // A colour is replaced, not read.
-        if let Some(bad) =
-            numbers.iter().take(if numbers.len() == 4 { 4 } else { 3 }).find(|w| w.parse::<f32>().is_err())
-        {
-            return Err(ObjError::NotANumber { line, word: bad.to_string() });
-        }
-        if numbers.len() == 4 && numbers[3].parse::<f32>() == Ok(0.0) {
-            return Err(ObjError::AtInfinity { line });
-        }
-        let p = parse_vertex_line(text).ok_or(ObjError::InvalidVertex { line })?;
-        if let Some(coordinate) = non_finite_coordinate(p) {
-            return Err(ObjError::NonFinite { vertex: self.positions.len() + 1, line, coordinate });
-        }
-        self.positions.push(p);
-        Ok(())
-    }
-
-    fn normal(&mut self, text: &str, line: usize) -> std::result::Result<(), ObjError> {
-        let mut n = [0.0f32; 3];
-        let mut words = text.split_whitespace().skip(1);
-        for c in &mut n {
-            let word = words.next().ok_or(ObjError::NormalNumbers { line })?;
-            *c = word.parse().map_err(|_| ObjError::NotANumber { line, word: word.to_string() })?;
-        }
-        self.normals.push(Vec3::from_array(n));
-        Ok(())
-    }
-
-    fn face(&mut self, text: &str, line: usize) -> std::result::Result<(), ObjError> {
-        if text.split_whitespace().count() < 4 {
-            // A point or a segment: no surface, and its indices are not resolved, as the
-            // scene loader leaves them.
-            for word in text.split_whitespace().skip(1) {
-                for part in word.split('/').filter(|p| !p.is_empty()) {
-                    part.parse::<isize>().map_err(|_| ObjError::NotAnIndex { line, word: part.to_string() })?;
-                }
-            }
-            return Ok(());
-        }
-        let (start, normals_start) = (self.face_indices.len(), self.corner_normals.len());
-        for word in text.split_whitespace().skip(1) {
-            let mut parts = word.split('/');
-            let v = match parts.next() {
-                Some(v) if !v.is_empty() => self.index(v, Element::Vertex, line)?.unwrap_or_default(),
-                _ => return Err(ObjError::NoVertex { line, corner: word.to_string() }),
-            };
-            let mut uv = u32::MAX;
-            if let Some(vt) = parts.next().filter(|s| !s.is_empty()) {
-                uv = self.index(vt, Element::TexCoord, line)?.unwrap_or(u32::MAX);
-            }
-            self.corner_uvs.push(uv);
-            if let Some(vn) = parts.next().filter(|s| !s.is_empty())
-                && let Some(n) = self.index(vn, Element::Normal, line)?
-            {
-                self.corner_normals.push((v, n));
-            }
-            if parts.next().is_some() {
-                return Err(ObjError::TooManyParts { line, corner: word.to_string() });
-            }
-            self.face_indices.push(v);
-        }
-        if self.face_indices.len() - start < 3 {
-            // A point or a segment: no surface, as the scene loader ignores it.
-            self.face_indices.truncate(start);
-            self.corner_uvs.truncate(start);
-            self.corner_normals.truncate(normals_start);
-            return Ok(());
-        }
-        let end = u32::try_from(self.face_indices.len()).map_err(|_| ObjError::Corners { line })?;
-        if self.face_starts.is_empty() {
-            self.face_starts.push(0);
-        }
-        self.face_starts.push(end);
-        Ok(())
-    }
-
-    /// Checks the indices against the elements of the whole file (a face may name an
-    /// element defined below it); those of texture coordinates and normals only when the
-    /// file has some.
-    fn check_indices(&mut self) -> std::result::Result<(), ObjError> {
-        for element in [Element::Vertex, Element::TexCoord, Element::Normal] {
-            let count = self.count(element);
-            if !matches!(element, Element::Vertex) && count == 0 {
-                continue;
-            }
-            if let Some(e) = self.deferred[element as usize].take() {
-                return Err(e);
-            }
-            let LargestIndex { index, line } = self.largest[element as usize];
-            if index > count as u64 {
-                let (name, plural) = (element.name(), element.plural());
-                return Err(ObjError::OutOfRange { line, name, index, count, plural });
-            }
-        }
-        Ok(())
-    }
-}
-
-/// What is wrong with an OBJ file read for baking: the line and the problem (the reader
-/// adds the file).
-#[derive(Debug, thiserror::Error)]
-enum ObjError {
-    #[error("line {line} is longer than {longest}, the longest line a text file may have")]
-    LongLine { line: usize, longest: String },
-    /// What the file holds is past the read budget.
-    #[error("{}", .0.message())]
-    Budget(Error),
-    #[error("line {line}: '{word}' is not a {name} index")]
-    NotAnIndexOf { line: usize, word: String, name: &'static str },
-    #[error("line {line}: {name} index {index} reaches before the first {name} (only {count} so far)")]
-    BeforeFirst { line: usize, name: &'static str, index: isize, count: usize },
-    #[error("line {line}: {name} index 0 (OBJ counts from 1)")]
-    IndexZero { line: usize, name: &'static str },
-    #[error("line {line}: {name} index {index} is beyond 2^32")]
-    Beyond32Bits { line: usize, name: &'static str, index: isize },
-    #[error("line {line}: {name} index {index} is out of range ({count} {plural})")]
-    OutOfRange { line: usize, name: &'static str, index: u64, count: usize, plural: &'static str },
-    #[error("line {line}: a vertex has 3 coordinates, then a w or a colour (r g b) or nothing; found {found} numbers")]
-    VertexNumbers { line: usize, found: usize },
-    #[error("line {line}: '{word}' is not a number")]
-    NotANumber { line: usize, word: String },
-    #[error("line {line}: w = 0 (a vertex at infinity)")]
-    AtInfinity { line: usize },
-    #[error("line {line}: invalid vertex")]
-    InvalidVertex { line: usize },
-    /// Vertex `vertex` (from 1) with a coordinate (named, with its value) not finite.
-    #[error("vertex {vertex} (line {line}) has a non-finite coordinate ({coordinate})")]
-    NonFinite { vertex: usize, line: usize, coordinate: String },
-    #[error("line {line}: a normal needs 3 numbers")]
-    NormalNumbers { line: usize },
-    #[error("line {line}: a texture coordinate needs 1 to 3 numbers")]
-    TexCoordNumbers { line: usize },
-    #[error("line {line}: '{word}' is not an index")]
-    NotAnIndex { line: usize, word: String },
-    #[error("line {line}: the corner '{corner}' names no vertex")]
-    NoVertex { line: usize, corner: String },
-    #[error("line {line}: the corner '{corner}' has more than v/vt/vn")]
-    TooManyParts { line: usize, corner: String },
-    #[error("line {line}: more than 2^32 corners")]
-    Corners { line: usize },
-    #[error("more than 2^32 vertices")]
-    Vertices,
-}
-
-/// The mesh of an OBJ file's text, what it holds charged to `meter` as it grows (the text
-/// is charged already); an error names the line and the problem.
-fn parse(text: &[u8], label: String, meter: &mut Meter) -> std::result::Result<AssetMesh, ObjError> {
-    let mut parser = Parser::default();
-    let base = meter.used();
-    let budget = |meter: &mut Meter, bytes: u64| meter.hold(Path::new(""), base + bytes).map_err(ObjError::Budget);
-    let longest = meter.limits().line_bytes();
-    for (i, bytes) in lines(text).enumerate() {
-        let line = i + 1;
-        if bytes.len() > longest {
-            return Err(ObjError::LongLine { line, longest: size_text(longest as u64) });
-        }
-        budget(meter, parser.bytes())?;
-        // A comment after the data is not part of it.
-        let text = String::from_utf8_lossy(bytes.split(|&b| b == b'#').next().unwrap_or_default());
-        match keyword(&text) {
-            Some("v") => parser.vertex(&text, line)?,
-            Some("vt") => {
-                parser.texcoords += 1;
-                let mut words = text.split_whitespace().skip(1).map(|w| w.parse::<f32>());
-                let uv = match (words.next(), words.next()) {
-                    (Some(Ok(u)), Some(Ok(v))) => glam::Vec2::new(u, v),
-                    (Some(Ok(u)), None) => glam::Vec2::new(u, 0.0),
-                    _ => return Err(ObjError::TexCoordNumbers { line }),
-                };
-                parser.uvs.push(uv);
-            }
-            Some("vn") => parser.normal(&text, line)?,
-            Some("f") => parser.face(&text, line)?,
-            _ => {}
-        }
-    }
-    parser.check_indices()?;
-    if u32::try_from(parser.positions.len()).is_err() {
-        return Err(ObjError::Vertices);
-    }
-    if parser.face_starts.is_empty() {
-        parser.face_starts.push(0);
-    }
-    // The per-vertex normals and per-corner coordinates made from them.
-    let normals_bytes = if parser.normals.is_empty() { 0 } else { 12 * parser.positions.len() as u64 };
-    let uv_bytes = if parser.uvs.is_empty() { 0 } else { 8 * parser.corner_uvs.len() as u64 };
-    budget(meter, parser.bytes() + normals_bytes + uv_bytes)?;
-    let normals = (!parser.normals.is_empty())
-        .then(|| vertex_normals(parser.positions.len(), &parser.normals, parser.corner_normals));
-    let uv_sets = if parser.uvs.is_empty() {
-        Vec::new()
-    } else {
-        let uv = |&k: &u32| parser.uvs.get(k as usize).copied().unwrap_or(glam::Vec2::NAN);
-        vec![UvSet { set: 0, corners: parser.corner_uvs.iter().map(uv).collect() }]
-    };
-    Ok(AssetMesh {
-        label,
-        positions: parser.positions,
-        normals,
-        face_starts: parser.face_starts,
-        face_indices: parser.face_indices,
-        to_file: glam::Mat3::IDENTITY,
-        uv_sets,
-        uv_v_down: false,
-        material: None,
-        repeating_sets: Vec::new(),
-    })
 }
 
 /// One normal per vertex from the file's `vn`, as the faces' corners name them (OBJ
@@ -742,6 +457,7 @@ impl Asset for ObjAsset {
 mod tests {
     use super::*;
     use crate::scene::ReadLimits;
+    use crate::scene::input::Input;
     use std::io::Read;
     use std::path::PathBuf;
 
@@ -1091,32 +807,41 @@ mod tests {
     fn bad_files_are_refused_in_one_line() {
         let tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
         let cases = [
-            (
-                format!("{tri}v 1 2\n"),
-                "line 4: a vertex has 3 coordinates, then a w or a colour (r g b) or nothing; found 2 numbers",
-            ),
+            (format!("{tri}v 1 2\n"), "line 4: invalid OBJ: a vertex position needs 3 numbers, found 2"),
             (format!("{tri}v 1 2 3 4 5\n"), "found 5 numbers"),
-            (format!("{tri}v 1 x 3\n"), "line 4: 'x' is not a number"),
-            (format!("{tri}v 1 2 3 0\n"), "line 4: w = 0"),
+            (format!("{tri}v 1 x 3\n"), "line 4: invalid OBJ: 'x' is not a number"),
+            (format!("{tri}v 1 2 3 0\n"), "line 4: invalid OBJ: a vertex with w = 0"),
             (format!("{tri}v 1 nan 3\n"), "vertex 4 (line 4) has a non-finite coordinate (y = NaN)"),
             (format!("{tri}v 1e39 0 3\n"), "vertex 4 (line 4) has a non-finite coordinate (x = inf)"),
-            (format!("{tri}vn 0 1\n"), "line 4: a normal needs 3 numbers"),
-            (format!("{tri}vn 0 1 z\n"), "line 4: 'z' is not a number"),
-            (format!("{tri}f 1 2 0\n"), "line 4: vertex index 0 (OBJ counts from 1)"),
-            (format!("{tri}f 1 2 4\n"), "line 4: vertex index 4 is out of range (3 vertices)"),
-            (format!("{tri}f 1 2 -4\n"), "line 4: vertex index -4 reaches before the first vertex (only 3 so far)"),
-            (format!("{tri}f 1 2 3.5\n"), "line 4: '3.5' is not a vertex index"),
+            (format!("{tri}vn 0 1\n"), "line 4: invalid OBJ: a normal needs 3 numbers"),
+            (format!("{tri}vn 0 1 z\n"), "line 4: invalid OBJ: 'z' is not a number"),
+            (format!("{tri}f 1 2 0\n"), "line 4: invalid OBJ: face vertex index out of bounds (0: OBJ counts from 1)"),
+            (format!("{tri}f 1 2 4\n"), "line 4: invalid OBJ: face vertex index out of bounds (4, with 3 vertices)"),
+            (
+                format!("{tri}f 1 2 -4\n"),
+                "line 4: invalid OBJ: face vertex index out of bounds (-4, with 3 vertices before it)",
+            ),
+            (format!("{tri}f 1 2 3.5\n"), "line 4: invalid OBJ: the face corner '3.5' has '3.5', not an index"),
             (
                 format!("{tri}vt 0 0\nf 1/2 2 3\n"),
-                "line 5: texture coordinate index 2 is out of range (1 texture coordinates)",
+                "line 5: invalid OBJ: face texture coordinate index out of bounds (2, with 1 texture coordinates)",
             ),
-            (format!("{tri}f 1/-1 2 3\nvt 0 0\n"), "line 4: texture coordinate index -1 reaches before the first"),
-            (format!("{tri}f 1/x 2 3\n"), "line 4: 'x' is not a texture coordinate index"),
-            (format!("{tri}vn 0 0 1\nf 1//2 2 3\n"), "line 5: normal index 2 is out of range (1 normals)"),
-            (format!("{tri}vn 0 0 1\nf 1//0 2 3\n"), "line 5: normal index 0"),
-            (format!("{tri}f 1/1/1/1 2 3\n"), "line 4: the corner '1/1/1/1' has more than v/vt/vn"),
-            (format!("{tri}f /1 2 3\n"), "line 4: the corner '/1' names no vertex"),
-            (format!("{tri}f 1 2 99999999999\n"), "line 4: vertex index 99999999999"),
+            (
+                format!("{tri}f 1/-1 2 3\nvt 0 0\n"),
+                "line 4: invalid OBJ: face texture coordinate index out of bounds (-1, with 0 texture coordinates before it)",
+            ),
+            (format!("{tri}f 1/x 2 3\n"), "line 4: invalid OBJ: the face corner '1/x' has 'x', not an index"),
+            (
+                format!("{tri}vn 0 0 1\nf 1//2 2 3\n"),
+                "line 5: invalid OBJ: face normal index out of bounds (2, with 1 normals)",
+            ),
+            (format!("{tri}vn 0 0 1\nf 1//0 2 3\n"), "line 5: invalid OBJ: face normal index out of bounds (0"),
+            (format!("{tri}f 1/1/1/1 2 3\n"), "line 4: invalid OBJ: the face corner '1/1/1/1' has more than v/vt/vn"),
+            (format!("{tri}f /1 2 3\n"), "line 4: invalid OBJ: the face corner '/1' names no vertex"),
+            (
+                format!("{tri}f 1 2 99999999999\n"),
+                "line 4: invalid OBJ: face vertex index out of bounds (99999999999, with 3 vertices)",
+            ),
         ];
         for (text, want) in cases {
             let (_dir, path) = file("bad.obj", text.as_bytes());

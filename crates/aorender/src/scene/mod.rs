@@ -36,4 +36,6 @@ pub use input::times_opened;
 #[cfg(feature = "testing")]
 pub use meshes::load_mesh;
 #[cfg(feature = "testing")]
+pub use obj::read_obj_triangles;
+#[cfg(feature = "testing")]
 pub use ply::read_ply_mesh;
