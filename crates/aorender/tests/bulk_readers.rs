@@ -6,9 +6,13 @@
 
 use aorender::scene::{ReadLimits, read_ply_mesh};
 use glam::Vec3;
-use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
+
+#[path = "common/ply_layouts.rs"]
+#[allow(dead_code)]
+mod ply_layouts;
+use ply_layouts::{Layout, endless, write_ply};
 
 type Mesh = (Vec<Vec3>, Vec<[u32; 3]>);
 
@@ -27,121 +31,6 @@ fn agree(path: &Path, limits: &ReadLimits) -> Result<Mesh, String> {
     };
     assert_eq!(bits(&bulk), bits(&reference), "{}", path.display());
     bulk
-}
-
-/// How a test file lays the dragon out.
-#[derive(Clone, Copy, Debug)]
-enum Layout {
-    /// `float x y z`, `list uchar int vertex_indices`, as most writers do.
-    Plain,
-    /// Doubles, a colour between the coordinates, a list after them, a flag and two lists
-    /// in each face, and skipped elements of scalars and of lists.
-    Rich,
-}
-
-/// The dragon's `mesh` written as PLY in `format` ("ascii", "binary_little_endian",
-/// "binary_big_endian") and `layout`.
-fn write_ply(mesh: &Mesh, format: &str, layout: Layout) -> Vec<u8> {
-    let (positions, triangles) = mesh;
-    let (nv, nf) = (positions.len(), triangles.len());
-    let mut header = format!("ply\nformat {format} 1.0\ncomment bulk reader test\n");
-    match layout {
-        Layout::Plain => write!(
-            header,
-            "element vertex {nv}\nproperty float x\nproperty float y\nproperty float z\n\
-             element face {nf}\nproperty list uchar int vertex_indices\n"
-        ),
-        Layout::Rich => write!(
-            header,
-            "element vertex {nv}\nproperty double x\nproperty float y\nproperty uchar red\nproperty double z\n\
-             property list uchar float uv\nelement material 2\nproperty float shine\nproperty short id\n\
-             element face {nf}\nproperty uchar flags\nproperty list ushort uint vertex_index\n\
-             property list char float texcoord\nelement edge 3\nproperty list uint short ends\n"
-        ),
-    }
-    .unwrap();
-    header.push_str("end_header\n");
-    let mut out = header.into_bytes();
-    let ascii = format == "ascii";
-    let big = format == "binary_big_endian";
-    macro_rules! put {
-        ($v:expr, $fmt:literal) => {{
-            let v = $v;
-            if ascii {
-                write!(out, $fmt, v).unwrap();
-            } else if big {
-                out.extend_from_slice(&v.to_be_bytes());
-            } else {
-                out.extend_from_slice(&v.to_le_bytes());
-            }
-        }};
-    }
-    let end = |out: &mut Vec<u8>| {
-        if ascii {
-            out.push(b'\n');
-        }
-    };
-    for (k, p) in positions.iter().enumerate() {
-        match layout {
-            Layout::Plain => {
-                put!(p.x, "{} ");
-                put!(p.y, "{} ");
-                put!(p.z, "{}");
-            }
-            Layout::Rich => {
-                // Some values in exponent form, some doubles that are no f32.
-                put!(f64::from(p.x) + 1e-12, "{:e} ");
-                put!(p.y, "{}\t");
-                put!((k % 256) as u8, "{} ");
-                put!(f64::from(p.z), "{} ");
-                put!(2u8, "{} ");
-                put!(0.5f32, "{} ");
-                put!(-0.25f32, "{}");
-            }
-        }
-        end(&mut out);
-    }
-    if let Layout::Rich = layout {
-        for id in [7i16, -3] {
-            put!(1.5f32, "{} ");
-            put!(id, "{}");
-            end(&mut out);
-        }
-    }
-    for (k, t) in triangles.iter().enumerate() {
-        match layout {
-            Layout::Plain => {
-                put!(3u8, "{} ");
-                for &i in t {
-                    put!(i as i32, "{} ");
-                }
-            }
-            Layout::Rich => {
-                put!(1u8, "{} ");
-                // Every third face a quad of its triangle and the next one's first corner.
-                let quad = k % 3 == 0 && k + 1 < nf;
-                put!(if quad { 4u16 } else { 3 }, "{} ");
-                for &i in t {
-                    put!(i, "{} ");
-                }
-                if quad {
-                    put!(triangles[k + 1][0], "{} ");
-                }
-                put!(1i8, "{} ");
-                put!(0.75f32, "{}");
-            }
-        }
-        end(&mut out);
-    }
-    if let Layout::Rich = layout {
-        for e in 0..3u32 {
-            put!(2u32, "{} ");
-            put!(e as i16, "{} ");
-            put!(-(e as i16), "{}");
-            end(&mut out);
-        }
-    }
-    out
 }
 
 const FORMATS: [&str; 3] = ["ascii", "binary_little_endian", "binary_big_endian"];
@@ -175,12 +64,13 @@ fn the_bulk_readers_give_the_reference_meshes_in_every_layout() {
     let dragon = agree(&root().join("scenes/dragon_vrip_res2.ply.gz"), &limits).unwrap();
     let dir = tempfile::tempdir().unwrap();
     for format in FORMATS {
-        for layout in [Layout::Plain, Layout::Rich] {
+        for layout in [Layout::Plain, Layout::Normals, Layout::Rich] {
             let path = dir.path().join(format!("{format}-{layout:?}.ply"));
-            std::fs::write(&path, write_ply(&dragon, format, layout)).unwrap();
+            std::fs::write(&path, write_ply(&dragon.0, &dragon.1, format, layout)).unwrap();
             let mesh = agree(&path, &limits).unwrap_or_else(|e| panic!("{format} {layout:?}: {e}"));
             let quads = match layout {
                 Layout::Plain => 0,
+                Layout::Normals => (dragon.1.len() - 1).div_ceil(7),
                 Layout::Rich => dragon.1.len().div_ceil(3) - usize::from(dragon.1.len() % 3 == 1),
             };
             assert_eq!(mesh.1.len(), dragon.1.len() + quads, "{format} {layout:?}");
@@ -198,7 +88,7 @@ fn small_files() -> Vec<(String, Vec<u8>, usize)> {
     let mut files = Vec::new();
     for format in FORMATS {
         for layout in [Layout::Plain, Layout::Rich] {
-            let bytes = write_ply(&dragon, format, layout);
+            let bytes = write_ply(&dragon.0, &dragon.1, format, layout);
             let header = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
             files.push((format!("{format}-{layout:?}"), bytes, header));
         }
@@ -280,24 +170,6 @@ fn over_budget_files_fail_as_before() {
     }
 }
 
-/// A pipe that delivers `header` and then `element` for ever, as `name` in `dir`.
-fn endless(dir: &Path, name: &str, header: &str, element: &'static [u8]) -> (PathBuf, std::thread::JoinHandle<()>) {
-    let path = dir.join(name);
-    let c_path = std::ffi::CString::new(path.as_os_str().as_encoded_bytes()).unwrap();
-    // SAFETY: a valid, NUL-terminated path.
-    assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0, "mkfifo");
-    let (writer_path, header) = (path.clone(), header.to_string());
-    let writer = std::thread::spawn(move || {
-        let mut pipe = std::fs::OpenOptions::new().write(true).open(writer_path).unwrap();
-        let block: Vec<u8> = element.iter().copied().cycle().take(element.len() * 4096).collect();
-        // Until the reader stops reading and closes the pipe.
-        if pipe.write_all(header.as_bytes()).is_ok() {
-            while pipe.write_all(&block).is_ok() {}
-        }
-    });
-    (path, writer)
-}
-
 #[test]
 fn endless_input_fails_as_before() {
     let dir = tempfile::tempdir().unwrap();
@@ -360,7 +232,7 @@ fn plain_binary_runs_give_way_to_polygons_bad_indices_and_bad_coordinates_as_bef
     let path = dir.path().join("plain.ply");
     let mut differences = 0;
     for format in ["binary_little_endian", "binary_big_endian"] {
-        let bytes = write_ply(&dragon, format, Layout::Plain);
+        let bytes = write_ply(&dragon.0, &dragon.1, format, Layout::Plain);
         let header = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
         let word = |v: u32| if format == "binary_big_endian" { v.to_be_bytes() } else { v.to_le_bytes() };
         let face = |k: usize| header + nv * 12 + k * 13;
@@ -406,7 +278,7 @@ fn ascii_blocks_read_in_parallel_fail_where_and_as_the_line_at_a_time_reader_fai
     let limits = ReadLimits::with_memory(1 << 30);
     let dragon = agree(&root().join("scenes/dragon_vrip_res2.ply.gz"), &limits).unwrap();
     let (nv, nf) = (dragon.0.len(), dragon.1.len());
-    let text = String::from_utf8(write_ply(&dragon, "ascii", Layout::Plain)).unwrap();
+    let text = String::from_utf8(write_ply(&dragon.0, &dragon.1, "ascii", Layout::Plain)).unwrap();
     let header = text.find("end_header\n").unwrap() + 11;
     let lines: Vec<&str> = text[header..].lines().collect();
     assert_eq!(lines.len(), nv + nf);

@@ -1,0 +1,167 @@
+//! The dragon written as PLY in the layouts and encodings the PLY readers' tests compare
+//! their fast paths on, and endless PLY input through a pipe.
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+
+/// How a test file lays the dragon out.
+#[derive(Clone, Copy, Debug)]
+pub enum Layout {
+    /// `float x y z`, `list uchar int vertex_indices`, as most writers do.
+    Plain,
+    /// Normals and an RGBA colour per vertex; a quad every 7 faces, `uint` indices.
+    Normals,
+    /// Doubles, a colour between the coordinates, a list after them, a flag and two lists
+    /// in each face (a quad every third), and elements of scalars and of lists the mesh
+    /// does not use.
+    Rich,
+}
+
+/// The dragon (`positions`, `triangles`) written as PLY in `format` and `layout`.
+pub fn write_ply(positions: &[glam::Vec3], triangles: &[[u32; 3]], format: &str, layout: Layout) -> Vec<u8> {
+    let (nv, nf) = (positions.len(), triangles.len());
+    let mut header = format!("ply\nformat {format} 1.0\ncomment PLY reader test\n");
+    match layout {
+        Layout::Plain => write!(
+            header,
+            "element vertex {nv}\nproperty float x\nproperty float y\nproperty float z\n\
+             element face {nf}\nproperty list uchar int vertex_indices\n"
+        ),
+        Layout::Normals => write!(
+            header,
+            "element vertex {nv}\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\n\
+             property float ny\nproperty float nz\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n\
+             property uchar alpha\nelement face {nf}\nproperty list uchar uint vertex_indices\n"
+        ),
+        Layout::Rich => write!(
+            header,
+            "element vertex {nv}\nproperty double x\nproperty float y\nproperty uchar red\nproperty double z\n\
+             property list uchar float uv\nelement material 2\nproperty float shine\nproperty short id\n\
+             element face {nf}\nproperty uchar flags\nproperty list ushort uint vertex_index\n\
+             property list char float texcoord\nelement edge 3\nproperty list uint short ends\n"
+        ),
+    }
+    .unwrap();
+    header.push_str("end_header\n");
+    let mut out = header.into_bytes();
+    let ascii = format == "ascii";
+    let big = format == "binary_big_endian";
+    macro_rules! put {
+        ($v:expr, $fmt:literal) => {{
+            let v = $v;
+            if ascii {
+                write!(out, $fmt, v).unwrap();
+            } else if big {
+                out.extend_from_slice(&v.to_be_bytes());
+            } else {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }};
+    }
+    let end = |out: &mut Vec<u8>| {
+        if ascii {
+            out.push(b'\n');
+        }
+    };
+    for (k, p) in positions.iter().enumerate() {
+        match layout {
+            Layout::Plain => {
+                put!(p.x, "{} ");
+                put!(p.y, "{} ");
+                put!(p.z, "{}");
+            }
+            Layout::Normals => {
+                put!(p.x, "{} ");
+                put!(p.y, "{} ");
+                put!(p.z, "{} ");
+                // Not unit length, some in exponent form.
+                put!(p.y * 3.0, "{:e} ");
+                put!(-p.x, "{} ");
+                put!(1.0f32 / (k as f32 + 1.0), "{} ");
+                for c in [(k % 256) as u8, 7, 255, (k / 256 % 256) as u8] {
+                    put!(c, "{} ");
+                }
+            }
+            Layout::Rich => {
+                // Some values in exponent form, some doubles that are no f32.
+                put!(f64::from(p.x) + 1e-12, "{:e} ");
+                put!(p.y, "{}\t");
+                put!((k % 256) as u8, "{} ");
+                put!(f64::from(p.z), "{} ");
+                put!(2u8, "{} ");
+                put!(0.5f32, "{} ");
+                put!(-0.25f32, "{}");
+            }
+        }
+        end(&mut out);
+    }
+    if let Layout::Rich = layout {
+        for id in [7i16, -3] {
+            put!(1.5f32, "{} ");
+            put!(id, "{}");
+            end(&mut out);
+        }
+    }
+    for (k, t) in triangles.iter().enumerate() {
+        match layout {
+            Layout::Plain => {
+                put!(3u8, "{} ");
+                for &i in t {
+                    put!(i as i32, "{} ");
+                }
+            }
+            Layout::Normals => {
+                // Every seventh face a quad of its triangle and the next one's first corner.
+                let quad = k % 7 == 0 && k + 1 < nf;
+                put!(if quad { 4u8 } else { 3 }, "{} ");
+                for &i in t.iter().chain(quad.then(|| &triangles[k + 1][0])) {
+                    put!(i, "{} ");
+                }
+            }
+            Layout::Rich => {
+                put!(1u8, "{} ");
+                let quad = k % 3 == 0 && k + 1 < nf;
+                put!(if quad { 4u16 } else { 3 }, "{} ");
+                for &i in t.iter().chain(quad.then(|| &triangles[k + 1][0])) {
+                    put!(i, "{} ");
+                }
+                put!(2i8, "{} ");
+                put!(0.75f32, "{} ");
+                put!(k as f32, "{}");
+            }
+        }
+        end(&mut out);
+    }
+    if let Layout::Rich = layout {
+        for e in 0..3u32 {
+            put!(2u32, "{} ");
+            put!(e as i16, "{} ");
+            put!(-(e as i16), "{}");
+            end(&mut out);
+        }
+    }
+    out
+}
+
+/// A pipe that delivers `header` and then `element` for ever, as `name` in `dir`.
+pub fn endless(
+    dir: &std::path::Path,
+    name: &str,
+    header: &str,
+    element: &'static [u8],
+) -> (std::path::PathBuf, std::thread::JoinHandle<()>) {
+    let path = dir.join(name);
+    let c_path = std::ffi::CString::new(path.as_os_str().as_encoded_bytes()).unwrap();
+    // SAFETY: a valid, NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0, "mkfifo");
+    let (writer_path, header) = (path.clone(), header.to_string());
+    let writer = std::thread::spawn(move || {
+        let mut pipe = std::fs::OpenOptions::new().write(true).open(writer_path).unwrap();
+        let block: Vec<u8> = element.iter().copied().cycle().take(element.len() * 4096).collect();
+        // Until the reader stops reading and closes the pipe.
+        if pipe.write_all(header.as_bytes()).is_ok() {
+            while pipe.write_all(&block).is_ok() {}
+        }
+    });
+    (path, writer)
+}
