@@ -19,7 +19,7 @@ use super::asset::{
 use crate::error::{Error, Result};
 use crate::output::write_output_with;
 use crate::scene::input::is_gzip as is_gzip_name;
-use crate::scene::input::{Input, LoadOptions, Meter, vec_bytes};
+use crate::scene::input::{Input, LoadOptions, Meter, huge_vec, vec_bytes};
 use crate::scene::mesh::{IndexedMesh, VertexNames};
 use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
 use crate::scene::ply_data::{Ty, ascii_int};
@@ -156,14 +156,14 @@ impl Values {
     /// No values of type `t`, with room for `capacity`.
     fn new(t: &ScalarType, capacity: usize) -> Values {
         match t {
-            ScalarType::Char => Values::Char(Vec::with_capacity(capacity)),
-            ScalarType::UChar => Values::UChar(Vec::with_capacity(capacity)),
-            ScalarType::Short => Values::Short(Vec::with_capacity(capacity)),
-            ScalarType::UShort => Values::UShort(Vec::with_capacity(capacity)),
-            ScalarType::Int => Values::Int(Vec::with_capacity(capacity)),
-            ScalarType::UInt => Values::UInt(Vec::with_capacity(capacity)),
-            ScalarType::Float => Values::Float(Vec::with_capacity(capacity)),
-            ScalarType::Double => Values::Double(Vec::with_capacity(capacity)),
+            ScalarType::Char => Values::Char(huge_vec(capacity)),
+            ScalarType::UChar => Values::UChar(huge_vec(capacity)),
+            ScalarType::Short => Values::Short(huge_vec(capacity)),
+            ScalarType::UShort => Values::UShort(huge_vec(capacity)),
+            ScalarType::Int => Values::Int(huge_vec(capacity)),
+            ScalarType::UInt => Values::UInt(huge_vec(capacity)),
+            ScalarType::Float => Values::Float(huge_vec(capacity)),
+            ScalarType::Double => Values::Double(huge_vec(capacity)),
         }
     }
 
@@ -290,11 +290,31 @@ impl Values {
 #[inline]
 fn gather<T: Scalar, const BIG: bool>(v: &mut Vec<T>, block: &[u8], stride: usize, offset: usize, items: usize) {
     let elements = block.chunks_exact(stride);
-    if items == 1 {
-        v.extend(elements.map(|e| T::at::<BIG>(&e[offset..])));
-    } else {
-        let end = offset + items * T::SIZE;
-        v.extend(elements.flat_map(|e| e[offset..end].chunks_exact(T::SIZE).map(T::at::<BIG>)));
+    match items {
+        // An exact-size iterator: `extend` writes in place, without a check per value.
+        1 => v.extend(elements.map(|e| T::at::<BIG>(&e[offset..]))),
+        2 => gather_n::<T, BIG, 2>(v, elements, offset),
+        3 => gather_n::<T, BIG, 3>(v, elements, offset),
+        4 => gather_n::<T, BIG, 4>(v, elements, offset),
+        _ => {
+            let end = offset + items * T::SIZE;
+            v.extend(elements.flat_map(|e| e[offset..end].chunks_exact(T::SIZE).map(T::at::<BIG>)));
+        }
+    }
+}
+
+/// [`gather`] of `N` values an element (a triangle's indices, a pair of coordinates),
+/// decoded as fixed-size arrays.
+#[inline]
+fn gather_n<T: Scalar, const BIG: bool, const N: usize>(
+    v: &mut Vec<T>,
+    elements: std::slice::ChunksExact<u8>,
+    offset: usize,
+) {
+    v.reserve(elements.len() * N);
+    for e in elements {
+        let e = &e[offset..offset + N * T::SIZE];
+        v.extend_from_slice(&std::array::from_fn::<T, N, _>(|k| T::at::<BIG>(&e[k * T::SIZE..])));
     }
 }
 
@@ -498,7 +518,7 @@ fn columns(def: &ElementDef, capacity: usize) -> Vec<Column> {
         .map(|p| match &p.data_type {
             PropertyType::Scalar(t) => Column { name: p.name.clone(), list: None, values: Values::new(t, capacity) },
             PropertyType::List(count, item) => {
-                let mut starts = Vec::with_capacity(capacity + 1);
+                let mut starts = huge_vec(capacity + 1);
                 starts.push(0);
                 Column {
                     name: p.name.clone(),
@@ -886,9 +906,7 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
     };
     let xyz = scalar_columns(vertex, ["x", "y", "z"]).ok_or_else(|| Error::scene(path, "no x, y or z"))?;
     let positions = match xyz.map(|c| &c.values) {
-        [Values::Float(x), Values::Float(y), Values::Float(z)] => {
-            positions(path, vertex.count, |i| Vec3::new(x[i], y[i], z[i]))?
-        }
+        [Values::Float(x), Values::Float(y), Values::Float(z)] => float_positions(path, x, y, z)?,
         _ => positions(path, vertex.count, |i| Vec3::from(xyz.map(|c| c.values.f32(i))))?,
     };
     let normals = scalar_columns(vertex, ["nx", "ny", "nz"]).map(|n| match n.map(|c| &c.values) {
@@ -963,6 +981,21 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
     })
 }
 
+/// The positions of `float` columns, checked to be finite in one pass over the columns
+/// first; the first non-finite one is reported by [`positions`].
+fn float_positions(path: &Path, x: &[f32], y: &[f32], z: &[f32]) -> Result<Vec<Vec3>> {
+    let count = x.len().min(y.len()).min(z.len());
+    let (x, y, z) = (&x[..count], &y[..count], &z[..count]);
+    // Branch-free, so that it vectorises: a value is finite when its exponent is not all ones.
+    let finite = |v: &[f32]| v.iter().fold(true, |all, c| all & c.is_finite());
+    if !(finite(x) & finite(y) & finite(z)) {
+        return positions(path, count, |i| Vec3::new(x[i], y[i], z[i]));
+    }
+    let mut positions = huge_vec(count);
+    positions.extend(x.iter().zip(y).zip(z).map(|((&x, &y), &z)| Vec3::new(x, y, z)));
+    Ok(positions)
+}
+
 /// The positions `at(0..count)`, each checked to be finite.
 fn positions(path: &Path, count: usize, at: impl Fn(usize) -> Vec3) -> Result<Vec<Vec3>> {
     let mut positions = Vec::with_capacity(count);
@@ -988,6 +1021,9 @@ fn corners<T: Copy>(
     vertex_count: usize,
     index: impl Fn(T) -> i64,
 ) -> Result<(Vec<u32>, Vec<u32>)> {
+    if let Some(faces) = valid_corners(starts, values, vertex_count, &index) {
+        return Ok(faces);
+    }
     let faces = starts.len() - 1;
     let mut face_starts = Vec::with_capacity(faces + 1);
     let mut face_indices = Vec::with_capacity(values.len());
@@ -1013,6 +1049,30 @@ fn corners<T: Copy>(
         face_starts.push(end);
     }
     Ok((face_starts, face_indices))
+}
+
+/// [`corners`] where every face is valid, checked a column at a time (passes without
+/// branches, which vectorise) before the faces are built; `None` where one is not, for
+/// [`corners`] to find and report it.
+fn valid_corners<T: Copy>(
+    starts: &[usize],
+    values: &[T],
+    vertex_count: usize,
+    index: impl Fn(T) -> i64,
+) -> Option<(Vec<u32>, Vec<u32>)> {
+    let corners = *starts.last()?;
+    let values = values.get(..corners)?;
+    let bound = u64::try_from(vertex_count).ok()?.min(1 << 32);
+    // A negative index, as `u64`, is beyond any bound.
+    let in_range = values.iter().fold(true, |all, &v| all & ((index(v) as u64) < bound));
+    let polygons = starts.windows(2).fold(true, |all, w| all & (w[1].wrapping_sub(w[0]) >= 3));
+    if !(in_range && polygons && u32::try_from(corners).is_ok()) {
+        return None;
+    }
+    let (mut face_starts, mut face_indices) = (huge_vec(starts.len()), huge_vec(corners));
+    face_indices.extend(values.iter().map(|&v| index(v) as u32));
+    face_starts.extend(starts.iter().map(|&s| s as u32));
+    Some((face_starts, face_indices))
 }
 
 /// AO as a grey colour channel in type `t`: 0 to 1 for the floating-point types, 0 to 255
