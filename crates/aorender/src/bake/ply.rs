@@ -25,7 +25,7 @@ use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coord
 use crate::scene::ply_data::{Ty, ascii_int};
 use glam::Vec3;
 use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::Path;
 
 /// Bytes gathered before they are handed to the output stream.
@@ -426,15 +426,20 @@ impl PlyAsset {
         let mut input = Input::open(path, &options.limits)?;
         let header = read_header(path, &mut input)?;
         check_header(path, &header)?;
-        let data = input.read_all(path, &mut meter)?;
         let elements = match header.encoding {
-            Encoding::Ascii => read_ascii(path, &header.elements, &data, &mut meter, bulk)?,
+            Encoding::Ascii => {
+                read_ascii(path, &header.elements, &input.read_all(path, &mut meter)?, &mut meter, bulk)?
+            }
             encoding => {
                 let big_endian = encoding == Encoding::BinaryBigEndian;
-                read_binary(path, &header.elements, &data, big_endian, &mut meter, bulk)?
+                let mut data = if bulk && input.is_plain_file() {
+                    Window::blocks(path, &mut input, &mut meter)?
+                } else {
+                    Window::whole(input.read_all(path, &mut meter)?)
+                };
+                read_binary(path, &header.elements, &mut data, big_endian, &mut meter, bulk)?
             }
         };
-        drop(data);
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
         let mesh = mesh(path, &header, &elements, label)?;
         Ok(PlyAsset { meshes: vec![mesh], header, elements })
@@ -553,13 +558,12 @@ fn columns_bytes(elements: &[Element], columns: &[Column]) -> u64 {
 fn read_binary(
     path: &Path,
     defs: &[ElementDef],
-    data: &[u8],
+    data: &mut Window,
     big_endian: bool,
     meter: &mut Meter,
     bulk: bool,
 ) -> Result<Vec<Element>> {
     let base = meter.used();
-    let mut pos = 0;
     let mut elements = Vec::with_capacity(defs.len());
     for def in defs {
         let min_bytes: usize = def
@@ -569,7 +573,7 @@ fn read_binary(
                 PropertyType::Scalar(t) | PropertyType::List(t, _) => scalar_bytes(t),
             })
             .sum();
-        let mut columns = columns(def, capacity(def, data.len() - pos, min_bytes));
+        let mut columns = columns(def, capacity(def, data.remaining(), min_bytes));
         // Elements without properties take no bytes.
         let count = if columns.is_empty() { 0 } else { def.count };
         let mut i = 0;
@@ -577,19 +581,176 @@ fn read_binary(
             // What the columns hold changes only when one grows, which a run never does:
             // one charge before a run is the charge before each of its elements.
             meter.hold(path, base + columns_bytes(&elements, &columns))?;
-            let taken = if bulk { binary_run(&mut columns, data, &mut pos, count - i, big_endian) } else { 0 };
+            let mut pos = 0;
+            let taken = if bulk {
+                data.fill(path, READ_BLOCK_BYTES / 2)?;
+                binary_run(&mut columns, data.rest(), &mut pos, count - i, big_endian)
+            } else {
+                0
+            };
             if taken == 0 {
-                read_binary_element(path, def, i, &mut columns, data, &mut pos, big_endian)?;
+                data.fill_element(path, def, i, &columns, big_endian)?;
+                read_binary_element(path, def, i, &mut columns, data.rest(), &mut pos, big_endian)?;
                 i += 1;
             }
+            data.take(pos);
             i += taken;
         }
         elements.push(Element { name: def.name.clone(), count: def.count, columns });
     }
-    if pos != data.len() {
-        return Err(extra_data(path, pos));
+    data.fill(path, 1)?;
+    if !data.rest().is_empty() {
+        return Err(extra_data(path, data.position()));
     }
     Ok(elements)
+}
+
+/// Bytes of a binary file read at a time into a [`Window`]: large enough that a read
+/// costs little next to decoding it, small enough to stay in the CPU's caches.
+const READ_BLOCK_BYTES: usize = 1 << 20;
+
+/// The data of a binary file, as [`read_binary`] takes it: all of it in memory, or a
+/// plain file read a block at a time into a buffer that is reused, so that the file is
+/// neither copied whole nor faulted into new memory (the columns are what the read
+/// keeps). The blocks are charged as if the whole file were held, as the whole read
+/// charges it, so that both fail alike on a budget.
+struct Window<'a> {
+    /// Where the rest of the data comes from; `None` when `buf` holds all of it.
+    input: Option<&'a mut Input>,
+    buf: Vec<u8>,
+    /// The bytes not taken yet: `buf[start..end]`.
+    start: usize,
+    end: usize,
+    /// Bytes of the data before `buf[0]`.
+    base: usize,
+    /// Bytes the input has yet to deliver, as its length tells.
+    unread: usize,
+}
+
+impl<'a> Window<'a> {
+    /// All the data, read.
+    fn whole(data: Vec<u8>) -> Window<'a> {
+        let end = data.len();
+        Window { input: None, buf: data, start: 0, end, base: 0, unread: 0 }
+    }
+
+    /// The rest of `input` (a plain regular file within the input cap, see
+    /// [`Input::is_plain_file`]), read as it is taken; its length is charged to `meter`
+    /// first, as [`Input::read_all`] charges it.
+    fn blocks(path: &Path, input: &'a mut Input, meter: &mut Meter) -> Result<Window<'a>> {
+        let len = input.remaining_bound();
+        if len > 0 {
+            meter.charge(path, len)?;
+        }
+        let unread = usize::try_from(len).unwrap_or(usize::MAX);
+        let buf = vec![0; READ_BLOCK_BYTES.min(unread)];
+        Ok(Window { input: Some(input), buf, start: 0, end: 0, base: 0, unread })
+    }
+
+    /// The data not taken yet that is at hand.
+    fn rest(&self) -> &[u8] {
+        &self.buf[self.start..self.end]
+    }
+
+    /// Takes the first `n` bytes of [`Window::rest`].
+    fn take(&mut self, n: usize) {
+        self.start += n;
+    }
+
+    /// The offset in the data of the first byte not taken.
+    fn position(&self) -> usize {
+        self.base + self.start
+    }
+
+    /// The bytes of data not taken yet, at hand or still to read.
+    fn remaining(&self) -> usize {
+        (self.end - self.start).saturating_add(self.unread)
+    }
+
+    /// Reads more of the input when fewer than `want` bytes are at hand: as much as the
+    /// buffer holds (at least `want`, the buffer growing where it must), or to the end.
+    fn fill(&mut self, path: &Path, want: usize) -> Result<()> {
+        let Some(input) = self.input.as_deref_mut() else {
+            return Ok(());
+        };
+        let held = self.end - self.start;
+        if held >= want {
+            return Ok(());
+        }
+        self.buf.copy_within(self.start..self.end, 0);
+        self.base += self.start;
+        (self.start, self.end) = (0, held);
+        if want > self.buf.len() {
+            // No more than the file holds: a lying count cannot make it grow further.
+            let grow = want.min(held.saturating_add(self.unread)).max(self.buf.len());
+            self.buf.resize(grow, 0);
+        }
+        while self.end < self.buf.len() {
+            match input.read(&mut self.buf[self.end..]) {
+                Ok(0) => {
+                    self.unread = 0;
+                    self.input = None;
+                    break;
+                }
+                Ok(n) => {
+                    self.end += n;
+                    self.unread = self.unread.saturating_sub(n);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    return Err(Error::scene(path, input.stream_error().map_or_else(|| e.to_string(), str::to_string)));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Reads until element `i` of `def` (of `columns`' shape) is at hand whole, or fails
+    /// as [`read_binary_element`] would on all the data where the data ends inside it.
+    fn fill_element(
+        &mut self,
+        path: &Path,
+        def: &ElementDef,
+        i: usize,
+        columns: &[Column],
+        big_endian: bool,
+    ) -> Result<()> {
+        while self.input.is_some() {
+            let Err(need) = element_bytes(columns, self.rest(), big_endian) else {
+                break;
+            };
+            if need > self.remaining() {
+                return Err(end_of_file(path, def, i));
+            }
+            self.fill(path, need)?;
+        }
+        Ok(())
+    }
+}
+
+/// The bytes of the binary element of `columns`' shape at the start of `bytes`: `Ok` with
+/// its length where they hold it whole, or with 0 where a list count is negative (which
+/// [`read_binary_element`] reports); `Err` with the bytes it takes at least, where they
+/// fall short.
+fn element_bytes(columns: &[Column], bytes: &[u8], big_endian: bool) -> std::result::Result<usize, usize> {
+    let mut at = 0usize;
+    for column in columns {
+        let size = scalar_bytes(&column.values.scalar_type());
+        let Some((count_type, _)) = &column.list else {
+            at = at.saturating_add(size);
+            continue;
+        };
+        let t = Ty::of(count_type);
+        let end = at.saturating_add(t.size());
+        let Some(n) = bytes.get(at..).and_then(|b| count_at(b, t, big_endian)) else {
+            return Err(end);
+        };
+        let Ok(n) = usize::try_from(n) else {
+            return Ok(0);
+        };
+        at = end.saturating_add(n.saturating_mul(size));
+    }
+    if bytes.len() < at { Err(at) } else { Ok(at) }
 }
 
 /// Reads element `i` of `def` at `data[*pos..]` onto `columns`, one value at a time.

@@ -503,6 +503,12 @@ impl Input {
         if self.regular { self.remaining_bound() } else { 0 }
     }
 
+    /// True for a plain (not gzipped) regular file no longer than the input cap: what is
+    /// left of it is known before it is read, and all of it may be read.
+    pub(crate) fn is_plain_file(&self) -> bool {
+        !self.gzip && self.regular && self.max_total <= self.cap
+    }
+
     /// False when the rest of the stream cannot hold `bytes`: a regular file too short (a
     /// pipe or a device may deliver anything).
     pub(crate) fn could_hold(&self, bytes: u64) -> bool {
