@@ -19,7 +19,7 @@ use super::asset::{
 use crate::error::{Error, Result};
 use crate::output::write_output_with;
 use crate::scene::input::is_gzip as is_gzip_name;
-use crate::scene::input::{Input, LoadOptions, Meter, huge_vec, vec_bytes};
+use crate::scene::input::{Input, LoadOptions, Meter, advise_huge_pages, huge_vec, vec_bytes};
 use crate::scene::mesh::{IndexedMesh, VertexNames};
 use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
 use crate::scene::ply_data::{Ty, ascii_int};
@@ -243,6 +243,14 @@ impl Values {
         Ok(())
     }
 
+    /// Makes room for exactly `additional` more values.
+    fn reserve(&mut self, additional: usize) {
+        with_values!(self, v => {
+            v.reserve_exact(additional);
+            advise_huge_pages(v);
+        })
+    }
+
     /// Room for more values without growing.
     fn spare(&self) -> usize {
         with_values!(self, v => v.capacity() - v.len())
@@ -333,8 +341,116 @@ struct Column {
     name: String,
     /// For a list property: the count's type, and where the items of each element start
     /// in `values` (one entry more than there are elements).
-    list: Option<(ScalarType, Vec<usize>)>,
+    list: Option<(ScalarType, Starts)>,
     values: Values,
+}
+
+/// Where the items of each element's list start in its column's values, one entry more
+/// than there are elements: lists of one length throughout (a triangle mesh's faces) as
+/// that length alone, without memory; any other as every entry.
+#[derive(Clone, Debug)]
+enum Starts {
+    /// `len` entries, entry `k` at `k * items` (`items` unknown while there is one entry);
+    /// the entries take `room` entries' memory once they differ.
+    Uniform {
+        items: Option<usize>,
+        len: usize,
+        room: usize,
+    },
+    Explicit(Vec<usize>),
+}
+
+impl Starts {
+    /// The first entry (0), room for `room` entries.
+    fn with_room(room: usize) -> Starts {
+        Starts::Uniform { items: None, len: 1, room }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Starts::Uniform { len, .. } => *len,
+            Starts::Explicit(v) => v.len(),
+        }
+    }
+
+    /// Entry `k`.
+    #[inline]
+    fn get(&self, k: usize) -> usize {
+        match self {
+            Starts::Uniform { items, .. } => k * items.unwrap_or(0),
+            Starts::Explicit(v) => v[k],
+        }
+    }
+
+    fn last(&self) -> usize {
+        self.get(self.len() - 1)
+    }
+
+    fn iter(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.len()).map(|k| self.get(k))
+    }
+
+    /// The bytes it holds.
+    fn bytes(&self) -> u64 {
+        match self {
+            Starts::Uniform { .. } => 0,
+            Starts::Explicit(v) => vec_bytes(v),
+        }
+    }
+
+    /// Lists of `items` items it can take without taking memory.
+    fn room_for(&self, items: usize) -> usize {
+        match self {
+            Starts::Uniform { items: None, .. } => usize::MAX,
+            Starts::Uniform { items: Some(n), .. } => {
+                if *n == items {
+                    usize::MAX
+                } else {
+                    0
+                }
+            }
+            Starts::Explicit(v) => v.capacity() - v.len(),
+        }
+    }
+
+    /// Appends the entry `end` (the end of one more list).
+    fn push(&mut self, end: usize) {
+        self.extend(1, end - self.last());
+    }
+
+    /// Appends `n` lists of `items` items each.
+    fn extend(&mut self, n: usize, items: usize) {
+        if let Starts::Uniform { items: uniform, len, room } = self {
+            match uniform {
+                Some(k) if *k != items => {
+                    let mut v = huge_vec((*room).max(*len));
+                    v.extend((0..*len).map(|i| i * *k));
+                    *self = Starts::Explicit(v);
+                }
+                _ => {
+                    *uniform = Some(items);
+                    *len += n;
+                    return;
+                }
+            }
+        }
+        if let Starts::Explicit(v) = self {
+            let first = v.last().copied().unwrap_or(0);
+            v.extend((1..=n).map(|k| first + k * items));
+        }
+    }
+}
+
+impl PartialEq for Starts {
+    fn eq(&self, other: &Starts) -> bool {
+        self.len() == other.len() && self.iter().eq(other.iter())
+    }
+}
+
+impl From<Vec<usize>> for Starts {
+    fn from(v: Vec<usize>) -> Starts {
+        Starts::Explicit(v)
+    }
 }
 
 impl Column {
@@ -345,13 +461,13 @@ impl Column {
 
     /// The bytes it holds.
     fn bytes(&self) -> u64 {
-        self.values.bytes() + self.list.as_ref().map_or(0, |(_, starts)| vec_bytes(starts))
+        self.values.bytes() + self.list.as_ref().map_or(0, |(_, starts)| starts.bytes())
     }
 
     /// The items of element `i`'s list (all of `values` for a scalar property).
     fn items(&self, i: usize) -> std::ops::Range<usize> {
         match &self.list {
-            Some((_, starts)) => starts[i]..starts[i + 1],
+            Some((_, starts)) => starts.get(i)..starts.get(i + 1),
             None => i..i + 1,
         }
     }
@@ -468,7 +584,7 @@ impl PlyAsset {
             for column in &element.columns {
                 out.extend_from_slice(column.header_line().as_bytes());
                 if let Some((_, starts)) = &column.list {
-                    starts.iter().for_each(|&s| out.extend_from_slice(&(s as u64).to_le_bytes()));
+                    starts.iter().for_each(|s| out.extend_from_slice(&(s as u64).to_le_bytes()));
                 }
                 (0..column.values.len()).for_each(|i| column.values.put_le(i, &mut out));
             }
@@ -518,17 +634,21 @@ fn check_header(path: &Path, header: &PlyHeader) -> Result<()> {
 
 /// Empty columns for `def`'s properties, with room for `capacity` elements.
 fn columns(def: &ElementDef, capacity: usize) -> Vec<Column> {
+    columns_with(def, capacity, capacity)
+}
+
+/// [`columns`], with room for `list_items` items in each list.
+fn columns_with(def: &ElementDef, capacity: usize, list_items: usize) -> Vec<Column> {
     def.properties
         .values()
         .map(|p| match &p.data_type {
             PropertyType::Scalar(t) => Column { name: p.name.clone(), list: None, values: Values::new(t, capacity) },
             PropertyType::List(count, item) => {
-                let mut starts = huge_vec(capacity + 1);
-                starts.push(0);
+                let starts = Starts::with_room(capacity + 1);
                 Column {
                     name: p.name.clone(),
                     list: Some((count.clone(), starts)),
-                    values: Values::new(item, capacity),
+                    values: Values::new(item, list_items),
                 }
             }
         })
@@ -573,7 +693,8 @@ fn read_binary(
                 PropertyType::Scalar(t) | PropertyType::List(t, _) => scalar_bytes(t),
             })
             .sum();
-        let mut columns = columns(def, capacity(def, data.remaining(), min_bytes));
+        // A list's items are reserved by its first element (`read_binary_element`).
+        let mut columns = columns_with(def, capacity(def, data.remaining(), min_bytes), 0);
         // Elements without properties take no bytes.
         let count = if columns.is_empty() { 0 } else { def.count };
         let mut i = 0;
@@ -590,7 +711,8 @@ fn read_binary(
             };
             if taken == 0 {
                 data.fill_element(path, def, i, &columns, big_endian)?;
-                read_binary_element(path, def, i, &mut columns, data.rest(), &mut pos, big_endian)?;
+                let unread = data.remaining() - data.rest().len();
+                read_binary_element(path, def, i, &mut columns, data.rest(), unread, &mut pos, big_endian)?;
                 i += 1;
             }
             data.take(pos);
@@ -753,13 +875,17 @@ fn element_bytes(columns: &[Column], bytes: &[u8], big_endian: bool) -> std::res
     if bytes.len() < at { Err(at) } else { Ok(at) }
 }
 
-/// Reads element `i` of `def` at `data[*pos..]` onto `columns`, one value at a time.
+/// Reads element `i` of `def` at `data[*pos..]` onto `columns`, one value at a time;
+/// `unread` more bytes of data follow `data`. A list that outgrows its column makes room
+/// for the elements left.
+#[allow(clippy::too_many_arguments)]
 fn read_binary_element(
     path: &Path,
     def: &ElementDef,
     i: usize,
     columns: &mut [Column],
     data: &[u8],
+    unread: usize,
     pos: &mut usize,
     big_endian: bool,
 ) -> Result<()> {
@@ -772,7 +898,8 @@ fn read_binary_element(
         n.push_binary(data, pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
         let n = n.integer(0).unwrap_or(0);
         let item_bytes = scalar_bytes(&column.values.scalar_type());
-        let Some(n) = usize::try_from(n).ok().filter(|n| n.saturating_mul(item_bytes) <= data.len() - *pos) else {
+        let left = (data.len() - *pos).saturating_add(unread);
+        let Some(n) = usize::try_from(n).ok().filter(|n| n.saturating_mul(item_bytes) <= left) else {
             return Err(if n < 0 {
                 let message = format!("{} {i} of {}: list {} has {n} items", def.name, def.count, column.name);
                 Error::scene(path, message)
@@ -780,6 +907,12 @@ fn read_binary_element(
                 end_of_file(path, def, i)
             });
         };
+        if column.values.spare() < n {
+            // Room for the elements left at this one's length, as far as the data left
+            // could hold them: the items of most files' lists in one allocation.
+            let most = left / item_bytes;
+            column.values.reserve(def.count.saturating_sub(i).saturating_mul(n).min(most).max(n));
+        }
         for _ in 0..n {
             column.values.push_binary(data, pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
         }
@@ -835,7 +968,7 @@ fn binary_run(columns: &mut [Column], data: &[u8], pos: &mut usize, most: usize,
     for (column, &(_, items)) in columns.iter().zip(&shape) {
         n = n.min(column.values.spare().checked_div(items).unwrap_or(usize::MAX));
         if let Some((_, starts)) = &column.list {
-            n = n.min(starts.capacity() - starts.len());
+            n = n.min(starts.room_for(items));
         }
     }
     if !lists.is_empty() {
@@ -849,8 +982,7 @@ fn binary_run(columns: &mut [Column], data: &[u8], pos: &mut usize, most: usize,
     for (column, &(offset, items)) in columns.iter_mut().zip(&shape) {
         column.values.extend_from_elements(block, stride, offset, items, big_endian);
         if let Some((_, starts)) = &mut column.list {
-            let first = starts.last().copied().unwrap_or(0);
-            starts.extend((1..=n).map(|k| first + k * items));
+            starts.extend(n, items);
         }
     }
     *pos += n * stride;
@@ -1027,7 +1159,7 @@ fn read_ascii_line<'l>(
 fn columns_like(columns: &[Column], capacity: usize) -> Vec<Column> {
     let like = |c: &Column| Column {
         name: c.name.clone(),
-        list: c.list.as_ref().map(|(count, _)| (count.clone(), vec![0])),
+        list: c.list.as_ref().map(|(count, _)| (count.clone(), Starts::with_room(1))),
         values: Values::new(&c.values.scalar_type(), capacity),
     };
     columns.iter().map(like).collect()
@@ -1039,7 +1171,7 @@ fn append_columns(columns: &mut [Column], block: Vec<Column>) {
     for (column, part) in columns.iter_mut().zip(block) {
         let offset = column.values.len();
         if let (Some((_, starts)), Some((_, more))) = (&mut column.list, &part.list) {
-            starts.extend(more[1..].iter().map(|s| s + offset));
+            more.iter().skip(1).for_each(|s| starts.push(s + offset));
         }
         column.values.append(part.values);
     }
@@ -1079,11 +1211,11 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
 
     let face_def = header.element("face").ok_or_else(|| Error::scene(path, "no face element"))?;
     let list = column(face, &index_list_name(path, face_def)?).ok_or_else(|| Error::scene(path, "no face list"))?;
-    let scalar_starts: Vec<usize>;
+    let scalar_starts: Starts;
     let starts = match &list.list {
         Some((_, starts)) => starts,
         None => {
-            scalar_starts = (0..=face.count).collect();
+            scalar_starts = Starts::Uniform { items: Some(1), len: face.count + 1, room: 0 };
             &scalar_starts
         }
     };
@@ -1177,7 +1309,7 @@ fn positions(path: &Path, count: usize, at: impl Fn(usize) -> Vec3) -> Result<Ve
 /// each naming one of the `vertex_count` vertices. The faces' starts and their corners.
 fn corners<T: Copy>(
     path: &Path,
-    starts: &[usize],
+    starts: &Starts,
     values: &[T],
     vertex_count: usize,
     index: impl Fn(T) -> i64,
@@ -1185,6 +1317,7 @@ fn corners<T: Copy>(
     if let Some(faces) = valid_corners(starts, values, vertex_count, &index) {
         return Ok(faces);
     }
+    let starts: Vec<usize> = starts.iter().collect();
     let faces = starts.len() - 1;
     let mut face_starts = Vec::with_capacity(faces + 1);
     let mut face_indices = Vec::with_capacity(values.len());
@@ -1216,23 +1349,32 @@ fn corners<T: Copy>(
 /// branches, which vectorise) before the faces are built; `None` where one is not, for
 /// [`corners`] to find and report it.
 fn valid_corners<T: Copy>(
-    starts: &[usize],
+    starts: &Starts,
     values: &[T],
     vertex_count: usize,
     index: impl Fn(T) -> i64,
 ) -> Option<(Vec<u32>, Vec<u32>)> {
-    let corners = *starts.last()?;
+    let corners = starts.last();
     let values = values.get(..corners)?;
     let bound = u64::try_from(vertex_count).ok()?.min(1 << 32);
     // A negative index, as `u64`, is beyond any bound.
     let in_range = values.iter().fold(true, |all, &v| all & ((index(v) as u64) < bound));
-    let polygons = starts.windows(2).fold(true, |all, w| all & (w[1].wrapping_sub(w[0]) >= 3));
+    let polygons = match starts {
+        Starts::Uniform { items, .. } => items.is_none_or(|n| n >= 3),
+        Starts::Explicit(v) => v.windows(2).fold(true, |all, w| all & (w[1].wrapping_sub(w[0]) >= 3)),
+    };
     if !(in_range && polygons && u32::try_from(corners).is_ok()) {
         return None;
     }
     let (mut face_starts, mut face_indices) = (huge_vec(starts.len()), huge_vec(corners));
     face_indices.extend(values.iter().map(|&v| index(v) as u32));
-    face_starts.extend(starts.iter().map(|&s| s as u32));
+    match starts {
+        Starts::Uniform { items, len, .. } => {
+            let n = items.unwrap_or(0) as u32;
+            face_starts.extend((0..*len as u32).map(|k| k * n));
+        }
+        Starts::Explicit(v) => face_starts.extend(v.iter().map(|&s| s as u32)),
+    }
     Some((face_starts, face_indices))
 }
 
@@ -1349,11 +1491,11 @@ impl Asset for PlyAsset {
                 return Err(Error::output(path, "the file has texture coordinates of its own: PLY holds one set"));
             }
             let mesh = &self.meshes[0];
-            let starts = mesh.face_starts.iter().map(|&s| 2 * s as usize).collect();
+            let starts: Vec<usize> = mesh.face_starts.iter().map(|&s| 2 * s as usize).collect();
             let values = uvs.corners.iter().flat_map(|&k| uvs.uvs[k as usize].to_array()).collect();
             added.push(Column {
                 name: "texcoord".to_string(),
-                list: Some((ScalarType::UChar, starts)),
+                list: Some((ScalarType::UChar, Starts::from(starts))),
                 values: Values::Float(values),
             });
         }
