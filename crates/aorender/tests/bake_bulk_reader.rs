@@ -272,3 +272,57 @@ fn endless_input_fails_as_before() {
         assert!(messages[1].contains(&format!("endless-{k}.ply")), "case {k}: {}", messages[1]);
     }
 }
+
+#[test]
+fn elements_across_read_blocks_read_and_fail_as_the_whole_file_does() {
+    // A plain file is read a block of 1 MiB at a time: vertices with lists of up to 3 MiB
+    // and 200,000 faces (2.6 MB, a pentagon every 10,000) span several blocks.
+    let limits = ReadLimits::with_memory(1 << 30);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("blocks.ply");
+    let blobs = [5usize, (3 << 20) + 7, 0, (1 << 20) - 3, 11];
+    let faces = 200_000;
+    let header = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
+         property float z\nproperty list int uchar blob\nelement face {faces}\n\
+         property list uchar int vertex_indices\nend_header\n",
+        blobs.len()
+    );
+    let mut bytes = header.as_bytes().to_vec();
+    let mut counts = Vec::new();
+    for (k, &blob) in blobs.iter().enumerate() {
+        [k as f32, 0.5, -(k as f32)].iter().for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+        counts.push(bytes.len());
+        bytes.extend_from_slice(&(blob as i32).to_le_bytes());
+        bytes.extend((0..blob).map(|b| (b % 251) as u8));
+    }
+    let first_face = bytes.len();
+    for f in 0..faces {
+        let corners = if f % 10_000 == 9_999 { 5 } else { 3 };
+        bytes.push(corners as u8);
+        (0..corners).for_each(|c| bytes.extend_from_slice(&(((f + c) % blobs.len()) as i32).to_le_bytes()));
+    }
+    let read = |bytes: &[u8]| {
+        std::fs::write(&path, bytes).unwrap();
+        agree(&path, &limits)
+    };
+    read(&bytes).unwrap();
+    // Cut inside the long lists, between and inside faces, one byte short.
+    for k in 1..=40 {
+        let end = header.len() + (bytes.len() - header.len()) * k / 41 + k % 7;
+        let message = read(&bytes[..end]).unwrap_err();
+        assert!(message.contains("blocks.ply") && message.contains("unexpected end of file"), "{end}: {message}");
+    }
+    assert!(read(&bytes[..bytes.len() - 1]).unwrap_err().contains(&format!("face {} of {faces}", faces - 1)));
+    // A list count beyond the end of the file, a negative one, data after the last face.
+    let patched = |at: usize, count: i32| {
+        let mut bad = bytes.clone();
+        bad[at..at + 4].copy_from_slice(&count.to_le_bytes());
+        read(&bad).unwrap_err()
+    };
+    assert!(patched(counts[1], i32::MAX).contains("unexpected end of file in vertex 1 of 5"));
+    assert!(patched(counts[3], -5).contains("vertex 3 of 5: list blob has -5 items"));
+    let extra = read(&[&bytes[..], &[3, 0, 0, 0, 0]].concat()).unwrap_err();
+    assert!(extra.contains(&format!("data after the last element at byte {}", bytes.len() - header.len())), "{extra}");
+    assert!(first_face > 4 << 20, "the vertices span four blocks");
+}

@@ -19,13 +19,13 @@ use super::asset::{
 use crate::error::{Error, Result};
 use crate::output::write_output_with;
 use crate::scene::input::is_gzip as is_gzip_name;
-use crate::scene::input::{Input, LoadOptions, Meter, vec_bytes};
+use crate::scene::input::{Input, LoadOptions, Meter, advise_huge_pages, huge_vec, vec_bytes};
 use crate::scene::mesh::{IndexedMesh, VertexNames};
 use crate::scene::ply::{HeaderLine, PlyHeader, index_list_name, non_finite_coordinate, read_header};
 use crate::scene::ply_data::{Ty, ascii_int};
 use glam::Vec3;
 use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
-use std::io::Write;
+use std::io::{Read, Write};
 use std::path::Path;
 
 /// Bytes gathered before they are handed to the output stream.
@@ -156,14 +156,14 @@ impl Values {
     /// No values of type `t`, with room for `capacity`.
     fn new(t: &ScalarType, capacity: usize) -> Values {
         match t {
-            ScalarType::Char => Values::Char(Vec::with_capacity(capacity)),
-            ScalarType::UChar => Values::UChar(Vec::with_capacity(capacity)),
-            ScalarType::Short => Values::Short(Vec::with_capacity(capacity)),
-            ScalarType::UShort => Values::UShort(Vec::with_capacity(capacity)),
-            ScalarType::Int => Values::Int(Vec::with_capacity(capacity)),
-            ScalarType::UInt => Values::UInt(Vec::with_capacity(capacity)),
-            ScalarType::Float => Values::Float(Vec::with_capacity(capacity)),
-            ScalarType::Double => Values::Double(Vec::with_capacity(capacity)),
+            ScalarType::Char => Values::Char(huge_vec(capacity)),
+            ScalarType::UChar => Values::UChar(huge_vec(capacity)),
+            ScalarType::Short => Values::Short(huge_vec(capacity)),
+            ScalarType::UShort => Values::UShort(huge_vec(capacity)),
+            ScalarType::Int => Values::Int(huge_vec(capacity)),
+            ScalarType::UInt => Values::UInt(huge_vec(capacity)),
+            ScalarType::Float => Values::Float(huge_vec(capacity)),
+            ScalarType::Double => Values::Double(huge_vec(capacity)),
         }
     }
 
@@ -243,6 +243,14 @@ impl Values {
         Ok(())
     }
 
+    /// Makes room for exactly `additional` more values.
+    fn reserve(&mut self, additional: usize) {
+        with_values!(self, v => {
+            v.reserve_exact(additional);
+            advise_huge_pages(v);
+        })
+    }
+
     /// Room for more values without growing.
     fn spare(&self) -> usize {
         with_values!(self, v => v.capacity() - v.len())
@@ -290,11 +298,31 @@ impl Values {
 #[inline]
 fn gather<T: Scalar, const BIG: bool>(v: &mut Vec<T>, block: &[u8], stride: usize, offset: usize, items: usize) {
     let elements = block.chunks_exact(stride);
-    if items == 1 {
-        v.extend(elements.map(|e| T::at::<BIG>(&e[offset..])));
-    } else {
-        let end = offset + items * T::SIZE;
-        v.extend(elements.flat_map(|e| e[offset..end].chunks_exact(T::SIZE).map(T::at::<BIG>)));
+    match items {
+        // An exact-size iterator: `extend` writes in place, without a check per value.
+        1 => v.extend(elements.map(|e| T::at::<BIG>(&e[offset..]))),
+        2 => gather_n::<T, BIG, 2>(v, elements, offset),
+        3 => gather_n::<T, BIG, 3>(v, elements, offset),
+        4 => gather_n::<T, BIG, 4>(v, elements, offset),
+        _ => {
+            let end = offset + items * T::SIZE;
+            v.extend(elements.flat_map(|e| e[offset..end].chunks_exact(T::SIZE).map(T::at::<BIG>)));
+        }
+    }
+}
+
+/// [`gather`] of `N` values an element (a triangle's indices, a pair of coordinates),
+/// decoded as fixed-size arrays.
+#[inline]
+fn gather_n<T: Scalar, const BIG: bool, const N: usize>(
+    v: &mut Vec<T>,
+    elements: std::slice::ChunksExact<u8>,
+    offset: usize,
+) {
+    v.reserve(elements.len() * N);
+    for e in elements {
+        let e = &e[offset..offset + N * T::SIZE];
+        v.extend_from_slice(&std::array::from_fn::<T, N, _>(|k| T::at::<BIG>(&e[k * T::SIZE..])));
     }
 }
 
@@ -313,8 +341,116 @@ struct Column {
     name: String,
     /// For a list property: the count's type, and where the items of each element start
     /// in `values` (one entry more than there are elements).
-    list: Option<(ScalarType, Vec<usize>)>,
+    list: Option<(ScalarType, Starts)>,
     values: Values,
+}
+
+/// Where the items of each element's list start in its column's values, one entry more
+/// than there are elements: lists of one length throughout (a triangle mesh's faces) as
+/// that length alone, without memory; any other as every entry.
+#[derive(Clone, Debug)]
+enum Starts {
+    /// `len` entries, entry `k` at `k * items` (`items` unknown while there is one entry);
+    /// the entries take `room` entries' memory once they differ.
+    Uniform {
+        items: Option<usize>,
+        len: usize,
+        room: usize,
+    },
+    Explicit(Vec<usize>),
+}
+
+impl Starts {
+    /// The first entry (0), room for `room` entries.
+    fn with_room(room: usize) -> Starts {
+        Starts::Uniform { items: None, len: 1, room }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Starts::Uniform { len, .. } => *len,
+            Starts::Explicit(v) => v.len(),
+        }
+    }
+
+    /// Entry `k`.
+    #[inline]
+    fn get(&self, k: usize) -> usize {
+        match self {
+            Starts::Uniform { items, .. } => k * items.unwrap_or(0),
+            Starts::Explicit(v) => v[k],
+        }
+    }
+
+    fn last(&self) -> usize {
+        self.get(self.len() - 1)
+    }
+
+    fn iter(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.len()).map(|k| self.get(k))
+    }
+
+    /// The bytes it holds.
+    fn bytes(&self) -> u64 {
+        match self {
+            Starts::Uniform { .. } => 0,
+            Starts::Explicit(v) => vec_bytes(v),
+        }
+    }
+
+    /// Lists of `items` items it can take without taking memory.
+    fn room_for(&self, items: usize) -> usize {
+        match self {
+            Starts::Uniform { items: None, .. } => usize::MAX,
+            Starts::Uniform { items: Some(n), .. } => {
+                if *n == items {
+                    usize::MAX
+                } else {
+                    0
+                }
+            }
+            Starts::Explicit(v) => v.capacity() - v.len(),
+        }
+    }
+
+    /// Appends the entry `end` (the end of one more list).
+    fn push(&mut self, end: usize) {
+        self.extend(1, end - self.last());
+    }
+
+    /// Appends `n` lists of `items` items each.
+    fn extend(&mut self, n: usize, items: usize) {
+        if let Starts::Uniform { items: uniform, len, room } = self {
+            match uniform {
+                Some(k) if *k != items => {
+                    let mut v = huge_vec((*room).max(*len));
+                    v.extend((0..*len).map(|i| i * *k));
+                    *self = Starts::Explicit(v);
+                }
+                _ => {
+                    *uniform = Some(items);
+                    *len += n;
+                    return;
+                }
+            }
+        }
+        if let Starts::Explicit(v) = self {
+            let first = v.last().copied().unwrap_or(0);
+            v.extend((1..=n).map(|k| first + k * items));
+        }
+    }
+}
+
+impl PartialEq for Starts {
+    fn eq(&self, other: &Starts) -> bool {
+        self.len() == other.len() && self.iter().eq(other.iter())
+    }
+}
+
+impl From<Vec<usize>> for Starts {
+    fn from(v: Vec<usize>) -> Starts {
+        Starts::Explicit(v)
+    }
 }
 
 impl Column {
@@ -325,13 +461,13 @@ impl Column {
 
     /// The bytes it holds.
     fn bytes(&self) -> u64 {
-        self.values.bytes() + self.list.as_ref().map_or(0, |(_, starts)| vec_bytes(starts))
+        self.values.bytes() + self.list.as_ref().map_or(0, |(_, starts)| starts.bytes())
     }
 
     /// The items of element `i`'s list (all of `values` for a scalar property).
     fn items(&self, i: usize) -> std::ops::Range<usize> {
         match &self.list {
-            Some((_, starts)) => starts[i]..starts[i + 1],
+            Some((_, starts)) => starts.get(i)..starts.get(i + 1),
             None => i..i + 1,
         }
     }
@@ -406,15 +542,20 @@ impl PlyAsset {
         let mut input = Input::open(path, &options.limits)?;
         let header = read_header(path, &mut input)?;
         check_header(path, &header)?;
-        let data = input.read_all(path, &mut meter)?;
         let elements = match header.encoding {
-            Encoding::Ascii => read_ascii(path, &header.elements, &data, &mut meter, bulk)?,
+            Encoding::Ascii => {
+                read_ascii(path, &header.elements, &input.read_all(path, &mut meter)?, &mut meter, bulk)?
+            }
             encoding => {
                 let big_endian = encoding == Encoding::BinaryBigEndian;
-                read_binary(path, &header.elements, &data, big_endian, &mut meter, bulk)?
+                let mut data = if bulk && input.is_plain_file() {
+                    Window::blocks(path, &mut input, &mut meter)?
+                } else {
+                    Window::whole(input.read_all(path, &mut meter)?)
+                };
+                read_binary(path, &header.elements, &mut data, big_endian, &mut meter, bulk)?
             }
         };
-        drop(data);
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
         let mesh = mesh(path, &header, &elements, label)?;
         Ok(PlyAsset { meshes: vec![mesh], header, elements })
@@ -443,7 +584,7 @@ impl PlyAsset {
             for column in &element.columns {
                 out.extend_from_slice(column.header_line().as_bytes());
                 if let Some((_, starts)) = &column.list {
-                    starts.iter().for_each(|&s| out.extend_from_slice(&(s as u64).to_le_bytes()));
+                    starts.iter().for_each(|s| out.extend_from_slice(&(s as u64).to_le_bytes()));
                 }
                 (0..column.values.len()).for_each(|i| column.values.put_le(i, &mut out));
             }
@@ -493,17 +634,21 @@ fn check_header(path: &Path, header: &PlyHeader) -> Result<()> {
 
 /// Empty columns for `def`'s properties, with room for `capacity` elements.
 fn columns(def: &ElementDef, capacity: usize) -> Vec<Column> {
+    columns_with(def, capacity, capacity)
+}
+
+/// [`columns`], with room for `list_items` items in each list.
+fn columns_with(def: &ElementDef, capacity: usize, list_items: usize) -> Vec<Column> {
     def.properties
         .values()
         .map(|p| match &p.data_type {
             PropertyType::Scalar(t) => Column { name: p.name.clone(), list: None, values: Values::new(t, capacity) },
             PropertyType::List(count, item) => {
-                let mut starts = Vec::with_capacity(capacity + 1);
-                starts.push(0);
+                let starts = Starts::with_room(capacity + 1);
                 Column {
                     name: p.name.clone(),
                     list: Some((count.clone(), starts)),
-                    values: Values::new(item, capacity),
+                    values: Values::new(item, list_items),
                 }
             }
         })
@@ -533,13 +678,12 @@ fn columns_bytes(elements: &[Element], columns: &[Column]) -> u64 {
 fn read_binary(
     path: &Path,
     defs: &[ElementDef],
-    data: &[u8],
+    data: &mut Window,
     big_endian: bool,
     meter: &mut Meter,
     bulk: bool,
 ) -> Result<Vec<Element>> {
     let base = meter.used();
-    let mut pos = 0;
     let mut elements = Vec::with_capacity(defs.len());
     for def in defs {
         let min_bytes: usize = def
@@ -549,7 +693,8 @@ fn read_binary(
                 PropertyType::Scalar(t) | PropertyType::List(t, _) => scalar_bytes(t),
             })
             .sum();
-        let mut columns = columns(def, capacity(def, data.len() - pos, min_bytes));
+        // A list's items are reserved by its first element (`read_binary_element`).
+        let mut columns = columns_with(def, capacity(def, data.remaining(), min_bytes), 0);
         // Elements without properties take no bytes.
         let count = if columns.is_empty() { 0 } else { def.count };
         let mut i = 0;
@@ -557,28 +702,190 @@ fn read_binary(
             // What the columns hold changes only when one grows, which a run never does:
             // one charge before a run is the charge before each of its elements.
             meter.hold(path, base + columns_bytes(&elements, &columns))?;
-            let taken = if bulk { binary_run(&mut columns, data, &mut pos, count - i, big_endian) } else { 0 };
+            let mut pos = 0;
+            let taken = if bulk {
+                data.fill(path, READ_BLOCK_BYTES / 2)?;
+                binary_run(&mut columns, data.rest(), &mut pos, count - i, big_endian)
+            } else {
+                0
+            };
             if taken == 0 {
-                read_binary_element(path, def, i, &mut columns, data, &mut pos, big_endian)?;
+                data.fill_element(path, def, i, &columns, big_endian)?;
+                let unread = data.remaining() - data.rest().len();
+                read_binary_element(path, def, i, &mut columns, data.rest(), unread, &mut pos, big_endian)?;
                 i += 1;
             }
+            data.take(pos);
             i += taken;
         }
         elements.push(Element { name: def.name.clone(), count: def.count, columns });
     }
-    if pos != data.len() {
-        return Err(extra_data(path, pos));
+    data.fill(path, 1)?;
+    if !data.rest().is_empty() {
+        return Err(extra_data(path, data.position()));
     }
     Ok(elements)
 }
 
-/// Reads element `i` of `def` at `data[*pos..]` onto `columns`, one value at a time.
+/// Bytes of a binary file read at a time into a [`Window`]: large enough that a read
+/// costs little next to decoding it, small enough to stay in the CPU's caches.
+const READ_BLOCK_BYTES: usize = 1 << 20;
+
+/// The data of a binary file, as [`read_binary`] takes it: all of it in memory, or a
+/// plain file read a block at a time into a buffer that is reused, so that the file is
+/// neither copied whole nor faulted into new memory (the columns are what the read
+/// keeps). The blocks are charged as if the whole file were held, as the whole read
+/// charges it, so that both fail alike on a budget.
+struct Window<'a> {
+    /// Where the rest of the data comes from; `None` when `buf` holds all of it.
+    input: Option<&'a mut Input>,
+    buf: Vec<u8>,
+    /// The bytes not taken yet: `buf[start..end]`.
+    start: usize,
+    end: usize,
+    /// Bytes of the data before `buf[0]`.
+    base: usize,
+    /// Bytes the input has yet to deliver, as its length tells.
+    unread: usize,
+}
+
+impl<'a> Window<'a> {
+    /// All the data, read.
+    fn whole(data: Vec<u8>) -> Window<'a> {
+        let end = data.len();
+        Window { input: None, buf: data, start: 0, end, base: 0, unread: 0 }
+    }
+
+    /// The rest of `input` (a plain regular file within the input cap, see
+    /// [`Input::is_plain_file`]), read as it is taken; its length is charged to `meter`
+    /// first, as [`Input::read_all`] charges it.
+    fn blocks(path: &Path, input: &'a mut Input, meter: &mut Meter) -> Result<Window<'a>> {
+        let len = input.remaining_bound();
+        if len > 0 {
+            meter.charge(path, len)?;
+        }
+        let unread = usize::try_from(len).unwrap_or(usize::MAX);
+        let buf = vec![0; READ_BLOCK_BYTES.min(unread)];
+        Ok(Window { input: Some(input), buf, start: 0, end: 0, base: 0, unread })
+    }
+
+    /// The data not taken yet that is at hand.
+    fn rest(&self) -> &[u8] {
+        &self.buf[self.start..self.end]
+    }
+
+    /// Takes the first `n` bytes of [`Window::rest`].
+    fn take(&mut self, n: usize) {
+        self.start += n;
+    }
+
+    /// The offset in the data of the first byte not taken.
+    fn position(&self) -> usize {
+        self.base + self.start
+    }
+
+    /// The bytes of data not taken yet, at hand or still to read.
+    fn remaining(&self) -> usize {
+        (self.end - self.start).saturating_add(self.unread)
+    }
+
+    /// Reads more of the input when fewer than `want` bytes are at hand: as much as the
+    /// buffer holds (at least `want`, the buffer growing where it must), or to the end.
+    fn fill(&mut self, path: &Path, want: usize) -> Result<()> {
+        let Some(input) = self.input.as_deref_mut() else {
+            return Ok(());
+        };
+        let held = self.end - self.start;
+        if held >= want {
+            return Ok(());
+        }
+        self.buf.copy_within(self.start..self.end, 0);
+        self.base += self.start;
+        (self.start, self.end) = (0, held);
+        if want > self.buf.len() {
+            // No more than the file holds: a lying count cannot make it grow further.
+            let grow = want.min(held.saturating_add(self.unread)).max(self.buf.len());
+            self.buf.resize(grow, 0);
+        }
+        while self.end < self.buf.len() {
+            match input.read(&mut self.buf[self.end..]) {
+                Ok(0) => {
+                    self.unread = 0;
+                    self.input = None;
+                    break;
+                }
+                Ok(n) => {
+                    self.end += n;
+                    self.unread = self.unread.saturating_sub(n);
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    return Err(Error::scene(path, input.stream_error().map_or_else(|| e.to_string(), str::to_string)));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Reads until element `i` of `def` (of `columns`' shape) is at hand whole, or fails
+    /// as [`read_binary_element`] would on all the data where the data ends inside it.
+    fn fill_element(
+        &mut self,
+        path: &Path,
+        def: &ElementDef,
+        i: usize,
+        columns: &[Column],
+        big_endian: bool,
+    ) -> Result<()> {
+        while self.input.is_some() {
+            let Err(need) = element_bytes(columns, self.rest(), big_endian) else {
+                break;
+            };
+            if need > self.remaining() {
+                return Err(end_of_file(path, def, i));
+            }
+            self.fill(path, need)?;
+        }
+        Ok(())
+    }
+}
+
+/// The bytes of the binary element of `columns`' shape at the start of `bytes`: `Ok` with
+/// its length where they hold it whole, or with 0 where a list count is negative (which
+/// [`read_binary_element`] reports); `Err` with the bytes it takes at least, where they
+/// fall short.
+fn element_bytes(columns: &[Column], bytes: &[u8], big_endian: bool) -> std::result::Result<usize, usize> {
+    let mut at = 0usize;
+    for column in columns {
+        let size = scalar_bytes(&column.values.scalar_type());
+        let Some((count_type, _)) = &column.list else {
+            at = at.saturating_add(size);
+            continue;
+        };
+        let t = Ty::of(count_type);
+        let end = at.saturating_add(t.size());
+        let Some(n) = bytes.get(at..).and_then(|b| count_at(b, t, big_endian)) else {
+            return Err(end);
+        };
+        let Ok(n) = usize::try_from(n) else {
+            return Ok(0);
+        };
+        at = end.saturating_add(n.saturating_mul(size));
+    }
+    if bytes.len() < at { Err(at) } else { Ok(at) }
+}
+
+/// Reads element `i` of `def` at `data[*pos..]` onto `columns`, one value at a time;
+/// `unread` more bytes of data follow `data`. A list that outgrows its column makes room
+/// for the elements left.
+#[allow(clippy::too_many_arguments)]
 fn read_binary_element(
     path: &Path,
     def: &ElementDef,
     i: usize,
     columns: &mut [Column],
     data: &[u8],
+    unread: usize,
     pos: &mut usize,
     big_endian: bool,
 ) -> Result<()> {
@@ -591,7 +898,8 @@ fn read_binary_element(
         n.push_binary(data, pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
         let n = n.integer(0).unwrap_or(0);
         let item_bytes = scalar_bytes(&column.values.scalar_type());
-        let Some(n) = usize::try_from(n).ok().filter(|n| n.saturating_mul(item_bytes) <= data.len() - *pos) else {
+        let left = (data.len() - *pos).saturating_add(unread);
+        let Some(n) = usize::try_from(n).ok().filter(|n| n.saturating_mul(item_bytes) <= left) else {
             return Err(if n < 0 {
                 let message = format!("{} {i} of {}: list {} has {n} items", def.name, def.count, column.name);
                 Error::scene(path, message)
@@ -599,6 +907,12 @@ fn read_binary_element(
                 end_of_file(path, def, i)
             });
         };
+        if column.values.spare() < n {
+            // Room for the elements left at this one's length, as far as the data left
+            // could hold them: the items of most files' lists in one allocation.
+            let most = left / item_bytes;
+            column.values.reserve(def.count.saturating_sub(i).saturating_mul(n).min(most).max(n));
+        }
         for _ in 0..n {
             column.values.push_binary(data, pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
         }
@@ -654,7 +968,7 @@ fn binary_run(columns: &mut [Column], data: &[u8], pos: &mut usize, most: usize,
     for (column, &(_, items)) in columns.iter().zip(&shape) {
         n = n.min(column.values.spare().checked_div(items).unwrap_or(usize::MAX));
         if let Some((_, starts)) = &column.list {
-            n = n.min(starts.capacity() - starts.len());
+            n = n.min(starts.room_for(items));
         }
     }
     if !lists.is_empty() {
@@ -668,8 +982,7 @@ fn binary_run(columns: &mut [Column], data: &[u8], pos: &mut usize, most: usize,
     for (column, &(offset, items)) in columns.iter_mut().zip(&shape) {
         column.values.extend_from_elements(block, stride, offset, items, big_endian);
         if let Some((_, starts)) = &mut column.list {
-            let first = starts.last().copied().unwrap_or(0);
-            starts.extend((1..=n).map(|k| first + k * items));
+            starts.extend(n, items);
         }
     }
     *pos += n * stride;
@@ -846,7 +1159,7 @@ fn read_ascii_line<'l>(
 fn columns_like(columns: &[Column], capacity: usize) -> Vec<Column> {
     let like = |c: &Column| Column {
         name: c.name.clone(),
-        list: c.list.as_ref().map(|(count, _)| (count.clone(), vec![0])),
+        list: c.list.as_ref().map(|(count, _)| (count.clone(), Starts::with_room(1))),
         values: Values::new(&c.values.scalar_type(), capacity),
     };
     columns.iter().map(like).collect()
@@ -858,7 +1171,7 @@ fn append_columns(columns: &mut [Column], block: Vec<Column>) {
     for (column, part) in columns.iter_mut().zip(block) {
         let offset = column.values.len();
         if let (Some((_, starts)), Some((_, more))) = (&mut column.list, &part.list) {
-            starts.extend(more[1..].iter().map(|s| s + offset));
+            more.iter().skip(1).for_each(|s| starts.push(s + offset));
         }
         column.values.append(part.values);
     }
@@ -886,9 +1199,7 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
     };
     let xyz = scalar_columns(vertex, ["x", "y", "z"]).ok_or_else(|| Error::scene(path, "no x, y or z"))?;
     let positions = match xyz.map(|c| &c.values) {
-        [Values::Float(x), Values::Float(y), Values::Float(z)] => {
-            positions(path, vertex.count, |i| Vec3::new(x[i], y[i], z[i]))?
-        }
+        [Values::Float(x), Values::Float(y), Values::Float(z)] => float_positions(path, x, y, z)?,
         _ => positions(path, vertex.count, |i| Vec3::from(xyz.map(|c| c.values.f32(i))))?,
     };
     let normals = scalar_columns(vertex, ["nx", "ny", "nz"]).map(|n| match n.map(|c| &c.values) {
@@ -900,11 +1211,11 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
 
     let face_def = header.element("face").ok_or_else(|| Error::scene(path, "no face element"))?;
     let list = column(face, &index_list_name(path, face_def)?).ok_or_else(|| Error::scene(path, "no face list"))?;
-    let scalar_starts: Vec<usize>;
+    let scalar_starts: Starts;
     let starts = match &list.list {
         Some((_, starts)) => starts,
         None => {
-            scalar_starts = (0..=face.count).collect();
+            scalar_starts = Starts::Uniform { items: Some(1), len: face.count + 1, room: 0 };
             &scalar_starts
         }
     };
@@ -963,6 +1274,21 @@ fn mesh(path: &Path, header: &PlyHeader, elements: &[Element], label: String) ->
     })
 }
 
+/// The positions of `float` columns, checked to be finite in one pass over the columns
+/// first; the first non-finite one is reported by [`positions`].
+fn float_positions(path: &Path, x: &[f32], y: &[f32], z: &[f32]) -> Result<Vec<Vec3>> {
+    let count = x.len().min(y.len()).min(z.len());
+    let (x, y, z) = (&x[..count], &y[..count], &z[..count]);
+    // Branch-free, so that it vectorises: a value is finite when its exponent is not all ones.
+    let finite = |v: &[f32]| v.iter().fold(true, |all, c| all & c.is_finite());
+    if !(finite(x) & finite(y) & finite(z)) {
+        return positions(path, count, |i| Vec3::new(x[i], y[i], z[i]));
+    }
+    let mut positions = huge_vec(count);
+    positions.extend(x.iter().zip(y).zip(z).map(|((&x, &y), &z)| Vec3::new(x, y, z)));
+    Ok(positions)
+}
+
 /// The positions `at(0..count)`, each checked to be finite.
 fn positions(path: &Path, count: usize, at: impl Fn(usize) -> Vec3) -> Result<Vec<Vec3>> {
     let mut positions = Vec::with_capacity(count);
@@ -983,11 +1309,15 @@ fn positions(path: &Path, count: usize, at: impl Fn(usize) -> Vec3) -> Result<Ve
 /// each naming one of the `vertex_count` vertices. The faces' starts and their corners.
 fn corners<T: Copy>(
     path: &Path,
-    starts: &[usize],
+    starts: &Starts,
     values: &[T],
     vertex_count: usize,
     index: impl Fn(T) -> i64,
 ) -> Result<(Vec<u32>, Vec<u32>)> {
+    if let Some(faces) = valid_corners(starts, values, vertex_count, &index) {
+        return Ok(faces);
+    }
+    let starts: Vec<usize> = starts.iter().collect();
     let faces = starts.len() - 1;
     let mut face_starts = Vec::with_capacity(faces + 1);
     let mut face_indices = Vec::with_capacity(values.len());
@@ -1013,6 +1343,39 @@ fn corners<T: Copy>(
         face_starts.push(end);
     }
     Ok((face_starts, face_indices))
+}
+
+/// [`corners`] where every face is valid, checked a column at a time (passes without
+/// branches, which vectorise) before the faces are built; `None` where one is not, for
+/// [`corners`] to find and report it.
+fn valid_corners<T: Copy>(
+    starts: &Starts,
+    values: &[T],
+    vertex_count: usize,
+    index: impl Fn(T) -> i64,
+) -> Option<(Vec<u32>, Vec<u32>)> {
+    let corners = starts.last();
+    let values = values.get(..corners)?;
+    let bound = u64::try_from(vertex_count).ok()?.min(1 << 32);
+    // A negative index, as `u64`, is beyond any bound.
+    let in_range = values.iter().fold(true, |all, &v| all & ((index(v) as u64) < bound));
+    let polygons = match starts {
+        Starts::Uniform { items, .. } => items.is_none_or(|n| n >= 3),
+        Starts::Explicit(v) => v.windows(2).fold(true, |all, w| all & (w[1].wrapping_sub(w[0]) >= 3)),
+    };
+    if !(in_range && polygons && u32::try_from(corners).is_ok()) {
+        return None;
+    }
+    let (mut face_starts, mut face_indices) = (huge_vec(starts.len()), huge_vec(corners));
+    face_indices.extend(values.iter().map(|&v| index(v) as u32));
+    match starts {
+        Starts::Uniform { items, len, .. } => {
+            let n = items.unwrap_or(0) as u32;
+            face_starts.extend((0..*len as u32).map(|k| k * n));
+        }
+        Starts::Explicit(v) => face_starts.extend(v.iter().map(|&s| s as u32)),
+    }
+    Some((face_starts, face_indices))
 }
 
 /// AO as a grey colour channel in type `t`: 0 to 1 for the floating-point types, 0 to 255
@@ -1128,11 +1491,11 @@ impl Asset for PlyAsset {
                 return Err(Error::output(path, "the file has texture coordinates of its own: PLY holds one set"));
             }
             let mesh = &self.meshes[0];
-            let starts = mesh.face_starts.iter().map(|&s| 2 * s as usize).collect();
+            let starts: Vec<usize> = mesh.face_starts.iter().map(|&s| 2 * s as usize).collect();
             let values = uvs.corners.iter().flat_map(|&k| uvs.uvs[k as usize].to_array()).collect();
             added.push(Column {
                 name: "texcoord".to_string(),
-                list: Some((ScalarType::UChar, starts)),
+                list: Some((ScalarType::UChar, Starts::from(starts))),
                 values: Values::Float(values),
             });
         }

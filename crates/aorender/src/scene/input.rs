@@ -358,6 +358,36 @@ pub(crate) fn vec_bytes<T>(v: &Vec<T>) -> u64 {
     (v.capacity() * std::mem::size_of::<T>()) as u64
 }
 
+/// An empty vector with room for `n` values, its memory backed by huge pages where the
+/// system allows ([`advise_huge_pages`]).
+pub(crate) fn huge_vec<T>(n: usize) -> Vec<T> {
+    let v = Vec::with_capacity(n);
+    advise_huge_pages(&v);
+    v
+}
+
+/// Asks the kernel to back the 2 MiB pages inside `v`'s capacity with huge pages (Linux's
+/// transparent huge pages, where set to `madvise` or `always`): a mesh's columns of
+/// hundreds of MB are then faulted in 2 MiB at a time instead of 4 KiB, which took about a
+/// third of a binary PLY read's CPU time in page faults. Advice only: nothing else changes.
+pub(crate) fn advise_huge_pages<T>(v: &Vec<T>) {
+    #[cfg(target_os = "linux")]
+    {
+        const HUGE: usize = 2 << 20;
+        let bytes = v.capacity().saturating_mul(std::mem::size_of::<T>());
+        let start = v.as_ptr() as usize;
+        let (first, end) = (start.next_multiple_of(HUGE), start.saturating_add(bytes) / HUGE * HUGE);
+        if bytes >= 2 * HUGE && end > first {
+            // SAFETY: `madvise` only marks the range (whole pages of memory `v` owns), it
+            // neither reads nor changes its contents; a refusal (EINVAL where the kernel
+            // has no huge pages) leaves the memory as it was.
+            unsafe {
+                libc::madvise(first as *mut libc::c_void, end - first, libc::MADV_HUGEPAGE);
+            }
+        }
+    }
+}
+
 /// The UTF-8 byte-order mark some editors write at the start of a text file: skipped.
 pub(crate) const UTF8_BOM: &[u8] = b"\xEF\xBB\xBF";
 
@@ -473,6 +503,12 @@ impl Input {
         if self.regular { self.remaining_bound() } else { 0 }
     }
 
+    /// True for a plain (not gzipped) regular file no longer than the input cap: what is
+    /// left of it is known before it is read, and all of it may be read.
+    pub(crate) fn is_plain_file(&self) -> bool {
+        !self.gzip && self.regular && self.max_total <= self.cap
+    }
+
     /// False when the rest of the stream cannot hold `bytes`: a regular file too short (a
     /// pipe or a device may deliver anything).
     pub(crate) fn could_hold(&self, bytes: u64) -> bool {
@@ -542,6 +578,7 @@ impl Input {
                 meter.charge(path, (len - room).saturating_mul(bytes_per_byte))?;
                 let add = usize::try_from(len).unwrap_or(usize::MAX);
                 bytes.try_reserve_exact(add).map_err(|_| meter.refused(path, add as u64))?;
+                advise_huge_pages(bytes);
             }
         }
         let mut left = most;

@@ -11,7 +11,7 @@
 //! size an allocation beyond what the rest of the file could hold (see
 //! [`Input::remaining_bound`]).
 
-use super::input::{Input, Meter, UTF8_BOM, make_room, one_line};
+use super::input::{Input, Meter, UTF8_BOM, advise_huge_pages, make_room, one_line};
 use super::mesh::{IndexedMesh, VertexNames};
 use super::ply_data::{Keep, LIST_ITEM_BYTES, Layout, ascii_axes, ascii_indices, read_binary};
 pub(crate) use super::types::non_finite_coordinate;
@@ -165,7 +165,9 @@ fn out_of_memory(path: &Path, n: usize, what: &str) -> Error {
 /// Reserves room for `n` more elements in `v`, charged to `meter` first.
 fn reserve<T>(path: &Path, v: &mut Vec<T>, n: usize, meter: &mut Meter, what: &str) -> Result<()> {
     meter.charge(path, (n * std::mem::size_of::<T>()) as u64)?;
-    v.try_reserve_exact(n).map_err(|_| out_of_memory(path, n, what))
+    v.try_reserve_exact(n).map_err(|_| out_of_memory(path, n, what))?;
+    advise_huge_pages(v);
+    Ok(())
 }
 
 /// Reads the `def.count` elements of `def`, passing each with its number to `each`. An
