@@ -17,11 +17,10 @@
 use super::asset::format_of;
 use super::asset::{AssetMesh, BakeAt, BakedValues, WriteOptions};
 use crate::error::{Error, Result};
+use crate::output::gzip::GzipWriter;
 use crate::output::{write_output, write_output_with};
 use crate::scene::input::is_gzip;
 use crate::scene::meshes::stem;
-use flate2::Compression;
-use flate2::write::GzEncoder;
 use glam::Vec3;
 use serde_json::{Value, json};
 use std::io::Write;
@@ -102,7 +101,7 @@ fn emit(path: &Path, body: &dyn Fn(&mut dyn Write) -> std::io::Result<()>) -> Re
     let gzip = is_gzip(path);
     write_output_with(path, &mut |w| {
         if gzip {
-            let mut encoder = GzEncoder::new(w, Compression::default());
+            let mut encoder = GzipWriter::new(w)?;
             body(&mut encoder)?;
             encoder.finish().map(|_| ())
         } else {

@@ -14,11 +14,10 @@ use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
 };
 use crate::error::{Error, Result};
+use crate::output::gzip::GzipWriter;
 use crate::scene::input::{LoadOptions, Meter, ReadLimits, UTF8_BOM, UTF16_MESSAGE, is_gzip, read_text, starts_utf16};
 use crate::scene::mesh::IndexedMesh;
 use crate::scene::obj::{Keep, ObjData, continued_at, read_obj};
-use flate2::Compression;
-use flate2::write::GzEncoder;
 use glam::Vec3;
 use std::io::{self, Write};
 use std::path::Path;
@@ -396,7 +395,7 @@ impl Asset for ObjAsset {
         let mut changes = VertexChanges::default();
         crate::output::write_output_with(path, &mut |w| {
             changes = if gzip {
-                let mut encoder = GzEncoder::new(w, Compression::default());
+                let mut encoder = GzipWriter::new(w)?;
                 let changes = self.write_lines(&mut encoder, &values.ao)?;
                 encoder.finish()?;
                 changes
@@ -442,7 +441,7 @@ impl Asset for ObjAsset {
         };
         crate::output::write_output_with(path, &mut |w| {
             if gzip {
-                let mut encoder = GzEncoder::new(w, Compression::default());
+                let mut encoder = GzipWriter::new(w)?;
                 body(&mut encoder)?;
                 encoder.finish().map(|_| ())
             } else {
@@ -763,6 +762,7 @@ mod tests {
 
     #[test]
     fn gzip_in_and_out() {
+        use flate2::{Compression, write::GzEncoder};
         let mut gz = GzEncoder::new(Vec::new(), Compression::default());
         gz.write_all(CUBE_CORNER.as_bytes()).unwrap();
         let compressed = gz.finish().unwrap();

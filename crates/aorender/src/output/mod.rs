@@ -21,6 +21,7 @@
 
 mod atomic;
 mod checkpoint;
+pub mod gzip;
 mod image;
 mod policy;
 
