@@ -28,8 +28,9 @@ use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
 use std::io::Write;
 use std::path::Path;
 
-/// Bytes gathered before they are handed to the output stream.
-const CHUNK_BYTES: usize = 1 << 20;
+/// Rows of an element one rayon task writes out at a time: about a megabyte of ascii
+/// vertices, enough that a task's work dwarfs handing it out.
+const WRITE_BLOCK_ROWS: usize = 1 << 14;
 
 /// A value of one of PLY's scalar types.
 trait Scalar: Copy + std::str::FromStr + Into<f64> {
@@ -1202,27 +1203,39 @@ impl PlyAsset {
         let gzip = is_gzip_name(path);
         let elements = &self.elements;
         let body = |out: &mut dyn Write| -> std::io::Result<()> {
+            use rayon::prelude::*;
             out.write_all(&head)?;
-            let mut chunk = Vec::with_capacity(CHUNK_BYTES + 4096);
+            let threads = rayon::current_num_threads().max(1);
             for (element, columns) in elements.iter().zip(&plan) {
                 let rows = if !ascii && columns.is_empty() { 0 } else { element.count };
-                for i in 0..rows {
-                    if ascii {
-                        put_ascii_row(columns, i, &mut chunk);
-                    } else {
-                        put_binary_row(columns, i, &mut chunk)?;
-                    }
-                    if chunk.len() >= CHUNK_BYTES {
-                        out.write_all(&chunk)?;
-                        chunk.clear();
+                let blocks: Vec<usize> = (0..rows).step_by(WRITE_BLOCK_ROWS).collect();
+                // A round of blocks of rows at a time, one rayon task each, written in
+                // order: the bytes and the first error are a row-at-a-time write's.
+                for round in blocks.chunks(2 * threads) {
+                    let texts: Vec<std::io::Result<Vec<u8>>> = round
+                        .par_iter()
+                        .map(|&first| {
+                            let mut text = Vec::new();
+                            for i in first..(first + WRITE_BLOCK_ROWS).min(rows) {
+                                if ascii {
+                                    put_ascii_row(columns, i, &mut text);
+                                } else {
+                                    put_binary_row(columns, i, &mut text)?;
+                                }
+                            }
+                            Ok(text)
+                        })
+                        .collect();
+                    for text in texts {
+                        out.write_all(&text?)?;
                     }
                 }
             }
-            out.write_all(&chunk)
+            Ok(())
         };
         write_output_with(path, &mut |w| {
             if gzip {
-                let mut encoder = flate2::write::GzEncoder::new(w, flate2::Compression::default());
+                let mut encoder = crate::output::gzip::GzipWriter::new(w)?;
                 body(&mut encoder)?;
                 encoder.finish().map(|_| ())
             } else {
