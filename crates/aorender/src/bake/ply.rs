@@ -17,7 +17,7 @@ use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
 };
 use crate::error::{Error, Result};
-use crate::output::write_output_with;
+use crate::output::{write_output_with, write_rows};
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::{Input, LoadOptions, Meter, vec_bytes};
 use crate::scene::mesh::{IndexedMesh, VertexNames};
@@ -1203,32 +1203,16 @@ impl PlyAsset {
         let gzip = is_gzip_name(path);
         let elements = &self.elements;
         let body = |out: &mut dyn Write| -> std::io::Result<()> {
-            use rayon::prelude::*;
             out.write_all(&head)?;
-            let threads = rayon::current_num_threads().max(1);
             for (element, columns) in elements.iter().zip(&plan) {
                 let rows = if !ascii && columns.is_empty() { 0 } else { element.count };
-                let blocks: Vec<usize> = (0..rows).step_by(WRITE_BLOCK_ROWS).collect();
-                // A round of blocks of rows at a time, one rayon task each, written in
-                // order: the bytes and the first error are a row-at-a-time write's.
-                for round in blocks.chunks(2 * threads) {
-                    let texts: Vec<std::io::Result<Vec<u8>>> = round
-                        .par_iter()
-                        .map(|&first| {
-                            let mut text = Vec::new();
-                            for i in first..(first + WRITE_BLOCK_ROWS).min(rows) {
-                                if ascii {
-                                    put_ascii_row(columns, i, &mut text);
-                                } else {
-                                    put_binary_row(columns, i, &mut text)?;
-                                }
-                            }
-                            Ok(text)
-                        })
-                        .collect();
-                    for text in texts {
-                        out.write_all(&text?)?;
-                    }
+                if ascii {
+                    write_rows(out, rows, WRITE_BLOCK_ROWS, &|i, text| {
+                        put_ascii_row(columns, i, text);
+                        Ok(())
+                    })?;
+                } else {
+                    write_rows(out, rows, WRITE_BLOCK_ROWS, &|i, text| put_binary_row(columns, i, text))?;
                 }
             }
             Ok(())
