@@ -4,6 +4,7 @@
 
 use rayon::prelude::*;
 use std::io::{self, Write};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Writes rows `0..rows` to `out`, each appended to a buffer by `put(row, buffer)`, in
 /// blocks of `block_rows` formatted in parallel and written in order. An error is the
@@ -18,14 +19,17 @@ pub fn write_rows(
     // Two blocks a thread: memory stays a few blocks a core whatever the file's size.
     let round = 2 * rayon::current_num_threads().max(1);
     let starts: Vec<usize> = (0..rows).step_by(block_rows).collect();
+    // The longest block so far: later blocks start that large instead of growing to it.
+    let longest = AtomicUsize::new(0);
     for firsts in starts.chunks(round) {
         let texts: Vec<io::Result<Vec<u8>>> = firsts
             .par_iter()
             .map(|&first| {
-                let mut text = Vec::new();
+                let mut text = Vec::with_capacity(longest.load(Ordering::Relaxed));
                 for row in first..(first + block_rows).min(rows) {
                     put(row, &mut text)?;
                 }
+                longest.fetch_max(text.len(), Ordering::Relaxed);
                 Ok(text)
             })
             .collect();
