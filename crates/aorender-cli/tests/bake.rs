@@ -558,3 +558,43 @@ fn bake_stats_account_for_every_phase() {
         check_summary(&stderr, device);
     }
 }
+
+/// A gzipped bake is one gzip member that holds the plain bake's bytes, and the same
+/// bytes on any number of threads (its blocks are compressed in parallel): the full
+/// dragon (33 MB of text, 32 blocks) into `.ply.gz` and, through the conversion writer,
+/// `.obj.gz`, baked on one and on three rayon threads.
+#[test]
+fn gzipped_bakes_are_the_plain_bytes_and_the_same_on_any_thread_count() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let dragon = repo().join("scenes/dragon_vrip.ply.gz");
+    let bake_on = |threads: usize, name: &str| -> Vec<u8> {
+        let args = ["bake", dragon.to_str().unwrap(), "-o", name, "--samples", "1", "--device", "cpu", "--seed", "5"];
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_aorender"))
+            .args(args)
+            .current_dir(d)
+            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+            .env("RAYON_NUM_THREADS", threads.to_string())
+            .output()
+            .expect("aorender runs");
+        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
+        std::fs::read(d.join(name)).unwrap()
+    };
+    let gunzip = |gz: &[u8]| -> Vec<u8> {
+        let mut text = Vec::new();
+        // GzDecoder reads one member: data after it would be left unread.
+        let mut decoder = flate2::read::GzDecoder::new(gz);
+        std::io::Read::read_to_end(&mut decoder, &mut text).unwrap();
+        assert!(decoder.into_inner().is_empty(), "bytes after the gzip member");
+        text
+    };
+    for ext in ["ply", "obj"] {
+        let plain = bake_on(2, &format!("plain.{ext}"));
+        assert!(plain.len() > 30 << 20, "{ext}: {} bytes", plain.len());
+        let one = bake_on(1, &format!("one.{ext}.gz"));
+        let three = bake_on(3, &format!("three.{ext}.gz"));
+        assert!(one.len() < plain.len() / 2, "{ext}: {} bytes gzipped of {}", one.len(), plain.len());
+        assert!(one == three, "{ext}: the gzipped bytes differ between one thread and three");
+        assert!(gunzip(&one) == plain, "{ext}: the gzipped bake holds other bytes than the plain one");
+    }
+}

@@ -17,11 +17,13 @@
 use super::asset::format_of;
 use super::asset::{AssetMesh, BakeAt, BakedValues, WriteOptions};
 use crate::error::{Error, Result};
-use crate::output::{write_output, write_output_with};
+use crate::output::gzip::GzipWriter;
+use crate::output::{write_output, write_output_with, write_rows};
+
+/// Rows (vertices, faces) one rayon task writes at a time: about a megabyte of text.
+const BLOCK_ROWS: usize = 1 << 14;
 use crate::scene::input::is_gzip;
 use crate::scene::meshes::stem;
-use flate2::Compression;
-use flate2::write::GzEncoder;
 use glam::Vec3;
 use serde_json::{Value, json};
 use std::io::Write;
@@ -102,7 +104,7 @@ fn emit(path: &Path, body: &dyn Fn(&mut dyn Write) -> std::io::Result<()>) -> Re
     let gzip = is_gzip(path);
     write_output_with(path, &mut |w| {
         if gzip {
-            let mut encoder = GzEncoder::new(w, Compression::default());
+            let mut encoder = GzipWriter::new(w)?;
             body(&mut encoder)?;
             encoder.finish().map(|_| ())
         } else {
@@ -176,43 +178,36 @@ fn write_ply(
     };
     let body = |out: &mut dyn Write| -> std::io::Result<()> {
         out.write_all(head.as_bytes())?;
-        let mut chunk = Vec::with_capacity(1 << 16);
         for ((m, v), b) in meshes.iter().zip(values).zip(bent) {
-            for (k, p) in m.positions.iter().enumerate() {
-                chunk.extend(p.to_array().iter().flat_map(|c| c.to_le_bytes()));
+            write_rows(out, m.positions.len(), BLOCK_ROWS, &|k, row| {
+                row.extend(m.positions[k].to_array().iter().flat_map(|c| c.to_le_bytes()));
                 if let Some(n) = m.normals.as_ref().filter(|_| normals) {
-                    chunk.extend(n[k].to_array().iter().flat_map(|c| c.to_le_bytes()));
+                    row.extend(n[k].to_array().iter().flat_map(|c| c.to_le_bytes()));
                 }
                 if at_vertices {
-                    put_values(&mut chunk, v, b, k);
+                    put_values(row, v, b, k);
                 }
-                if chunk.len() >= 1 << 16 {
-                    out.write_all(&chunk)?;
-                    chunk.clear();
-                }
-            }
+                Ok(())
+            })?;
         }
         let mut first = 0u32;
         for ((m, v), b) in meshes.iter().zip(values).zip(bent) {
-            for f in 0..m.face_count() {
+            write_rows(out, m.face_count(), BLOCK_ROWS, &|f, row| {
                 let face = m.face(f);
                 if widest <= 255 {
-                    chunk.push(face.len() as u8);
+                    row.push(face.len() as u8);
                 } else {
-                    chunk.extend((face.len() as u32).to_le_bytes());
+                    row.extend((face.len() as u32).to_le_bytes());
                 }
-                chunk.extend(face.iter().flat_map(|&i| (first + i).to_le_bytes()));
+                row.extend(face.iter().flat_map(|&i| (first + i).to_le_bytes()));
                 if !at_vertices {
-                    put_values(&mut chunk, v, b, f);
+                    put_values(row, v, b, f);
                 }
-                if chunk.len() >= 1 << 16 {
-                    out.write_all(&chunk)?;
-                    chunk.clear();
-                }
-            }
+                Ok(())
+            })?;
             first += m.positions.len() as u32;
         }
-        out.write_all(&chunk)
+        Ok(())
     };
     emit(path, &body)?;
     Ok(Vec::new())
@@ -230,33 +225,33 @@ fn write_obj(
     }
     let normals = all_normals(meshes);
     let body = |out: &mut dyn Write| -> std::io::Result<()> {
-        let mut out = std::io::BufWriter::with_capacity(1 << 16, out);
         writeln!(out, "# AO baked by aorender: each vertex's colour is its AO")?;
         for (m, v) in meshes.iter().zip(values) {
-            for (p, &a) in m.positions.iter().zip(&v.ao) {
-                let g = a.clamp(0.0, 1.0);
+            write_rows(out, m.positions.len().min(v.ao.len()), BLOCK_ROWS, &|k, line| {
+                let (p, g) = (m.positions[k], v.ao[k].clamp(0.0, 1.0));
                 // Rust prints the shortest decimal that reads back as the same float.
-                writeln!(out, "v {} {} {} {g} {g} {g}", p.x, p.y, p.z)?;
-            }
+                writeln!(line, "v {} {} {} {g} {g} {g}", p.x, p.y, p.z)
+            })?;
         }
         if normals {
-            for n in meshes.iter().filter_map(|m| m.normals.as_ref()).flatten() {
-                writeln!(out, "vn {} {} {}", n.x, n.y, n.z)?;
+            for n in meshes.iter().filter_map(|m| m.normals.as_ref()) {
+                write_rows(out, n.len(), BLOCK_ROWS, &|k, line| writeln!(line, "vn {} {} {}", n[k].x, n[k].y, n[k].z))?;
             }
         }
         let mut first = 1u64;
         for m in meshes {
-            for f in 0..m.face_count() {
-                out.write_all(b"f")?;
+            write_rows(out, m.face_count(), BLOCK_ROWS, &|f, line| {
+                line.push(b'f');
                 for &i in m.face(f) {
                     let k = first + u64::from(i);
-                    if normals { write!(out, " {k}//{k}")? } else { write!(out, " {k}")? }
+                    if normals { write!(line, " {k}//{k}")? } else { write!(line, " {k}")? }
                 }
-                out.write_all(b"\n")?;
-            }
+                line.push(b'\n');
+                Ok(())
+            })?;
             first += m.positions.len() as u64;
         }
-        out.flush()
+        Ok(())
     };
     emit(path, &body)?;
     let mut notes = Vec::new();

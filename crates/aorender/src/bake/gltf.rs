@@ -24,8 +24,6 @@ use crate::scene::input::{Input, LoadOptions, Meter};
 use crate::scene::mesh::IndexedMesh;
 use crate::scene::meshes::stem;
 use ::gltf::json::{Value, deserialize, serialize};
-use flate2::Compression;
-use flate2::write::GzEncoder;
 use percent_encoding::{AsciiSet, CONTROLS, utf8_percent_encode};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::io::Write;
@@ -1090,9 +1088,7 @@ pub(crate) fn glb_bytes(mut json: Vec<u8>, mut bin: Vec<u8>) -> Option<Vec<u8>> 
 }
 
 fn gzip(bytes: &[u8]) -> std::io::Result<Vec<u8>> {
-    let mut encoder = GzEncoder::new(Vec::new(), Compression::default());
-    encoder.write_all(bytes)?;
-    encoder.finish()
+    crate::output::gzip::gzip(bytes)
 }
 
 /// The PNG file beside a `.gltf` output that holds its image `name` (`ao`,
@@ -1120,7 +1116,7 @@ fn write_maybe_gzipped(path: &Path, bytes: &[u8]) -> Result<()> {
         return write_output(path, bytes);
     }
     write_output_with(path, &mut |w| {
-        let mut encoder = GzEncoder::new(w, Compression::default());
+        let mut encoder = crate::output::gzip::GzipWriter::new(w)?;
         encoder.write_all(bytes)?;
         encoder.finish().map(|_| ())
     })

@@ -14,11 +14,10 @@ use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, MeshUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
 };
 use crate::error::{Error, Result};
+use crate::output::gzip::GzipWriter;
 use crate::scene::input::{LoadOptions, Meter, ReadLimits, UTF8_BOM, UTF16_MESSAGE, is_gzip, read_text, starts_utf16};
 use crate::scene::mesh::IndexedMesh;
 use crate::scene::obj::{Keep, ObjData, continued_at, read_obj};
-use flate2::Compression;
-use flate2::write::GzEncoder;
 use glam::Vec3;
 use std::io::{self, Write};
 use std::path::Path;
@@ -211,6 +210,9 @@ fn lines(text: &[u8]) -> impl Iterator<Item = &[u8]> {
     text.split_inclusive(|&b| b == b'\n')
 }
 
+/// Bytes of the file one rayon task rewrites at a time (then up to the end of a line).
+const WRITE_BLOCK_BYTES: usize = 1 << 20;
+
 /// The first word of `line`, as `tobj` splits it.
 fn keyword(line: &str) -> Option<&str> {
     line.split_whitespace().next()
@@ -303,21 +305,53 @@ fn write_vertex_line(
 }
 
 impl ObjAsset {
-    /// Writes the file with `ao` as the colour of every `v` line, every other line as it was.
+    /// Writes the file with `ao` as the colour of every `v` line, every other line as it
+    /// was: blocks of whole lines rewritten on rayon's threads (each block's `v` lines
+    /// counted first, to number its vertices), a round at a time, written in order.
     fn write_lines(&self, out: &mut dyn Write, ao: &[f32]) -> io::Result<VertexChanges> {
-        let mut changes = VertexChanges::default();
+        use rayon::prelude::*;
         let positions = &self.meshes[0].positions;
-        let mut k = 0;
-        for line in lines(&self.text) {
-            if keyword(&String::from_utf8_lossy(line)) != Some("v") {
-                out.write_all(line)?;
-                continue;
-            }
-            let (Some(&p), Some(&value)) = (positions.get(k), ao.get(k)) else {
-                return Err(io::Error::other("more vertex lines than when the file was read"));
+        let is_vertex = |line: &[u8]| keyword(&String::from_utf8_lossy(line)) == Some("v");
+        let mut blocks = Vec::new();
+        let mut rest = &self.text[..];
+        while !rest.is_empty() {
+            let end = match rest.get(WRITE_BLOCK_BYTES..).and_then(|r| memchr::memchr(b'\n', r)) {
+                Some(e) => WRITE_BLOCK_BYTES + e + 1,
+                None => rest.len(),
             };
-            write_vertex_line(out, line, p, value, &mut changes)?;
-            k += 1;
+            let (block, next) = rest.split_at(end);
+            blocks.push(block);
+            rest = next;
+        }
+        let counts: Vec<usize> = blocks.par_iter().map(|b| lines(b).filter(|l| is_vertex(l)).count()).collect();
+        let firsts: Vec<usize> = counts.iter().scan(0, |k, c| Some(std::mem::replace(k, *k + c))).collect();
+        let rewrite = |block: &[u8], mut k: usize| -> io::Result<(Vec<u8>, VertexChanges)> {
+            let mut text = Vec::with_capacity(block.len() + block.len() / 2);
+            let mut changes = VertexChanges::default();
+            for line in lines(block) {
+                if !is_vertex(line) {
+                    text.extend_from_slice(line);
+                    continue;
+                }
+                let (Some(&p), Some(&value)) = (positions.get(k), ao.get(k)) else {
+                    return Err(io::Error::other("more vertex lines than when the file was read"));
+                };
+                write_vertex_line(&mut text, line, p, value, &mut changes)?;
+                k += 1;
+            }
+            Ok((text, changes))
+        };
+        let mut changes = VertexChanges::default();
+        // Two blocks a thread: memory stays a few blocks a core whatever the file's size.
+        let round = 2 * rayon::current_num_threads().max(1);
+        for (blocks, firsts) in blocks.chunks(round).zip(firsts.chunks(round)) {
+            let texts: Vec<_> = blocks.par_iter().zip(firsts).map(|(b, &k)| rewrite(b, k)).collect();
+            for text in texts {
+                let (text, c) = text?;
+                out.write_all(&text)?;
+                changes.colours_replaced += c.colours_replaced;
+                changes.w_divided += c.w_divided;
+            }
         }
         Ok(changes)
     }
@@ -396,7 +430,7 @@ impl Asset for ObjAsset {
         let mut changes = VertexChanges::default();
         crate::output::write_output_with(path, &mut |w| {
             changes = if gzip {
-                let mut encoder = GzEncoder::new(w, Compression::default());
+                let mut encoder = GzipWriter::new(w)?;
                 let changes = self.write_lines(&mut encoder, &values.ao)?;
                 encoder.finish()?;
                 changes
@@ -442,7 +476,7 @@ impl Asset for ObjAsset {
         };
         crate::output::write_output_with(path, &mut |w| {
             if gzip {
-                let mut encoder = GzEncoder::new(w, Compression::default());
+                let mut encoder = GzipWriter::new(w)?;
                 body(&mut encoder)?;
                 encoder.finish().map(|_| ())
             } else {
@@ -649,6 +683,42 @@ mod tests {
         (values, notes, bytes, dir)
     }
 
+    /// A file of several blocks (rewritten in parallel) gets each vertex's own AO, its
+    /// other lines as they were, and the changes counted over every block.
+    #[test]
+    fn a_file_of_many_blocks_numbers_its_vertices_across_them() {
+        let mut text = String::new();
+        let n = 120_000;
+        for i in 0..n {
+            let x = i as f32 * 0.25;
+            match i % 10 {
+                0 => text += &format!("# comment {i}\nv {x} 1.5 -2\n"),
+                3 => text += &format!("v {x} 1.5 -2 0.1 0.2 0.3\n"),
+                _ => text += &format!("v {x} 1.5 -2\n"),
+            }
+        }
+        for i in 1..n - 1 {
+            text += &format!("f {i} {} {}\n", i + 1, i + 2);
+        }
+        assert!(text.len() > 3 * WRITE_BLOCK_BYTES, "{} bytes", text.len());
+        let (values, notes, bytes, _dir) = bake(text.as_bytes(), "m.obj", "out.obj");
+        assert_eq!(notes, [format!("{} vertices had colours of their own, replaced by the AO", n / 10)]);
+        let mut k = 0;
+        for (a, b) in lines(text.as_bytes()).zip(lines(&bytes)) {
+            let (a, b) = (std::str::from_utf8(a).unwrap(), std::str::from_utf8(b).unwrap());
+            if !a.starts_with("v ") {
+                assert_eq!(a, b);
+                continue;
+            }
+            let ao = values.ao[k];
+            let coordinates = a.split_whitespace().take(4).collect::<Vec<_>>().join(" ");
+            assert_eq!(b, format!("{coordinates} {ao} {ao} {ao}\n"), "vertex {k}");
+            k += 1;
+        }
+        assert_eq!(k, n);
+        assert_eq!(lines(&bytes).count(), lines(text.as_bytes()).count());
+    }
+
     #[test]
     fn a_round_trip_keeps_everything_but_adds_colours() {
         let (values, notes, bytes, dir) = bake(CUBE_CORNER.as_bytes(), "m.obj", "out.obj");
@@ -763,6 +833,7 @@ mod tests {
 
     #[test]
     fn gzip_in_and_out() {
+        use flate2::{Compression, write::GzEncoder};
         let mut gz = GzEncoder::new(Vec::new(), Compression::default());
         gz.write_all(CUBE_CORNER.as_bytes()).unwrap();
         let compressed = gz.finish().unwrap();

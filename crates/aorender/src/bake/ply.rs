@@ -17,7 +17,7 @@ use super::asset::{
     Asset, AssetMesh, BakeAt, BakedValues, GeneratedUvs, TextureMap, UvSet, WriteOptions, write_maps_beside,
 };
 use crate::error::{Error, Result};
-use crate::output::write_output_with;
+use crate::output::{write_output_with, write_rows};
 use crate::scene::input::is_gzip as is_gzip_name;
 use crate::scene::input::{Input, LoadOptions, Meter, advise_huge_pages, huge_vec, vec_bytes};
 use crate::scene::mesh::{IndexedMesh, VertexNames};
@@ -28,8 +28,9 @@ use ply_rs_bw::ply::{ElementDef, Encoding, PropertyType, ScalarType};
 use std::io::{Read, Write};
 use std::path::Path;
 
-/// Bytes gathered before they are handed to the output stream.
-const CHUNK_BYTES: usize = 1 << 20;
+/// Rows of an element one rayon task writes out at a time: about a megabyte of ascii
+/// vertices, enough that a task's work dwarfs handing it out.
+const WRITE_BLOCK_ROWS: usize = 1 << 14;
 
 /// A value of one of PLY's scalar types.
 trait Scalar: Copy + std::str::FromStr + Into<f64> {
@@ -1566,26 +1567,22 @@ impl PlyAsset {
         let elements = &self.elements;
         let body = |out: &mut dyn Write| -> std::io::Result<()> {
             out.write_all(&head)?;
-            let mut chunk = Vec::with_capacity(CHUNK_BYTES + 4096);
             for (element, columns) in elements.iter().zip(&plan) {
                 let rows = if !ascii && columns.is_empty() { 0 } else { element.count };
-                for i in 0..rows {
-                    if ascii {
-                        put_ascii_row(columns, i, &mut chunk);
-                    } else {
-                        put_binary_row(columns, i, &mut chunk)?;
-                    }
-                    if chunk.len() >= CHUNK_BYTES {
-                        out.write_all(&chunk)?;
-                        chunk.clear();
-                    }
+                if ascii {
+                    write_rows(out, rows, WRITE_BLOCK_ROWS, &|i, text| {
+                        put_ascii_row(columns, i, text);
+                        Ok(())
+                    })?;
+                } else {
+                    write_rows(out, rows, WRITE_BLOCK_ROWS, &|i, text| put_binary_row(columns, i, text))?;
                 }
             }
-            out.write_all(&chunk)
+            Ok(())
         };
         write_output_with(path, &mut |w| {
             if gzip {
-                let mut encoder = flate2::write::GzEncoder::new(w, flate2::Compression::default());
+                let mut encoder = crate::output::gzip::GzipWriter::new(w)?;
                 body(&mut encoder)?;
                 encoder.finish().map(|_| ())
             } else {

@@ -20,11 +20,14 @@
 //!   terminal do not clash.
 
 mod atomic;
+mod blocks;
 mod checkpoint;
+pub mod gzip;
 mod image;
 mod policy;
 
 pub use atomic::remove_temporary_files;
+pub use blocks::write_rows;
 pub use checkpoint::{MAGIC, VERSION};
 pub use image::{
     FLOAT_IMAGE_EXTENSIONS, IMAGE_EXTENSIONS, encode, linear_to_srgb, linear_to_srgb8, write_error_image, write_image,
