@@ -368,15 +368,18 @@ mod tests {
             let near = next() as usize % vertices;
             for _ in 0..corners {
                 // Mostly nearby vertices, now and then any vertex, sometimes one twice.
-                let i =
-                    if next() % 8 == 0 { next() as usize % vertices } else { (near + next() as usize % 64) % vertices };
+                let i = if next().is_multiple_of(8) {
+                    next() as usize % vertices
+                } else {
+                    (near + next() as usize % 64) % vertices
+                };
                 face_indices.push(i as u32);
             }
             face_starts.push(face_indices.len() as u32);
         }
         // File normals, every seventh unusable (zero) so the face normals fill in.
         let normals: Vec<Vec3> = (0..vertices)
-            .map(|k| if k % 7 == 0 { Vec3::ZERO } else { Vec3::new(unit(next()), 1.0, unit(next())) })
+            .map(|k| if k.is_multiple_of(7) { Vec3::ZERO } else { Vec3::new(unit(next()), 1.0, unit(next())) })
             .collect();
         let mut mesh = AssetMesh { positions, face_starts, face_indices, ..Default::default() };
         let placement = Placement {

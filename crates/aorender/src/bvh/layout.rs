@@ -235,7 +235,8 @@ impl GpuRecords {
                 mesh_primitive(&scene.meshes[m].triangles[meshes[m][k - mesh_starts[m]] as usize])
             } else {
                 let instance = &scene.instances[(k - data_base) / 2];
-                let rows = if (k - data_base) % 2 == 0 { instance.to_object().0 } else { instance.to_world_rows() };
+                let rows =
+                    if (k - data_base).is_multiple_of(2) { instance.to_object().0 } else { instance.to_world_rows() };
                 rows_record(&rows)
             }
         };

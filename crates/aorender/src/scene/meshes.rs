@@ -260,7 +260,8 @@ mod tests {
     /// repeated corner), spanning several pieces of the parallel placement.
     fn strip(n: usize) -> IndexedMesh {
         let positions = (0..n).map(|k| Vec3::new(k as f32 * 0.25, (k % 2) as f32, (k % 7) as f32 * 1e-3)).collect();
-        let triangles = (0..n as u32 - 2).map(|k| if k % 5 == 0 { [k, k, k + 1] } else { [k, k + 1, k + 2] }).collect();
+        let triangles =
+            (0..n as u32 - 2).map(|k| if k.is_multiple_of(5) { [k, k, k + 1] } else { [k, k + 1, k + 2] }).collect();
         IndexedMesh { positions, triangles, ..Default::default() }
     }
 
