@@ -21,6 +21,7 @@ use crate::sampler::Sampler;
 use crate::scene::{Camera, Projection, Sampling, Scene, Settings};
 use crate::sky::Sky;
 use glam::Vec3;
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// Everything a sample's value depends on besides its index and the device: two
@@ -425,10 +426,8 @@ fn hash_geometry(h: &mut blake3::Hasher, scene: &Scene) {
         buf.extend_from_slice(name.as_bytes());
         buf.extend_from_slice(&(count as u64).to_le_bytes());
     }
-    for t in &scene.triangles {
-        let v = t.v;
-        put(h, &mut buf, &[v[0].x, v[0].y, v[0].z, v[1].x, v[1].y, v[1].z, v[2].x, v[2].y, v[2].z, t.albedo]);
-    }
+    // A triangle is its vertices' nine floats and its albedo, in that order.
+    put_records(h, &mut buf, &scene.triangles);
     for s in &scene.spheres {
         put(h, &mut buf, &[s.center.x, s.center.y, s.center.z, s.radius, s.albedo]);
     }
@@ -439,9 +438,7 @@ fn hash_geometry(h: &mut blake3::Hasher, scene: &Scene) {
     for m in &scene.meshes {
         buf.extend_from_slice(b"mesh");
         buf.extend_from_slice(&(m.triangles.len() as u64).to_le_bytes());
-        for [a, b, c] in &m.triangles {
-            put(h, &mut buf, &[a.x, a.y, a.z, b.x, b.y, b.z, c.x, c.y, c.z]);
-        }
+        put_records(h, &mut buf, &m.triangles);
     }
     for i in &scene.instances {
         buf.extend_from_slice(b"instance");
@@ -450,6 +447,28 @@ fn hash_geometry(h: &mut blake3::Hasher, scene: &Scene) {
         put(h, &mut buf, &[i.albedo]);
     }
     h.update(&buf);
+}
+
+/// Feeds `h` what `buf` gathered, then the floats of `records` (plain floats, no padding)
+/// in order, each by its little-endian bytes.
+fn put_records<T: bytemuck::Pod>(h: &mut blake3::Hasher, buf: &mut Vec<u8>, records: &[T]) {
+    h.update(buf);
+    buf.clear();
+    let floats: &[f32] = bytemuck::cast_slice(records);
+    if cfg!(target_endian = "little") {
+        // The records in memory are the stream's bytes; BLAKE3 spreads one large update over
+        // threads, where gathering them a float at a time cost more than the hash itself.
+        let bytes: &[u8] = bytemuck::cast_slice(floats);
+        if bytes.len() >= 1 << 17 {
+            h.update_rayon(bytes)
+        } else {
+            h.update(bytes)
+        };
+    } else {
+        for piece in floats.chunks(1 << 14) {
+            h.update(&piece.iter().flat_map(|f| f.to_le_bytes()).collect::<Vec<u8>>());
+        }
+    }
 }
 
 /// BLAKE3 hash of the scene's geometry alone, every float by its bits (with the scene's
@@ -475,26 +494,35 @@ pub fn probes_hash(geometry: &[u8; 32], probes: &[Probe]) -> [u8; 32] {
     h.update(geometry);
     h.update(&(probes.len() as u64).to_le_bytes());
     // The same bytes as one update a float, gathered: BLAKE3 hashes a stream, and an
-    // update of four bytes costs as much as one of hundreds.
-    let mut buf: Vec<u8> = Vec::with_capacity(1 << 16);
-    for p in probes {
-        for c in p.position.to_array().into_iter().chain(p.normal.to_array()).chain([p.error]) {
-            buf.extend_from_slice(&c.to_le_bytes());
-        }
-        // Only where there is one, so that a checkpoint of probes without one still matches.
-        if p.surface_normal != Vec3::ZERO {
-            for c in p.surface_normal.to_array() {
+    // update of four bytes costs as much as one of hundreds. Pieces are gathered on
+    // threads, a batch at a time so that the gathered bytes stay bounded, and hashed in order.
+    let gather = |piece: &[Probe]| {
+        let mut buf: Vec<u8> = Vec::with_capacity(piece.len() * 40);
+        for p in piece {
+            for c in p.position.to_array().into_iter().chain(p.normal.to_array()).chain([p.error]) {
                 buf.extend_from_slice(&c.to_le_bytes());
             }
+            // Only where there is one, so that a checkpoint of probes without one still matches.
+            if p.surface_normal != Vec3::ZERO {
+                for c in p.surface_normal.to_array() {
+                    buf.extend_from_slice(&c.to_le_bytes());
+                }
+            }
         }
-        if buf.len() >= 1 << 16 {
-            h.update(&buf);
-            buf.clear();
+        buf
+    };
+    for batch in probes.chunks(PROBE_HASH_PIECE * 64) {
+        let pieces: Vec<Vec<u8>> = batch.par_chunks(PROBE_HASH_PIECE).map(gather).collect();
+        for piece in &pieces {
+            h.update_rayon(piece);
         }
     }
-    h.update(&buf);
     *h.finalize().as_bytes()
 }
+
+/// Probes gathered into one piece of [`probes_hash`]'s stream (at most 640 KiB of bytes, large
+/// enough for BLAKE3 to spread over threads).
+const PROBE_HASH_PIECE: usize = 1 << 14;
 
 /// The largest magnitude of a probe sample: a hemisphere weight, at most 2 (the uniform
 /// hemisphere's 2 cos θ).
@@ -1488,6 +1516,94 @@ pub fn merge(shards: &[(PathBuf, Accumulation)]) -> Result<Merged> {
 mod tests {
     use super::*;
     use crate::sky::SkyModel;
+
+    /// A pool of `threads` threads, for checks that a parallel path's bits do not depend on them.
+    fn pool(threads: usize) -> rayon::ThreadPool {
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool")
+    }
+
+    #[test]
+    fn geometry_hash_is_the_stream_of_every_float_by_its_bits() {
+        use crate::scene::{Instance, InstancedMesh, Plane, Sphere, Triangle};
+        let p = |i: usize, k: f32| Vec3::new(i as f32 * k, -(i as f32) - k, 1e-3 * i as f32 + k);
+        // Enough triangles for a hash spread over threads (megabytes), and every other kind.
+        let mut scene = Scene::default_scene();
+        scene.triangles =
+            (0..60_000).map(|i| Triangle { v: [p(i, 0.5), p(i, 1.5), p(i, -2.0)], albedo: 0.25 }).collect();
+        scene.spheres = vec![Sphere { center: p(3, 1.0), radius: 0.5, albedo: 0.7 }];
+        scene.planes = vec![Plane { normal: Vec3::Y, point: p(5, 0.1), albedo: 0.9 }];
+        scene.meshes = vec![InstancedMesh {
+            name: "m".into(),
+            triangles: (0..9_000).map(|i| [p(i, 1.0), p(i, 2.0), p(i, 3.0)]).collect(),
+        }];
+        scene.instances = vec![Instance { mesh: 0, to_world: glam::Mat4::from_scale(Vec3::splat(2.0)), albedo: 0.5 }];
+        // The stream as written a float at a time.
+        let mut h = blake3::Hasher::new();
+        h.update(b"aorender geometry v1");
+        for (name, count) in [("triangles", 60_000u64), ("spheres", 1), ("planes", 1)] {
+            h.update(name.as_bytes());
+            h.update(&count.to_le_bytes());
+        }
+        fn floats(h: &mut blake3::Hasher, fs: &[f32]) {
+            for f in fs {
+                h.update(&f.to_le_bytes());
+            }
+        }
+        for t in &scene.triangles {
+            let v = t.v;
+            floats(&mut h, &[v[0].x, v[0].y, v[0].z, v[1].x, v[1].y, v[1].z, v[2].x, v[2].y, v[2].z, t.albedo]);
+        }
+        let s = scene.spheres[0];
+        floats(&mut h, &[s.center.x, s.center.y, s.center.z, s.radius, s.albedo]);
+        let q = scene.planes[0];
+        floats(&mut h, &[q.normal.x, q.normal.y, q.normal.z, q.point.x, q.point.y, q.point.z, q.albedo]);
+        h.update(b"mesh");
+        h.update(&9_000u64.to_le_bytes());
+        for [a, b, c] in &scene.meshes[0].triangles {
+            floats(&mut h, &[a.x, a.y, a.z, b.x, b.y, b.z, c.x, c.y, c.z]);
+        }
+        h.update(b"instance");
+        h.update(&0u32.to_le_bytes());
+        floats(&mut h, &scene.instances[0].to_world.to_cols_array());
+        floats(&mut h, &[0.5]);
+        let expected = *h.finalize().as_bytes();
+        for threads in [1, 2, 5] {
+            assert_eq!(pool(threads).install(|| geometry_hash(&scene)), expected, "{threads} threads");
+        }
+        scene.triangles[59_999].albedo = 0.5;
+        assert_ne!(geometry_hash(&scene), expected);
+    }
+
+    #[test]
+    fn probes_hash_over_several_batches_is_the_stream_of_its_floats() {
+        let probe = |i: usize| crate::probe::Probe {
+            position: Vec3::new(i as f32, 0.5 * i as f32, -(i as f32)),
+            normal: Vec3::new(0.0, 1.0, 1e-3 * i as f32),
+            error: 1e-6 * i as f32,
+            surface_normal: if i.is_multiple_of(3) { Vec3::ZERO } else { Vec3::Y },
+        };
+        // Two batches of pieces and part of a third.
+        let probes: Vec<_> = (0..PROBE_HASH_PIECE * 64 * 2 + 777).map(probe).collect();
+        let geometry = [3u8; 32];
+        let mut stream: Vec<u8> = Vec::new();
+        for p in &probes {
+            for c in p.position.to_array().into_iter().chain(p.normal.to_array()).chain([p.error]) {
+                stream.extend_from_slice(&c.to_le_bytes());
+            }
+            if p.surface_normal != Vec3::ZERO {
+                stream.extend(p.surface_normal.to_array().iter().flat_map(|c| c.to_le_bytes()));
+            }
+        }
+        let mut h = blake3::Hasher::new();
+        h.update(b"aorender probes v2");
+        h.update(&geometry);
+        h.update(&(probes.len() as u64).to_le_bytes());
+        h.update(&stream);
+        let expected = *h.finalize().as_bytes();
+        for threads in [1, 2, 5] {
+            assert_eq!(pool(threads).install(|| probes_hash(&geometry, &probes)), expected, "{threads} threads");
+        }
+    }
 
     #[test]
     fn probes_hash_as_when_each_float_was_its_own_update() {

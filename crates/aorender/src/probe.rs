@@ -17,6 +17,7 @@
 use crate::error::{Error, Result};
 use crate::film::{Film, standard_error};
 use glam::Vec3;
+use rayon::prelude::*;
 
 /// A point and the normal of its hemisphere.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -85,17 +86,20 @@ impl Probe {
 /// The probes checked, with unit normals however they were given (what a request traces):
 /// [`Error::Probe`] names the first bad one.
 pub fn checked(probes: &[Probe]) -> Result<Vec<Probe>> {
+    let check = |(index, p): (usize, &Probe)| {
+        let checked = match p.surface_normal {
+            Vec3::ZERO => Probe::with_error(p.position, p.normal, p.error),
+            g => Probe::on_surface(p.position, p.normal, g, p.error),
+        };
+        checked.map_err(|e| Error::Probe { index, message: e.message() })
+    };
+    // Over threads, which may stop at any bad probe: the error names the first.
     probes
-        .iter()
+        .par_iter()
         .enumerate()
-        .map(|(index, p)| {
-            let checked = match p.surface_normal {
-                Vec3::ZERO => Probe::with_error(p.position, p.normal, p.error),
-                g => Probe::on_surface(p.position, p.normal, g, p.error),
-            };
-            checked.map_err(|e| Error::Probe { index, message: e.message() })
-        })
-        .collect()
+        .map(check)
+        .collect::<Result<Vec<Probe>>>()
+        .map_err(|e| probes.iter().enumerate().map(check).find_map(|r| r.err()).unwrap_or(e))
 }
 
 /// The estimate at one probe.
@@ -186,6 +190,31 @@ mod tests {
         assert!(Probe::on_surface(Vec3::ONE, Vec3::Z, Vec3::new(0.0, 0.0, 2.0), 0.0).is_err());
         assert!(Probe::on_surface(Vec3::ONE, Vec3::Z, Vec3::NAN, 0.0).is_err());
         assert!(Probe::on_surface(Vec3::ONE, Vec3::Z, tilted, -1.0).is_err());
+    }
+
+    #[test]
+    fn checked_probes_name_the_first_bad_one_on_any_number_of_threads() {
+        let good = |i: usize| Probe {
+            position: Vec3::splat(i as f32),
+            normal: Vec3::new(0.0, 0.0, 3.0),
+            error: 1e-6,
+            surface_normal: Vec3::ZERO,
+        };
+        let mut probes: Vec<Probe> = (0..200_000).map(good).collect();
+        let normalised: Vec<Probe> =
+            probes.iter().map(|p| Probe::with_error(p.position, p.normal, p.error).unwrap()).collect();
+        assert_eq!(normalised[7].normal, Vec3::Z);
+        // Bad ones late in the list, the first of them after a thread's share would start.
+        for (k, bad) in [(150_001, Vec3::ZERO), (199_999, Vec3::NAN), (150_007, Vec3::ZERO)] {
+            probes[k].normal = bad;
+        }
+        for threads in [1, 2, 7] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+            let err = pool.install(|| checked(&probes)).unwrap_err();
+            assert!(matches!(err, Error::Probe { index: 150_001, .. }), "{threads} threads: {err}");
+            assert_eq!(pool.install(|| checked(&normalised[..150_000])).unwrap(), normalised[..150_000]);
+            assert_eq!(pool.install(|| checked(&probes[..150_000])).unwrap(), normalised[..150_000]);
+        }
     }
 
     #[test]

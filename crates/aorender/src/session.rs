@@ -21,6 +21,7 @@ use crate::render::{Control, PassTimes, Render, RenderInfo};
 use crate::scene::{Camera, LocalFrame, Scene, Settings, round_up};
 use crate::surface::{Located, SurfaceIndex, SurfaceTolerance};
 use glam::DVec3;
+use rayon::prelude::*;
 use std::ops::Range;
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
@@ -133,7 +134,7 @@ impl Session {
     /// offset bound grown by that move's rounding and the scene's (both zero when exact).
     fn local_probes(&self, probes: &[Probe]) -> Vec<Probe> {
         probes
-            .iter()
+            .par_iter()
             .map(|p| {
                 let (position, rounding) = self.frame.point(p.position);
                 let shift = rounding + self.frame.surface_shift as f64;

@@ -252,11 +252,19 @@ pub fn format_of(path: &Path) -> Option<&'static str> {
 /// The scene loader's form of `mesh`, read from a PLY file: every vertex, each face split
 /// as a fan (v0, v(k-1), vk) as the loader splits polygons.
 pub(crate) fn fan_mesh(mesh: &AssetMesh, names: VertexNames, warnings: Vec<String>) -> IndexedMesh {
-    let corners = mesh.face_indices.len();
-    let mut triangles = Vec::with_capacity(corners.saturating_sub(2 * mesh.face_count()));
-    for f in 0..mesh.face_count() {
-        let c = mesh.face(f);
-        triangles.extend((2..c.len()).map(|k| [c[0], c[k - 1], c[k]]));
-    }
-    IndexedMesh { origin: glam::DVec3::ZERO, positions: mesh.positions.clone(), triangles, names, warnings }
+    use rayon::prelude::*;
+    let triangles: Vec<[u32; 3]> = if mesh.face_starts.par_windows(2).all(|w| w[1] - w[0] == 3) {
+        // Triangles only (the usual mesh): each face is its corners, copied over threads.
+        mesh.face_indices.par_chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+    } else {
+        (0..mesh.face_count())
+            .into_par_iter()
+            .flat_map_iter(|f| {
+                let c = mesh.face(f);
+                (2..c.len()).map(move |k| [c[0], c[k - 1], c[k]])
+            })
+            .collect()
+    };
+    let positions = mesh.positions.par_iter().copied().collect();
+    IndexedMesh { origin: glam::DVec3::ZERO, positions, triangles, names, warnings }
 }

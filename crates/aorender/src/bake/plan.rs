@@ -7,6 +7,7 @@ use crate::geometry::{AffineRows, InverseAffine, gamma, instance_point};
 use crate::probe::{Probe, ProbeValue};
 use crate::scene::{MIN_NORMAL_LENGTH_SQUARED, MeshObject, place_point};
 use glam::{DVec3, Mat3, Mat4, Vec3};
+use rayon::prelude::*;
 
 /// How a baked mesh is placed in the scene: by `to_world` into the scene's triangles (each
 /// vertex through [`place_point`], as the loader placed it), or as an instance
@@ -114,11 +115,19 @@ impl BakePlan {
     fn add_vertices(&mut self, mesh: &AssetMesh, placement: &Placement) -> Vec<u32> {
         let (normals, file) = vertex_normals(mesh, placement);
         self.file_normals += file;
-        normals
-            .iter()
+        // The probes made over threads, then numbered in vertex order.
+        let made: Vec<Option<Probe>> = normals
+            .par_iter()
             .enumerate()
-            .map(|(i, normal)| match normal {
-                Some(n) => self.push(placement, mesh.positions[i], Vec3::ZERO, *n),
+            .map(|(i, normal)| normal.map(|n| place(placement, mesh.positions[i], Vec3::ZERO, n)))
+            .collect();
+        self.probes.reserve(made.iter().flatten().count());
+        made.into_iter()
+            .map(|probe| match probe {
+                Some(probe) => {
+                    self.probes.push(probe);
+                    self.probes.len() as u32 - 1
+                }
                 None => {
                     self.unusable += 1;
                     NO_PROBE
@@ -186,30 +195,48 @@ pub(super) fn vertex_normals(mesh: &AssetMesh, placement: &Placement) -> (Vec<Op
     let m = placement.to_world;
     let normal_matrix = Mat3::from_mat4(m).as_dmat3().inverse().transpose();
     // Area-weighted face normals (twice the area), in the world, summed per vertex.
-    let world: Vec<DVec3> = mesh.positions.iter().map(|&p| place_point(&m, p).as_dvec3()).collect();
-    let mut area = vec![DVec3::ZERO; mesh.positions.len()];
-    for f in 0..mesh.face_count() {
-        let face = mesh.face(f);
-        let n = polygon_area_vector(face.iter().map(|&i| world[i as usize]));
-        for &i in face {
-            area[i as usize] += n;
-        }
-    }
-    let mut file_normals = 0;
-    let normals = (0..mesh.positions.len())
+    let world: Vec<DVec3> = mesh.positions.par_iter().map(|&p| place_point(&m, p).as_dvec3()).collect();
+    let area = area_sums(mesh, &world);
+    let (normals, from_file): (Vec<Option<Vec3>>, Vec<bool>) = (0..mesh.positions.len())
+        .into_par_iter()
         .map(|i| {
             let file = mesh.normals.as_ref().map(|n| (normal_matrix * n[i].as_dvec3()).as_vec3());
-            let normal = match file {
-                Some(n) if usable(n) => {
-                    file_normals += 1;
-                    n
-                }
-                _ => area[i].as_vec3(),
+            let (normal, from_file) = match file {
+                Some(n) if usable(n) => (n, true),
+                _ => (area[i].as_vec3(), false),
             };
-            usable(normal).then_some(normal)
+            (usable(normal).then_some(normal), from_file)
         })
-        .collect();
-    (normals, file_normals)
+        .unzip();
+    (normals, from_file.iter().filter(|&&f| f).count())
+}
+
+/// Vertices below which [`area_sums`] gives a thread no share of its own.
+const AREA_SHARE: usize = 1 << 12;
+
+/// Per vertex of `mesh`, the sum of the area vectors of the faces it is a corner of
+/// (`world`: its vertices in the world), over threads: each owns a range of vertices
+/// and goes through every face in order, so that each vertex adds its faces' vectors
+/// in face order, as one pass over the faces does, and gets the same bits whatever the
+/// number of threads.
+fn area_sums(mesh: &AssetMesh, world: &[DVec3]) -> Vec<DVec3> {
+    let mut area: Vec<DVec3> = bytemuck::zeroed_vec(world.len());
+    let shares = rayon::current_num_threads().min(world.len() / AREA_SHARE).max(1);
+    let share = world.len().div_ceil(shares).max(1);
+    area.par_chunks_mut(share).enumerate().for_each(|(r, own)| {
+        let mine = r * share..r * share + own.len();
+        for f in 0..mesh.face_count() {
+            let face = mesh.face(f);
+            if !face.iter().any(|&i| mine.contains(&(i as usize))) {
+                continue;
+            }
+            let n = polygon_area_vector(face.iter().map(|&i| world[i as usize]));
+            for &i in face.iter().filter(|&&i| mine.contains(&(i as usize))) {
+                own[i as usize - mine.start] += n;
+            }
+        }
+    });
+    area
 }
 
 /// A probe at the barycentric coordinates `b` (of corners 1 and 2) of the triangle `tri`
@@ -272,12 +299,110 @@ fn plane_bound(c: Vec3, corners: &[DVec3]) -> f32 {
     (distance * (1.0 + 1e-9) + 1e-12 * c.as_dvec3().abs().max_element()) as f32 * (1.0 + gamma(1))
 }
 /// Twice the area times the unit normal of a polygon, summed over its fan triangles.
-fn polygon_area_vector(corners: impl Iterator<Item = DVec3>) -> DVec3 {
-    let corners: Vec<DVec3> = corners.collect();
-    (1..corners.len().saturating_sub(1)).map(|k| (corners[k] - corners[0]).cross(corners[k + 1] - corners[0])).sum()
+fn polygon_area_vector(mut corners: impl Iterator<Item = DVec3>) -> DVec3 {
+    let (Some(first), Some(mut previous)) = (corners.next(), corners.next()) else { return DVec3::ZERO };
+    // The fan's cross products added in order from zero, without gathering the corners.
+    let mut sum = DVec3::ZERO;
+    for c in corners {
+        sum += (previous - first).cross(c - first);
+        previous = c;
+    }
+    sum
 }
 
 /// Whether a normal can be normalised in f32.
 fn usable(n: Vec3) -> bool {
     n.is_finite() && n.length_squared() >= MIN_NORMAL_LENGTH_SQUARED && n.length_squared().is_finite()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The normals as one pass over the faces computes them, for comparison.
+    fn one_pass_normals(mesh: &AssetMesh, placement: &Placement) -> (Vec<Option<Vec3>>, usize) {
+        let m = placement.to_world;
+        let normal_matrix = Mat3::from_mat4(m).as_dmat3().inverse().transpose();
+        let world: Vec<DVec3> = mesh.positions.iter().map(|&p| place_point(&m, p).as_dvec3()).collect();
+        let mut area = vec![DVec3::ZERO; mesh.positions.len()];
+        for f in 0..mesh.face_count() {
+            let face = mesh.face(f);
+            let c: Vec<DVec3> = face.iter().map(|&i| world[i as usize]).collect();
+            let n: DVec3 = (1..c.len().saturating_sub(1)).map(|k| (c[k] - c[0]).cross(c[k + 1] - c[0])).sum();
+            for &i in face {
+                area[i as usize] += n;
+            }
+        }
+        let mut file_normals = 0;
+        let normals = (0..mesh.positions.len())
+            .map(|i| {
+                let file = mesh.normals.as_ref().map(|n| (normal_matrix * n[i].as_dvec3()).as_vec3());
+                let normal = match file {
+                    Some(n) if usable(n) => {
+                        file_normals += 1;
+                        n
+                    }
+                    _ => area[i].as_vec3(),
+                };
+                usable(normal).then_some(normal)
+            })
+            .collect();
+        (normals, file_normals)
+    }
+
+    #[test]
+    fn vertex_normals_have_one_pass_bits_on_any_number_of_threads() {
+        // A pseudo-random mesh whose faces (triangles, quads, a pentagon, repeated corners)
+        // join vertices far apart in number, so that faces straddle the threads' shares.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 33) as u32
+        };
+        let vertices = 5 * AREA_SHARE + 123;
+        let unit = |v: u32| v as f32 / (1u32 << 31) as f32 - 0.5;
+        let positions: Vec<Vec3> = (0..vertices).map(|_| Vec3::new(unit(next()), unit(next()), unit(next()))).collect();
+        let (mut face_starts, mut face_indices) = (vec![0u32], Vec::new());
+        for f in 0..3 * vertices {
+            let corners = [3, 3, 4, 3, 5][f % 5];
+            let near = next() as usize % vertices;
+            for _ in 0..corners {
+                // Mostly nearby vertices, now and then any vertex, sometimes one twice.
+                let i = if next().is_multiple_of(8) {
+                    next() as usize % vertices
+                } else {
+                    (near + next() as usize % 64) % vertices
+                };
+                face_indices.push(i as u32);
+            }
+            face_starts.push(face_indices.len() as u32);
+        }
+        // File normals, every seventh unusable (zero) so the face normals fill in.
+        let normals: Vec<Vec3> = (0..vertices)
+            .map(|k| if k.is_multiple_of(7) { Vec3::ZERO } else { Vec3::new(unit(next()), 1.0, unit(next())) })
+            .collect();
+        let mut mesh = AssetMesh { positions, face_starts, face_indices, ..Default::default() };
+        let placement = Placement {
+            to_world: Mat4::from_scale_rotation_translation(
+                Vec3::new(1.5, 0.7, 2.0),
+                glam::Quat::from_rotation_y(0.3),
+                Vec3::new(10.0, -3.0, 0.25),
+            ),
+            instanced: false,
+        };
+        let bits = |(n, file): (Vec<Option<Vec3>>, usize)| {
+            (n.iter().map(|v| v.map(|v| v.to_array().map(f32::to_bits))).collect::<Vec<_>>(), file)
+        };
+        for with_file in [false, true] {
+            mesh.normals = with_file.then(|| normals.clone());
+            let expected = bits(one_pass_normals(&mesh, &placement));
+            assert!(expected.0.iter().filter(|n| n.is_some()).count() > vertices * 9 / 10);
+            assert_eq!(expected.1 > 0, with_file);
+            for threads in [1, 2, 3, 8] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+                let got = bits(pool.install(|| vertex_normals(&mesh, &placement)));
+                assert!(got == expected, "{threads} threads, file normals: {with_file}");
+            }
+        }
+    }
 }

@@ -67,19 +67,66 @@ pub fn build_cwbvh_in_cells(
     drop(keys);
     built.sort_unstable_by_key(|(c, _)| *c);
     let boxes: Vec<Aabb> = built.iter().map(|(_, b)| b.total_aabb).collect();
-    let node_count = plan.inner_nodes() + built.iter().map(|(_, b)| b.nodes.len()).sum::<usize>();
-    let mut out = CwBvh {
-        nodes: Vec::with_capacity(node_count),
-        primitive_indices: Vec::with_capacity(count),
+    let sizes: Vec<(usize, usize)> = built.iter().map(|(_, b)| (b.nodes.len(), b.primitive_indices.len())).collect();
+    // Where everything goes, then the nodes made here and the cells' roots, then the
+    // cells' other nodes and primitives, each cell into its own range, over threads.
+    let mut layout = Layout { nodes: 1, primitives: 0, inner: Vec::new(), places: Vec::new() };
+    plan.lay_out(0, &boxes, &sizes, &mut layout);
+    let mut nodes: Vec<CwBvhNode> = bytemuck::zeroed_vec(layout.nodes);
+    let mut primitive_indices: Vec<u32> = bytemuck::zeroed_vec(layout.primitives);
+    for (slot, node) in layout.inner {
+        nodes[slot] = node;
+    }
+    // Node j > 0 of a cell moves to node_base + j; its root to its slot.
+    let bases = |place: &CellPlace| ((place.node_start - 1) as u32, place.prim_start as u32);
+    for place in &layout.places {
+        let (node_base, prim_base) = bases(place);
+        nodes[place.slot] = placed(&built[place.cell].1.nodes[0], node_base, prim_base);
+    }
+    let mut built: Vec<Option<CwBvh>> = built.into_iter().map(|(_, b)| Some(b)).collect();
+    let mut jobs = Vec::with_capacity(layout.places.len());
+    let (mut node_rest, mut prim_rest) = (&mut nodes[..], &mut primitive_indices[..]);
+    let mut node_end = 0;
+    for place in &layout.places {
+        let cell = built[place.cell].take().expect("each cell is placed once");
+        let (node_base, prim_base) = bases(place);
+        let (_, rest) = std::mem::take(&mut node_rest).split_at_mut(place.node_start - node_end);
+        let (body, rest) = rest.split_at_mut(cell.nodes.len() - 1);
+        let (prims, prim_after) = std::mem::take(&mut prim_rest).split_at_mut(cell.primitive_indices.len());
+        (node_rest, prim_rest, node_end) = (rest, prim_after, place.node_start + body.len());
+        jobs.push((cell, body, prims, node_base, prim_base));
+    }
+    jobs.into_par_iter().for_each(|(cell, body, prims, node_base, prim_base)| {
+        for (to, from) in body.iter_mut().zip(&cell.nodes[1..]) {
+            *to = placed(from, node_base, prim_base);
+        }
+        prims.copy_from_slice(&cell.primitive_indices);
+    });
+    Some(CwBvh {
+        nodes,
+        primitive_indices,
         total_aabb: plan.bounds(&boxes),
         exact_node_aabbs: None,
         uses_spatial_splits: false,
-    };
-    out.nodes.push(CwBvhNode::default());
-    let mut built: Vec<Option<CwBvh>> = built.into_iter().map(|(_, b)| Some(b)).collect();
-    plan.join(0, &boxes, &mut built, &mut out);
-    debug_assert_eq!(out.nodes.len(), node_count);
-    Some(out)
+    })
+}
+
+/// Where the join of the cells puts everything: the nodes and primitives laid out so far,
+/// the inner nodes made above the cells (with their indices) and each cell's place.
+struct Layout {
+    nodes: usize,
+    primitives: usize,
+    inner: Vec<(usize, CwBvhNode)>,
+    places: Vec<CellPlace>,
+}
+
+/// Where one cell goes: its root at `slot` (in its parent's children), its other nodes
+/// from `node_start` and its primitives from `prim_start`, after those laid out before it.
+struct CellPlace {
+    cell: usize,
+    slot: usize,
+    node_start: usize,
+    prim_start: usize,
 }
 
 /// obvhs's CWBVH over primitives `ids` ([`cwbvh_over`]: O(log n) deep whatever the
@@ -171,13 +218,6 @@ fn plan(keys: &[u64], range: Range<usize>, level: u32, chunk: usize, cells: &mut
 }
 
 impl Part {
-    fn inner_nodes(&self) -> usize {
-        match self {
-            Part::Cell(_) => 0,
-            Part::Node(parts) => 1 + parts.iter().map(Part::inner_nodes).sum::<usize>(),
-        }
-    }
-
     fn bounds(&self, cell_boxes: &[Aabb]) -> Aabb {
         match self {
             Part::Cell(c) => cell_boxes[*c],
@@ -185,18 +225,16 @@ impl Part {
         }
     }
 
-    /// Writes this part's root into `out.nodes[slot]` and the rest of it after the end.
-    fn join(&self, slot: usize, cell_boxes: &[Aabb], cells: &mut [Option<CwBvh>], out: &mut CwBvh) {
+    /// Lays this part out: its root at node `slot`, the rest after the end of `layout`,
+    /// each node's inner children contiguous in slot order, a cell's nodes (of `sizes`:
+    /// nodes and primitives by cell) after its root's place, in depth-first order.
+    fn lay_out(&self, slot: usize, cell_boxes: &[Aabb], sizes: &[(usize, usize)], layout: &mut Layout) {
         match self {
             Part::Cell(c) => {
-                let cell = cells[*c].take().expect("each cell is joined once");
-                // Node j > 0 of the cell moves to node_base + j - 1; its root to `slot`.
-                let node_base = out.nodes.len() as u32 - 1;
-                let prim_base = out.primitive_indices.len() as u32;
-                let moved = |n: &CwBvhNode| placed(n, node_base, prim_base);
-                out.nodes[slot] = placed(&cell.nodes[0], node_base, prim_base);
-                out.nodes.extend(cell.nodes[1..].iter().map(moved));
-                out.primitive_indices.extend_from_slice(&cell.primitive_indices);
+                let (node_start, prim_start) = (layout.nodes, layout.primitives);
+                layout.places.push(CellPlace { cell: *c, slot, node_start, prim_start });
+                layout.nodes += sizes[*c].0 - 1;
+                layout.primitives += sizes[*c].1;
             }
             Part::Node(parts) => {
                 let boxes: Vec<Aabb> = parts.iter().map(|p| p.bounds(cell_boxes)).collect();
@@ -205,12 +243,12 @@ impl Part {
                 // A node's inner children are stored contiguously, in slot order.
                 let mut order: Vec<usize> = (0..parts.len()).collect();
                 order.sort_unstable_by_key(|&c| slots[c]);
-                let base = out.nodes.len();
-                out.nodes.resize(base + parts.len(), CwBvhNode::default());
+                let base = layout.nodes;
+                layout.nodes += parts.len();
                 let children: Vec<(usize, Aabb)> = order.iter().map(|&c| (slots[c], boxes[c])).collect();
-                out.nodes[slot] = inner_node(&node_box, &children, base as u32, out.primitive_indices.len() as u32);
+                layout.inner.push((slot, inner_node(&node_box, &children, base as u32, layout.primitives as u32)));
                 for (rank, &c) in order.iter().enumerate() {
-                    parts[c].join(base + rank, cell_boxes, cells, out);
+                    parts[c].lay_out(base + rank, cell_boxes, sizes, layout);
                 }
             }
         }

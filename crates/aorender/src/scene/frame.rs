@@ -22,7 +22,7 @@
 //! the scene's own coordinates, are moved by both.
 
 use super::camera::Camera;
-use super::types::Scene;
+use super::types::{EMPTY_BOUNDS, Scene, fold_bounds};
 use glam::{DVec3, Vec3};
 
 /// The local origin of a scene and what moving the scene by it did.
@@ -88,15 +88,13 @@ impl Scene {
     /// instances as their mesh's bounds' corners carried into the world), for choosing the
     /// local origin; `None` when the scene has none.
     fn frame_bounds(&self) -> Option<(DVec3, DVec3)> {
-        let mut min = DVec3::INFINITY;
-        let mut max = DVec3::NEG_INFINITY;
+        // The triangles' box in f32 widens exactly to theirs in f64, a zero's sign included.
+        let (lo, hi) = fold_bounds(EMPTY_BOUNDS, &self.triangles, |t| t.v);
+        let (mut min, mut max) = (lo.as_dvec3(), hi.as_dvec3());
         let mut add = |p: DVec3| {
             min = min.min(p);
             max = max.max(p);
         };
-        for t in &self.triangles {
-            t.v.iter().for_each(|v| add(v.as_dvec3()));
-        }
         for s in &self.spheres {
             let r = DVec3::splat(s.radius as f64);
             add(s.center.as_dvec3() - r);
@@ -106,9 +104,7 @@ impl Scene {
             .meshes
             .iter()
             .map(|m| {
-                let vertices = m.triangles.iter().flatten();
-                let lo = vertices.clone().fold(Vec3::INFINITY, |a, &v| a.min(v));
-                let hi = vertices.fold(Vec3::NEG_INFINITY, |a, &v| a.max(v));
+                let (lo, hi) = fold_bounds(EMPTY_BOUNDS, &m.triangles, |&t| t);
                 (lo.x <= hi.x).then_some((lo, hi))
             })
             .collect();

@@ -9,6 +9,7 @@ use super::types::{
 use super::{gltf, obj, ply};
 use crate::error::{Error, Result};
 use glam::Vec3;
+use rayon::prelude::*;
 use std::path::Path;
 
 /// Loads a triangle mesh (`.obj`, `.ply`, `.gltf` or `.glb`, each optionally gzipped as
@@ -83,16 +84,98 @@ pub(crate) fn place_mesh(
     meter: &mut Meter,
 ) -> Result<Vec<Triangle>> {
     // Each distinct vertex goes through the transform once, and every triangle below takes
-    // its corners from the result, so shared vertices stay bit-identical.
-    for (k, p) in positions.iter_mut().enumerate() {
-        let q = place_point(transform, *p);
-        if let Some(c) = non_finite_coordinate(q) {
-            let name = vertex_name(&mesh.names, k, *p);
-            return Err(Error::scene(path, format!("{name} has a non-finite coordinate after the transform ({c})")));
-        }
-        *p = q;
+    // its corners from the result, so shared vertices stay bit-identical. A vertex that
+    // leaves f32 keeps its position, which its error names (the first such, by number).
+    let first_bad = positions
+        .par_iter_mut()
+        .enumerate()
+        .with_min_len(PLACE_PIECE)
+        .filter_map(|(k, p)| {
+            let q = place_point(transform, *p);
+            let bad = non_finite_coordinate(q).map(|c| (k, c));
+            if bad.is_none() {
+                *p = q;
+            }
+            bad
+        })
+        .min_by_key(|(k, _)| *k);
+    if let Some((k, c)) = first_bad {
+        let name = vertex_name(&mesh.names, k, positions[k]);
+        return Err(Error::scene(path, format!("{name} has a non-finite coordinate after the transform ({c})")));
     }
-    mesh_triangles_within(path, mesh.triangles.iter().map(|t| t.map(|i| positions[i as usize])), albedo, meter)
+    placed_triangles(path, &positions, &mesh.triangles, albedo, meter)
+}
+
+/// Triangles a thread checks or writes at a time when a mesh is placed.
+const PLACE_PIECE: usize = 1 << 14;
+
+/// [`mesh_triangles_within`] for the triangles `indices` of the vertices `positions`, over
+/// threads: each piece of triangles is checked (the first error by number is reported, as
+/// one pass would) and counted, then written into its place of one allocation, in order.
+fn placed_triangles(
+    path: &Path,
+    positions: &[Vec3],
+    indices: &[[u32; 3]],
+    albedo: f32,
+    meter: &mut Meter,
+) -> Result<Vec<Triangle>> {
+    meter.charge(path, (indices.len() * std::mem::size_of::<Triangle>()) as u64)?;
+    let corners = |t: &[u32; 3]| t.map(|i| positions[i as usize]);
+    let kept: Vec<Result<usize>> = indices
+        .par_chunks(PLACE_PIECE)
+        .enumerate()
+        .map(|(c, piece)| {
+            let mut n = 0;
+            for (j, t) in piece.iter().enumerate() {
+                n += usize::from(kept_triangle(path, c * PLACE_PIECE + j, &corners(t))?);
+            }
+            Ok(n)
+        })
+        .collect();
+    let kept = kept.into_iter().collect::<Result<Vec<usize>>>()?;
+    let total = kept.iter().sum();
+    if total == 0 {
+        return Err(Error::scene(path, "mesh has no triangles of non-zero area"));
+    }
+    // Zeroed pages from the allocator: each is first touched by the thread that fills it.
+    let mut out: Vec<Triangle> = bytemuck::zeroed_vec(total);
+    let mut rest = &mut out[..];
+    let mut pieces = Vec::with_capacity(kept.len());
+    for &n in &kept {
+        let (piece, after) = rest.split_at_mut(n);
+        pieces.push(piece);
+        rest = after;
+    }
+    pieces.into_par_iter().zip(indices.par_chunks(PLACE_PIECE)).for_each(|(to, from)| {
+        let made = from.iter().map(corners).filter(|v| normal_length_squared(v) >= MIN_NORMAL_LENGTH_SQUARED);
+        for (t, v) in to.iter_mut().zip(made) {
+            *t = Triangle { v, albedo };
+        }
+    });
+    Ok(out)
+}
+
+/// The squared length of the normal of the triangle `v`, as the renderers compute it
+/// (src/geometry.rs, shaders/intersect.wgsl).
+fn normal_length_squared(v: &[Vec3; 3]) -> f32 {
+    let n = (v[1] - v[0]).cross(v[2] - v[0]);
+    n.dot(n)
+}
+
+/// Whether triangle `i` (from 0) of vertices `v` is kept: an error for a non-finite
+/// coordinate or a normal too large for f32, false for a degenerate one.
+fn kept_triangle(path: &Path, i: usize, v: &[Vec3; 3]) -> Result<bool> {
+    if let Some(c) = v.iter().find_map(|&p| non_finite_coordinate(p)) {
+        return Err(Error::scene(path, format!("triangle {} has a non-finite coordinate ({c})", i + 1)));
+    }
+    let l2 = normal_length_squared(v);
+    if l2.is_nan() || l2 > MAX_NORMAL_LENGTH_SQUARED {
+        return Err(Error::scene(
+            path,
+            format!("triangle {} is too large for f32: its normal has squared length {l2}", i + 1),
+        ));
+    }
+    Ok(l2 >= MIN_NORMAL_LENGTH_SQUARED)
 }
 
 /// The triangles of a mesh in world space, as the scene keeps them: rejects a non-finite
@@ -120,19 +203,7 @@ pub(crate) fn mesh_triangles_within(
     meter.charge(path, (count * std::mem::size_of::<Triangle>()) as u64)?;
     let mut out = Vec::with_capacity(count);
     for (i, v) in triangles.enumerate() {
-        if let Some(c) = v.iter().find_map(|&p| non_finite_coordinate(p)) {
-            return Err(Error::scene(path, format!("triangle {} has a non-finite coordinate ({c})", i + 1)));
-        }
-        // The normal as the renderers compute it (src/geometry.rs, shaders/intersect.wgsl).
-        let n = (v[1] - v[0]).cross(v[2] - v[0]);
-        let l2 = n.dot(n);
-        if l2.is_nan() || l2 > MAX_NORMAL_LENGTH_SQUARED {
-            return Err(Error::scene(
-                path,
-                format!("triangle {} is too large for f32: its normal has squared length {l2}", i + 1),
-            ));
-        }
-        if l2 >= MIN_NORMAL_LENGTH_SQUARED {
+        if kept_triangle(path, i, &v)? {
             out.push(Triangle { v, albedo });
         }
     }
@@ -174,5 +245,68 @@ pub(crate) fn vertex_name(names: &VertexNames, k: usize, position: Vec3) -> Stri
                 None => format!("vertex {k}"),
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pool(threads: usize) -> rayon::ThreadPool {
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool")
+    }
+
+    /// A strip of `n` vertices and its triangles, every fifth triangle degenerate (a
+    /// repeated corner), spanning several pieces of the parallel placement.
+    fn strip(n: usize) -> IndexedMesh {
+        let positions = (0..n).map(|k| Vec3::new(k as f32 * 0.25, (k % 2) as f32, (k % 7) as f32 * 1e-3)).collect();
+        let triangles =
+            (0..n as u32 - 2).map(|k| if k.is_multiple_of(5) { [k, k, k + 1] } else { [k, k + 1, k + 2] }).collect();
+        IndexedMesh { positions, triangles, ..Default::default() }
+    }
+
+    #[test]
+    fn placed_meshes_have_one_pass_bits_and_first_errors_on_any_number_of_threads() {
+        let path = Path::new("strip.ply");
+        let mesh = strip(5 * PLACE_PIECE + 77);
+        let transform = glam::Mat4::from_scale_rotation_translation(
+            Vec3::new(1.5, 0.5, 3.0),
+            glam::Quat::from_rotation_z(0.7),
+            Vec3::new(-4.0, 2.0, 1e3),
+        );
+        // One pass: every vertex placed once, then the triangles made and checked in order.
+        let placed: Vec<Vec3> = mesh.positions.iter().map(|&p| place_point(&transform, p)).collect();
+        let corners = mesh.triangles.iter().map(|t| t.map(|i| placed[i as usize]));
+        let expected = mesh_triangles(path, corners, 0.5).unwrap();
+        assert_eq!(expected.len(), mesh.triangles.len() - mesh.triangles.len().div_ceil(5));
+        let bits = |t: &[Triangle]| t.iter().map(|t| t.v.map(|v| v.to_array().map(f32::to_bits))).collect::<Vec<_>>();
+        let place = |mesh: &IndexedMesh, transform: &glam::Mat4| {
+            place_mesh(path, mesh.positions.clone(), mesh, 0.5, transform, &mut Meter::unlimited())
+        };
+        // Vertices that leave f32 under a scale, two in later pieces: the first is named.
+        let mut far = mesh.clone();
+        for k in [3 * PLACE_PIECE + 5, 4 * PLACE_PIECE + 1, 3 * PLACE_PIECE + 9] {
+            far.positions[k].x = 1e30;
+        }
+        let scale = glam::Mat4::from_scale(Vec3::splat(1e10));
+        // A triangle whose normal overflows, after a degenerate one, in a later piece.
+        let mut large = mesh.clone();
+        let t = 4 * PLACE_PIECE + 3;
+        large.positions[t + 2] = Vec3::new(1e19, -1e19, 0.0);
+        for threads in [1, 2, 5] {
+            let pool = pool(threads);
+            let got = pool.install(|| place(&mesh, &transform)).unwrap();
+            assert!(bits(&got) == bits(&expected) && got.iter().all(|t| t.albedo == 0.5), "{threads} threads");
+            let err = pool.install(|| place(&far, &scale)).unwrap_err().to_string();
+            let vertex =
+                format!("vertex {} has a non-finite coordinate after the transform (x = inf)", 3 * PLACE_PIECE + 5);
+            assert!(err.contains(&vertex), "{threads} threads: {err}");
+            let err = pool.install(|| place(&large, &glam::Mat4::IDENTITY)).unwrap_err().to_string();
+            assert!(err.contains(&format!("triangle {} is too large for f32", t + 1)), "{threads} threads: {err}");
+        }
+        // Nothing of non-zero area: the mesh is refused.
+        let flat = IndexedMesh { triangles: vec![[0, 0, 1]; 3 * PLACE_PIECE], ..mesh.clone() };
+        let err = pool(3).install(|| place(&flat, &transform)).unwrap_err().to_string();
+        assert!(err.contains("mesh has no triangles of non-zero area"), "{err}");
     }
 }

@@ -8,10 +8,36 @@ use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
 use crate::sky::Sky;
 use glam::{DVec3, Mat4, Vec3};
+use rayon::prelude::*;
 use std::path::PathBuf;
 
-/// A triangle with its albedo.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// The box no point is in: the start of [`fold_bounds`].
+pub(crate) const EMPTY_BOUNDS: (Vec3, Vec3) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+
+/// The box `(min, max)` grown by the finite points `points` gives of each of `items`, in
+/// parallel: each thread's share folded in order from [`EMPTY_BOUNDS`], then the shares
+/// combined in order and with `start`. Min and max are associative (a tie between +0 and −0
+/// resolved by the operands' order, which this keeps) and the start is their identity,
+/// so the bits are those of one fold over the points in order, a zero's sign included.
+pub(crate) fn fold_bounds<T: Sync, const N: usize>(
+    start: (Vec3, Vec3),
+    items: &[T],
+    points: impl Fn(&T) -> [Vec3; N] + Sync,
+) -> (Vec3, Vec3) {
+    let grow = |(min, max): (Vec3, Vec3), p: Vec3| (min.min(p), max.max(p));
+    let join = |(a_min, a_max): (Vec3, Vec3), (b_min, b_max): (Vec3, Vec3)| (a_min.min(b_min), a_max.max(b_max));
+    let found = items
+        .par_iter()
+        .with_min_len(1 << 14)
+        .fold(|| EMPTY_BOUNDS, |b, item| points(item).into_iter().fold(b, grow))
+        .reduce(|| EMPTY_BOUNDS, join);
+    join(start, found)
+}
+
+/// A triangle with its albedo; laid out as its ten floats in order, which the scene hash
+/// reads as bytes.
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct Triangle {
     /// Vertices, world space.
     pub v: [Vec3; 3],
@@ -321,22 +347,10 @@ impl Scene {
     /// Bounds of triangles, instances and spheres, in the stored coordinates (relative to
     /// [`Scene::origin`]); `None` when the scene has none.
     pub fn bounds(&self) -> Option<Bounds> {
-        let mut min = Vec3::splat(f32::INFINITY);
-        let mut max = Vec3::splat(f32::NEG_INFINITY);
-        for t in &self.triangles {
-            for v in t.v {
-                min = min.min(v);
-                max = max.max(v);
-            }
-        }
+        let (mut min, mut max) = fold_bounds(EMPTY_BOUNDS, &self.triangles, |t| t.v);
         for instance in &self.instances {
-            for t in &self.meshes[instance.mesh as usize].triangles {
-                for v in t {
-                    let w = place_point(&instance.to_world, *v);
-                    min = min.min(w);
-                    max = max.max(w);
-                }
-            }
+            let triangles = &self.meshes[instance.mesh as usize].triangles;
+            (min, max) = fold_bounds((min, max), triangles, |t| t.map(|v| place_point(&instance.to_world, v)));
         }
         for s in &self.spheres {
             min = min.min(s.center - s.radius);
