@@ -99,8 +99,15 @@ fn a_device_opened_beside_the_build_renders_the_same_film() {
         let expected = render(&first, PassSizing::Timed);
         let before = threads();
         let mut checked = None;
-        let opening = Device::open_beside(kind, None, true);
+        let mut opening = Device::open_beside(kind, None, true);
         assert_eq!(opening.kind(), kind);
+        // Ready without waiting once its thread is done (the CPU reference at once).
+        let start = std::time::Instant::now();
+        while opening.ready().is_none() {
+            assert!(kind == DeviceKind::Gpu && start.elapsed().as_secs() < 60, "{kind:?}: never ready");
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        assert_eq!(opening.ready().map(Device::kind), Some(kind));
         let session = Session::beside(opening, aobench(16), &BvhOptions::default(), |device, scene| {
             checked = Some((device.kind(), scene.settings.width));
             Ok(())
@@ -130,8 +137,8 @@ fn a_device_opened_beside_the_build_renders_the_same_film() {
     }
 }
 
-/// An opening that fails (no adapter of that name) fails where it is waited for, with the
-/// opening's one-line error, and so does a session built beside it: after the BVH build,
+/// An opening that fails (no adapter of that name) is never ready and fails where it is
+/// waited for, with the opening's one-line error, and so does a session built beside it: after the BVH build,
 /// before anything is uploaded or checked. A check that fails before the upload is the
 /// session's error. An opening dropped unwaited (the caller failed first) joins its
 /// thread: none is left running.
@@ -140,7 +147,10 @@ fn openings_fail_in_one_line_and_leave_no_thread() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let name = "no adapter is called this";
     let error = |e: Error| e.to_string();
-    let message = Device::open_beside(DeviceKind::Gpu, Some(name), false).wait().err().map(error);
+    let mut failing = Device::open_beside(DeviceKind::Gpu, Some(name), false);
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    assert!(failing.ready().is_none(), "a failed opening is ready");
+    let message = failing.wait().err().map(error);
     let message = message.expect("no adapter has that name");
     assert!(message.contains(name) && !message.contains('\n'), "{message}");
     let mut checked = false;

@@ -66,7 +66,7 @@ pub fn run(args: RenderArgs) -> Result<()> {
     plan_files(&args)?;
     let (load_start, start_seconds) = (std::time::Instant::now(), phases::process_seconds());
     // The device opens beside the loading and the BVH build: it needs nothing of the scene.
-    let opening = Device::open_beside(args.scene.device.kind(), args.scene.adapter.as_deref(), true);
+    let mut opening = Device::open_beside(args.scene.device.kind(), args.scene.adapter.as_deref(), true);
     let mut scene = args.scene.load()?;
     let load_seconds = load_start.elapsed().as_secs_f64();
     args.size.apply(&mut scene);
@@ -78,6 +78,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
         check_output_extension(path, &FLOAT_IMAGE_EXTENSIONS)?;
     }
     let resume = read_resume(&args, &mut scene, target, &bvh)?;
+    // A film past the budget is refused before the BVH is built where the device is open
+    // by now, and before anything is uploaded where it is not.
+    if let Some(device) = opening.ready() {
+        device.check_image_budget(&scene, &scene.settings)?;
+    }
     check_error_estimate(&args, &scene)?;
     let resumed_adapter = resume.as_ref().map(|a| a.adapter().to_string());
 
@@ -231,8 +236,8 @@ fn render_image(
     measure_replicate: bool,
     control: &mut Control,
 ) -> aorender::Result<(RenderOutput, f64)> {
-    // A film past the budget is refused before anything is uploaded (its bytes depend on
-    // whether the device's memory is the host's, known once it is open).
+    // The film's bytes depend on whether the device's memory is the host's, known once
+    // it is open.
     let session =
         Session::beside(opening, scene, bvh, |device, scene| device.check_image_budget(scene, &scene.settings))?;
     let device = session.device().clone();

@@ -208,6 +208,22 @@ impl DeviceOpening {
         self.kind
     }
 
+    /// The device, where it has opened by now (without waiting): checks that need it
+    /// can run early when it is there, and again once it is waited for when it was not.
+    pub fn ready(&mut self) -> Option<&Device> {
+        if let Some(Beside::Running(handle)) = &self.state
+            && handle.is_finished()
+            && let Some(state) = self.state.take()
+        {
+            let (device, seconds, compile) = finish(state);
+            self.state = Some(Beside::Done(device, seconds, compile));
+        }
+        match &self.state {
+            Some(Beside::Done(Ok(device), _, _)) => Some(device),
+            _ => None,
+        }
+    }
+
     /// Waits for the device (at once where it is open already): the opening's error, if
     /// it failed, or the device and the seconds it took and was waited for.
     pub fn wait(mut self) -> Result<OpenedDevice> {
