@@ -20,7 +20,11 @@ pub fn process_seconds() -> f64 {
 
 /// The phases of a command, in seconds. On the CPU reference `adapter_seconds` is the
 /// reference's opening, `upload_seconds` laying out the tracer's records, `readback_seconds`
-/// taking the block's sums from the tracer's film, and `readback_bytes` 0.
+/// taking the block's sums from the tracer's film, and `readback_bytes` and `round_trips`
+/// 0. The device opens on a thread of its own while the scene loads and its BVH builds:
+/// `adapter_seconds` is the opening's own time, `overlap_seconds` the part of it that ran
+/// beside the main thread, so that the phases less `overlap_seconds` are the main
+/// thread's timeline, and with `other_seconds` the whole process.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Phases {
     /// From the process's start to loading: starting the program, reading the command
@@ -33,8 +37,11 @@ pub struct Phases {
     /// The session's setup beside the BVH and the upload: the scene moved to its local
     /// frame and back, the build's host copies freed.
     pub scene_seconds: f64,
-    /// Opening the device.
+    /// Opening the device, on its own thread.
     pub adapter_seconds: f64,
+    /// Of the phases, the seconds that ran beside the main thread (the device's opening
+    /// while the scene loaded and its BVH was built): not on the process's critical path.
+    pub overlap_seconds: f64,
     /// Uploading the geometry (GPU) or laying out the tracer's records (CPU).
     pub upload_seconds: f64,
     /// Making the films and pipelines of the requests (a bake's points uploaded).
@@ -53,6 +60,8 @@ pub struct Phases {
     pub readback_seconds: f64,
     /// Bytes read back from the device (films and pass counters).
     pub readback_bytes: u64,
+    /// Times the host waited for the device (submissions waited on, buffer mappings).
+    pub round_trips: u64,
     /// Folding blocks into the exact sums, checking error targets, making the values and
     /// their error estimates.
     pub host_stats_seconds: f64,
@@ -64,7 +73,8 @@ pub struct Phases {
     pub teardown_seconds: f64,
     /// The whole process from its start to the statistics.
     pub process_seconds: f64,
-    /// The whole process less every phase above: what no phase accounts for.
+    /// The whole process less the main thread's phases (every phase above, less
+    /// `overlap_seconds`): what no phase accounts for.
     pub other_seconds: f64,
     /// Times an error target was checked.
     pub checks: u32,
@@ -79,6 +89,7 @@ impl Phases {
             bvh_build_seconds: st.bvh_build_seconds,
             scene_seconds: st.scene_seconds,
             adapter_seconds: st.adapter_seconds,
+            overlap_seconds: st.overlap_seconds,
             upload_seconds: st.upload_seconds,
             pipeline_seconds: st.pipeline_seconds,
             compile_seconds: st.compile_seconds,
@@ -87,6 +98,7 @@ impl Phases {
             pass_seconds: st.pass_seconds,
             readback_seconds: st.readback_seconds,
             readback_bytes: st.readback_bytes,
+            round_trips: st.round_trips,
             host_stats_seconds: st.host_stats_seconds,
             checkpoint_seconds: st.checkpoint_seconds,
             write_seconds: st.write_seconds,
@@ -109,6 +121,7 @@ impl Phases {
         self.pass_seconds += times.wall_seconds;
         self.readback_seconds += times.readback_seconds;
         self.readback_bytes += times.readback_bytes;
+        self.round_trips += times.round_trips;
         self.host_stats_seconds += times.host_stats_seconds;
         self.checkpoint_seconds += times.checkpoint_seconds;
         self.checks += times.checks;
@@ -127,13 +140,31 @@ impl Phases {
         self.pass_seconds += st.pass_seconds;
         self.readback_seconds += st.readback_seconds;
         self.readback_bytes += st.readback_bytes;
+        self.round_trips += st.round_trips;
         self.host_stats_seconds += st.host_stats_seconds;
         self.checkpoint_seconds += st.checkpoint_seconds;
         self.checks += st.checks;
     }
 
-    /// The phases that account for the process, in seconds.
+    /// Sets the device's opening from the session's setup: its own seconds, the
+    /// statistics kernels compiled on its thread (pipeline seconds), and what of them
+    /// ran beside the main thread (all but what it waited for).
+    pub fn set_opening(&mut self, setup: &aorender::Setup) {
+        self.adapter_seconds = setup.adapter_seconds;
+        self.pipeline_seconds += setup.adapter_compile_seconds;
+        self.compile_seconds += setup.adapter_compile_seconds;
+        let beside = setup.adapter_seconds + setup.adapter_compile_seconds - setup.adapter_wait_seconds;
+        self.overlap_seconds = beside.max(0.0);
+    }
+
+    /// The phases on the main thread's timeline, which account for the process: every
+    /// phase, less what ran beside it.
     pub fn accounted_seconds(&self) -> f64 {
+        self.phase_seconds() - self.overlap_seconds
+    }
+
+    /// Every phase's seconds added, those that overlapped included.
+    pub fn phase_seconds(&self) -> f64 {
         self.start_seconds
             + self.load_seconds
             + self.bvh_build_seconds
@@ -150,7 +181,8 @@ impl Phases {
             + self.teardown_seconds
     }
 
-    /// The phases in words, for the summary line: `load 0.41 s, BVH 0.20 s, …, whole 1.50 s`.
+    /// The phases in words, for the summary line: `load 0.41 s, BVH 0.20 s, …, beside
+    /// loading 0.15 s, whole 1.50 s`.
     pub fn line(&self) -> String {
         let cache = match self.pipeline_cache.as_str() {
             "" => String::new(),
@@ -166,7 +198,12 @@ impl Phases {
             format!("pipeline {:.2} s (compiling {:.2} s{cache})", self.pipeline_seconds, self.compile_seconds),
             format!("request {:.2} s", self.request_seconds),
             format!("passes {:.2} s", self.pass_seconds),
-            format!("read-back {:.2} s ({})", self.readback_seconds, bytes(self.readback_bytes)),
+            format!(
+                "read-back {:.2} s ({}, {} round trips)",
+                self.readback_seconds,
+                bytes(self.readback_bytes),
+                self.round_trips
+            ),
             format!("statistics {:.2} s", self.host_stats_seconds),
         ];
         if self.checkpoint_seconds > 0.0 {
@@ -175,6 +212,8 @@ impl Phases {
         parts.push(format!("writing {:.2} s", self.write_seconds));
         parts.push(format!("teardown {:.2} s", self.teardown_seconds));
         parts.push(format!("other {:.2} s", self.other_seconds));
+        // What ran on the device's thread while the main thread loaded and built the BVH.
+        parts.push(format!("beside loading {:.2} s", self.overlap_seconds));
         parts.push(format!("whole {:.2} s", self.process_seconds));
         parts.join(", ")
     }
@@ -221,6 +260,7 @@ mod tests {
             bvh_build_seconds: 2.0,
             scene_seconds: 2048.0,
             adapter_seconds: 4.0,
+            overlap_seconds: 3.0,
             upload_seconds: 8.0,
             pipeline_seconds: 16.0,
             compile_seconds: 10.0,
@@ -229,6 +269,7 @@ mod tests {
             pass_seconds: 32.0,
             readback_seconds: 64.0,
             readback_bytes: 7,
+            round_trips: 5,
             host_stats_seconds: 128.0,
             checkpoint_seconds: 256.0,
             write_seconds: 512.0,
@@ -237,7 +278,9 @@ mod tests {
             other_seconds: 0.0,
             checks: 3,
         };
-        // Compiling is part of the pipeline's seconds, not a phase of its own.
-        assert_eq!(p.accounted_seconds(), 16383.0);
+        // Compiling is part of the pipeline's seconds, not a phase of its own; what ran
+        // beside the main thread is not on its timeline.
+        assert_eq!(p.phase_seconds(), 16383.0);
+        assert_eq!(p.accounted_seconds(), 16380.0);
     }
 }

@@ -246,7 +246,9 @@ pub struct RenderStats {
     /// them.
     pub upload_seconds: f64,
     /// Of `setup_seconds`: seconds to make the request's film and pipeline (compiling the
-    /// kernel the first time the adapter sees its specialisation; on the CPU, the film).
+    /// kernel the first time the adapter sees its specialisation; on the CPU, the film),
+    /// and the statistics kernels compiled while the device opened where the session
+    /// opened it (`Session::beside`).
     pub pipeline_seconds: f64,
     /// Of `render_seconds`, this run's seconds in passes alone: submitting them and
     /// waiting for the rays (a checkpoint's aside).
@@ -264,9 +266,18 @@ pub struct RenderStats {
     /// Times this run checked its error target (each stretch of replicates, and each
     /// replicate's adaptive masks); 0 without a target.
     pub checks: u32,
-    /// Seconds to open the device (the adapter and its logical device): set by the
-    /// caller that opened it (`aorender render` does), 0 otherwise.
+    /// Times the host waited for the device during the request (submissions waited on and
+    /// buffer mappings: the pipeline's warm-up, each pass's counters, the read-backs); 0
+    /// on the CPU.
+    pub round_trips: u64,
+    /// Seconds to open the device (the adapter and its logical device): the session's
+    /// setup's where the session opened it beside its BVH build (`Session::beside`, as
+    /// `aorender render` does), else set by the caller that opened it, or 0.
     pub adapter_seconds: f64,
+    /// Of the phases' seconds, those that ran beside the main thread rather than on its
+    /// timeline (the device opening while the scene loaded and its BVH was built): the
+    /// phases less these add up to the whole process. 0 where nothing overlapped.
+    pub overlap_seconds: f64,
     /// Seconds to write the outputs (image, error image): set by the caller that wrote
     /// them (`aorender render` does), 0 otherwise.
     pub write_seconds: f64,
@@ -282,7 +293,8 @@ pub struct RenderStats {
     /// Seconds of the request beside its film and pipeline: checks, the scene's hash that
     /// names its checkpoints, its accumulation.
     pub request_seconds: f64,
-    /// Of `pipeline_seconds`: seconds compiling pipelines (0 when the adapter had them).
+    /// Of `pipeline_seconds`: seconds compiling pipelines (0 when the adapter had them),
+    /// the statistics kernels compiled while the device opened included.
     pub compile_seconds: f64,
     /// `hit` when the driver's pipeline cache was read from disk and taken; `miss`
     /// (none yet), `rejected` (damaged or another driver's), `off`, or `unsupported`
@@ -291,8 +303,8 @@ pub struct RenderStats {
     /// Seconds freeing the request's device buffers, and the session's (the device, the
     /// scene) where a program sets it.
     pub teardown_seconds: f64,
-    /// Seconds of the process in no phase above: `process_seconds` less the sum of the
-    /// phases (set with it).
+    /// Seconds of the process in no phase above: `process_seconds` less the phases on the
+    /// main thread's timeline, their sum less `overlap_seconds` (set with it).
     pub other_seconds: f64,
     /// rays_traced / render_seconds.
     pub rays_per_second: f64,
@@ -420,6 +432,8 @@ pub(crate) struct RenderInfo {
     pub compile_seconds: f64,
     /// Seconds of the request beside its film and pipeline.
     pub request_seconds: f64,
+    /// The device's round trips before the request made its film ([`Passes::round_trips`]).
+    pub round_trips_before: u64,
 }
 
 /// Seconds and rays of the passes run so far.
@@ -451,6 +465,10 @@ pub struct PassTimes {
     /// Times an error target was checked (after a stretch of replicates, and an adaptive
     /// render's masks, each decided once a replicate).
     pub checks: u32,
+    /// Times the host waited for the device since the request began making its film (its
+    /// pipeline's warm-up, the passes, the read-backs; other requests on the same device
+    /// at the same time included): 0 on the CPU.
+    pub round_trips: u64,
 }
 
 /// What a render's samples and replicates cost on its device ([`Render::replicate_costs`]).
@@ -648,7 +666,12 @@ impl Render {
 
     /// The passes' seconds and rays so far.
     pub fn times(&self) -> PassTimes {
-        self.times
+        PassTimes { round_trips: self.round_trips(), ..self.times }
+    }
+
+    /// The device's round trips since the request began making its film.
+    fn round_trips(&self) -> u64 {
+        self.passes.round_trips().saturating_sub(self.info.round_trips_before)
     }
 
     /// Seconds it took to make this request's film and pipeline (compiling the pipeline
@@ -1007,6 +1030,7 @@ impl Render {
         times.readback_seconds += t.elapsed().as_secs_f64();
         times.readback_bytes += self.passes.take_readback_bytes();
         let device_bytes = self.passes.device_bytes();
+        times.round_trips = self.round_trips();
         let teardown = Instant::now();
         drop(self.passes);
         let teardown_seconds = teardown.elapsed().as_secs_f64();
@@ -1041,22 +1065,25 @@ impl Render {
             ao_rays: acc.ao_rays(),
             render_seconds: acc.render_seconds(),
             bvh_build_seconds: setup.bvh_build_seconds,
-            setup_seconds: setup.upload_seconds + info.target_seconds,
+            setup_seconds: setup.upload_seconds + info.target_seconds + setup.adapter_compile_seconds,
             upload_seconds: setup.upload_seconds + times.upload_seconds,
-            pipeline_seconds: info.target_seconds,
+            pipeline_seconds: info.target_seconds + setup.adapter_compile_seconds,
             pass_seconds: times.wall_seconds,
             readback_seconds: times.readback_seconds,
             readback_bytes: times.readback_bytes,
             host_stats_seconds: times.host_stats_seconds,
             checkpoint_seconds: times.checkpoint_seconds,
             checks: times.checks,
-            adapter_seconds: 0.0,
+            round_trips: times.round_trips,
+            adapter_seconds: setup.adapter_seconds,
+            overlap_seconds: (setup.adapter_seconds + setup.adapter_compile_seconds - setup.adapter_wait_seconds)
+                .max(0.0),
             write_seconds: 0.0,
             process_seconds: None,
             start_seconds: 0.0,
             scene_seconds: setup.scene_seconds,
             request_seconds: info.request_seconds,
-            compile_seconds: info.compile_seconds,
+            compile_seconds: info.compile_seconds + setup.adapter_compile_seconds,
             pipeline_cache: setup.pipeline_cache.into(),
             teardown_seconds,
             other_seconds: 0.0,

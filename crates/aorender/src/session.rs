@@ -12,7 +12,7 @@
 use crate::accumulation::{
     Accumulation, FilmLayout, SampleSettings, geometry_hash, max_image_sample, probes_hash, scene_hash,
 };
-use crate::device::{BvhOptions, Device, Prepared, Setup};
+use crate::device::{Built, BvhOptions, Device, DeviceOpening, Prepared, Setup};
 use crate::error::{Error, Result};
 use crate::film::value_exponent;
 use crate::footprint::background_pixels;
@@ -95,13 +95,61 @@ impl Session {
     pub fn on_devices(devices: &[Device], scene: Scene, options: &BvhOptions) -> Result<Vec<Session>> {
         let mut scene = scene;
         let start = Instant::now();
-        let (frame, mut prepared) = prepare_in_local_frame(devices, &mut scene, options)?;
-        let seconds = start.elapsed().as_secs_f64();
+        let (frame, prepared) = prepare_in_local_frame(&mut scene, |s| Prepared::new(devices, s, options))?;
+        Ok(Session::assemble(devices, scene, frame, prepared, options, start.elapsed().as_secs_f64()))
+    }
+
+    /// [`Session::new`] on a device still opening ([`Device::open_beside`]): the BVH is
+    /// built while the device opens, and the device is waited for only to upload the
+    /// geometry, after `before_upload` has checked it against the scene (an image's film
+    /// budget, say: the device's kind of memory is known only once it is open). The
+    /// setup says how long the opening took and how much of it was waited for
+    /// ([`Setup::adapter_seconds`]).
+    pub fn beside(
+        opening: DeviceOpening,
+        scene: Scene,
+        options: &BvhOptions,
+        before_upload: impl FnOnce(&Device, &Scene) -> Result<()>,
+    ) -> Result<Session> {
+        let mut scene = scene;
+        let start = Instant::now();
+        let kind = opening.kind();
+        let mut opened = None;
+        let (frame, prepared) = prepare_in_local_frame(&mut scene, |s| {
+            let built = Built::new(&[kind], s, options);
+            let device = opening.wait()?;
+            before_upload(&device.device, s)?;
+            let prepared = Prepared::upload(built, std::slice::from_ref(&device.device), s, options);
+            opened = Some(device);
+            prepared
+        })?;
+        let opened = opened.expect("opened for the upload");
+        let devices = [opened.device];
+        let mut sessions = Session::assemble(&devices, scene, frame, prepared, options, 0.0);
+        let mut session = sessions.pop().expect("one session");
+        // The wait is the opening's, not the session's own setup.
+        let setup = &mut session.setup;
+        let seconds = start.elapsed().as_secs_f64() - opened.waited_seconds;
+        setup.scene_seconds = (seconds - setup.bvh_build_seconds - setup.upload_seconds).max(0.0);
+        setup.adapter_seconds = opened.seconds - opened.compile_seconds;
+        (setup.adapter_compile_seconds, setup.adapter_wait_seconds) = (opened.compile_seconds, opened.waited_seconds);
+        Ok(session)
+    }
+
+    /// The sessions of `scene` prepared on `devices`, which took `seconds` in all.
+    fn assemble(
+        devices: &[Device],
+        scene: Scene,
+        frame: LocalFrame,
+        mut prepared: Vec<(Prepared, Setup)>,
+        options: &BvhOptions,
+        seconds: f64,
+    ) -> Vec<Session> {
         for (_, setup) in &mut prepared {
             setup.scene_seconds = (seconds - setup.bvh_build_seconds - setup.upload_seconds).max(0.0);
         }
         let scene = Arc::new(scene);
-        Ok(devices
+        devices
             .iter()
             .zip(prepared)
             .map(|(device, (prepared, setup))| Session {
@@ -116,7 +164,7 @@ impl Session {
                 surfaces: OnceLock::new(),
                 film_budget: Mutex::new(None),
             })
-            .collect())
+            .collect()
     }
 
     /// The scene.
@@ -213,7 +261,8 @@ impl Session {
     }
 
     /// What every render of this session reports about the scene and its setup.
-    fn info(&self, target_seconds: f64, compile_seconds: f64, request_seconds: f64) -> RenderInfo {
+    /// `round_trips`: the device's count before the request made its film.
+    fn info(&self, target_seconds: f64, compile_seconds: f64, request_seconds: f64, round_trips: u64) -> RenderInfo {
         let scene = &self.scene;
         RenderInfo {
             scene: scene.name.clone(),
@@ -226,6 +275,7 @@ impl Session {
             target_seconds,
             compile_seconds,
             request_seconds,
+            round_trips_before: round_trips,
         }
     }
 
@@ -248,7 +298,7 @@ impl Session {
         camera.validate_f32()?;
         let what = format!("a {}x{} image", s.width, s.height);
         self.check_film_budget(what, s.width as u64 * s.height as u64, s.sampling.replicate_samples() >= 2)?;
-        let (start, compiled) = (Instant::now(), self.prepared.compile_seconds());
+        let (start, compiled, trips) = (Instant::now(), self.prepared.compile_seconds(), self.device.round_trips());
         let max_value = max_image_sample(&self.scene, s.background, &s.sampling.sky);
         let passes = self.prepared.image(&camera, s, value_exponent(max_value))?;
         let target_seconds = start.elapsed().as_secs_f64();
@@ -270,7 +320,7 @@ impl Session {
             (self.scene.clone(), self.frame.surface_shift as f64, (s.width, s.height));
         let background = Box::new(move || background_pixels(&scene, &stored, width, height, shift));
         let request_seconds = begun.elapsed().as_secs_f64() - target_seconds;
-        let info = self.info(target_seconds, compile_seconds, request_seconds);
+        let info = self.info(target_seconds, compile_seconds, request_seconds, trips);
         Ok(Render::new(passes, acc, info).with_background(background))
     }
 
@@ -330,7 +380,7 @@ impl Session {
         }
         let what = format!("the film of {} probe points", probes.len());
         self.check_film_budget(what, probes.len() as u64 * slots as u64, settings.sampling.replicate_samples() >= 2)?;
-        let (start, compiled) = (Instant::now(), self.prepared.compile_seconds());
+        let (start, compiled, trips) = (Instant::now(), self.prepared.compile_seconds(), self.device.round_trips());
         let e = value_exponent(settings.sampling.sky.max_weight());
         let local = self.local_probes(&probes);
         let passes = self.prepared.probes(&local, first_point, slots, spp, settings, bent_normals, e)?;
@@ -362,7 +412,7 @@ impl Session {
         );
         acc.set_adapter(self.setup.adapter.name.clone());
         let request_seconds = begun.elapsed().as_secs_f64() - target_seconds;
-        Ok(Render::new(passes, acc, self.info(target_seconds, compile_seconds, request_seconds)))
+        Ok(Render::new(passes, acc, self.info(target_seconds, compile_seconds, request_seconds, trips)))
     }
 
     /// Estimates AO at every probe with `samples` samples each, with the hemisphere,
@@ -410,7 +460,7 @@ impl Session {
         self.check_film_budget(what, probes.len() as u64 * lanes as u64, settings.sampling.replicate_samples() >= 2)?;
         let rounds = samples.div_ceil(lanes);
         let e = value_exponent(settings.sampling.sky.max_weight());
-        let (start, compiled) = (Instant::now(), self.prepared.compile_seconds());
+        let (start, compiled, trips) = (Instant::now(), self.prepared.compile_seconds(), self.device.round_trips());
         let passes = self.prepared.probes(&self.local_probes(probes), 0, lanes, samples, settings, false, e)?;
         let pipeline_seconds = start.elapsed().as_secs_f64();
         let compile_seconds = self.prepared.compile_seconds() - compiled;
@@ -429,7 +479,8 @@ impl Session {
             settings.sampling.sky.max_weight(),
         );
         let request_seconds = begun.elapsed().as_secs_f64() - pipeline_seconds;
-        let mut render = Render::new(passes, acc, self.info(pipeline_seconds, compile_seconds, request_seconds));
+        let info = self.info(pipeline_seconds, compile_seconds, request_seconds, trips);
+        let mut render = Render::new(passes, acc, info);
         render.run(control)?;
         let acc = render.accumulation()?;
         let start = Instant::now();
@@ -441,25 +492,24 @@ impl Session {
     }
 }
 
-/// Prepares `scene` on `devices` in its local frame ([`Scene::local_origin`]), leaving it
-/// in its own coordinates. A scene that moves exactly is moved in place and back (both
+/// Prepares `scene` in its local frame ([`Scene::local_origin`]) with `prepare`, leaving
+/// it in its own coordinates. A scene that moves exactly is moved in place and back (both
 /// exact), so no second copy is held; one that does not is copied, the copy moved.
 fn prepare_in_local_frame(
-    devices: &[Device],
     scene: &mut Scene,
-    options: &BvhOptions,
+    prepare: impl FnOnce(&Scene) -> Result<Vec<(Prepared, Setup)>>,
 ) -> Result<(LocalFrame, Vec<(Prepared, Setup)>)> {
     let origin = scene.local_origin();
     if origin == DVec3::ZERO {
-        return Ok((LocalFrame::IDENTITY, Prepared::new(devices, scene, options)?));
+        return Ok((LocalFrame::IDENTITY, prepare(scene)?));
     }
     if scene.moves_exactly(origin) {
         let frame = scene.move_to(origin);
-        let prepared = Prepared::new(devices, scene, options);
+        let prepared = prepare(scene);
         scene.move_to(-origin);
         return Ok((frame, prepared?));
     }
     let mut local = scene.clone();
     let frame = local.move_to(origin);
-    Ok((frame, Prepared::new(devices, &local, options)?))
+    Ok((frame, prepare(&local)?))
 }

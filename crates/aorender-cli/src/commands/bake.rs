@@ -12,7 +12,7 @@ use aorender::bake::{
     UvWrap, check_mesh_output, check_output, is_map, sibling,
 };
 use aorender::output::{FilePlan, OutputRules};
-use aorender::{Accumulation, Device, ReadLimits, Scene, Session};
+use aorender::{Accumulation, Device, DeviceOpening, ReadLimits, Scene, Session};
 use clap::ValueEnum;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -244,6 +244,9 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let checkpoint_path = check_run_options(&args)?;
 
     let (load_start, start_seconds) = (std::time::Instant::now(), phases::process_seconds());
+    // The device opens beside the loading and the BVH build (a merge traces nothing).
+    let kind = args.scene.device.kind();
+    let opening = args.merge.is_empty().then(|| Device::open_beside(kind, args.scene.adapter.as_deref(), false));
     let limits = ReadLimits::from_env()?;
     let (mut scene, read) = args.scene.load_for_bake()?;
     args.sampling.apply(&mut scene)?;
@@ -259,10 +262,9 @@ pub fn run(args: BakeArgs) -> Result<()> {
     stats.triangles = scene.world_triangle_count();
 
     // The sums: from the shards', or traced.
-    let trace = if args.merge.is_empty() {
-        trace(&args, &stop, checkpoint_path.as_deref(), scene, &bake, &limits, &mut stats)?
-    } else {
-        merge_shards(&args, scene, &bake, &limits, &mut stats)?
+    let trace = match opening {
+        Some(opening) => trace(&args, &stop, checkpoint_path.as_deref(), opening, scene, &bake, &limits, &mut stats)?,
+        None => merge_shards(&args, scene, &bake, &limits, &mut stats)?,
     };
     stats.add_trace(&trace, &bake);
 
@@ -361,12 +363,16 @@ fn check_run_options(args: &BakeArgs) -> Result<Option<PathBuf>> {
     Ok(checkpoint_path)
 }
 
-/// Traces the bake's samples (resuming `--resume`'s checkpoint) under the run's control;
-/// a stop inside a block, or before any sample, ends the process with nothing written.
+/// Traces the bake's samples (resuming `--resume`'s checkpoint) on the device `opening`
+/// opens, under the run's control; a stop inside a block, or before any sample, ends the
+/// process with nothing written.
+// The run's pieces: grouping them would only rename them.
+#[allow(clippy::too_many_arguments)]
 fn trace(
     args: &BakeArgs,
     stop: &AtomicBool,
     checkpoint_path: Option<&Path>,
+    opening: DeviceOpening,
     scene: Scene,
     bake: &Bake,
     limits: &ReadLimits,
@@ -382,7 +388,7 @@ fn trace(
         }
         None => None,
     };
-    let (mut adapter_seconds, mut teardown_seconds) = (0.0, 0.0);
+    let (mut setup, mut teardown_seconds) = (None, 0.0);
     let rc = RunControl {
         stop,
         run: &args.run,
@@ -393,17 +399,19 @@ fn trace(
         adaptive: false,
     };
     let trace = run::traced(rc, |control| {
-        let opening = Instant::now();
-        let device = Device::open(kind, args.scene.adapter.as_deref())?;
-        adapter_seconds = opening.elapsed().as_secs_f64();
-        let session = Session::new(&device, scene, &bvh)?;
+        let session = Session::beside(opening, scene, &bvh, |_, _| Ok(()))?;
+        let device = session.device().clone();
+        setup = Some(session.setup().clone());
         let trace = session.bake(bake, resume, control);
         let teardown = Instant::now();
         drop((session, device));
         teardown_seconds = teardown.elapsed().as_secs_f64();
         trace
     })?;
-    (stats.phases.adapter_seconds, stats.phases.teardown_seconds) = (adapter_seconds, teardown_seconds);
+    if let Some(setup) = &setup {
+        stats.phases.set_opening(setup);
+    }
+    stats.phases.teardown_seconds = teardown_seconds;
     if let Some(b) = trace.interrupted_block {
         let signal = signals::stop_signal();
         crate::say!(

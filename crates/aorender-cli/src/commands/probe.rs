@@ -6,7 +6,7 @@ use crate::{memory, output};
 use anyhow::{Result, anyhow, bail};
 use aorender::output::{Destination, FilePlan, write_output};
 use aorender::scene::read_text;
-use aorender::{Control, ErrorTarget, Probe, ProbeValue, ReadLimits, Sampler, Session, SurfaceTolerance};
+use aorender::{Control, Device, ErrorTarget, Probe, ProbeValue, ReadLimits, Sampler, Session, SurfaceTolerance};
 use glam::{DVec3, Vec3};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -79,6 +79,8 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     }
     let mut phases = Phases { start_seconds: phases::process_seconds(), ..Phases::default() };
     let loading = Instant::now();
+    // The device opens beside the loading and the BVH build: it needs nothing of the scene.
+    let opening = Device::open_beside(args.scene.device.kind(), args.scene.adapter.as_deref(), false);
     let mut scene = args.scene.load()?;
     args.sampling.apply(&mut scene)?;
     if args.samples == 0 {
@@ -100,11 +102,10 @@ pub fn run(args: ProbeArgs) -> Result<()> {
             Some(crate::args::target_replicate(scene.settings.sampling.sampler, args.samples));
     }
     let settings = scene.settings.clone();
-    let opening = Instant::now();
-    let device = args.scene.device()?;
-    phases.adapter_seconds = opening.elapsed().as_secs_f64();
-    let session = Session::new(&device, scene, &args.scene.bvh())?;
+    let session = Session::beside(opening, scene, &args.scene.bvh(), |_, _| Ok(()))?;
+    let device = session.device().clone();
     let setup = session.setup();
+    phases.set_opening(setup);
     (phases.bvh_build_seconds, phases.upload_seconds) = (setup.bvh_build_seconds, setup.upload_seconds);
     (phases.scene_seconds, phases.pipeline_cache) = (setup.scene_seconds, setup.pipeline_cache.to_string());
     let mut control = Control { target, ..Control::default() };
@@ -116,7 +117,8 @@ pub fn run(args: ProbeArgs) -> Result<()> {
         aorender::Error::Settings { .. } => anyhow!("invalid option: {}", e.message()),
         e => e.into(),
     })?;
-    (phases.pipeline_seconds, phases.compile_seconds) = (out.pipeline_seconds, out.compile_seconds);
+    phases.pipeline_seconds += out.pipeline_seconds;
+    phases.compile_seconds += out.compile_seconds;
     phases.request_seconds = out.request_seconds;
     phases.add_times(&out.times);
     let writing = Instant::now();

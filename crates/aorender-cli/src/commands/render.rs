@@ -8,8 +8,8 @@ use crate::{memory, output, signals};
 use anyhow::{Result, bail};
 use aorender::output::{FLOAT_IMAGE_EXTENSIONS, FilePlan, IMAGE_EXTENSIONS, write_error_image, write_image};
 use aorender::{
-    Accumulation, BvhOptions, Control, Device, EndedBy, ErrorTarget, ImageRequest, RenderOutput, RenderStats, Sampler,
-    Scene, Session,
+    Accumulation, BvhOptions, Control, Device, DeviceOpening, EndedBy, ErrorTarget, ImageRequest, RenderOutput,
+    RenderStats, Sampler, Scene, Session,
 };
 
 /// Samples per pixel a render with an error target takes at most, unless --spp says.
@@ -65,6 +65,8 @@ pub fn run(args: RenderArgs) -> Result<()> {
     signals::install(stop.clone())?;
     plan_files(&args)?;
     let (load_start, start_seconds) = (std::time::Instant::now(), phases::process_seconds());
+    // The device opens beside the loading and the BVH build: it needs nothing of the scene.
+    let mut opening = Device::open_beside(args.scene.device.kind(), args.scene.adapter.as_deref(), true);
     let mut scene = args.scene.load()?;
     let load_seconds = load_start.elapsed().as_secs_f64();
     args.size.apply(&mut scene);
@@ -76,6 +78,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
         check_output_extension(path, &FLOAT_IMAGE_EXTENSIONS)?;
     }
     let resume = read_resume(&args, &mut scene, target, &bvh)?;
+    // A film past the budget is refused before the BVH is built where the device is open
+    // by now, and before anything is uploaded where it is not.
+    if let Some(device) = opening.ready() {
+        device.check_image_budget(&scene, &scene.settings)?;
+    }
     check_error_estimate(&args, &scene)?;
     let resumed_adapter = resume.as_ref().map(|a| a.adapter().to_string());
 
@@ -88,12 +95,11 @@ pub fn run(args: RenderArgs) -> Result<()> {
         target,
         adaptive: args.adaptive,
     };
-    let (mut out, adapter_seconds, teardown_seconds) =
-        run::traced(rc, |control| render_image(&args, scene, &bvh, resume, measure_replicate, control))?;
+    let (mut out, teardown_seconds) =
+        run::traced(rc, |control| render_image(&args, opening, scene, &bvh, resume, measure_replicate, control))?;
     out.stats.start_seconds = start_seconds;
     out.stats.teardown_seconds += teardown_seconds;
     out.stats.load_seconds = load_seconds;
-    out.stats.adapter_seconds = adapter_seconds;
     out.stats.heap_peak_bytes = memory::heap_peak_bytes();
     if out.stats.samples_per_pixel == 0 {
         run::exit_before_any_sample("rendered");
@@ -218,24 +224,23 @@ fn check_error_estimate(args: &RenderArgs, scene: &Scene) -> Result<()> {
     Ok(())
 }
 
-/// Opens the device, builds the session and renders under `control` (resuming, and with
-/// the replicate size measured when asked); returns the output and the seconds the
-/// adapter took to open and the session and device took to free.
+/// Builds the session on the device `opening` opens and renders under `control`
+/// (resuming, and with the replicate size measured when asked); returns the output and the
+/// seconds the session and device took to free.
 fn render_image(
     args: &RenderArgs,
+    opening: DeviceOpening,
     scene: Scene,
     bvh: &BvhOptions,
     resume: Option<Accumulation>,
     measure_replicate: bool,
     control: &mut Control,
-) -> aorender::Result<(RenderOutput, f64, f64)> {
-    let opening = std::time::Instant::now();
-    let device = Device::open(args.scene.device.kind(), args.scene.adapter.as_deref())?;
-    let adapter_seconds = opening.elapsed().as_secs_f64();
-    // The film's memory is known before the BVH is built: a film past the budget is
-    // refused before that work.
-    device.check_image_budget(&scene, &scene.settings)?;
-    let session = Session::new(&device, scene, bvh)?;
+) -> aorender::Result<(RenderOutput, f64)> {
+    // The film's bytes depend on whether the device's memory is the host's, known once
+    // it is open.
+    let session =
+        Session::beside(opening, scene, bvh, |device, scene| device.check_image_budget(scene, &scene.settings))?;
+    let device = session.device().clone();
     let mut request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
     let mut render = session.render(&request)?;
     if measure_replicate && let Some(costs) = render.replicate_costs()? {
@@ -260,7 +265,7 @@ fn render_image(
     let out = render.finish()?;
     let teardown = std::time::Instant::now();
     drop((session, device));
-    Ok((out, adapter_seconds, teardown.elapsed().as_secs_f64()))
+    Ok((out, teardown.elapsed().as_secs_f64()))
 }
 
 /// Writes the image, the error image and the statistics file; returns the statistics

@@ -99,6 +99,10 @@ impl Passes for GpuTarget {
         GpuTarget::take_readback_bytes(self)
     }
 
+    fn round_trips(&self) -> u64 {
+        GpuTarget::round_trips(self)
+    }
+
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
         self.inactive = inactive.to_vec();
         self.mark_inactive(None)
@@ -282,6 +286,11 @@ impl Passes for GpuChunks {
 
     fn take_readback_bytes(&mut self) -> u64 {
         self.targets.iter().map(|(t, _)| GpuTarget::take_readback_bytes(t)).sum()
+    }
+
+    fn round_trips(&self) -> u64 {
+        // The bands share one device: its count is theirs.
+        self.targets.first().map_or(0, |(t, _)| GpuTarget::round_trips(t))
     }
 
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {

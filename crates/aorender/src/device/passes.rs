@@ -33,6 +33,11 @@ pub(crate) trait Passes {
     fn device_bytes(&self) -> u64;
     /// Bytes read back from the device since the last call (0 on the CPU).
     fn take_readback_bytes(&mut self) -> u64;
+    /// Times the host has waited for the device so far, every request on it counted (0 on
+    /// the CPU): [`crate::gpu::context::GpuContext::round_trips`].
+    fn round_trips(&self) -> u64 {
+        0
+    }
     /// Stops sampling the slots marked in `inactive` (from the next pass on; an empty
     /// mask samples every slot). Their sums read back as empty. Called while the block
     /// holds no samples: right after a take, or before a checkpoint's block is loaded.

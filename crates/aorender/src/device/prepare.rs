@@ -7,7 +7,7 @@ use super::gpu::GpuChunks;
 use super::open::{Device, DeviceKind, Opened};
 use super::passes::Passes;
 use crate::bvh::ploc::cwbvh_depth;
-use crate::bvh::{BvhLayout, GpuBvh, build_cwbvh};
+use crate::bvh::{BvhLayout, GpuBvh, SceneCwbvh, build_cwbvh};
 use crate::cpu::CpuTracer;
 use crate::error::Result;
 use crate::film::BlockSums;
@@ -59,6 +59,16 @@ pub struct Setup {
     /// Seconds of the session's setup beside the BVH build and the upload (set by the
     /// session).
     pub scene_seconds: f64,
+    /// Seconds opening the device took where the session opened it beside its BVH build
+    /// ([`crate::Session::beside`]), else 0.
+    pub adapter_seconds: f64,
+    /// Seconds the opening's thread spent compiling the statistics kernels after the
+    /// device opened (not in `adapter_seconds`).
+    pub adapter_compile_seconds: f64,
+    /// Of `adapter_seconds` and `adapter_compile_seconds`, those the session waited for
+    /// the device once its BVH was built: the rest ran beside the caller's loading and
+    /// the build.
+    pub adapter_wait_seconds: f64,
 }
 
 /// A scene prepared on a device: its BVH built and uploaded, ready for requests.
@@ -69,45 +79,89 @@ pub(crate) enum Prepared {
     Cpu(Arc<CpuTracer>),
 }
 
+/// A scene's BVH built for devices of given kinds, before any of them is needed (a device
+/// may still be opening, [`super::DeviceOpening`]): obvhs's CWBVH, and the GPU's layout of
+/// it (or its BVH2) for the GPUs.
+pub(crate) struct Built {
+    /// The kinds of the devices it is built for, in order.
+    kinds: Vec<DeviceKind>,
+    /// obvhs's CWBVH, while a CPU device still needs it.
+    cwbvh: Option<SceneCwbvh>,
+    /// Seconds building the CWBVH took (0 where none was built).
+    cwbvh_seconds: f64,
+    /// The GPUs' BVH, with its build's seconds (the CWBVH's included) and its conversion's.
+    gpu: Option<(GpuBvh, f64, f64)>,
+}
+
+impl Built {
+    /// Builds the BVH of `scene` once for devices of `kinds`: obvhs's CWBVH where the CPU
+    /// reference or a GPU in the CWBVH layout traverses it, and the GPU's layout where
+    /// a GPU does.
+    pub(crate) fn new(kinds: &[DeviceKind], scene: &Scene, options: &BvhOptions) -> Built {
+        // obvhs's CWBVH, built once for every device that traverses it: the CPU reference,
+        // and a GPU in the CWBVH layout.
+        let uses_cwbvh = |k: &DeviceKind| *k == DeviceKind::Cpu || options.layout == BvhLayout::Cwbvh;
+        #[cfg(feature = "testing")]
+        crate::phase::enter("bvh");
+        let build = Instant::now();
+        let mut cwbvh = kinds.iter().any(uses_cwbvh).then(|| build_cwbvh(scene, options.quality));
+        let cwbvh_seconds = build.elapsed().as_secs_f64();
+        // Build time includes the conversion to the GPU layout.
+        let gpu = kinds.contains(&DeviceKind::Gpu).then(|| {
+            let convert = Instant::now();
+            match (options.layout, &cwbvh) {
+                (BvhLayout::Cwbvh, Some(cwbvh)) => {
+                    let bvh = GpuBvh::from_cwbvh(scene, cwbvh);
+                    let seconds = convert.elapsed().as_secs_f64();
+                    (bvh, cwbvh_seconds + seconds, seconds)
+                }
+                (layout, _) => {
+                    let bvh = GpuBvh::build(scene, layout, options.quality);
+                    (bvh, convert.elapsed().as_secs_f64(), 0.0)
+                }
+            }
+        });
+        // The GPUs have their layout: the CWBVH stays only for the CPU reference.
+        if !kinds.contains(&DeviceKind::Cpu) {
+            cwbvh = None;
+        }
+        Built { kinds: kinds.to_vec(), cwbvh, cwbvh_seconds, gpu }
+    }
+}
+
 impl Prepared {
     /// Builds the BVH of `scene` once and prepares it on each of `devices`: the GPU's
     /// layout converted from obvhs's CWBVH (or its BVH2 built) and uploaded, or the CPU
     /// tracer laid out. Each setup reports the shared build's time.
     pub(crate) fn new(devices: &[Device], scene: &Scene, options: &BvhOptions) -> Result<Vec<(Prepared, Setup)>> {
-        // obvhs's CWBVH, built once for every device that traverses it: the CPU reference,
-        // and a GPU in the CWBVH layout.
-        let uses_cwbvh = |d: &Device| d.kind() == DeviceKind::Cpu || options.layout == BvhLayout::Cwbvh;
-        #[cfg(feature = "testing")]
-        crate::phase::enter("bvh");
-        let build = Instant::now();
-        let mut cwbvh = devices.iter().any(uses_cwbvh).then(|| build_cwbvh(scene, options.quality));
-        let cwbvh_seconds = build.elapsed().as_secs_f64();
+        let kinds: Vec<DeviceKind> = devices.iter().map(Device::kind).collect();
+        Prepared::upload(Built::new(&kinds, scene, options), devices, scene, options)
+    }
+
+    /// Prepares `built` (the BVH of `scene`) on `devices`, of the kinds it was built for:
+    /// uploaded to each GPU, laid out for the CPU tracer.
+    pub(crate) fn upload(
+        built: Built,
+        devices: &[Device],
+        scene: &Scene,
+        options: &BvhOptions,
+    ) -> Result<Vec<(Prepared, Setup)>> {
+        let Built { kinds, mut cwbvh, cwbvh_seconds, gpu } = built;
+        assert!(devices.iter().map(Device::kind).eq(kinds.iter().copied()), "devices of the kinds built for");
         let mut out = Vec::with_capacity(devices.len());
         for (i, device) in devices.iter().enumerate() {
             let adapter = device.info();
             match &device.0 {
                 Opened::Gpu(dev) => {
-                    // Build time includes the conversion to the GPU layout.
-                    let convert = Instant::now();
-                    let (bvh, bvh_build_seconds, bvh_convert_seconds) = match (options.layout, &cwbvh) {
-                        (BvhLayout::Cwbvh, Some(cwbvh)) => {
-                            let bvh = GpuBvh::from_cwbvh(scene, cwbvh);
-                            let seconds = convert.elapsed().as_secs_f64();
-                            (bvh, cwbvh_seconds + seconds, seconds)
-                        }
-                        (layout, _) => {
-                            let bvh = GpuBvh::build(scene, layout, options.quality);
-                            (bvh, convert.elapsed().as_secs_f64(), 0.0)
-                        }
-                    };
+                    let (bvh, bvh_build_seconds, bvh_convert_seconds) = gpu.as_ref().expect("built for the GPU");
                     let upload = Instant::now();
                     let storage = options.geometry_storage.unwrap_or_else(|| dev.ctx.preferred_storage());
-                    let gpu_scene = GpuScene::upload(&dev.ctx, scene, &bvh, storage, options.traversal)?;
+                    let gpu_scene = GpuScene::upload(&dev.ctx, scene, bvh, storage, options.traversal)?;
                     let setup = Setup {
                         adapter,
                         bvh_layout: options.layout,
-                        bvh_build_seconds,
-                        bvh_convert_seconds,
+                        bvh_build_seconds: *bvh_build_seconds,
+                        bvh_convert_seconds: *bvh_convert_seconds,
                         bvh_nodes: bvh.node_count as usize,
                         bvh_depth: bvh.depth,
                         bvh_duplicates: bvh.duplicates,
@@ -119,12 +173,15 @@ impl Prepared {
                         traversal: gpu_scene.traversal.name(),
                         pipeline_cache: dev.pipelines.cache_state().name(),
                         scene_seconds: 0.0,
+                        adapter_seconds: 0.0,
+                        adapter_compile_seconds: 0.0,
+                        adapter_wait_seconds: 0.0,
                     };
                     out.push((Prepared::Gpu { scene: gpu_scene, dev: dev.clone() }, setup));
                 }
                 Opened::Cpu(_) => {
-                    // The last device that needs the CWBVH takes it; the others copy it.
-                    let last = !devices[i + 1..].iter().any(uses_cwbvh);
+                    // The last CPU device takes the CWBVH; the others copy it.
+                    let last = !devices[i + 1..].iter().any(|d| d.kind() == DeviceKind::Cpu);
                     let cwbvh = if last { cwbvh.take() } else { cwbvh.clone() }.expect("built for the CPU");
                     let bvh_nodes = cwbvh.top.iter().chain(&cwbvh.meshes).map(|b| b.nodes.len()).sum();
                     let bvh_duplicates = cwbvh.duplicates;
@@ -148,6 +205,9 @@ impl Prepared {
                         traversal: "",
                         pipeline_cache: "",
                         scene_seconds: 0.0,
+                        adapter_seconds: 0.0,
+                        adapter_compile_seconds: 0.0,
+                        adapter_wait_seconds: 0.0,
                     };
                     out.push((Prepared::Cpu(Arc::new(tracer)), setup));
                 }

@@ -8,6 +8,7 @@ use super::shaders::{GeometryStorage, Traversal};
 use crate::bvh::BvhLayout;
 use crate::error::{Error, Result};
 use std::mem::ManuallyDrop;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 
 /// Test hook: with this environment variable set to N, the kernel's traversal stack is
@@ -86,6 +87,9 @@ pub struct GpuContext {
     pub description: AdapterInfo,
     /// What the device's callbacks reported since the last check.
     faults: Arc<Faults>,
+    /// Times the host has waited for the device ([`GpuContext::wait`], a read-back's
+    /// mapping included): its round trips.
+    round_trips: AtomicU64,
     /// Largest chunk of nodes or primitives in one binding, in bytes.
     max_chunk_bytes: u64,
     /// Largest film of one target, in bytes: one binding, or less for tests.
@@ -189,6 +193,7 @@ impl GpuContext {
             queue: ManuallyDrop::new(queue),
             description,
             faults,
+            round_trips: AtomicU64::new(0),
             max_chunk_bytes,
             max_film_bytes: max_chunk_bytes,
             max_texture_size,
@@ -356,6 +361,12 @@ impl GpuContext {
         self.take_error().err().unwrap_or(Error::Gpu(fallback))
     }
 
+    /// Times the host has waited for the device so far: submissions waited on and buffer
+    /// mappings, each a round trip.
+    pub fn round_trips(&self) -> u64 {
+        self.round_trips.load(Ordering::Relaxed)
+    }
+
     /// Submits `commands`; a panic inside wgpu becomes an error.
     pub(crate) fn submit(&self, commands: impl IntoIterator<Item = wgpu::CommandBuffer>) -> Result<()> {
         catch_panic("submitting work", || {
@@ -367,6 +378,7 @@ impl GpuContext {
     /// Waits for the submitted work, running the callbacks it completes (buffer mappings,
     /// device loss); a panic inside wgpu or a callback becomes an error.
     pub fn wait(&self) -> Result<()> {
+        self.round_trips.fetch_add(1, Ordering::Relaxed);
         let polled = catch_panic("while waiting for the GPU", || self.device.poll(wgpu::PollType::wait_indefinitely()));
         self.take_error()?;
         polled?.map_err(|e| self.fault(format!("waiting for the GPU failed: {e}")))?;
