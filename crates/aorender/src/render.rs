@@ -538,7 +538,7 @@ pub fn expected_target_seconds(sampler: Sampler, b: u32, costs: &ReplicateCosts,
 
 /// The replicate size of a render with an error target whose replicates were not asked
 /// for, from measured costs: of the sizes `sampler` allows from `least` up to `most`, the
-/// one whose expected seconds ([`expected_target_seconds`]) are the fewest, the smaller
+/// one whose expected seconds (`expected_target_seconds`) are the fewest, the smaller
 /// on a tie. A larger replicate costs fewer checks and, for Sobol and stratified points,
 /// less variance a sample, but stops on a coarser grid, from 8 of its replicates on; on
 /// a device where a check costs little against a sample, the smaller wins. `least` where
