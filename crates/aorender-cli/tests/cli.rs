@@ -281,6 +281,38 @@ fn error_targets_and_error_images() {
     assert_rejected(&[&sobol[..], &["--error-image", "se.pfm"]].concat(), d, &["--error-image", "--replicate"]);
 }
 
+/// `--replicate-by-cost` times a pass and a check on the GPU, measures the samples'
+/// spread and takes a size the sampler allows (a power of two from 16 to 256), which the
+/// statistics record and the render stops on; the CPU reference measures nothing and
+/// keeps 16; without a target the option is refused.
+#[test]
+fn replicate_sizes_by_expected_cost() {
+    let dir = temp_dir();
+    let d = dir.path();
+    let args = ["render", "--width", "32", "--height", "24", "--sampler", "sobol", "--target-error", "0.01"];
+    let mut devices = vec!["cpu"];
+    if gpu_available() {
+        devices.push("gpu");
+    }
+    for device in devices {
+        let more = ["--replicate-by-cost", "-o", "t.pfm", "--stats", "t.json", "--device", device];
+        let out = aorender(&[&args[..], &more[..]].concat(), d);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{device}: {stderr}");
+        let stats = stats_json(d, "t.json");
+        assert_eq!(stats["ended_by"], "target", "{device}");
+        let b = stats["replicate_samples"].as_u64().unwrap();
+        match device {
+            "cpu" => assert_eq!(b, 16),
+            _ => assert!(b.is_power_of_two() && (16..=256).contains(&b), "{device}: {b}"),
+        }
+        assert_eq!(stats["samples_per_pixel"].as_u64().unwrap() % b, 0, "{device}: {stats}");
+        assert!(stats["rmse_bound"].as_f64().unwrap() <= 0.01, "{device}: {stats}");
+    }
+    let sobol = ["render", "--width", "8", "--height", "8", "--sampler", "sobol", "--device", "cpu", "-o", "out.png"];
+    assert_rejected(&[&sobol[..], &["--replicate-by-cost"]].concat(), d, &["--replicate-by-cost", "--target-error"]);
+}
+
 /// A render's statistics account for its process phase by phase on both devices (start,
 /// load, BVH, scene, adapter, upload, pipeline, request, passes, read-back, host
 /// statistics, checkpoints, writing, teardown): each finite and non-negative, together

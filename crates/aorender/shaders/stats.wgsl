@@ -15,9 +15,10 @@
 //
 // An adaptive render's pixels have their own counts (`stats_counts`, added by `fold` to
 // the pixels still sampled) and its decisions are taken here: `reduce` in per-pixel mode
-// also sums each pixel's σ (accumulation.rs `pixel_sigma`, whose f32 steps these are),
-// `allocate` stops the pixels that have the replicates an allocation ∝ σ gives them,
-// and `mark` writes the stopped flags into the counts before they are read.
+// also sums each pixel's σ (accumulation.rs `pixel_sigma`, whose f32 steps these are)
+// and keeps it for `allocate`, which stops the pixels that have the replicates an
+// allocation ∝ σ gives them without evaluating the rule again; `mark` writes the
+// stopped flags into the counts before they are read.
 
 //#import sums.wgsl
 //#import exact.wgsl
@@ -64,7 +65,9 @@ struct StatsParams {
 // A storage buffer, not a uniform one: lavapipe would recompile the kernels at every
 // dispatch for the uniform values they branch on (shaders/bindings.wgsl).
 @group(0) @binding(4) var<storage, read> stats_params: StatsParams;
-// One partial sum (Σv, Σv², Σ mean, Σσ) per workgroup of `reduce`, then the total.
+// One partial sum (Σv, Σv², Σ mean, Σσ) per workgroup of `reduce`, then the total; past
+// it, from `sigma_base()`, each pixel's σ of the last per-pixel `reduce`, four a word (one
+// binding more would pass the eight storage buffers every adapter allows a stage).
 @group(0) @binding(5) var<storage, read_write> stats_partial: array<vec4f>;
 // [0]: 2^32 − 1 − the first pixel whose block held a sample out of range (0: none).
 // `reduce` per pixel: [2] 2^32 − 1 − the fewest replicates of a pixel whose value is
@@ -122,6 +125,11 @@ fn replicate_square(s: vec2u) -> vec4u {
         (sq.z >> k) | (sq.w << (32u - k)),
         sq.w >> k,
     );
+}
+
+// The first word of `stats_partial` that holds the pixels' σ.
+fn sigma_base() -> u32 {
+    return stats_params.groups + 1u;
 }
 
 // The slot of this invocation in a dispatch of rows of `row_groups` workgroups.
@@ -272,6 +280,7 @@ fn reduce(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) 
     if (i < stats_params.slots && stats_params.per_pixel == 1u) {
         let a = adaptive_pixel(i);
         x = vec4f(a.x, exact_mul(a.x, a.x), a.y, a.z);
+        stats_partial[sigma_base() + i / 4u][i % 4u] = a.z;
         let kk = stats_counts[i].y & 0x7fffffffu;
         if (!(stats_film[i].w == INACTIVE_SLOT && kk < 2u)) {
             atomicMax(&stats_status[2], 0xffffffffu - kk);
@@ -304,16 +313,17 @@ fn reduce_groups(@builtin(local_invocation_index) local: u32) {
 }
 
 // Stops (with `apply`; else counts) the pixels still sampled that have the replicates
-// the allocation gives them: k ≥ σ × per_sigma.
+// the allocation gives them: k ≥ σ × per_sigma, σ the one the last per-pixel `reduce`
+// kept (the sums and counts have not changed since).
 @compute @workgroup_size(256)
 fn allocate(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
-    opaque_zero = stats_params.zero;
     let i = stats_slot(group, local);
     if (i >= stats_params.slots || stats_film[i].w == INACTIVE_SLOT) {
         return;
     }
-    let a = adaptive_pixel(i);
-    if (a.w >= a.z * stats_params.per_sigma) {
+    let k = f32(stats_counts[i].y & 0x7fffffffu);
+    let sigma = stats_partial[sigma_base() + i / 4u][i % 4u];
+    if (k >= sigma * stats_params.per_sigma) {
         atomicAdd(&stats_status[1], 1u);
         if (stats_params.apply == 1u) {
             stats_film[i] = vec4u(0u, 0u, 0u, INACTIVE_SLOT);

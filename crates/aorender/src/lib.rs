@@ -129,8 +129,8 @@ pub use gpu::{AdapterInfo, GeometryStorage, Traversal, catching_panics, list_ada
 pub use kinds::{BuildQuality, BvhLayout};
 pub use probe::{Probe, ProbeValue, probe_film_bent_normals, probe_film_values};
 pub use render::{
-    Control, EndedBy, PassSizing, PassTimes, Progress, Render, RenderOutput, RenderStats, RunEnd, SaveFn,
-    peak_rss_bytes,
+    Control, EndedBy, PassSizing, PassTimes, Progress, Render, RenderOutput, RenderStats, ReplicateCosts, RunEnd,
+    SaveFn, peak_rss_bytes, replicate_by_expected_cost,
 };
 pub use sampler::Sampler;
 pub use sampling::Hemisphere;

@@ -471,7 +471,8 @@ pub struct PassTimes {
     pub round_trips: u64,
 }
 
-/// What a render's samples and replicates cost on its device ([`Render::replicate_costs`]).
+/// What a render's samples and replicates cost on its device, and what its samples vary
+/// by ([`Render::replicate_costs`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ReplicateCosts {
     /// Seconds a sample per pixel takes in a pass.
@@ -479,6 +480,120 @@ pub struct ReplicateCosts {
     /// Seconds of the work done once a replicate: a pass's fixed cost, the fold of the
     /// block into the exact sums and a check of the target.
     pub per_replicate: f64,
+    /// The variance of one sample, averaged over the pixels, from the measurement's
+    /// samples (their spread in each pixel; 0 where every pixel's samples were equal).
+    pub sample_variance: f64,
+    /// The image's mean over the measurement's samples (for a relative target).
+    pub image_mean: f64,
+}
+
+/// The gain in samples of one scrambled Sobol or stratified sequence over independent
+/// samples for the same error, as a range the rule takes log-uniform: measured 4.6 on
+/// the bunny at 256² (1,216 independent samples against 480 Sobol in replicates of 16,
+/// less their variance factor) and 4.7 on the dragon at 1080p (1,920 against 736).
+const SEQUENCE_GAIN: (f64, f64) = (3.0, 7.0);
+/// The same for independent samples: how far the need measured from a few samples per
+/// pixel may be off.
+const INDEPENDENT_GAIN: (f64, f64) = (1.0 / 1.5, 1.5);
+/// What an adaptive render's allocation in proportion to σ and its background pixels'
+/// single replicate save over uniform sampling: 3.6 on the bunny at 256² and 512², 6.2 on
+/// the dragon at 1080p.
+const ALLOCATION_GAIN: (f64, f64) = (2.0, 6.0);
+/// Needs a replicate size's expected cost is averaged over.
+const NEED_POINTS: u32 = 64;
+
+/// The variance of the mean of replicates of `b` points relative to one sequence of as
+/// many samples: 1 + 12.8 / b for Sobol and stratified points, through the bunny's 1.8 in
+/// replicates of 16 and 1.2 in replicates of 64 (docs/sampling.md); 1 for independent
+/// samples, which are their own replicates.
+pub fn replicate_variance_factor(sampler: Sampler, b: u32) -> f64 {
+    match sampler {
+        Sampler::Sobol | Sampler::Stratified => 1.0 + 12.8 / b.max(1) as f64,
+        Sampler::Independent | Sampler::Grid => 1.0,
+    }
+}
+
+/// Replicates of `b` samples a render takes to reach `need` samples per pixel: the first
+/// count from the `MIN_TARGET_REPLICATES`th whose samples reach it and, for a uniform
+/// render, at which a check is due ([`check_due`]); an adaptive render decides after
+/// every replicate.
+pub fn replicates_to_reach(b: u32, need: f64, adaptive: bool) -> u64 {
+    let reach = (need / b.max(1) as f64).ceil();
+    let mut k = MIN_TARGET_REPLICATES.max(if reach.is_finite() && reach > 0.0 { reach.min(1e12) as u64 } else { 0 });
+    while !adaptive && !check_due(k) {
+        // The next multiple of the checks' spacing here (`check_due`'s step).
+        let step = 1u64 << (63 - (k / 16).max(1).leading_zeros());
+        k = k.next_multiple_of(step);
+    }
+    k
+}
+
+/// The expected seconds of a target render in replicates of `b`, from `costs`, for a
+/// target `e` (an RMSE): each replicate costs its samples and the work once a replicate,
+/// and the render stops at the replicate of [`replicates_to_reach`] the samples it needs.
+/// That need is the independent samples the measured variance asks for (σ² / e²), times
+/// the replicates' variance factor ([`replicate_variance_factor`]), over a gain the
+/// measurement cannot see (the sequence's over independent samples, and an adaptive
+/// allocation's over uniform sampling), taken log-uniform over its range.
+pub fn expected_target_seconds(sampler: Sampler, b: u32, costs: &ReplicateCosts, e: f64, adaptive: bool) -> f64 {
+    let mut gain = match sampler {
+        Sampler::Sobol | Sampler::Stratified => SEQUENCE_GAIN,
+        Sampler::Independent | Sampler::Grid => INDEPENDENT_GAIN,
+    };
+    if adaptive {
+        gain = (gain.0 * ALLOCATION_GAIN.0, gain.1 * ALLOCATION_GAIN.1);
+    }
+    let need = costs.sample_variance.max(0.0) / (e * e) * replicate_variance_factor(sampler, b);
+    let per_replicate = b as f64 * costs.per_sample + costs.per_replicate;
+    let total: f64 = (0..NEED_POINTS)
+        .map(|j| {
+            let g = gain.1 * (gain.0 / gain.1).powf((j as f64 + 0.5) / NEED_POINTS as f64);
+            replicates_to_reach(b, need / g, adaptive) as f64 * per_replicate
+        })
+        .sum();
+    total / NEED_POINTS as f64
+}
+
+/// The replicate size of a render with an error target whose replicates were not asked
+/// for, from measured costs: of the sizes `sampler` allows from `least` up to `most`, the
+/// one whose expected seconds (`expected_target_seconds`) are the fewest, the smaller
+/// on a tie. A larger replicate costs fewer checks and, for Sobol and stratified points,
+/// less variance a sample, but stops on a coarser grid, from 8 of its replicates on; on
+/// a device where a check costs little against a sample, the smaller wins. `least` where
+/// a cost is not a finite number, or for a target that is not an image's.
+pub fn replicate_by_expected_cost(
+    sampler: Sampler,
+    least: u32,
+    most: u32,
+    costs: &ReplicateCosts,
+    target: ErrorTarget,
+    adaptive: bool,
+) -> u32 {
+    let step = match sampler {
+        Sampler::Grid => return 0,
+        Sampler::Stratified => 4,
+        Sampler::Independent | Sampler::Sobol => 2,
+    };
+    let e = match target {
+        ErrorTarget::Rmse(e) => e,
+        ErrorTarget::RelativeRmse(r) => r * costs.image_mean.abs(),
+        ErrorTarget::PointStdError(_) => return least,
+    };
+    let finite = [costs.per_sample, costs.per_replicate, costs.sample_variance, e].iter().all(|x| x.is_finite());
+    if !finite || e <= 0.0 || costs.per_sample <= 0.0 {
+        return least;
+    }
+    let least = least.max(1);
+    let (mut best, mut best_seconds) = (least, expected_target_seconds(sampler, least, costs, e, adaptive));
+    let mut b = least;
+    while b * step <= most.min(crate::sampler::MAX_REPLICATE_SAMPLES) {
+        b *= step;
+        let seconds = expected_target_seconds(sampler, b, costs, e, adaptive);
+        if seconds < best_seconds {
+            (best, best_seconds) = (b, seconds);
+        }
+    }
+    best
 }
 
 /// A request in progress: its film on the device and its accumulation. Made by
@@ -624,7 +739,8 @@ impl Render {
     /// the film as [`Render::restart`] does: a pass of one sample after a warm-up one and
     /// a pass of eight give the seconds a sample takes and a pass's fixed cost; a fold of
     /// a block into the exact sums and a check (the faster of two, after one that makes
-    /// the sums) add the work done once a replicate. `None` for a request of
+    /// the sums) add the work done once a replicate; the ten samples' spread in each
+    /// pixel, reduced on the device, gives the variance of a sample. `None` for a request of
     /// fewer than 16 samples, one that has samples already, or one whose device does not
     /// keep the sums (the CPU reference, whose statistics are host work beside its
     /// passes: its replicates are what the caller asks).
@@ -654,9 +770,18 @@ impl Render {
             self.passes.check(acc.check_query(), exponents)?;
             statistics = statistics.min(t.elapsed().as_secs_f64());
         }
+        // The ten samples' sums, as independent ones: each pixel's spread of a sample.
+        let query = crate::gpu::stats::CheckQuery { samples: (PASS + 2) as u64, replicates: None };
+        let (spread, _) = self.passes.check(query, exponents)?;
+        let pixels = spread.pixels.max(1) as f64;
         self.passes.take()?;
         self.restart()?;
-        Ok(Some(ReplicateCosts { per_sample, per_replicate: (one - per_sample).max(0.0) + statistics }))
+        Ok(Some(ReplicateCosts {
+            per_sample,
+            per_replicate: (one - per_sample).max(0.0) + statistics,
+            sample_variance: spread.variance * (PASS + 2) as f64 / pixels,
+            image_mean: spread.mean / pixels,
+        }))
     }
 
     /// Samples per pixel done.
@@ -1296,6 +1421,90 @@ pub fn peak_rss_bytes() -> Option<u64> {
 mod tests {
     use super::*;
     use serde_json::{Value, json};
+
+    /// Costs of a sample `s` and of the work once a replicate `r` (seconds), and the
+    /// variance of a sample that needs `independent` samples for an RMSE of `e`.
+    fn costs(s: f64, r: f64, independent: f64, e: f64) -> ReplicateCosts {
+        ReplicateCosts { per_sample: s, per_replicate: r, sample_variance: independent * e * e, image_mean: 0.25 }
+    }
+
+    /// A render stops at the first replicate, from the eighth, whose samples reach its
+    /// need and (uniform) where a check is due; an adaptive one decides every replicate.
+    #[test]
+    fn renders_stop_at_the_first_due_replicate_that_reaches_the_need() {
+        assert_eq!(replicates_to_reach(16, 0.0, false), 8);
+        assert_eq!(replicates_to_reach(16, 100.0, false), 8);
+        assert_eq!(replicates_to_reach(16, 16.0 * 20.0 + 1.0, false), 21);
+        // Past 32 replicates a check is due every second one.
+        assert_eq!(replicates_to_reach(16, 16.0 * 33.0, false), 34);
+        assert_eq!(replicates_to_reach(16, 16.0 * 33.0, true), 33);
+        assert_eq!(replicates_to_reach(64, f64::INFINITY, true), 8);
+        // Far past 32 replicates, the next multiple of the spacing there.
+        assert_eq!(replicates_to_reach(1, 1e12 + 1.0, false), 1_000_000_000_000u64.next_multiple_of(1 << 35));
+        for need in (1..2000).map(|n| n as f64 * 7.3) {
+            let k = replicates_to_reach(4, need, false);
+            assert!(check_due(k) && k as f64 * 4.0 >= need, "{need}: {k}");
+            assert!((8..k).all(|j| j as f64 * 4.0 < need || !check_due(j)), "{need}: {k}");
+        }
+    }
+
+    /// Where the work once a replicate costs nothing and a larger replicate has no less
+    /// variance (independent samples), a larger one only stops later: the least is
+    /// chosen, its expected time never above a larger one's. Where the work once a
+    /// replicate is as dear as many samples, the replicate grows; never past the most,
+    /// in the sampler's steps; `least` where a cost is not a number.
+    #[test]
+    fn the_replicate_size_minimises_the_expected_time_to_the_target() {
+        let rmse = ErrorTarget::Rmse(0.004);
+        let free = costs(1e-3, 0.0, 1000.0, 0.004);
+        for adaptive in [false, true] {
+            assert_eq!(replicate_by_expected_cost(Sampler::Independent, 16, 256, &free, rmse, adaptive), 16);
+            let t: Vec<f64> = [16, 32, 64, 128, 256]
+                .iter()
+                .map(|&b| expected_target_seconds(Sampler::Independent, b, &free, 0.004, adaptive))
+                .collect();
+            assert!(t.windows(2).all(|w| w[0] <= w[1]), "{t:?}");
+        }
+        // The work once a replicate as dear as 500 samples, for a need of about 1,000: the
+        // eight replicates of 128 (their floor) cost less than any fewer larger or more
+        // smaller ones.
+        let dear = costs(1e-3, 0.5, 1000.0, 0.004);
+        assert_eq!(replicate_by_expected_cost(Sampler::Independent, 16, 256, &dear, rmse, false), 128);
+        assert_eq!(replicate_by_expected_cost(Sampler::Independent, 16, 64, &dear, rmse, false), 64);
+        assert_eq!(replicate_by_expected_cost(Sampler::Stratified, 16, 256, &dear, rmse, false), 64);
+        assert_eq!(replicate_by_expected_cost(Sampler::Grid, 16, 256, &dear, rmse, false), 0);
+        let unknown = costs(1e-3, f64::NAN, 1000.0, 0.004);
+        assert_eq!(replicate_by_expected_cost(Sampler::Sobol, 16, 256, &unknown, rmse, false), 16);
+        // Every pixel exact: eight replicates of the least are all any render takes.
+        let exact = costs(1e-3, 0.01, 0.0, 0.004);
+        assert_eq!(replicate_by_expected_cost(Sampler::Sobol, 16, 256, &exact, rmse, false), 16);
+        // A relative target is the image mean's share.
+        let relative = ErrorTarget::RelativeRmse(0.004 / 0.25);
+        assert_eq!(
+            replicate_by_expected_cost(Sampler::Sobol, 16, 256, &dear, relative, false),
+            replicate_by_expected_cost(Sampler::Sobol, 16, 256, &dear, rmse, false)
+        );
+    }
+
+    /// The measured cases of docs/performance.md: on an H200 (the dragon at 1080p, a
+    /// sample 0.56 ms, the work once a replicate about 1 ms, 1,920 independent samples
+    /// for 0.003) Sobol replicates of 64 reached the target with 512 samples against 736
+    /// in replicates of 16, and the rule takes more than 16; on lavapipe (the bunny at
+    /// 256², a sample 57 ms, the work once a replicate 30 ms, 1,216 independent samples
+    /// for 0.004) replicates of 64 took 512 against 480 and the rule takes fewer than 64;
+    /// an adaptive render there, whose floor of eight replicates is most of its samples,
+    /// keeps 16.
+    #[test]
+    fn the_replicate_size_follows_the_measured_cases() {
+        let h200 = costs(0.41 / 736.0, 1e-3, 1920.0, 0.003);
+        let b = replicate_by_expected_cost(Sampler::Sobol, 16, 256, &h200, ErrorTarget::Rmse(0.003), false);
+        assert!(b > 16, "H200: {b}");
+        let lavapipe = costs(0.057, 0.030, 1216.0, 0.004);
+        let b = replicate_by_expected_cost(Sampler::Sobol, 16, 256, &lavapipe, ErrorTarget::Rmse(0.004), false);
+        assert!(b < 64, "lavapipe: {b}");
+        let b = replicate_by_expected_cost(Sampler::Sobol, 16, 256, &lavapipe, ErrorTarget::Rmse(0.004), true);
+        assert_eq!(b, 16, "lavapipe, adaptive");
+    }
 
     /// The typed statistics serialise to the words the JSON has always held.
     #[test]

@@ -39,9 +39,6 @@ pub const PERMUTE_WALK_LIMIT: u32 = 32;
 /// Loop iterations one sample's numbers may take on the GPU (two dimensions of
 /// [`permute`]); counted against lavapipe's per-invocation loop cap with the traversal.
 pub const SAMPLER_LOOP_BOUND: u32 = 2 * PERMUTE_WALK_LIMIT;
-/// The share of a target render's time its work once a replicate may take
-/// ([`Sampler::replicate_by_cost`]).
-pub const REPLICATE_OVERHEAD_SHARE: f64 = 0.02;
 
 /// The largest replicate: the exact accumulation's block ([`crate::film::BLOCK_SAMPLES`]),
 /// so that replicates nest in blocks.
@@ -127,28 +124,6 @@ impl Sampler {
         };
         let mut r = 1;
         while r * step <= MAX_REPLICATE_SAMPLES && (r * step) as u64 * replicates as u64 <= spp as u64 {
-            r *= step;
-        }
-        r
-    }
-
-    /// The replicate size of a render with an error target whose replicates were not
-    /// asked for, from measured costs: the smallest size this sampler allows, from
-    /// `least` up to `most`, whose work once a replicate (`per_replicate` seconds: a
-    /// pass's fixed cost, as a pass ends with its replicate, the fold of the block into
-    /// the sums and a check of the target) is at most `REPLICATE_OVERHEAD_SHARE` of its
-    /// samples' (`per_sample` seconds each). The smallest, because a target is checked
-    /// from the eighth replicate on: a larger replicate's first check comes later.
-    pub fn replicate_by_cost(self, least: u32, most: u32, per_sample: f64, per_replicate: f64) -> u32 {
-        let step = match self {
-            Sampler::Grid => return 0,
-            Sampler::Stratified => 4,
-            Sampler::Independent | Sampler::Sobol => 2,
-        };
-        let mut r = least.max(1);
-        // A cost that is not a number grows it too: no measurement says it is small.
-        let within = |r: u32| per_replicate.partial_cmp(&(REPLICATE_OVERHEAD_SHARE * per_sample * r as f64));
-        while r * step <= most.min(MAX_REPLICATE_SAMPLES) && within(r).is_none_or(|o| o.is_gt()) {
             r *= step;
         }
         r
@@ -429,27 +404,6 @@ mod tests {
                 }
             }
         }
-    }
-
-    /// A replicate grows from the least size until its work once a replicate is within 2 %
-    /// of its samples' time, in the steps the sampler allows, and no further than asked.
-    #[test]
-    fn replicates_grow_until_their_work_is_a_fiftieth_of_the_samples() {
-        let (ms, us) = (1e-3, 1e-6);
-        // Work of 2 ms a replicate against 1 ms a sample: at least 100 samples.
-        assert_eq!(Sampler::Sobol.replicate_by_cost(16, 256, ms, 2.0 * ms), 128);
-        assert_eq!(Sampler::Independent.replicate_by_cost(16, 256, ms, 2.0 * ms), 128);
-        assert_eq!(Sampler::Stratified.replicate_by_cost(16, 256, ms, 2.0 * ms), 256);
-        // Cheap statistics keep the least; 128 samples' worth of work is never reached.
-        assert_eq!(Sampler::Sobol.replicate_by_cost(16, 256, ms, 100.0 * us), 16);
-        assert_eq!(Sampler::Sobol.replicate_by_cost(16, 256, ms, 1.0), 256);
-        assert_eq!(Sampler::Sobol.replicate_by_cost(16, 64, ms, 2.0 * ms), 64);
-        // Either side of 2 % of 16 samples of 1 ms (0.32 ms).
-        assert_eq!(Sampler::Sobol.replicate_by_cost(16, 256, ms, 0.31 * ms), 16);
-        assert_eq!(Sampler::Sobol.replicate_by_cost(16, 256, ms, 0.33 * ms), 32);
-        // A cost that is not a number does not grow the replicate past the most.
-        assert_eq!(Sampler::Sobol.replicate_by_cost(16, 256, ms, f64::NAN), 256);
-        assert_eq!(Sampler::Grid.replicate_by_cost(16, 256, ms, ms), 0);
     }
 
     #[test]

@@ -9,7 +9,7 @@ use anyhow::{Result, bail};
 use aorender::output::{FLOAT_IMAGE_EXTENSIONS, FilePlan, IMAGE_EXTENSIONS, write_error_image, write_image};
 use aorender::{
     Accumulation, BvhOptions, Control, Device, DeviceOpening, EndedBy, ErrorTarget, ImageRequest, RenderOutput,
-    RenderStats, Sampler, Scene, Session,
+    RenderStats, Sampler, Scene, Session, replicate_by_expected_cost,
 };
 
 /// Samples per pixel a render with an error target takes at most, unless --spp says.
@@ -44,10 +44,10 @@ pub struct RenderArgs {
     #[arg(long)]
     adaptive: bool,
     /// With an error target and no --replicate: time a pass and a check on the device
-    /// first and grow the replicate (up to 256 samples) until the work done once per
-    /// replicate is at most 2 % of its samples' time. The size then depends on the
-    /// machine's speed, so the image can differ run to run; the statistics and a
-    /// checkpoint record it.
+    /// first, and measure the samples' spread, and take the replicate (16 to 256 samples)
+    /// whose expected time to the target (samples past it, checks) is the least. The
+    /// size then depends on the machine's speed, so the image can differ run to run; the
+    /// statistics and a checkpoint record it.
     #[arg(long, conflicts_with = "replicate")]
     replicate_by_cost: bool,
     /// Also write each pixel's standard error (.exr or .pfm, 32-bit float).
@@ -243,15 +243,14 @@ fn render_image(
     let device = session.device().clone();
     let mut request = ImageRequest { samples: args.run.sample_range.clone(), ..session.default_request() };
     let mut render = session.render(&request)?;
-    if measure_replicate && let Some(costs) = render.replicate_costs()? {
+    if measure_replicate
+        && let Some(target) = control.target
+        && let Some(costs) = render.replicate_costs()?
+    {
         let s = &request.settings;
         let least = s.sampling.replicate.unwrap_or(1);
-        let chosen = s.sampling.sampler.replicate_by_cost(
-            least,
-            s.sampling.sampler.replicate_for(s.spp, 16),
-            costs.per_sample,
-            costs.per_replicate,
-        );
+        let most = s.sampling.sampler.replicate_for(s.spp, 16);
+        let chosen = replicate_by_expected_cost(s.sampling.sampler, least, most, &costs, target, control.adaptive);
         if chosen != least {
             drop(render);
             request.settings.sampling.replicate = Some(chosen);

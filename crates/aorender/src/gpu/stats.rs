@@ -7,9 +7,10 @@
 //!
 //! An adaptive render keeps each pixel's counts of samples and replicates on the device
 //! as well, and takes its decisions there: a decision reduces the image-level sums of
-//! the allocation (`DeviceSums::adapt_check`, 32 bytes back), then stops the pixels
-//! that have their share (`DeviceSums::allocate`, 32 bytes back); the counts and the
-//! stopped pixels (8 bytes a pixel) are read with the sums.
+//! the allocation (`DeviceSums::adapt_check`, 32 bytes back), which evaluates the rule
+//! of each pixel once and keeps its σ on the device, then stops the pixels that have
+//! their share of σ (`DeviceSums::allocate`, 32 bytes back); the counts and the stopped
+//! pixels (8 bytes a pixel) are read with the sums.
 
 use super::context::GpuContext;
 use super::shaders::{FILES, compose_with};
@@ -228,7 +229,10 @@ impl DeviceSums {
         let groups = slots.div_ceil(STATS_WORKGROUP).max(1);
         let row_groups = groups.min(device.limits().max_compute_workgroups_per_dimension);
         let params = buffer("stats params", PARAMS_BYTES, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
-        let partial = buffer("stats partial sums", (groups as u64 + 1) * 16, wgpu::BufferUsages::STORAGE | copy);
+        // The workgroups' sums and their total, then each pixel's σ (four a 16-byte word).
+        let partial_bytes = (groups as u64 + 1 + slots.div_ceil(4) as u64) * 16;
+        ctx.check_size("stats partial sums", partial_bytes)?;
+        let partial = buffer("stats partial sums", partial_bytes, wgpu::BufferUsages::STORAGE | copy);
         let status = buffer("stats status", 16, wgpu::BufferUsages::STORAGE | copy);
         let readback =
             buffer("stats readback", CHECK_BYTES, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
@@ -310,6 +314,25 @@ impl DeviceSums {
         StatsParams { slots: self.slots, groups: self.groups, row_groups: self.row_groups, ..Default::default() }
     }
 
+    /// The parameters of the stopping rule over the sums held, whose quanta have the
+    /// exponents `exponents` (Σv's and Σv²'s, [`ExactSums`]'s), for an adaptive render's
+    /// per-pixel counts (`adapt`) or for `check`'s uniform ones (set by the caller).
+    fn rule_params(&self, exponents: (i32, i32), adapt: Option<AdaptQuery>) -> StatsParams {
+        let base = StatsParams {
+            sum_exponent: exponents.0,
+            square_exponent: exponents.1,
+            replicate_exponent: exponents.1 + REPLICATE_SQ_SHIFT,
+            ..self.params()
+        };
+        match adapt {
+            Some(query) => {
+                let (range, max_value) = query.range_code();
+                StatsParams { per_pixel: 1, b: query.replicate as f32, range, max_value, ..base }
+            }
+            None => base,
+        }
+    }
+
     /// Adds the film's block of `taken` samples to the sums and counts and empties the
     /// film; with `replicate`, the block is one whole replicate and its square is added
     /// to the replicates' squares.
@@ -334,10 +357,7 @@ impl DeviceSums {
             n: query.samples as f32,
             k: k as f32,
             b: b as f32,
-            sum_exponent: exponents.0,
-            square_exponent: exponents.1,
-            replicate_exponent: exponents.1 + REPLICATE_SQ_SHIFT,
-            ..self.params()
+            ..self.rule_params(exponents, None)
         };
         let words = self.reduce_and_read(ctx, params, &self.pipelines.reduce, readback_bytes)?;
         let f = |i: usize| f32::from_bits(words[i]) as f64;
@@ -346,8 +366,8 @@ impl DeviceSums {
     }
 
     /// The image-level sums of an adaptive render's decisions over the sums and counts
-    /// held; reads back [`CHECK_BYTES`]. Also the first slot whose block held a sample
-    /// out of range.
+    /// held, keeping each pixel's σ on the device for [`DeviceSums::allocate`]; reads
+    /// back [`CHECK_BYTES`]. Also the first slot whose block held a sample out of range.
     pub fn adapt_check(
         &self,
         ctx: &GpuContext,
@@ -355,17 +375,7 @@ impl DeviceSums {
         exponents: (i32, i32),
         readback_bytes: &AtomicU64,
     ) -> Result<(AdaptSums, Option<u32>)> {
-        let (range, max_value) = query.range_code();
-        let params = StatsParams {
-            per_pixel: 1,
-            b: query.replicate as f32,
-            range,
-            max_value,
-            sum_exponent: exponents.0,
-            square_exponent: exponents.1,
-            replicate_exponent: exponents.1 + REPLICATE_SQ_SHIFT,
-            ..self.params()
-        };
+        let params = self.rule_params(exponents, Some(query));
         let words = self.reduce_and_read(ctx, params, &self.pipelines.reduce, readback_bytes)?;
         let f = |i: usize| f32::from_bits(words[i]);
         let sums = AdaptSums {
@@ -381,8 +391,9 @@ impl DeviceSums {
     }
 
     /// Stops (`apply`) or counts the pixels still sampled whose replicates k reach
-    /// σ × `per_sigma` ([`AdaptSums`]'s σ); returns how many do and how many go on.
-    /// Reads back [`CHECK_BYTES`].
+    /// σ × `per_sigma` ([`AdaptSums`]'s σ), with each pixel's σ kept by the last
+    /// [`DeviceSums::adapt_check`] of the same `query` and `exponents` (no block folded
+    /// since); returns how many do and how many go on. Reads back [`CHECK_BYTES`].
     pub fn allocate(
         &self,
         ctx: &GpuContext,
@@ -392,19 +403,7 @@ impl DeviceSums {
         apply: bool,
         readback_bytes: &AtomicU64,
     ) -> Result<(u32, u32)> {
-        let (range, max_value) = query.range_code();
-        let params = StatsParams {
-            per_pixel: 1,
-            b: query.replicate as f32,
-            range,
-            max_value,
-            sum_exponent: exponents.0,
-            square_exponent: exponents.1,
-            replicate_exponent: exponents.1 + REPLICATE_SQ_SHIFT,
-            apply: apply as u32,
-            per_sigma,
-            ..self.params()
-        };
+        let params = StatsParams { apply: apply as u32, per_sigma, ..self.rule_params(exponents, Some(query)) };
         let words = self.reduce_and_read(ctx, params, &self.pipelines.allocate, readback_bytes)?;
         Ok((words[5], words[6]))
     }
