@@ -570,14 +570,7 @@ fn gzipped_bakes_are_the_plain_bytes_and_the_same_on_any_thread_count() {
     let dragon = repo().join("scenes/dragon_vrip.ply.gz");
     let bake_on = |threads: usize, name: &str| -> Vec<u8> {
         let args = ["bake", dragon.to_str().unwrap(), "-o", name, "--samples", "1", "--device", "cpu", "--seed", "5"];
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_aorender"))
-            .args(args)
-            .current_dir(d)
-            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-            .env("RAYON_NUM_THREADS", threads.to_string())
-            .output()
-            .expect("aorender runs");
-        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
+        aorender_on_threads(&args, d, threads);
         std::fs::read(d.join(name)).unwrap()
     };
     let gunzip = |gz: &[u8]| -> Vec<u8> {

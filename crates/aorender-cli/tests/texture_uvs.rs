@@ -479,14 +479,8 @@ fn a_bake_into_generated_uvs_is_the_same_bytes_on_any_thread_count() {
     let d = dir.path();
     std::fs::copy(repo().join("scenes/bunny.obj"), d.join("bunny.obj")).unwrap();
     let bake_on = |threads: usize, name: &str| {
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_aorender"))
-            .args(["bake", "bunny.obj", "-o", name, "--texture", "256", "--samples", "2", "--device", "cpu"])
-            .current_dir(d)
-            .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-            .env("RAYON_NUM_THREADS", threads.to_string())
-            .output()
-            .expect("aorender runs");
-        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
+        let args = ["bake", "bunny.obj", "-o", name, "--texture", "256", "--samples", "2", "--device", "cpu"];
+        let out = aorender_on_threads(&args, d, threads);
         let stats: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         let charts = stats["texture"]["generated_uvs"]["charts"].as_u64().unwrap();
         let mesh = std::fs::read(d.join(name)).unwrap();

@@ -1574,16 +1574,21 @@ mod tests {
         assert_ne!(geometry_hash(&scene), expected);
     }
 
-    #[test]
-    fn probes_hash_over_several_batches_is_the_stream_of_its_floats() {
-        let probe = |i: usize| crate::probe::Probe {
+    /// Probe `i` of the hash tests: every float differs from probe to probe, and every third
+    /// has no surface normal, so it hashes fewer bytes.
+    fn numbered_probe(i: usize) -> crate::probe::Probe {
+        crate::probe::Probe {
             position: Vec3::new(i as f32, 0.5 * i as f32, -(i as f32)),
             normal: Vec3::new(0.0, 1.0, 1e-3 * i as f32),
             error: 1e-6 * i as f32,
             surface_normal: if i.is_multiple_of(3) { Vec3::ZERO } else { Vec3::Y },
-        };
+        }
+    }
+
+    #[test]
+    fn probes_hash_over_several_batches_is_the_stream_of_its_floats() {
         // Two batches of pieces and part of a third.
-        let probes: Vec<_> = (0..PROBE_HASH_PIECE * 64 * 2 + 777).map(probe).collect();
+        let probes: Vec<_> = (0..PROBE_HASH_PIECE * 64 * 2 + 777).map(numbered_probe).collect();
         let geometry = [3u8; 32];
         let mut stream: Vec<u8> = Vec::new();
         for p in &probes {
@@ -1607,15 +1612,8 @@ mod tests {
 
     #[test]
     fn probes_hash_as_when_each_float_was_its_own_update() {
-        let probe = |i: usize| crate::probe::Probe {
-            position: Vec3::new(i as f32, 0.5 * i as f32, -(i as f32)),
-            normal: Vec3::new(0.0, 1.0, 1e-3 * i as f32),
-            error: 1e-6 * i as f32,
-            // Every third without a surface normal: those hash fewer bytes.
-            surface_normal: if i.is_multiple_of(3) { Vec3::ZERO } else { Vec3::Y },
-        };
         // Enough probes to fill the gathered updates several times.
-        let probes: Vec<_> = (0..10_000).map(probe).collect();
+        let probes: Vec<_> = (0..10_000).map(numbered_probe).collect();
         let geometry = [7u8; 32];
         let mut h = blake3::Hasher::new();
         h.update(b"aorender probes v2");

@@ -63,14 +63,24 @@ pub fn repo() -> PathBuf {
     manifest.parent().and_then(std::path::Path::parent).expect("crates/aorender-cli is two levels down").to_path_buf()
 }
 
+/// The `aorender` binary with `args` in `cwd`, ready to run.
+fn command(args: &[&str], cwd: &std::path::Path) -> std::process::Command {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_aorender"));
+    command.args(args).current_dir(cwd).env("XDG_RUNTIME_DIR", std::env::temp_dir());
+    command
+}
+
 /// Runs the `aorender` binary with `args` in `cwd`.
 pub fn aorender(args: &[&str], cwd: &std::path::Path) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_aorender"))
-        .args(args)
-        .current_dir(cwd)
-        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
-        .output()
-        .expect("aorender runs")
+    command(args, cwd).output().expect("aorender runs")
+}
+
+/// Runs the `aorender` binary with `args` in `cwd` on `threads` rayon threads; panics
+/// with its output unless it succeeds.
+pub fn aorender_on_threads(args: &[&str], cwd: &std::path::Path, threads: usize) -> std::process::Output {
+    let out = command(args, cwd).env("RAYON_NUM_THREADS", threads.to_string()).output().expect("aorender runs");
+    assert!(out.status.success(), "{args:?} on {threads} threads: {}", String::from_utf8_lossy(&out.stderr));
+    out
 }
 
 /// Runs `aorender bake` with `args` in `dir`; panics with its output unless it succeeds.
