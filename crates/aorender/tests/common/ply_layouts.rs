@@ -165,3 +165,53 @@ pub fn endless(
     });
     (path, writer)
 }
+
+/// Writes `bytes`, a PLY file (`name`) whose header is its first `header` bytes, damaged
+/// every way a reader meets, as `cut.ply` and `cut.ply.gz` in `dir`, and hands each to
+/// `refused`, which reads it and says whether the read failed: the data cut at 98 places
+/// (in a value, between elements, in a list), each element's count lying either way (which
+/// must fail), a byte corrupted in the first vertex, in a late face and near the end
+/// (which may read), and the gzipped file cut short (which must fail). Returns how many of
+/// the cut and lying files were refused.
+pub fn damaged(
+    dir: &std::path::Path,
+    name: &str,
+    bytes: &[u8],
+    header: usize,
+    mut refused: impl FnMut(&std::path::Path) -> bool,
+) -> usize {
+    let path = dir.join("cut.ply");
+    let mut failures = 0;
+    let data = bytes.len() - header;
+    for k in 0..=97 {
+        let end = header + data * k / 97 - usize::from(k > 0 && k < 97) * (k % 5);
+        std::fs::write(&path, &bytes[..end]).unwrap();
+        failures += usize::from(refused(&path));
+    }
+    let text = String::from_utf8_lossy(&bytes[..header]).to_string();
+    for element in ["vertex", "face"] {
+        let line = text.lines().find(|l| l.starts_with(&format!("element {element} "))).unwrap();
+        let n: usize = line.rsplit(' ').next().unwrap().parse().unwrap();
+        for lie in [n - 1, n + 1, n / 2, n * 3] {
+            let header = text.replace(line, &format!("element {element} {lie}"));
+            std::fs::write(&path, [header.as_bytes(), &bytes[text.len()..]].concat()).unwrap();
+            assert!(refused(&path), "{name}: {element} {lie} of {n} read");
+            failures += 1;
+        }
+    }
+    for (at, byte) in [(header + 2, 0xffu8), (bytes.len() - 30, 0x7f), (bytes.len() - 9, 0x80)] {
+        let mut bad = bytes.to_vec();
+        bad[at] = byte;
+        std::fs::write(&path, &bad).unwrap();
+        refused(&path);
+    }
+    let gz = dir.join("cut.ply.gz");
+    let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    encoder.write_all(bytes).unwrap();
+    let compressed = encoder.finish().unwrap();
+    for end in [compressed.len() / 3, compressed.len() - 5] {
+        std::fs::write(&gz, &compressed[..end]).unwrap();
+        assert!(refused(&gz), "{name}: a truncated gzip stream read");
+    }
+    failures
+}
