@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 #[path = "common/ply_layouts.rs"]
 #[allow(dead_code)]
 mod ply_layouts;
-use ply_layouts::{Layout, damaged, endless, write_ply};
+use ply_layouts::{FORMATS, Layout, damaged, endless, small_files, write_ply};
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -39,7 +39,6 @@ fn agree(path: &Path, limits: &ReadLimits) -> Result<Vec<u8>, String> {
 }
 
 const LAYOUTS: [Layout; 3] = [Layout::Plain, Layout::Normals, Layout::Rich];
-const FORMATS: [&str; 3] = ["ascii", "binary_little_endian", "binary_big_endian"];
 
 /// The dragon of `name` in `scenes/`, as the scene loader reads it.
 fn dragon(name: &str) -> (Vec<glam::Vec3>, Vec<[u32; 3]>) {
@@ -104,17 +103,9 @@ fn runs_give_the_reference_in_every_layout() {
 }
 
 /// A small dragon in every format and layout, with its header's length.
-fn small_files() -> Vec<(String, Vec<u8>, usize)> {
+fn small_dragons() -> Vec<(String, Vec<u8>, usize)> {
     let (positions, triangles) = dragon("dragon_vrip_res4.ply.gz");
-    let mut files = Vec::new();
-    for format in FORMATS {
-        for layout in LAYOUTS {
-            let bytes = write_ply(&positions, &triangles, format, layout);
-            let header = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
-            files.push((format!("{format}-{layout:?}"), bytes, header));
-        }
-    }
-    files
+    small_files(&positions, &triangles, &LAYOUTS)
 }
 
 #[test]
@@ -122,7 +113,7 @@ fn truncated_lying_and_corrupt_files_fail_as_before() {
     let limits = ReadLimits::with_memory(1 << 30);
     let dir = tempfile::tempdir().unwrap();
     let mut failures = 0;
-    for (name, bytes, header) in small_files() {
+    for (name, bytes, header) in small_dragons() {
         failures += damaged(dir.path(), &name, &bytes, header, |path| agree(path, &limits).is_err());
     }
     assert!(failures > 9 * 97, "{failures} failures");
@@ -180,7 +171,7 @@ fn binary_runs_give_way_to_polygons_bad_counts_bad_indices_and_bad_coordinates_a
 fn over_budget_files_fail_as_before() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("budget.ply");
-    for (name, bytes, _) in small_files() {
+    for (name, bytes, _) in small_dragons() {
         std::fs::write(&path, &bytes).unwrap();
         // Budgets from a fifth to eight times the file's size: refused while the data is
         // read, while the columns grow in either reader, or read.

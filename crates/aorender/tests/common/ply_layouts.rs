@@ -1,5 +1,6 @@
 //! The dragon written as PLY in the layouts and encodings the PLY readers' tests compare
-//! their fast paths on, and endless PLY input through a pipe.
+//! their fast paths on, those files damaged every way a reader meets, and endless PLY
+//! input through a pipe.
 
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -214,4 +215,25 @@ pub fn damaged(
         assert!(refused(&gz), "{name}: a truncated gzip stream read");
     }
     failures
+}
+
+/// The PLY encodings the readers' tests write every layout in.
+pub const FORMATS: [&str; 3] = ["ascii", "binary_little_endian", "binary_big_endian"];
+
+/// The dragon (`positions`, `triangles`) in every format and in each of `layouts`, named
+/// `FORMAT-LAYOUT`, each with its header's length.
+pub fn small_files(
+    positions: &[glam::Vec3],
+    triangles: &[[u32; 3]],
+    layouts: &[Layout],
+) -> Vec<(String, Vec<u8>, usize)> {
+    let mut files = Vec::new();
+    for format in FORMATS {
+        for &layout in layouts {
+            let bytes = write_ply(positions, triangles, format, layout);
+            let header = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+            files.push((format!("{format}-{layout:?}"), bytes, header));
+        }
+    }
+    files
 }
