@@ -8,6 +8,11 @@ use super::shaders::{GeometryChunks, GeometryStorage, ROW_TEXEL_MULTIPLE, Traver
 use crate::bvh::{BvhLayout, GpuBvh, GpuPrimitive};
 use crate::error::{Error, Result};
 use crate::scene::Scene;
+use rayon::prelude::*;
+
+/// Writes the bytes of an upload from `offset` into `piece`: each piece's bytes its own,
+/// so pieces can be made on any thread.
+type Fill<'a> = dyn Fn(usize, &mut [u8]) + Sync + 'a;
 
 /// The scene's geometry on the device, and what the kernel needs to know of it.
 #[derive(Debug)]
@@ -98,19 +103,26 @@ impl GpuScene {
         let nodes: Vec<Geometry> = chunk_ranges(bvh.node_count as usize, chunks.nodes_per_chunk)
             .map(|r| {
                 let bytes = &bvh.node_bytes[r.start * node_size..r.end * node_size];
-                Geometry::upload(ctx, "BVH nodes", bytes.len(), node_size, chunks, &mut |at, out| {
+                Geometry::upload(ctx, "BVH nodes", bytes.len(), node_size, chunks, &|at, out| {
                     out.copy_from_slice(&bytes[at..at + out.len()])
                 })
             })
             .collect::<Result<_>>()?;
         let prim_size = std::mem::size_of::<GpuPrimitive>();
-        let mut piece: Vec<GpuPrimitive> = Vec::new();
         let primitives: Vec<Geometry> = chunk_ranges(record_count, chunks.primitives_per_chunk)
             .map(|r| {
-                Geometry::upload(ctx, "primitives", r.len() * prim_size, prim_size, chunks, &mut |at, out| {
-                    piece.resize(out.len() / prim_size, bytemuck::Zeroable::zeroed());
-                    bvh.records.write(scene, r.start + at / prim_size, &mut piece);
-                    out.copy_from_slice(bytemuck::cast_slice(&piece));
+                Geometry::upload(ctx, "primitives", r.len() * prim_size, prim_size, chunks, &|at, out| {
+                    let first = r.start + at / prim_size;
+                    // Straight into the upload where it is aligned for the records (mapped
+                    // memory is), else through a piece of records.
+                    match bytemuck::try_cast_slice_mut::<u8, GpuPrimitive>(out) {
+                        Ok(records) => bvh.records.write(scene, first, records),
+                        Err(_) => {
+                            let mut piece = vec![bytemuck::Zeroable::zeroed(); out.len() / prim_size];
+                            bvh.records.write(scene, first, &mut piece);
+                            out.copy_from_slice(bytemuck::cast_slice(&piece));
+                        }
+                    }
                 })
             })
             .collect::<Result<_>>()?;
@@ -223,10 +235,13 @@ fn chunk_ranges(count: usize, per_chunk: u32) -> impl Iterator<Item = std::ops::
 /// Bytes filled at a time when an upload is made piece by piece.
 const UPLOAD_PIECE: usize = 1 << 20;
 
+/// Pieces of an upload made at once, on rayon's threads.
+const UPLOAD_BATCH: usize = 16;
+
 /// Makes bytes `0..len` a piece at a time: each piece, whole elements of about
 /// [`UPLOAD_PIECE`] bytes, is filled by `fill(offset, piece)` and handed to `put(offset,
 /// piece)`.
-fn fill_pieces(len: usize, element: usize, fill: &mut dyn FnMut(usize, &mut [u8]), put: &mut dyn FnMut(usize, &[u8])) {
+fn fill_pieces(len: usize, element: usize, fill: &Fill<'_>, put: &mut dyn FnMut(usize, &[u8])) {
     let step = (UPLOAD_PIECE / element).max(1) * element;
     let mut piece = Vec::with_capacity(step.min(len));
     for at in (0..len).step_by(step) {
@@ -243,7 +258,15 @@ pub(crate) fn storage_buffer(
     bytes: &[u8],
     element: usize,
 ) -> Result<wgpu::Buffer> {
-    storage_filled(ctx, label, bytes.len(), element, &mut |at, out| out.copy_from_slice(&bytes[at..at + out.len()]))
+    storage_mapped(ctx, label, bytes.len(), element, Contents::Bytes(bytes))
+}
+
+/// What a buffer written through its mapping holds.
+enum Contents<'a> {
+    /// These bytes, copied piece by piece.
+    Bytes(&'a [u8]),
+    /// The bytes `fill(offset, piece)` makes, a piece at a time.
+    Made(&'a Fill<'a>),
 }
 
 /// A read-only storage buffer of `len` bytes written through its mapping by `fill(offset,
@@ -253,7 +276,20 @@ fn storage_filled(
     label: &'static str,
     len: usize,
     element: usize,
-    fill: &mut dyn FnMut(usize, &mut [u8]),
+    fill: &Fill<'_>,
+) -> Result<wgpu::Buffer> {
+    storage_mapped(ctx, label, len, element, Contents::Made(fill))
+}
+
+/// A read-only storage buffer of `len` bytes of `contents`, written through its mapping:
+/// bytes given are copied in at once; bytes made are made in pieces of whole elements of
+/// about [`UPLOAD_PIECE`] bytes on rayon's threads.
+fn storage_mapped(
+    ctx: &GpuContext,
+    label: &'static str,
+    len: usize,
+    element: usize,
+    contents: Contents<'_>,
 ) -> Result<wgpu::Buffer> {
     // A binding may not be empty: absent data is one zeroed element (wgpu zeroes buffers).
     let size = len.max(element) as u64;
@@ -264,15 +300,35 @@ fn storage_filled(
         usage: wgpu::BufferUsages::STORAGE,
         mapped_at_creation: true,
     });
-    let mut mapped = Ok(());
-    fill_pieces(len, element, fill, &mut |at, piece| {
-        let range = at as u64..(at + piece.len()) as u64;
-        match buffer.slice(range).get_mapped_range_mut() {
-            Ok(mut view) => view.copy_from_slice(piece),
-            Err(e) => mapped = Err(ctx.fault(format!("cannot write the mapped {label} buffer: {e}"))),
+    if len > 0 {
+        let mut view = buffer
+            .slice(..len as u64)
+            .get_mapped_range_mut()
+            .map_err(|e| ctx.fault(format!("cannot write the mapped {label} buffer: {e}")))?;
+        match contents {
+            Contents::Bytes(bytes) => view.copy_from_slice(bytes),
+            Contents::Made(fill) => {
+                // A batch of pieces made on threads, then copied in (a view of mapped
+                // memory stays on its thread); the batch's buffers are reused.
+                let step = (UPLOAD_PIECE / element).max(1) * element;
+                let batch = step * UPLOAD_BATCH;
+                let mut made: Vec<Vec<u8>> = vec![Vec::new(); UPLOAD_BATCH];
+                for at in (0..len).step_by(batch) {
+                    let end = (at + batch).min(len);
+                    let count = (end - at).div_ceil(step);
+                    made[..count].par_iter_mut().enumerate().for_each(|(k, piece)| {
+                        let from = at + k * step;
+                        piece.resize(step.min(end - from), 0);
+                        fill(from, piece);
+                    });
+                    for (k, piece) in made[..count].iter().enumerate() {
+                        let from = at + k * step;
+                        view.slice(from..from + piece.len()).copy_from_slice(piece);
+                    }
+                }
+            }
         }
-    });
-    mapped?;
+    }
     buffer.unmap();
     Ok(buffer)
 }
@@ -293,7 +349,7 @@ impl Geometry {
         len: usize,
         element: usize,
         chunks: GeometryChunks,
-        fill: &mut dyn FnMut(usize, &mut [u8]),
+        fill: &Fill<'_>,
     ) -> Result<Geometry> {
         match chunks.storage {
             GeometryStorage::Buffers => storage_filled(ctx, label, len, element, fill).map(Geometry::Buffer),
@@ -325,7 +381,7 @@ fn texels(
     len: usize,
     element: usize,
     row_texels: u32,
-    fill: &mut dyn FnMut(usize, &mut [u8]),
+    fill: &Fill<'_>,
 ) -> Result<Geometry> {
     const TEXEL: usize = 16;
     debug_assert_eq!(len % TEXEL, 0);
