@@ -21,7 +21,6 @@ use crate::render::{Control, PassTimes, Render, RenderInfo};
 use crate::scene::{Camera, LocalFrame, Scene, Settings, round_up};
 use crate::surface::{Located, SurfaceIndex, SurfaceTolerance};
 use glam::DVec3;
-use rayon::prelude::*;
 use std::ops::Range;
 use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
@@ -178,18 +177,13 @@ impl Session {
         &self.frame
     }
 
-    /// `probes` (checked) in the local frame: each position moved as the scene was, its
+    /// A probe (checked) in the local frame: its position moved as the scene was, its
     /// offset bound grown by that move's rounding and the scene's (both zero when exact).
-    fn local_probes(&self, probes: &[Probe]) -> Vec<Probe> {
-        probes
-            .par_iter()
-            .map(|p| {
-                let (position, rounding) = self.frame.point(p.position);
-                let shift = rounding + self.frame.surface_shift as f64;
-                let error = if shift == 0.0 { p.error } else { round_up(p.error as f64 + shift) };
-                Probe { position, error, ..*p }
-            })
-            .collect()
+    fn local_probe(&self, p: &Probe) -> Probe {
+        let (position, rounding) = self.frame.point(p.position);
+        let shift = rounding + self.frame.surface_shift as f64;
+        let error = if shift == 0.0 { p.error } else { round_up(p.error as f64 + shift) };
+        Probe { position, error, ..*p }
     }
 
     /// `probes` put on the surfaces they lie on: for each point, the nearest surface of
@@ -382,9 +376,8 @@ impl Session {
         self.check_film_budget(what, probes.len() as u64 * slots as u64, settings.sampling.replicate_samples() >= 2)?;
         let (start, compiled, trips) = (Instant::now(), self.prepared.compile_seconds(), self.device.round_trips());
         let e = value_exponent(settings.sampling.sky.max_weight());
-        let local = self.local_probes(&probes);
-        let passes = self.prepared.probes(&local, first_point, slots, spp, settings, bent_normals, e)?;
-        drop(local);
+        let local = |p: &Probe| self.local_probe(p);
+        let passes = self.prepared.probes(&probes, &local, first_point, slots, spp, settings, bent_normals, e)?;
         let target_seconds = start.elapsed().as_secs_f64();
         let compile_seconds = self.prepared.compile_seconds() - compiled;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));
@@ -461,7 +454,8 @@ impl Session {
         let rounds = samples.div_ceil(lanes);
         let e = value_exponent(settings.sampling.sky.max_weight());
         let (start, compiled, trips) = (Instant::now(), self.prepared.compile_seconds(), self.device.round_trips());
-        let passes = self.prepared.probes(&self.local_probes(probes), 0, lanes, samples, settings, false, e)?;
+        let local = |p: &Probe| self.local_probe(p);
+        let passes = self.prepared.probes(probes, &local, 0, lanes, samples, settings, false, e)?;
         let pipeline_seconds = start.elapsed().as_secs_f64();
         let compile_seconds = self.prepared.compile_seconds() - compiled;
         let geometry = self.geometry_hash.get_or_init(|| geometry_hash(&self.scene));

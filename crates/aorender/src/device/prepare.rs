@@ -14,8 +14,36 @@ use crate::film::BlockSums;
 use crate::gpu::{AdapterInfo, FrameUniforms, GpuDevice, GpuProbePoint, GpuScene, GpuTarget};
 use crate::probe::Probe;
 use crate::scene::{Camera, Scene, Settings};
+use rayon::prelude::*;
 use std::sync::Arc;
 use std::time::Instant;
+
+/// A probe as the scene's local frame has it.
+pub(crate) type LocalProbe<'a> = dyn Fn(&Probe) -> Probe + Sync + 'a;
+
+/// Probes a rayon task converts at least: enough to outweigh the task's cost.
+const PROBE_CHUNK: usize = 1 << 13;
+
+/// The device's records of `probes`, each put in the local frame by `local`: one pass, in
+/// chunks on rayon's threads, each record its probe's alone (the same bits on any number
+/// of threads).
+pub(crate) fn gpu_probe_points(probes: &[Probe], local: &LocalProbe<'_>) -> Vec<GpuProbePoint> {
+    probes
+        .par_iter()
+        .with_min_len(PROBE_CHUNK)
+        .map(|p| {
+            let p = local(p);
+            GpuProbePoint {
+                position: p.position.to_array(),
+                error: p.error,
+                normal: p.normal.to_array(),
+                _pad1: 0.0,
+                surface_normal: p.surface_normal.to_array(),
+                _pad2: 0.0,
+            }
+        })
+        .collect()
+}
 
 // The options are described in `kinds`, where the accumulation reads them.
 pub use crate::kinds::BvhOptions;
@@ -262,16 +290,17 @@ impl Prepared {
         }
     }
 
-    /// The film of `probes`, `samples` samples each with the sampling of `settings`,
-    /// spread over `lanes` slots a probe; or, with `bent_normals`, four slots a probe
-    /// (`lanes` must be 4): the AO and the escaped directions' x, y, z. Probe k takes the
-    /// sample sequence of point `first_point` + k. Its samples are at most 2^`e` in
-    /// magnitude.
+    /// The film of `probes`, each as `local` puts it in the scene's local frame,
+    /// `samples` samples each with the sampling of `settings`, spread over `lanes` slots
+    /// a probe; or, with `bent_normals`, four slots a probe (`lanes` must be 4): the AO
+    /// and the escaped directions' x, y, z. Probe k takes the sample sequence of point
+    /// `first_point` + k. Its samples are at most 2^`e` in magnitude.
     // The request and where its points start: grouping them would only rename them.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn probes(
         &self,
         probes: &[Probe],
+        local: &LocalProbe<'_>,
         first_point: u32,
         lanes: u32,
         samples: u32,
@@ -281,17 +310,7 @@ impl Prepared {
     ) -> Result<Box<dyn Passes>> {
         match self {
             Prepared::Gpu { dev, scene } => {
-                let points: Vec<GpuProbePoint> = probes
-                    .iter()
-                    .map(|p| GpuProbePoint {
-                        position: p.position.to_array(),
-                        error: p.error,
-                        normal: p.normal.to_array(),
-                        _pad1: 0.0,
-                        surface_normal: p.surface_normal.to_array(),
-                        _pad2: 0.0,
-                    })
-                    .collect();
+                let points = gpu_probe_points(probes, local);
                 let slots_per_point = if bent_normals { 4 } else { lanes };
                 let per_target = crate::gpu::target::probe_points_per_target(dev, slots_per_point).max(1);
                 let mut targets = Vec::new();
@@ -327,7 +346,7 @@ impl Prepared {
                 work: CpuProbes {
                     tracer: tracer.clone(),
                     settings: settings.clone(),
-                    probes: probes.to_vec(),
+                    probes: probes.par_iter().with_min_len(PROBE_CHUNK).map(local).collect(),
                     first_point,
                     samples,
                     lanes,
@@ -336,6 +355,45 @@ impl Prepared {
                 sums: BlockSums::new(lanes as usize * probes.len()),
                 e,
             })),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// The device's probe records are the same bits on 1, 2, 3 and 8 threads as each probe
+    /// put in the local frame and converted one after another on one thread, at numbers of
+    /// probes around the chunks the threads take.
+    #[test]
+    fn gpu_probe_points_are_the_same_on_any_number_of_threads() {
+        let shift = Vec3::new(-3.5, 0.25, 1e3);
+        let local = |p: &Probe| Probe { position: p.position + shift, error: p.error * 2.0, ..*p };
+        for count in [0, 1, PROBE_CHUNK - 1, PROBE_CHUNK, PROBE_CHUNK + 1, 3 * PROBE_CHUNK + 11] {
+            let probes: Vec<Probe> = (0..count)
+                .map(|i| {
+                    let f = i as f32;
+                    let surface_normal = if i % 3 == 0 { Vec3::ZERO } else { Vec3::new(0.6, 0.0, 0.8) };
+                    let normal = Vec3::new((0.1 * f).sin(), (0.1 * f).cos(), 0.0);
+                    Probe { position: Vec3::new(f, -f * 0.5, 1.0 / (f + 1.0)), normal, surface_normal, error: 1e-6 * f }
+                })
+                .collect();
+            let expected: Vec<[u32; 12]> = probes
+                .iter()
+                .map(|p| {
+                    let q = local(p);
+                    let (a, n, g) = (q.position, q.normal, q.surface_normal);
+                    [a.x, a.y, a.z, q.error, n.x, n.y, n.z, 0.0, g.x, g.y, g.z, 0.0].map(f32::to_bits)
+                })
+                .collect();
+            for threads in [1, 2, 3, 8] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+                let got = pool.install(|| gpu_probe_points(&probes, &local));
+                let got: &[[u32; 12]] = bytemuck::cast_slice(&got);
+                assert!(got == expected, "{count} probes on {threads} threads");
+            }
         }
     }
 }
