@@ -517,6 +517,41 @@ mod tests {
         assert_eq!(quantize_sample(2f32.powi(-54) * 0.99, 1).0, 0);
     }
 
+    /// A GPU film's words with stopped slots read as nothing are the same sums on 1, 2, 3
+    /// and 8 threads as the words with those slots zeroed, read one slot after another on
+    /// one thread, at sizes around the chunks the threads take.
+    #[test]
+    fn marked_words_read_the_same_on_any_number_of_threads() {
+        let mut x = 0x853c_49e6_748f_ea9bu64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x as u32
+        };
+        for count in [0, 1, PAR_MIN_PIXELS - 1, PAR_MIN_PIXELS, PAR_MIN_PIXELS + 1, 3 * PAR_MIN_PIXELS + 3] {
+            let words: Vec<[u32; 4]> = (0..count)
+                .map(|i| match i % 5 {
+                    2 => [0, 0, 0, INACTIVE_SLOT_BITS],
+                    _ => [next(), next(), next(), next() & 0x7fff_ffff],
+                })
+                .collect();
+            let mut expected = BlockSums::new(count);
+            for (i, w) in words.iter().enumerate() {
+                if w[3] != INACTIVE_SLOT_BITS {
+                    expected.sum[i] = (u64::from(w[0]) | u64::from(w[1]) << 32) as i64;
+                    expected.sum_sq[i] = u64::from(w[2]) | u64::from(w[3]) << 32;
+                }
+            }
+            assert!(count < 3 || expected.sum.iter().any(|&s| s != 0), "{count}");
+            for threads in [1, 2, 3, 8] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+                let got = pool.install(|| BlockSums::from_marked_words(&words));
+                assert!(got == expected, "{count} slots on {threads} threads");
+            }
+        }
+    }
+
     /// A block of the largest samples stays within 64 bits, and its sums shift into the
     /// exact sums to the exact total; the words round-trip; a flagged sample stays flagged
     /// and the block is refused naming its pixel.
@@ -774,10 +809,41 @@ impl BlockSums {
 
     /// The sums of a GPU film's words ([`BlockSums::to_words`]).
     pub fn from_words(words: &[[u32; 4]]) -> BlockSums {
+        BlockSums::from_words_as(words, |w| *w)
+    }
+
+    /// The sums of a GPU film's words in which a slot marked stopped (its last word
+    /// [`INACTIVE_SLOT_BITS`]) holds nothing: as [`BlockSums::from_words`] of the words
+    /// with those slots zeroed, without the copy.
+    pub fn from_marked_words(words: &[[u32; 4]]) -> BlockSums {
+        BlockSums::from_words_as(words, |w| if w[3] == INACTIVE_SLOT_BITS { [0; 4] } else { *w })
+    }
+
+    /// The sums of `words`, each slot's as `slot` reads its words, on rayon's threads (each
+    /// slot on its own: the same bits on any number of threads).
+    fn from_words_as(words: &[[u32; 4]], slot: impl Fn(&[u32; 4]) -> [u32; 4] + Sync) -> BlockSums {
         let word = |lo: u32, hi: u32| lo as u64 | (hi as u64) << 32;
         let (sum, sum_sq) = rayon::join(
-            || words.par_iter().with_min_len(PAR_MIN_PIXELS).map(|w| word(w[0], w[1]) as i64).collect(),
-            || words.par_iter().with_min_len(PAR_MIN_PIXELS).map(|w| word(w[2], w[3])).collect(),
+            || {
+                words
+                    .par_iter()
+                    .with_min_len(PAR_MIN_PIXELS)
+                    .map(|w| {
+                        let w = slot(w);
+                        word(w[0], w[1]) as i64
+                    })
+                    .collect()
+            },
+            || {
+                words
+                    .par_iter()
+                    .with_min_len(PAR_MIN_PIXELS)
+                    .map(|w| {
+                        let w = slot(w);
+                        word(w[2], w[3])
+                    })
+                    .collect()
+            },
         );
         BlockSums { sum, sum_sq }
     }
@@ -1030,6 +1096,13 @@ impl ExactSums {
         let sum: i128 = self.sum[range.clone()].iter().sum();
         let sum_sq: i128 = self.sum_sq[range].iter().sum();
         (sum as f64 * qs, sum_sq as f64 * qq)
+    }
+
+    /// Slot `k`'s sum of the replicates' squares rounded once to f64, as in
+    /// [`ExactSums::to_film`]'s film; 0 where there is none.
+    pub fn replicate_sq_value(&self, k: usize) -> f64 {
+        let qr = pow2(self.sq_exponent + REPLICATE_SQ_SHIFT);
+        self.replicate_sq.get(k).map_or(0.0, |&s| s as f64 * qr)
     }
 
     /// The sums as a [`Film`] of `samples` samples per pixel in replicates of

@@ -3,7 +3,7 @@
 
 use super::passes::{PassReport, Passes};
 use crate::error::{Error, Result};
-use crate::film::{BlockSums, ExactSums, INACTIVE_SLOT_BITS};
+use crate::film::{BlockSums, ExactSums};
 use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
 use crate::gpu::{GpuTarget, MAX_PASS_SAMPLES};
 
@@ -31,13 +31,7 @@ impl Passes for GpuTarget {
     }
 
     fn read(&mut self) -> Result<BlockSums> {
-        let mut words = self.film_words()?;
-        for w in &mut words {
-            if w[3] == INACTIVE_SLOT_BITS {
-                *w = [0; 4];
-            }
-        }
-        Ok(BlockSums::from_words(&words))
+        self.film_block()
     }
 
     fn take(&mut self) -> Result<BlockSums> {

@@ -387,23 +387,39 @@ impl GpuContext {
 
     /// Maps a readback buffer after the last submission and copies it out.
     pub(crate) fn read<T: bytemuck::Pod>(&self, buffer: &wgpu::Buffer) -> Result<Vec<T>> {
+        self.read_mapped(&[buffer], |views| bytemuck::cast_slice(views[0]).to_vec())
+    }
+
+    /// Maps readback buffers after the last submission, all in one round trip, and hands
+    /// their bytes to `read`, which converts them where they lie rather than from a copy.
+    pub(crate) fn read_mapped<R>(&self, buffers: &[&wgpu::Buffer], read: impl FnOnce(&[&[u8]]) -> R) -> Result<R> {
         let (tx, rx) = std::sync::mpsc::channel();
-        catch_panic("mapping a readback buffer", || {
-            buffer.map_async(wgpu::MapMode::Read, .., move |r| {
-                let _ = tx.send(r);
-            })
-        })?;
+        for buffer in buffers {
+            let tx = tx.clone();
+            catch_panic("mapping a readback buffer", || {
+                buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+                    let _ = tx.send(r);
+                })
+            })?;
+        }
+        drop(tx);
         self.wait()?;
-        rx.recv()
-            .map_err(|_| self.fault("buffer mapping was dropped".into()))?
-            .map_err(|e| self.fault(format!("cannot map a readback buffer: {e}")))?;
+        for _ in buffers {
+            rx.recv()
+                .map_err(|_| self.fault("buffer mapping was dropped".into()))?
+                .map_err(|e| self.fault(format!("cannot map a readback buffer: {e}")))?;
+        }
         catch_panic("reading a readback buffer", || {
             let data = {
-                let view =
-                    buffer.get_mapped_range(..).map_err(|e| self.fault(format!("cannot read a mapped buffer: {e}")))?;
-                bytemuck::cast_slice(&view).to_vec()
+                let views = buffers
+                    .iter()
+                    .map(|b| b.get_mapped_range(..))
+                    .collect::<std::result::Result<Vec<_>, _>>()
+                    .map_err(|e| self.fault(format!("cannot read a mapped buffer: {e}")))?;
+                let bytes: Vec<&[u8]> = views.iter().map(|v| &v[..]).collect();
+                read(&bytes)
             };
-            buffer.unmap();
+            buffers.iter().for_each(|b| b.unmap());
             Ok(data)
         })?
     }

@@ -16,6 +16,7 @@ use super::context::GpuContext;
 use super::shaders::{FILES, compose_with};
 use crate::error::{Error, Result};
 use crate::film::{ExactSums, REPLICATE_SQ_SHIFT, SampleRange};
+use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Invocations of a workgroup of the statistics kernels (`stats.wgsl`).
@@ -451,6 +452,7 @@ impl DeviceSums {
     /// Replaces `exact`'s Σv, Σv² and (where `replicates`) the replicates' squares with
     /// the device's, read through `staging` (a readback buffer of at least 16 bytes a
     /// slot: the film's); returns the first slot whose block held a sample out of range.
+    /// One round trip a kind of sum: the status word comes back with the last of them.
     pub fn read(
         &self,
         ctx: &GpuContext,
@@ -464,8 +466,6 @@ impl DeviceSums {
             return Err(Error::Gpu(format!("{} device sums read into sums of {} pixels", n, exact.sum.len())));
         }
         let bytes = self.slots as u64 * 16;
-        let wide =
-            |w: &[u32; 4]| (w[0] as u128 | (w[1] as u128) << 32 | (w[2] as u128) << 64 | (w[3] as u128) << 96) as i128;
         if replicates && exact.replicate_sq.len() != n {
             exact.replicate_sq = vec![0; n];
         }
@@ -473,26 +473,30 @@ impl DeviceSums {
             true => vec![&mut exact.sum, &mut exact.sum_sq, &mut exact.replicate_sq],
             false => vec![&mut exact.sum, &mut exact.sum_sq],
         };
-        for (source, dst) in self.sums.iter().zip(targets) {
+        // A staging buffer the size of all the sums would save a round trip or two at the
+        // cost of up to three times the film's readback memory: each kind of sum comes
+        // through the film's in turn.
+        let last = targets.len() - 1;
+        let mut status = None;
+        for (k, (source, dst)) in self.sums.iter().zip(targets).enumerate() {
             let mut encoder =
                 ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sums") });
             encoder.copy_buffer_to_buffer(source, 0, staging, 0, Some(bytes));
+            if k == last {
+                encoder.copy_buffer_to_buffer(&self.status, 0, &self.readback, 16, Some(16));
+            }
             ctx.submit([encoder.finish()])?;
-            let words: Vec<[u32; 4]> = ctx.read(staging)?;
+            let buffers: &[&wgpu::Buffer] = if k == last { &[staging, &self.readback] } else { &[staging] };
+            ctx.read_mapped(buffers, |views| {
+                wide_sums(&bytemuck::cast_slice::<u8, [u32; 4]>(views[0])[..n], dst);
+                if k == last {
+                    status = Some(bad_slot(bytemuck::cast_slice::<u8, u32>(views[1])[4]));
+                }
+            })?;
             readback_bytes.fetch_add(staging.size(), Ordering::Relaxed);
-            dst.iter_mut().zip(&words[..n]).for_each(|(d, w)| *d = wide(w));
         }
-        self.status(ctx, readback_bytes)
-    }
-
-    /// The first slot whose block held a sample out of range, if any.
-    fn status(&self, ctx: &GpuContext, readback_bytes: &AtomicU64) -> Result<Option<u32>> {
-        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("status") });
-        encoder.copy_buffer_to_buffer(&self.status, 0, &self.readback, 16, Some(16));
-        ctx.submit([encoder.finish()])?;
-        let words: Vec<u32> = ctx.read(&self.readback)?;
         readback_bytes.fetch_add(CHECK_BYTES, Ordering::Relaxed);
-        Ok(bad_slot(words[4]))
+        Ok(status.expect("the status word is read with the last sums"))
     }
 
     /// Replaces the device's sums with `exact`'s (the replicates' squares zero where it
@@ -537,7 +541,57 @@ impl DeviceSums {
     }
 }
 
+/// Device words of 128-bit sums (little-endian 32-bit words, lowest first) as `dst`'s
+/// integers, in chunks on rayon's threads: each integer is its own words', so the same
+/// bits on any number of threads.
+pub(crate) fn wide_sums(words: &[[u32; 4]], dst: &mut [i128]) {
+    let wide =
+        |w: &[u32; 4]| (w[0] as u128 | (w[1] as u128) << 32 | (w[2] as u128) << 64 | (w[3] as u128) << 96) as i128;
+    dst.par_chunks_mut(WIDE_CHUNK)
+        .zip(words.par_chunks(WIDE_CHUNK))
+        .for_each(|(d, w)| d.iter_mut().zip(w).for_each(|(d, w)| *d = wide(w)));
+}
+
+/// Sums a rayon task converts at a time: enough to outweigh the task's cost.
+const WIDE_CHUNK: usize = 1 << 14;
+
 /// The slot a status word names (`stats.wgsl`'s `stats_status`), if any.
 fn bad_slot(word: u32) -> Option<u32> {
     (word != 0).then(|| u32::MAX - word)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `count` words of pseudo-random bits, with the sign bit set in some.
+    fn words(count: usize) -> Vec<[u32; 4]> {
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x as u32
+        };
+        (0..count).map(|_| [next(), next(), next(), next()]).collect()
+    }
+
+    /// The words of 128-bit sums become the same integers on 1, 2, 3 and 8 threads, at
+    /// sizes around the chunks the threads take, as each word's bytes read as one
+    /// little-endian integer on one thread.
+    #[test]
+    fn wide_sums_are_the_same_on_any_number_of_threads() {
+        for count in [0, 1, WIDE_CHUNK - 1, WIDE_CHUNK, WIDE_CHUNK + 1, 3 * WIDE_CHUNK + 7] {
+            let words = words(count);
+            let expected: Vec<i128> =
+                words.iter().map(|w| i128::from_le_bytes(bytemuck::cast::<[u32; 4], [u8; 16]>(*w))).collect();
+            assert!(count < 2 || expected.iter().any(|&x| x < 0) && expected.iter().any(|&x| x > 0), "{count}");
+            for threads in [1, 2, 3, 8] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+                let mut got = vec![7i128; count];
+                pool.install(|| wide_sums(&words, &mut got));
+                assert!(got == expected, "{count} sums on {threads} threads");
+            }
+        }
+    }
 }

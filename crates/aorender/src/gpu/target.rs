@@ -469,6 +469,7 @@ impl GpuTarget {
     /// The film's raw words, one `[Σv low, Σv high, Σv² low, Σv² high]` per slot
     /// ([`crate::film::BlockSums::from_words`]), as the kernel left them: with
     /// [`GpuTarget::set_film_words`], a render can stop and go on later from the same bits.
+    #[cfg(feature = "testing")]
     pub fn film_words(&self) -> Result<Vec<[u32; 4]>> {
         let ctx = &self.dev.ctx;
         let mut encoder =
@@ -476,6 +477,23 @@ impl GpuTarget {
         encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, self.film.size());
         ctx.submit([encoder.finish()])?;
         self.read_film_readback()
+    }
+
+    /// The film's sums as the kernel left them, a stopped slot's read as nothing
+    /// ([`crate::film::BlockSums::from_marked_words`]): converted where the words are
+    /// mapped, on rayon's threads, rather than from a copy of them.
+    pub fn film_block(&self) -> Result<crate::film::BlockSums> {
+        let ctx = &self.dev.ctx;
+        let mut encoder =
+            ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("film words") });
+        encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, self.film.size());
+        ctx.submit([encoder.finish()])?;
+        let slots = self.slots();
+        let block = ctx.read_mapped(&[&self.film_readback], |views| {
+            crate::film::BlockSums::from_marked_words(&bytemuck::cast_slice(views[0])[..slots])
+        })?;
+        self.readback_bytes.fetch_add(self.film_readback.size(), Ordering::Relaxed);
+        Ok(block)
     }
 
     /// This target's film as last copied to the readback buffer (which may be larger).
@@ -486,7 +504,8 @@ impl GpuTarget {
         Ok(words)
     }
 
-    /// Replaces the film with `words` (as [`GpuTarget::film_words`] returned them).
+    /// Replaces the film with `words` (as the kernel leaves them:
+    /// [`crate::film::BlockSums::to_words`]).
     pub fn set_film_words(&mut self, words: &[[u32; 4]]) -> Result<()> {
         let slots = self.slots();
         if words.len() != slots {
