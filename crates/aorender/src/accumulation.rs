@@ -520,6 +520,9 @@ pub fn probes_hash(geometry: &[u8; 32], probes: &[Probe]) -> [u8; 32] {
     *h.finalize().as_bytes()
 }
 
+/// Points a rayon task estimates at least in [`Accumulation::lane_probe_values`].
+const PROBE_VALUES_CHUNK: usize = 1 << 12;
+
 /// Probes gathered into one piece of [`probes_hash`]'s stream (at most 640 KiB of bytes, large
 /// enough for BLAKE3 to spread over threads).
 const PROBE_HASH_PIECE: usize = 1 << 14;
@@ -937,17 +940,28 @@ impl Accumulation {
 
     /// The estimate at each probe of a probe film of any number of lanes: the slots of a
     /// point added exactly, with the standard error of [`SampleSettings::error_estimator`].
+    /// Points are estimated in chunks on rayon's threads: each on its own, so the same
+    /// bits on any number of threads.
     pub fn lane_probe_values(&self) -> Result<Vec<ProbeValue>> {
-        let sums = self.sums()?;
+        // The sums as they are where no block is in progress, not a copy of them.
+        let owned;
+        let sums = match self.partial {
+            None => &self.exact,
+            Some(_) => {
+                owned = self.sums()?;
+                &owned
+            }
+        };
         let s = &self.settings;
         let n = s.samples_in(self.first..self.next);
         let estimator = s.error_estimator(sums.replicates).or_samples();
-        let film = sums.to_film(n, self.film_replicate());
         let lanes = s.width as usize;
         Ok((0..s.height as usize)
+            .into_par_iter()
+            .with_min_len(PROBE_VALUES_CHUNK)
             .map(|k| {
                 let (sum, sum_sq) = sums.sum_range(k * lanes..(k + 1) * lanes);
-                let r = film.replicate_sq.get(k).copied().unwrap_or(0.0);
+                let r = sums.replicate_sq_value(k);
                 ProbeValue { mean: sum / n as f64, std_error: standard_error(estimator, n, sum, sum_sq, r), samples: n }
             })
             .collect())
@@ -1520,6 +1534,69 @@ mod tests {
     /// A pool of `threads` threads, for checks that a parallel path's bits do not depend on them.
     fn pool(threads: usize) -> rayon::ThreadPool {
         rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool")
+    }
+
+    /// [`Accumulation::lane_probe_values`] on one thread, through the film, point after
+    /// point: the reference the parallel estimate is held to.
+    fn lane_probe_values_serial(acc: &Accumulation) -> Vec<ProbeValue> {
+        let sums = acc.sums().expect("sums");
+        let s = &acc.settings;
+        let n = s.samples_in(acc.first..acc.next);
+        let estimator = s.error_estimator(sums.replicates).or_samples();
+        let film = sums.to_film(n, acc.film_replicate());
+        let lanes = s.width as usize;
+        (0..s.height as usize)
+            .map(|k| {
+                let (sum, sum_sq) = sums.sum_range(k * lanes..(k + 1) * lanes);
+                let r = film.replicate_sq.get(k).copied().unwrap_or(0.0);
+                ProbeValue { mean: sum / n as f64, std_error: standard_error(estimator, n, sum, sum_sq, r), samples: n }
+            })
+            .collect()
+    }
+
+    /// The probes' estimates from lanes' exact sums are the same bits on 1, 2, 3 and 8
+    /// threads as on one thread through the film, with and without replicates, at
+    /// numbers of points around the chunks the threads take.
+    #[test]
+    fn lane_probe_values_are_the_same_on_any_number_of_threads() {
+        let mut x = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move |m: u64| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x % m
+        };
+        let c = PROBE_VALUES_CHUNK as u32;
+        for (points, lanes, replicate) in
+            [(1, 1, None), (c - 1, 3, None), (c, 1, Some(4)), (c + 1, 2, Some(4)), (3 * c + 5, 4, None)]
+        {
+            let sampling = Sampling { replicate, ..Sampling::default() };
+            let spp = 16 * lanes;
+            let settings = SampleSettings::new([3; 32], FilmLayout::Probes, lanes, points, spp, 0.0, &sampling);
+            let mut acc =
+                Accumulation::new(settings, DeviceKind::Cpu, BvhLayout::Cwbvh, BuildQuality::Fast, 0, 16, 2.0);
+            acc.record_pass(16, u64::from(spp) * u64::from(points));
+            let slots = (points * lanes) as usize;
+            let exact = acc.exact_mut();
+            // Sums of up to 16 samples of up to 2^30 quanta each, their squares consistent.
+            exact.sum = (0..slots).map(|_| next(16 << 30) as i128).collect();
+            exact.sum_sq = exact.sum.iter().map(|&v| v * v / 16 + next(1 << 40) as i128).collect();
+            if replicate.is_some() {
+                exact.replicate_sq = (0..slots).map(|_| next(1 << 50) as i128).collect();
+                exact.replicates = 4;
+            }
+            acc.end_block(0);
+            let expected = lane_probe_values_serial(&acc);
+            assert_eq!(expected.len(), points as usize);
+            assert!(expected.iter().all(|v| v.mean > 0.0 && v.std_error.is_finite()), "{points} points");
+            let bits = |v: &[ProbeValue]| -> Vec<(u64, u64, u64)> {
+                v.iter().map(|p| (p.mean.to_bits(), p.std_error.to_bits(), p.samples)).collect()
+            };
+            for threads in [1, 2, 3, 8] {
+                let got = pool(threads).install(|| acc.lane_probe_values()).expect("values");
+                assert!(bits(&got) == bits(&expected), "{points} points × {lanes} lanes on {threads} threads");
+            }
+        }
     }
 
     #[test]

@@ -807,7 +807,8 @@ impl Session {
         let out = render.finish()?;
         let acc = out.accumulation;
         let start = Instant::now();
-        let film = if acc.samples() == 0 { out.film } else { acc.film()? };
+        // The film `finish` made of this accumulation, not a second one.
+        let film = out.film;
         Ok(BakeTrace {
             samples: acc.samples(),
             samples_resumed: resumed,
