@@ -477,7 +477,7 @@ impl DeviceSums {
         // cost of up to three times the film's readback memory: each kind of sum comes
         // through the film's in turn.
         let last = targets.len() - 1;
-        let mut status = None;
+        let mut bad = None;
         for (k, (source, dst)) in self.sums.iter().zip(targets).enumerate() {
             let mut encoder =
                 ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sums") });
@@ -490,13 +490,13 @@ impl DeviceSums {
             ctx.read_mapped(buffers, |views| {
                 wide_sums(&bytemuck::cast_slice::<u8, [u32; 4]>(views[0])[..n], dst);
                 if k == last {
-                    status = Some(bad_slot(bytemuck::cast_slice::<u8, u32>(views[1])[4]));
+                    bad = bad_slot(bytemuck::cast_slice::<u8, u32>(views[1])[4]);
                 }
             })?;
             readback_bytes.fetch_add(staging.size(), Ordering::Relaxed);
         }
         readback_bytes.fetch_add(CHECK_BYTES, Ordering::Relaxed);
-        Ok(status.expect("the status word is read with the last sums"))
+        Ok(bad)
     }
 
     /// Replaces the device's sums with `exact`'s (the replicates' squares zero where it
