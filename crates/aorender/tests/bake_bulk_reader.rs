@@ -185,6 +185,47 @@ fn over_budget_files_fail_as_before() {
 }
 
 #[test]
+fn over_budget_gzipped_files_fail_as_the_whole_file_does() {
+    // The whole read holds the inflated file in a vector grown by doubling, and columns
+    // sized by its length; the stream holds a block and columns grown as the data arrives,
+    // charging the bytes arrived as if held. Near the need, their margins differ, so one
+    // may read what the other refuses: then the refusal is the budget's message.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("budget.ply.gz");
+    for (name, bytes, _) in small_dragons().into_iter().filter(|(name, ..)| name.starts_with("binary")) {
+        std::fs::write(&path, ply_layouts::gzip(&bytes)).unwrap();
+        let read = |budget: u64, bulk: bool| {
+            let options = options(ReadLimits::with_memory(budget));
+            PlyAsset::read_bits(&path, &options, bulk).map_err(|e| e.to_string())
+        };
+        let all = read(1 << 30, false).unwrap();
+        let budget_message = |m: &String| {
+            m.starts_with(&path.display().to_string())
+                && m.contains(": the mesh needs more than ")
+                && m.ends_with(", the read budget (as set by the caller)")
+        };
+        let (mut refused, mut read_both) = (0, 0);
+        for k in 1..=40 {
+            let budget = bytes.len() as u64 * k / 5;
+            match (read(budget, false), read(budget, true)) {
+                (Ok(a), Ok(b)) => {
+                    assert!(a == all && b == all, "{name}: budget {budget}");
+                    read_both += 1;
+                }
+                (Err(a), Err(b)) => {
+                    assert_eq!(a, b, "{name}: budget {budget}");
+                    refused += 1;
+                }
+                (Ok(a), Err(e)) | (Err(e), Ok(a)) => {
+                    assert!(a == all && budget_message(&e), "{name}: budget {budget}: {e}");
+                }
+            }
+        }
+        assert!(refused >= 4 && read_both >= 4, "{name}: {refused} budgets of 40 refused, {read_both} read");
+    }
+}
+
+#[test]
 fn endless_input_fails_as_before() {
     let dir = tempfile::tempdir().unwrap();
     let limits = ReadLimits::with_memory(1 << 20);
@@ -230,11 +271,18 @@ fn endless_input_fails_as_before() {
 
 #[test]
 fn elements_across_read_blocks_read_and_fail_as_the_whole_file_does() {
-    // A plain file is read a block of 1 MiB at a time: vertices with lists of up to 3 MiB
-    // and 200,000 faces (2.6 MB, a pentagon every 10,000) span several blocks.
-    let limits = ReadLimits::with_memory(1 << 30);
+    for gzipped in [false, true] {
+        elements_across_read_blocks(gzipped);
+    }
+}
+
+/// A file, plain or gzipped, is read a block of 1 MiB at a time: vertices with lists of
+/// up to 3 MiB and 200,000 faces (2.6 MB, a pentagon every 10,000) span several blocks.
+fn elements_across_read_blocks(gzipped: bool) {
+    // Eight times the file: a list count past the end of the file must not take more.
+    let limits = ReadLimits::with_memory(64 << 20);
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("blocks.ply");
+    let path = dir.path().join(if gzipped { "blocks.ply.gz" } else { "blocks.ply" });
     let blobs = [5usize, (3 << 20) + 7, 0, (1 << 20) - 3, 11];
     let faces = 200_000;
     let header = format!(
@@ -258,7 +306,7 @@ fn elements_across_read_blocks_read_and_fail_as_the_whole_file_does() {
         (0..corners).for_each(|c| bytes.extend_from_slice(&(((f + c) % blobs.len()) as i32).to_le_bytes()));
     }
     let read = |bytes: &[u8]| {
-        std::fs::write(&path, bytes).unwrap();
+        std::fs::write(&path, if gzipped { ply_layouts::gzip(bytes) } else { bytes.to_vec() }).unwrap();
         agree(&path, &limits)
     };
     read(&bytes).unwrap();

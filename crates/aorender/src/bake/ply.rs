@@ -551,6 +551,8 @@ impl PlyAsset {
                 let big_endian = encoding == Encoding::BinaryBigEndian;
                 let mut data = if bulk && input.is_plain_file() {
                     Window::blocks(path, &mut input, &mut meter)?
+                } else if bulk && input.is_gzip() {
+                    Window::stream(&mut input, &meter)
                 } else {
                     Window::whole(input.read_all(path, &mut meter)?)
                 };
@@ -700,19 +702,17 @@ fn read_binary(
         let count = if columns.is_empty() { 0 } else { def.count };
         let mut i = 0;
         while i < count {
+            if bulk {
+                data.fill(path, READ_BLOCK_BYTES / 2)?;
+            }
             // What the columns hold changes only when one grows, which a run never does:
             // one charge before a run is the charge before each of its elements.
-            meter.hold(path, base + columns_bytes(&elements, &columns))?;
+            meter.hold(path, base + data.arrived() + columns_bytes(&elements, &columns))?;
             let mut pos = 0;
-            let taken = if bulk {
-                data.fill(path, READ_BLOCK_BYTES / 2)?;
-                binary_run(&mut columns, data.rest(), &mut pos, count - i, big_endian)
-            } else {
-                0
-            };
+            let taken = if bulk { binary_run(&mut columns, data.rest(), &mut pos, count - i, big_endian) } else { 0 };
             if taken == 0 {
                 data.fill_element(path, def, i, &columns, big_endian)?;
-                let unread = data.remaining() - data.rest().len();
+                let unread = data.unread();
                 read_binary_element(path, def, i, &mut columns, data.rest(), unread, &mut pos, big_endian)?;
                 i += 1;
             }
@@ -733,10 +733,11 @@ fn read_binary(
 const READ_BLOCK_BYTES: usize = 1 << 20;
 
 /// The data of a binary file, as [`read_binary`] takes it: all of it in memory, or a
-/// plain file read a block at a time into a buffer that is reused, so that the file is
-/// neither copied whole nor faulted into new memory (the columns are what the read
-/// keeps). The blocks are charged as if the whole file were held, as the whole read
-/// charges it, so that both fail alike on a budget.
+/// file read a block at a time into a buffer that is reused, so that the file is neither
+/// copied whole nor faulted into new memory (the columns are what the read keeps). The
+/// blocks are charged as if the whole file were held, as the whole read charges it: a
+/// plain file's length before the read, a gzipped file's bytes as they arrive (its length
+/// is not known before).
 struct Window<'a> {
     /// Where the rest of the data comes from; `None` when `buf` holds all of it.
     input: Option<&'a mut Input>,
@@ -746,15 +747,18 @@ struct Window<'a> {
     end: usize,
     /// Bytes of the data before `buf[0]`.
     base: usize,
-    /// Bytes the input has yet to deliver, as its length tells.
-    unread: usize,
+    /// Bytes the input has yet to deliver, as its length tells; `None` for a stream whose
+    /// length is not known (gzipped), which nothing is sized by before it arrives.
+    unread: Option<usize>,
+    /// For a stream: the most bytes the budget holds, and the message of a read past it.
+    budget: Option<(u64, String)>,
 }
 
 impl<'a> Window<'a> {
     /// All the data, read.
     fn whole(data: Vec<u8>) -> Window<'a> {
         let end = data.len();
-        Window { input: None, buf: data, start: 0, end, base: 0, unread: 0 }
+        Window { input: None, buf: data, start: 0, end, base: 0, unread: Some(0), budget: None }
     }
 
     /// The rest of `input` (a plain regular file within the input cap, see
@@ -767,7 +771,30 @@ impl<'a> Window<'a> {
         }
         let unread = usize::try_from(len).unwrap_or(usize::MAX);
         let buf = vec![0; READ_BLOCK_BYTES.min(unread)];
-        Ok(Window { input: Some(input), buf, start: 0, end: 0, base: 0, unread })
+        Ok(Window { input: Some(input), buf, start: 0, end: 0, base: 0, unread: Some(unread), budget: None })
+    }
+
+    /// The rest of `input`, of a length not known before it is read (a gzipped file),
+    /// read as it is taken: memory is taken for what has arrived, never for what a
+    /// header says will come. Data past what `meter` has left is refused as the whole
+    /// read refuses it, with the meter's message.
+    fn stream(input: &'a mut Input, meter: &Meter) -> Window<'a> {
+        let budget = Some((meter.left(), meter.exceeded_message()));
+        Window { input: Some(input), buf: vec![0; READ_BLOCK_BYTES], start: 0, end: 0, base: 0, unread: None, budget }
+    }
+
+    /// Bytes read from a stream so far, to be charged as if held; 0 for the other kinds,
+    /// charged before the read.
+    fn arrived(&self) -> u64 {
+        match self.unread {
+            None => (self.base + self.end) as u64,
+            Some(_) => 0,
+        }
+    }
+
+    /// Bytes known to follow those at hand: `None` for a stream.
+    fn unread(&self) -> Option<usize> {
+        self.unread.map(|unread| if self.input.is_some() { unread } else { 0 })
     }
 
     /// The data not taken yet that is at hand.
@@ -785,9 +812,10 @@ impl<'a> Window<'a> {
         self.base + self.start
     }
 
-    /// The bytes of data not taken yet, at hand or still to read.
+    /// The bytes of data not taken yet, at hand or still to read (at hand alone for a
+    /// stream).
     fn remaining(&self) -> usize {
-        (self.end - self.start).saturating_add(self.unread)
+        (self.end - self.start).saturating_add(self.unread().unwrap_or(0))
     }
 
     /// Reads more of the input when fewer than `want` bytes are at hand: as much as the
@@ -804,20 +832,33 @@ impl<'a> Window<'a> {
         self.base += self.start;
         (self.start, self.end) = (0, held);
         if want > self.buf.len() {
-            // No more than the file holds: a lying count cannot make it grow further.
-            let grow = want.min(held.saturating_add(self.unread)).max(self.buf.len());
+            // No more than the file holds: a lying count cannot make it grow further. A
+            // stream's buffer at most doubles, so that it holds no more than twice what
+            // has arrived.
+            let most = match self.unread {
+                Some(unread) => held.saturating_add(unread),
+                None => self.buf.len().saturating_mul(2),
+            };
+            let grow = want.min(most).max(self.buf.len());
             self.buf.resize(grow, 0);
         }
-        while self.end < self.buf.len() {
-            match input.read(&mut self.buf[self.end..]) {
+        // A stream stops one byte past the budget, where the whole read fails on it.
+        let to = match &self.budget {
+            Some((most, _)) => {
+                let past = usize::try_from(most.saturating_add(1)).unwrap_or(usize::MAX);
+                self.buf.len().min(past.saturating_sub(self.base))
+            }
+            None => self.buf.len(),
+        };
+        while self.end < to {
+            match input.read(&mut self.buf[self.end..to]) {
                 Ok(0) => {
-                    self.unread = 0;
                     self.input = None;
                     break;
                 }
                 Ok(n) => {
                     self.end += n;
-                    self.unread = self.unread.saturating_sub(n);
+                    self.unread = self.unread.map(|unread| unread.saturating_sub(n));
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                 Err(e) => {
@@ -825,7 +866,10 @@ impl<'a> Window<'a> {
                 }
             }
         }
-        Ok(())
+        match &self.budget {
+            Some((most, refusal)) if self.arrived() > *most => Err(Error::scene(path, refusal.clone())),
+            _ => Ok(()),
+        }
     }
 
     /// Reads until element `i` of `def` (of `columns`' shape) is at hand whole, or fails
@@ -842,7 +886,7 @@ impl<'a> Window<'a> {
             let Err(need) = element_bytes(columns, self.rest(), big_endian) else {
                 break;
             };
-            if need > self.remaining() {
+            if self.unread.is_some() && need > self.remaining() {
                 return Err(end_of_file(path, def, i));
             }
             self.fill(path, need)?;
@@ -877,8 +921,10 @@ fn element_bytes(columns: &[Column], bytes: &[u8], big_endian: bool) -> std::res
 }
 
 /// Reads element `i` of `def` at `data[*pos..]` onto `columns`, one value at a time;
-/// `unread` more bytes of data follow `data`. A list that outgrows its column makes room
-/// for the elements left.
+/// `unread` more bytes of data follow `data` (`None`: a stream, of which `data` holds the
+/// element whole or all that is left). A list that outgrows its column makes room for the
+/// elements left; in a stream, a column grows by at least what it holds, so that it is
+/// copied a few times in all.
 #[allow(clippy::too_many_arguments)]
 fn read_binary_element(
     path: &Path,
@@ -886,12 +932,16 @@ fn read_binary_element(
     i: usize,
     columns: &mut [Column],
     data: &[u8],
-    unread: usize,
+    unread: Option<usize>,
     pos: &mut usize,
     big_endian: bool,
 ) -> Result<()> {
     for column in columns {
         let Some((count_type, starts)) = &mut column.list else {
+            if unread.is_none() && column.values.spare() == 0 {
+                let len = column.values.len();
+                column.values.reserve(len.max(4096).min(def.count.saturating_sub(i)).max(1));
+            }
             column.values.push_binary(data, pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
             continue;
         };
@@ -899,7 +949,7 @@ fn read_binary_element(
         n.push_binary(data, pos, big_endian).ok_or_else(|| end_of_file(path, def, i))?;
         let n = n.integer(0).unwrap_or(0);
         let item_bytes = scalar_bytes(&column.values.scalar_type());
-        let left = (data.len() - *pos).saturating_add(unread);
+        let left = (data.len() - *pos).saturating_add(unread.unwrap_or(0));
         let Some(n) = usize::try_from(n).ok().filter(|n| n.saturating_mul(item_bytes) <= left) else {
             return Err(if n < 0 {
                 let message = format!("{} {i} of {}: list {} has {n} items", def.name, def.count, column.name);
@@ -911,7 +961,10 @@ fn read_binary_element(
         if column.values.spare() < n {
             // Room for the elements left at this one's length, as far as the data left
             // could hold them: the items of most files' lists in one allocation.
-            let most = left / item_bytes;
+            let most = match unread {
+                Some(_) => left / item_bytes,
+                None => (left / item_bytes).max(column.values.len()),
+            };
             column.values.reserve(def.count.saturating_sub(i).saturating_mul(n).min(most).max(n));
         }
         for _ in 0..n {

@@ -469,13 +469,29 @@ impl Input {
         count_open(path);
         let metadata = file.metadata().map_err(|e| Error::scene(path, e))?;
         let (len, regular) = (metadata.len(), metadata.is_file());
-        let (inner, max_total): (Box<dyn BufRead>, u64) = if gzip {
+        let inner: Box<dyn BufRead> = if gzip {
+            // A regular file is inflated on a thread beside the parser; a pipe or a device
+            // in place, where a read that never returns would hold the thread for ever.
+            let file = match regular {
+                true => match crate::scene::inflate::Inflated::start(file) {
+                    Ok(inflated) => return Ok(Input::new(Box::new(inflated), true, len, regular, limits)),
+                    Err(file) => file,
+                },
+                false => file,
+            };
             let decoder = MultiGzDecoder::new(BufReader::with_capacity(BUFFER_BYTES, file));
-            (Box::new(BufReader::with_capacity(BUFFER_BYTES, decoder)), len.saturating_mul(MAX_DEFLATE_RATIO))
+            Box::new(BufReader::with_capacity(BUFFER_BYTES, decoder))
         } else {
-            (Box::new(BufReader::with_capacity(BUFFER_BYTES, file)), len)
+            Box::new(BufReader::with_capacity(BUFFER_BYTES, file))
         };
-        Ok(Input {
+        Ok(Input::new(inner, gzip, len, regular, limits))
+    }
+
+    /// The stream `inner` of a file of `len` bytes (which bound what it delivers where it is
+    /// `regular`, times the DEFLATE limit where it is gzipped).
+    fn new(inner: Box<dyn BufRead>, gzip: bool, len: u64, regular: bool, limits: &ReadLimits) -> Input {
+        let max_total = if gzip { len.saturating_mul(MAX_DEFLATE_RATIO) } else { len };
+        Input {
             inner,
             gzip,
             consumed: 0,
@@ -486,7 +502,7 @@ impl Input {
             limits: limits.clone(),
             lines: 0,
             stream_error: None,
-        })
+        }
     }
 
     /// Upper bound on the bytes still to come: exact for a plain regular file, the DEFLATE
@@ -507,6 +523,12 @@ impl Input {
     /// left of it is known before it is read, and all of it may be read.
     pub(crate) fn is_plain_file(&self) -> bool {
         !self.gzip && self.regular && self.max_total <= self.cap
+    }
+
+    /// True for a gzipped file (regular or not): how much it delivers is known only once
+    /// it has been read.
+    pub(crate) fn is_gzip(&self) -> bool {
+        self.gzip
     }
 
     /// False when the rest of the stream cannot hold `bytes`: a regular file too short (a

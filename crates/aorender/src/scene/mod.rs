@@ -8,6 +8,7 @@ mod file;
 pub(crate) mod files;
 mod frame;
 pub(crate) mod gltf;
+mod inflate;
 pub(crate) mod input;
 mod load;
 pub(crate) mod mesh;

@@ -172,8 +172,10 @@ pub fn endless(
 /// `refused`, which reads it and says whether the read failed: the data cut at 98 places
 /// (in a value, between elements, in a list), each element's count lying either way (which
 /// must fail), a byte corrupted in the first vertex, in a late face and near the end
-/// (which may read), and the gzipped file cut short (which must fail). Returns how many of
-/// the cut and lying files were refused.
+/// (which may read); and gzipped: the stream cut at 42 places (which must fail), each
+/// count lying (which must fail), bytes corrupted in the deflate data, its checksum and
+/// its length (which may read where the checksum misses it). Returns how many of the cut
+/// and lying files were refused.
 pub fn damaged(
     dir: &std::path::Path,
     name: &str,
@@ -182,6 +184,7 @@ pub fn damaged(
     mut refused: impl FnMut(&std::path::Path) -> bool,
 ) -> usize {
     let path = dir.join("cut.ply");
+    let gz = dir.join("cut.ply.gz");
     let mut failures = 0;
     let data = bytes.len() - header;
     for k in 0..=97 {
@@ -195,9 +198,12 @@ pub fn damaged(
         let n: usize = line.rsplit(' ').next().unwrap().parse().unwrap();
         for lie in [n - 1, n + 1, n / 2, n * 3] {
             let header = text.replace(line, &format!("element {element} {lie}"));
-            std::fs::write(&path, [header.as_bytes(), &bytes[text.len()..]].concat()).unwrap();
+            let lying = [header.as_bytes(), &bytes[text.len()..]].concat();
+            std::fs::write(&path, &lying).unwrap();
             assert!(refused(&path), "{name}: {element} {lie} of {n} read");
-            failures += 1;
+            std::fs::write(&gz, gzip(&lying)).unwrap();
+            assert!(refused(&gz), "{name}: {element} {lie} of {n} read from a gzipped file");
+            failures += 2;
         }
     }
     for (at, byte) in [(header + 2, 0xffu8), (bytes.len() - 30, 0x7f), (bytes.len() - 9, 0x80)] {
@@ -206,15 +212,29 @@ pub fn damaged(
         std::fs::write(&path, &bad).unwrap();
         refused(&path);
     }
-    let gz = dir.join("cut.ply.gz");
-    let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
-    encoder.write_all(bytes).unwrap();
-    let compressed = encoder.finish().unwrap();
-    for end in [compressed.len() / 3, compressed.len() - 5] {
+    let compressed = gzip(bytes);
+    // Cut in the gzip header, all through the deflate data, in the trailer.
+    let ends = (0..40).map(|k| 10 + (compressed.len() - 18) * k / 40 + k % 3).chain([5, compressed.len() - 5]);
+    for end in ends {
         std::fs::write(&gz, &compressed[..end]).unwrap();
-        assert!(refused(&gz), "{name}: a truncated gzip stream read");
+        assert!(refused(&gz), "{name}: a gzip stream cut at byte {end} of {} read", compressed.len());
+        failures += 1;
+    }
+    let len = compressed.len();
+    for at in [12, len / 5, len / 2, len * 4 / 5, len - 20, len - 7, len - 2] {
+        let mut bad = compressed.clone();
+        bad[at] ^= 0x5a;
+        std::fs::write(&gz, &bad).unwrap();
+        refused(&gz);
     }
     failures
+}
+
+/// `bytes` through `gzip -1`.
+pub fn gzip(bytes: &[u8]) -> Vec<u8> {
+    let mut encoder = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+    encoder.write_all(bytes).unwrap();
+    encoder.finish().unwrap()
 }
 
 /// The PLY encodings the readers' tests write every layout in.
