@@ -307,7 +307,7 @@ mod tests {
     fn the_morton_keys_are_the_sequential_sort_on_any_number_of_threads() {
         // Boxes on a grid, so that many centroids share a Morton code, and a spread.
         let aabb = |i: usize| {
-            let c = if i % 3 == 0 {
+            let c = if i.is_multiple_of(3) {
                 Vec3A::new((i % 17) as f32, (i % 5) as f32, 0.0)
             } else {
                 Vec3A::new((i as f32 * 0.37).sin(), (i as f32 * 0.11).cos(), i as f32 * 1e-4)

@@ -100,6 +100,7 @@ pub fn sorted_leaves(boxes: &[Aabb], precision: SortPrecision) -> Vec<Bvh2Node> 
 /// window and the nearest-neighbour passes of `params`: the root first, children after
 /// their parents, a leaf's `first_index` its primitive. `None` at the first pass over
 /// [`CHECKED_FROM`] nodes or more that merges fewer than 1/[`MIN_MERGED`] of them.
+#[cfg(any(test, feature = "testing"))]
 pub fn build_ploc(leaves: Vec<Bvh2Node>, params: &BvhBuildParams) -> Option<Vec<Bvh2Node>> {
     ploc_with_depth(leaves, params).map(|(nodes, _)| nodes)
 }

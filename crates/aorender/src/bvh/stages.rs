@@ -25,15 +25,18 @@ pub enum Stage {
 
 impl Stage {
     /// Every stage, in build order.
+    #[cfg(feature = "testing")]
     pub const ALL: [Stage; 7] =
         [Stage::Distinct, Stage::Cells, Stage::Leaves, Stage::Ploc, Stage::Reinsertion, Stage::Collapse, Stage::Join];
 
     /// Whether the stage is part of one cell's build, which runs beside other cells'.
+    #[cfg(feature = "testing")]
     pub fn in_cell(self) -> bool {
         matches!(self, Stage::Leaves | Stage::Ploc | Stage::Reinsertion | Stage::Collapse)
     }
 
     /// The stage's name in the example's table.
+    #[cfg(feature = "testing")]
     pub fn name(self) -> &'static str {
         match self {
             Stage::Distinct => "copies",
