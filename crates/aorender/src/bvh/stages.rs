@@ -4,10 +4,10 @@
 //! cell's stages (cells are built side by side). Counted only with the `testing` feature
 //! on Linux; elsewhere [`timed`] is the call it wraps.
 
-/// A stage of [`crate::bvh::build_cwbvh`].
+/// A stage of the CWBVH build (`build_cwbvh`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stage {
-    /// Finding copies of primitives ([`crate::bvh::build::distinct`]).
+    /// Finding copies of primitives (`build::distinct`).
     Distinct,
     /// The cells' Morton keys, sorted, and the octree cut into cells.
     Cells,
@@ -50,24 +50,27 @@ impl Stage {
     }
 }
 
+/// Wall and CPU nanoseconds of each stage.
 #[cfg(all(feature = "testing", target_os = "linux"))]
-mod counted {
-    use super::Stage;
-    use std::sync::atomic::{AtomicU64, Ordering};
+static NANOS: [[std::sync::atomic::AtomicU64; 2]; Stage::ALL.len()] =
+    [const { [const { std::sync::atomic::AtomicU64::new(0) }; 2] }; Stage::ALL.len()];
 
-    /// Wall and CPU nanoseconds of each stage.
-    static NANOS: [[AtomicU64; 2]; Stage::ALL.len()] = [const { [const { AtomicU64::new(0) }; 2] }; Stage::ALL.len()];
+/// CPU nanoseconds of the calling thread, or of the whole process.
+#[cfg(all(feature = "testing", target_os = "linux"))]
+fn cpu_nanos(thread: bool) -> u64 {
+    let clock = if thread { libc::CLOCK_THREAD_CPUTIME_ID } else { libc::CLOCK_PROCESS_CPUTIME_ID };
+    let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: clock_gettime writes the timespec it is given; both clocks exist on Linux.
+    unsafe { libc::clock_gettime(clock, &mut t) };
+    t.tv_sec as u64 * 1_000_000_000 + t.tv_nsec as u64
+}
 
-    /// CPU nanoseconds of the calling thread, or of the whole process.
-    fn cpu_nanos(thread: bool) -> u64 {
-        let clock = if thread { libc::CLOCK_THREAD_CPUTIME_ID } else { libc::CLOCK_PROCESS_CPUTIME_ID };
-        let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
-        // SAFETY: clock_gettime writes the timespec it is given; both clocks exist on Linux.
-        unsafe { libc::clock_gettime(clock, &mut t) };
-        t.tv_sec as u64 * 1_000_000_000 + t.tv_nsec as u64
-    }
-
-    pub(super) fn timed<T>(stage: Stage, f: impl FnOnce() -> T) -> T {
+/// Runs `f`, adding its seconds to `stage`'s.
+#[inline]
+pub(crate) fn timed<T>(stage: Stage, f: impl FnOnce() -> T) -> T {
+    #[cfg(all(feature = "testing", target_os = "linux"))]
+    {
+        use std::sync::atomic::Ordering;
         let (start, cpu) = (std::time::Instant::now(), cpu_nanos(stage.in_cell()));
         let out = f();
         let counters = &NANOS[stage as usize];
@@ -75,18 +78,6 @@ mod counted {
         counters[1].fetch_add(cpu_nanos(stage.in_cell()) - cpu, Ordering::Relaxed);
         out
     }
-
-    pub(super) fn take() -> Vec<(Stage, f64, f64)> {
-        let seconds = |c: &AtomicU64| c.swap(0, Ordering::Relaxed) as f64 * 1e-9;
-        Stage::ALL.iter().map(|&s| (s, seconds(&NANOS[s as usize][0]), seconds(&NANOS[s as usize][1]))).collect()
-    }
-}
-
-/// Runs `f`, adding its seconds to `stage`'s.
-#[inline]
-pub(crate) fn timed<T>(stage: Stage, f: impl FnOnce() -> T) -> T {
-    #[cfg(all(feature = "testing", target_os = "linux"))]
-    return counted::timed(stage, f);
     #[cfg(not(all(feature = "testing", target_os = "linux")))]
     {
         let _ = stage;
@@ -99,7 +90,10 @@ pub(crate) fn timed<T>(stage: Stage, f: impl FnOnce() -> T) -> T {
 #[cfg(feature = "testing")]
 pub fn take() -> Vec<(Stage, f64, f64)> {
     #[cfg(target_os = "linux")]
-    return counted::take();
+    {
+        let seconds = |c: &std::sync::atomic::AtomicU64| c.swap(0, std::sync::atomic::Ordering::Relaxed) as f64 * 1e-9;
+        Stage::ALL.iter().map(|&s| (s, seconds(&NANOS[s as usize][0]), seconds(&NANOS[s as usize][1]))).collect()
+    }
     #[cfg(not(target_os = "linux"))]
     Stage::ALL.iter().map(|&s| (s, 0.0, 0.0)).collect()
 }
