@@ -1,6 +1,7 @@
 //! A CWBVH built in octree cells (so the build's workspace stays bounded) is a valid obvhs
 //! CWBVH holding every primitive exactly once, whatever the cell size, and a ray finds the
-//! same nearest hit in it as in the CWBVH obvhs builds whole.
+//! same nearest hit in it as in the CWBVH obvhs builds whole. The cells are built side by
+//! side on rayon's threads, and the tree is the same, bit for bit, on any number of them.
 
 mod common;
 use aorender::Scene;
@@ -10,6 +11,7 @@ use aorender::cpu::CpuTracer;
 use common::*;
 use glam::Vec3;
 use obvhs::aabb::Aabb;
+use obvhs::cwbvh::CwBvh;
 
 /// A scene with every kind of top-level primitive: the dragon's triangles, spheres, and a
 /// teapot placed three times (instances of one mesh).
@@ -104,6 +106,38 @@ fn cells_trace_the_same_nearest_hits_as_a_whole_build() {
             if let Some(t) = want {
                 assert!(cells.occluded(o, d, t * 1.0001), "cells of {cell}: ray {k} is not occluded before its hit");
             }
+        }
+    }
+}
+
+/// The nodes and primitive order of every CWBVH of a build, as bytes.
+fn tree_bytes(bvh: &aorender::bvh::SceneCwbvh) -> Vec<u8> {
+    let mut bytes = Vec::new();
+    for b in bvh.top.iter().chain(&bvh.meshes) {
+        let b: &CwBvh = b;
+        bytes.extend_from_slice(bytemuck::cast_slice(&b.nodes));
+        bytes.extend_from_slice(bytemuck::cast_slice(&b.primitive_indices));
+    }
+    bytes
+}
+
+#[test]
+fn cells_build_the_same_tree_on_any_number_of_threads() {
+    let scene = scene();
+    let n = primitive_aabbs(&scene).len();
+    // One cell for all and one primitive short of it (the first cut), cells just under
+    // and over 1/8 of the scene, and cells small enough for several built at once (one
+    // lane per 16 cells).
+    let cells = [n, n - 1, n / 8, n / 8 + 1, n / 40, n / 40 + 1];
+    for cell in cells {
+        let pool = |threads| rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+        let one = pool(1).install(|| build_cwbvh_in_cells(&scene, BuildQuality::Medium, cell));
+        let expected = tree_bytes(&one);
+        assert!(expected.len() > n, "cells of {cell}: an empty tree");
+        for threads in [2, 3, 8] {
+            let built = pool(threads).install(|| build_cwbvh_in_cells(&scene, BuildQuality::Medium, cell));
+            assert!(tree_bytes(&built) == expected, "cells of {cell}: {threads} threads build another tree");
+            assert_eq!(built.duplicates, one.duplicates);
         }
     }
 }

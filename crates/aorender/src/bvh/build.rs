@@ -4,6 +4,7 @@
 use super::chunked;
 use super::ploc::bvh2_over;
 use super::quality::BuildQuality;
+use super::stages::{Stage, timed};
 use crate::geometry::AffineRows;
 use crate::scene::Scene;
 use glam::{Vec3, Vec3A};
@@ -166,7 +167,7 @@ fn build_distinct(
     quality: BuildQuality,
     cell: usize,
 ) -> (Option<CwBvh>, usize) {
-    let kept = distinct(count, key);
+    let kept = timed(Stage::Distinct, || distinct(count, key));
     let mut bvh = match &kept {
         Some(ids) => chunked::build_cwbvh_in_cells(ids.len(), &|k| aabb(ids[k] as usize), quality, cell),
         None => chunked::build_cwbvh_in_cells(count, aabb, quality, cell),

@@ -15,10 +15,12 @@
 use super::cwbvh::{inner_node, placed};
 use super::ploc::cwbvh_over;
 use super::quality::BuildQuality;
+use super::stages::{Stage, timed};
 use glam::{UVec3, Vec3A};
 use obvhs::aabb::Aabb;
 use obvhs::cwbvh::{CwBvh, node::CwBvhNode};
 use rayon::prelude::*;
+use rdst::RadixSort;
 use std::ops::Range;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -45,15 +47,18 @@ pub fn build_cwbvh_in_cells(
         return Some(bvh);
     }
 
-    let keys = morton_keys(count, aabb);
     let mut cells = Vec::new();
-    let plan = plan(&keys, 0..count, 0, chunk, &mut cells);
+    let (keys, plan) = timed(Stage::Cells, || {
+        let keys = morton_keys(count, aabb);
+        let plan = plan(&keys, 0..count, 0, chunk, &mut cells);
+        (keys, plan)
+    });
 
     // Each lane builds one cell at a time, so no more than `lanes` workspaces are live;
     // one lane per 16 cells' worth of primitives keeps them within ~20 bytes a primitive.
     let lanes = rayon::current_num_threads().min(count / chunk / 16).max(1);
     let next = AtomicUsize::new(0);
-    let mut built: Vec<(usize, CwBvh)> = (0..lanes)
+    let built: Vec<(usize, CwBvh)> = (0..lanes)
         .into_par_iter()
         .flat_map_iter(|_| {
             std::iter::from_fn(|| {
@@ -65,6 +70,11 @@ pub fn build_cwbvh_in_cells(
         })
         .collect();
     drop(keys);
+    Some(timed(Stage::Join, || join(built, &plan)))
+}
+
+/// The CWBVH of the cells `built` (with their indices in build order) under the nodes of `plan`.
+fn join(mut built: Vec<(usize, CwBvh)>, plan: &Part) -> CwBvh {
     built.sort_unstable_by_key(|(c, _)| *c);
     let boxes: Vec<Aabb> = built.iter().map(|(_, b)| b.total_aabb).collect();
     let sizes: Vec<(usize, usize)> = built.iter().map(|(_, b)| (b.nodes.len(), b.primitive_indices.len())).collect();
@@ -102,13 +112,13 @@ pub fn build_cwbvh_in_cells(
         }
         prims.copy_from_slice(&cell.primitive_indices);
     });
-    Some(CwBvh {
+    CwBvh {
         nodes,
         primitive_indices,
         total_aabb: plan.bounds(&boxes),
         exact_node_aabbs: None,
         uses_spatial_splits: false,
-    })
+    }
 }
 
 /// Where the join of the cells puts everything: the nodes and primitives laid out so far,
@@ -132,7 +142,7 @@ struct CellPlace {
 /// obvhs's CWBVH over primitives `ids` ([`cwbvh_over`]: O(log n) deep whatever the
 /// boxes), its primitive indices mapped back to those ids.
 fn build_cell(ids: &[u32], aabb: &(dyn Fn(usize) -> Aabb + Sync), quality: BuildQuality) -> CwBvh {
-    let boxes: Vec<Aabb> = ids.iter().map(|&i| aabb(i as usize)).collect();
+    let boxes: Vec<Aabb> = timed(Stage::Leaves, || ids.iter().map(|&i| aabb(i as usize)).collect());
     let mut bvh = cwbvh_over(&boxes, &quality.params());
     for p in &mut bvh.primitive_indices {
         *p = ids[*p as usize];
@@ -161,7 +171,8 @@ fn morton_keys(count: usize, aabb: &(dyn Fn(usize) -> Aabb + Sync)) -> Vec<u64> 
             (morton3(q) as u64) << 32 | i as u64
         })
         .collect();
-    keys.par_sort_unstable();
+    // Distinct keys (the id is in them): any sort gives this order.
+    keys.radix_sort_unstable();
     keys
 }
 
@@ -286,4 +297,43 @@ fn child_slots(node_box: &Aabb, boxes: &[Aabb]) -> Vec<usize> {
         slot_of[c] = s;
     }
     slot_of
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_morton_keys_are_the_sequential_sort_on_any_number_of_threads() {
+        // Boxes on a grid, so that many centroids share a Morton code, and a spread.
+        let aabb = |i: usize| {
+            let c = if i.is_multiple_of(3) {
+                Vec3A::new((i % 17) as f32, (i % 5) as f32, 0.0)
+            } else {
+                Vec3A::new((i as f32 * 0.37).sin(), (i as f32 * 0.11).cos(), i as f32 * 1e-4)
+            };
+            Aabb::new(c, c + 0.01)
+        };
+        for count in [1, 2, 1000, 100_003] {
+            // The one-thread reference: each key computed in turn, then a comparison sort.
+            let mut bounds = Aabb::empty();
+            for i in 0..count {
+                bounds.extend(aabb(i).center());
+            }
+            let scale = (1u32 << MORTON_BITS) as f32 / (bounds.max - bounds.min).max(Vec3A::splat(f32::MIN_POSITIVE));
+            let mut expected: Vec<u64> = (0..count)
+                .map(|i| {
+                    let q =
+                        ((aabb(i).center() - bounds.min) * scale).as_uvec3().min(UVec3::splat((1 << MORTON_BITS) - 1));
+                    (morton3(q) as u64) << 32 | i as u64
+                })
+                .collect();
+            expected.sort_unstable();
+            for threads in [1, 2, 3, 8] {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
+                let keys = pool.install(|| morton_keys(count, &aabb));
+                assert!(keys == expected, "{count} keys on {threads} threads");
+            }
+        }
+    }
 }

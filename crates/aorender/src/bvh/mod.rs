@@ -13,10 +13,12 @@
 
 pub mod build;
 pub mod chunked;
+pub mod collapse;
 pub mod cwbvh;
 pub mod layout;
 pub mod ploc;
 pub mod quality;
+pub mod stages;
 
 pub use build::{SceneCwbvh, build_cwbvh};
 pub use cwbvh::CwNodeWords;

@@ -21,11 +21,13 @@
 //! on each half, down to parts that are built balanced ([`build_balanced`]), so that
 //! every input gets a tree O(log n) deep in O(n log n) time.
 
+use super::collapse::bvh2_to_cwbvh;
+use super::stages::{Stage, timed};
 use obvhs::BvhBuildParams;
 use obvhs::aabb::Aabb;
 use obvhs::bvh2::reinsertion::ReinsertionOptimizer;
 use obvhs::bvh2::{Bvh2, DEFAULT_MAX_STACK_DEPTH, node::Bvh2Node};
-use obvhs::cwbvh::{CwBvh, bvh2_to_cwbvh::bvh2_to_cwbvh};
+use obvhs::cwbvh::CwBvh;
 use obvhs::ploc::morton::{morton_encode_u64_unorm, morton_encode_u128_unorm};
 use obvhs::ploc::{PlocSearchDistance, SortPrecision};
 use rayon::prelude::*;
@@ -98,16 +100,25 @@ pub fn sorted_leaves(boxes: &[Aabb], precision: SortPrecision) -> Vec<Bvh2Node> 
 /// window and the nearest-neighbour passes of `params`: the root first, children after
 /// their parents, a leaf's `first_index` its primitive. `None` at the first pass over
 /// [`CHECKED_FROM`] nodes or more that merges fewer than 1/[`MIN_MERGED`] of them.
+#[cfg(any(test, feature = "testing"))]
 pub fn build_ploc(leaves: Vec<Bvh2Node>, params: &BvhBuildParams) -> Option<Vec<Bvh2Node>> {
+    ploc_with_depth(leaves, params).map(|(nodes, _)| nodes)
+}
+
+/// [`build_ploc`] and the [`depth`] of its tree, counted as the nodes merge.
+fn ploc_with_depth(leaves: Vec<Bvh2Node>, params: &BvhBuildParams) -> Option<(Vec<Bvh2Node>, usize)> {
     let n = leaves.len();
     if n == 0 {
-        return Some(Vec::new());
+        return Some((Vec::new(), 0));
     }
     let distance = window(params.ploc_search_distance);
-    let mut nodes = vec![Bvh2Node::default(); 2 * n - 1];
+    // Every slot is written once below: zeroed pages, not a fill.
+    let mut nodes: Vec<Bvh2Node> = bytemuck::zeroed_vec(2 * n - 1);
     let mut insert = nodes.len();
     let mut current = leaves;
     let mut next = Vec::with_capacity(n);
+    // The levels of the subtree under each node of `current`, and of `next`.
+    let (mut levels, mut next_levels) = (vec![1u32; n], Vec::with_capacity(n));
     let mut merge = vec![0i8; n];
     let mut costs: Vec<f32> = Vec::new();
     let mut passes = 0;
@@ -173,6 +184,7 @@ pub fn build_ploc(leaves: Vec<Bvh2Node>, params: &BvhBuildParams) -> Option<Vec<
             let best = (index as i64 + merge[index] as i64) as usize;
             if best as i64 + merge[best] as i64 != index as i64 {
                 next.push(current[index]);
+                next_levels.push(levels[index]);
                 continue;
             }
             if best > index {
@@ -183,18 +195,21 @@ pub fn build_ploc(leaves: Vec<Bvh2Node>, params: &BvhBuildParams) -> Option<Vec<
             nodes[insert] = left;
             nodes[insert + 1] = right;
             next.push(Bvh2Node::new(left.aabb().union(right.aabb()), 0, insert as u32));
+            next_levels.push(levels[index].max(levels[best]) + 1);
             merged += 2;
         }
         if count >= CHECKED_FROM && merged * MIN_MERGED < count {
             return None;
         }
         std::mem::swap(&mut current, &mut next);
+        std::mem::swap(&mut levels, &mut next_levels);
         next.clear();
+        next_levels.clear();
         passes += 1;
     }
     debug_assert_eq!(insert, 1);
     nodes[0] = current[0];
-    Some(nodes)
+    Some((nodes, levels[0] as usize))
 }
 
 /// Nodes over `leaves` that halve their order at every node (⌈log₂ n⌉ + 1 levels, a
@@ -236,8 +251,8 @@ fn balanced_into(leaves: &[Bvh2Node], slot: usize, nodes: &mut Vec<Bvh2Node>) {
 /// Nodes over `leaves` (Morton-ordered): obvhs's PLOC where it progresses and stays
 /// within [`depth_bound`], else built in parts ([`split_into`]).
 fn build_parts(leaves: &[Bvh2Node], params: &BvhBuildParams, slot: usize, nodes: &mut Vec<Bvh2Node>) {
-    match build_ploc(leaves.to_vec(), params).filter(|p| depth(p) <= depth_bound(leaves.len())) {
-        Some(part) => attach(&part, slot, nodes),
+    match ploc_with_depth(leaves.to_vec(), params).filter(|(_, d)| *d <= depth_bound(leaves.len())) {
+        Some((part, _)) => attach(&part, slot, nodes),
         None => split_into(leaves, params, slot, nodes),
     }
 }
@@ -306,9 +321,10 @@ pub enum Built {
 pub fn build_bvh2(boxes: &[Aabb], params: &BvhBuildParams, whole: bool) -> (Bvh2, Built) {
     let n = boxes.len();
     if whole {
-        let tree = build_ploc(sorted_leaves(boxes, params.sort_precision), params);
-        if let Some(nodes) = tree.filter(|p| depth(p) <= depth_bound(n)) {
-            return (bvh2(n, nodes), Built::Ploc);
+        let leaves = timed(Stage::Leaves, || sorted_leaves(boxes, params.sort_precision));
+        let tree = timed(Stage::Ploc, || ploc_with_depth(leaves, params).filter(|(_, d)| *d <= depth_bound(n)));
+        if let Some((nodes, depth)) = tree {
+            return (bvh2_of_depth(n, nodes, depth), Built::Ploc);
         }
     }
     let leaves = sorted_leaves(boxes, params.sort_precision);
@@ -328,6 +344,11 @@ pub fn build_balanced_bvh2(boxes: &[Aabb], precision: SortPrecision) -> Bvh2 {
 /// obvhs's `Bvh2` of `nodes` over `n` primitives whose leaves index them directly.
 fn bvh2(n: usize, nodes: Vec<Bvh2Node>) -> Bvh2 {
     let depth = depth(&nodes);
+    bvh2_of_depth(n, nodes, depth)
+}
+
+/// [`bvh2`] of `nodes` whose [`depth`] is `depth`.
+fn bvh2_of_depth(n: usize, nodes: Vec<Bvh2Node>, depth: usize) -> Bvh2 {
     Bvh2 {
         nodes,
         primitive_indices: (0..n as u32).collect(),
@@ -368,14 +389,16 @@ pub fn cwbvh_over(boxes: &[Aabb], params: &BvhBuildParams) -> CwBvh {
     let leaf = params.max_prims_per_leaf.clamp(1, 3);
     let (mut bvh2, built) = build_bvh2(boxes, params, true);
     if built == Built::Ploc {
-        ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None);
+        timed(Stage::Reinsertion, || {
+            ReinsertionOptimizer::default().run(&mut bvh2, params.reinsertion_batch_ratio, None)
+        });
     }
-    let bvh = bvh2_to_cwbvh(&bvh2, leaf, true, false);
+    let bvh = timed(Stage::Collapse, || bvh2_to_cwbvh(&bvh2, leaf));
     if cwbvh_depth(&bvh) <= cwbvh_depth_bound(boxes.len()) {
         return bvh;
     }
     drop(bvh2);
-    bvh2_to_cwbvh(&build_balanced_bvh2(boxes, params.sort_precision), leaf, true, false)
+    bvh2_to_cwbvh(&build_balanced_bvh2(boxes, params.sort_precision), leaf)
 }
 
 /// obvhs's BVH2 over `boxes` (`obvhs::bvh2::builder::build_bvh2`: PLOC, reinsertion, leaf
@@ -404,4 +427,44 @@ pub fn bvh2_over(boxes: &[Aabb], params: &BvhBuildParams) -> Bvh2 {
     }
     collapse(&mut bvh);
     bvh
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3A;
+
+    /// `n` boxes from a fixed random sequence, some of them copies of others.
+    fn boxes(n: usize) -> Vec<Aabb> {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut uniform = move || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let mut out: Vec<Aabb> = Vec::with_capacity(n);
+        for i in 0..n {
+            if i % 7 == 3 {
+                out.push(out[i / 2]);
+                continue;
+            }
+            let c = Vec3A::new(uniform(), uniform(), uniform());
+            out.push(Aabb::new(c, c + Vec3A::new(uniform(), uniform(), uniform()) * 0.05));
+        }
+        out
+    }
+
+    #[test]
+    fn the_depth_counted_while_merging_is_the_trees() {
+        // Across the checked size and the threads' threshold, for every window.
+        for n in [1, 2, 3, 255, 256, 257, PARALLEL_FROM - 1, PARALLEL_FROM + 1, 20_000] {
+            for params in
+                [BvhBuildParams::fastest_build(), BvhBuildParams::medium_build(), BvhBuildParams::slow_build()]
+            {
+                let leaves = sorted_leaves(&boxes(n), params.sort_precision);
+                let (nodes, levels) = ploc_with_depth(leaves, &params).expect("random boxes merge");
+                assert_eq!(nodes.len(), 2 * n - 1);
+                assert_eq!(levels, depth(&nodes), "{n} boxes");
+            }
+        }
+    }
 }
