@@ -15,9 +15,10 @@
 //
 // An adaptive render's pixels have their own counts (`stats_counts`, added by `fold` to
 // the pixels still sampled) and its decisions are taken here: `reduce` in per-pixel mode
-// also sums each pixel's σ (accumulation.rs `pixel_sigma`, whose f32 steps these are)
-// and keeps it for `allocate`, which stops the pixels that have the replicates an
-// allocation ∝ σ gives them without evaluating the rule again; `mark` writes the
+// also takes each pixel's σ (accumulation.rs `pixel_sigma`, whose f32 steps these are)
+// and the σ̃ of its row neighbours that decides its share (`share_sigma`), sums σ² / σ̃
+// and keeps σ̃ for `allocate`, which stops the pixels that have the replicates an
+// allocation ∝ σ̃ gives them without evaluating the rule again; `mark` writes the
 // stopped flags into the counts before they are read.
 
 //#import sums.wgsl
@@ -53,7 +54,8 @@ struct StatsParams {
     // `allocate`: 1 stops the pixels, 0 counts them; and replicates per unit of σ.
     apply: u32,
     per_sigma: f32,
-    _pad3: u32,
+    // Pixels in a row of the image (a band holds whole rows).
+    width: u32,
     _pad4: u32,
     _pad5: u32,
 }
@@ -65,8 +67,8 @@ struct StatsParams {
 // A storage buffer, not a uniform one: lavapipe would recompile the kernels at every
 // dispatch for the uniform values they branch on (shaders/bindings.wgsl).
 @group(0) @binding(4) var<storage, read> stats_params: StatsParams;
-// One partial sum (Σv, Σv², Σ mean, Σσ) per workgroup of `reduce`, then the total; past
-// it, from `sigma_base()`, each pixel's σ of the last per-pixel `reduce`, four a word (one
+// One partial sum (Σv, Σv², Σ mean, Σ σ² / σ̃) per workgroup of `reduce`, then the total;
+// past it, from `sigma_base()`, each pixel's σ̃ of the last per-pixel `reduce`, four a word (one
 // binding more would pass the eight storage buffers every adapter allows a stage).
 @group(0) @binding(5) var<storage, read_write> stats_partial: array<vec4f>;
 // [0]: 2^32 − 1 − the first pixel whose block held a sample out of range (0: none).
@@ -261,6 +263,41 @@ fn adaptive_pixel(i: u32) -> vec4f {
     return vec4f(v, mean, sigma, k);
 }
 
+// Pixels on each side of a pixel, in its row, whose σ decide its share (accumulation.rs
+// SHARE_NEIGHBOURS).
+const SHARE_NEIGHBOURS: u32 = 2u;
+
+// The largest standard deviation a replicate's mean can have: half the samples' range.
+fn sigma_bound() -> f32 {
+    return select(exact_mul(0.5, stats_params.max_value), stats_params.max_value, stats_params.range == 2u);
+}
+
+// The σ̃ that decides pixel i's share: the root mean square of the σ of the pixels up to
+// SHARE_NEIGHBOURS on either side in its row that have one (σ > 0), never its own, so
+// that its stopping is independent of its samples; `sigma_bound()` where none has.
+// accumulation.rs `share_sigma`, step for step; a loop of 2 × SHARE_NEIGHBOURS steps.
+fn share_sigma(i: u32) -> f32 {
+    let w = stats_params.width;
+    let x = i % w;
+    var sum = 0.0;
+    var count = 0u;
+    for (var d = 0u; d < 2u * SHARE_NEIGHBOURS; d++) {
+        let nx = x + d + select(0u, 1u, d >= SHARE_NEIGHBOURS) - SHARE_NEIGHBOURS;
+        let j = i - x + nx;
+        if (nx < w && j < stats_params.slots) {
+            let s = adaptive_pixel(j).z;
+            if (s > 0.0) {
+                sum = sum + exact_mul(s, s);
+                count += 1u;
+            }
+        }
+    }
+    if (count == 0u) {
+        return sigma_bound();
+    }
+    return exact_sqrt(exact_div(sum, f32(count)));
+}
+
 // Sums stats_shared over the workgroup into stats_shared[0].
 fn reduce_shared(local: u32) {
     for (var half = 128u; half > 0u; half >>= 1u) {
@@ -279,8 +316,13 @@ fn reduce(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) 
     var x = vec4f(0.0);
     if (i < stats_params.slots && stats_params.per_pixel == 1u) {
         let a = adaptive_pixel(i);
-        x = vec4f(a.x, exact_mul(a.x, a.x), a.y, a.z);
-        stats_partial[sigma_base() + i / 4u][i % 4u] = a.z;
+        let share = share_sigma(i);
+        var weight = 0.0;
+        if (a.z > 0.0 && share > 0.0) {
+            weight = exact_div(exact_mul(a.z, a.z), share);
+        }
+        x = vec4f(a.x, exact_mul(a.x, a.x), a.y, weight);
+        stats_partial[sigma_base() + i / 4u][i % 4u] = share;
         let kk = stats_counts[i].y & 0x7fffffffu;
         if (!(stats_film[i].w == INACTIVE_SLOT && kk < 2u)) {
             atomicMax(&stats_status[2], 0xffffffffu - kk);
@@ -313,7 +355,7 @@ fn reduce_groups(@builtin(local_invocation_index) local: u32) {
 }
 
 // Stops (with `apply`; else counts) the pixels still sampled that have the replicates
-// the allocation gives them: k ≥ σ × per_sigma, σ the one the last per-pixel `reduce`
+// the allocation gives them: k ≥ σ̃ × per_sigma, σ̃ the one the last per-pixel `reduce`
 // kept (the sums and counts have not changed since).
 @compute @workgroup_size(256)
 fn allocate(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
@@ -322,8 +364,8 @@ fn allocate(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index
         return;
     }
     let k = f32(stats_counts[i].y & 0x7fffffffu);
-    let sigma = stats_partial[sigma_base() + i / 4u][i % 4u];
-    if (k >= sigma * stats_params.per_sigma) {
+    let share = stats_partial[sigma_base() + i / 4u][i % 4u];
+    if (k >= share * stats_params.per_sigma) {
         atomicAdd(&stats_status[1], 1u);
         if (stats_params.apply == 1u) {
             stats_film[i] = vec4u(0u, 0u, 0u, INACTIVE_SLOT);

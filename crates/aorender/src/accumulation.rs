@@ -225,6 +225,39 @@ pub fn pixel_sigma(
     [v, mean, sigma, kf]
 }
 
+/// Pixels on each side of a pixel, in its row, whose σ decide its share of an adaptive
+/// render's replicates (`share_sigma`; `stats.wgsl`'s `SHARE_NEIGHBOURS`).
+pub const SHARE_NEIGHBOURS: usize = 2;
+
+/// The σ̃ that decides pixel `i`'s share of an adaptive render's replicates, from the σ of
+/// the pixels around it and never its own (`sigmas`: each pixel's `pixel_sigma` σ, rows of
+/// `width`), in f32 step for step as `stats.wgsl`'s `share_sigma`: the root mean square
+/// of the σ of the pixels up to `SHARE_NEIGHBOURS` on either side in its row that have
+/// one (σ > 0: an exact pixel's tells nothing of this one's spread), or, where none has,
+/// the largest σ a replicate's mean can have, half the samples' range (`bound`). Its
+/// neighbours' samples are independent of its own, so its stopping time is too, and its
+/// mean is unbiased at whatever count it stops (docs/sampling.md). In a row, so that a
+/// render in bands of rows decides as the unsplit one.
+pub fn share_sigma(sigmas: &[f32], i: usize, width: usize, bound: f32) -> f32 {
+    let x = i % width.max(1);
+    let (mut sum, mut count) = (0.0f32, 0u32);
+    for d in 0..2 * SHARE_NEIGHBOURS {
+        let nx = (x + d + usize::from(d >= SHARE_NEIGHBOURS)).wrapping_sub(SHARE_NEIGHBOURS);
+        let j = (i - x).wrapping_add(nx);
+        if nx < width && j < sigmas.len() && sigmas[j] > 0.0 {
+            sum += sigmas[j] * sigmas[j];
+            count += 1;
+        }
+    }
+    if count == 0 { bound } else { (sum / count as f32).sqrt() }
+}
+
+/// Pixel i's term of the allocation's normaliser, σᵢ² / σ̃ᵢ (0 for an exact pixel), in f32
+/// as `stats.wgsl`'s `reduce` takes it ([`Accumulation::allocation`]).
+fn share_weight(sigma: f32, share: f32) -> f32 {
+    if sigma > 0.0 && share > 0.0 { (sigma * sigma) / share } else { 0.0 }
+}
+
 /// Slots of a workgroup of `stats.wgsl`'s reductions.
 const REDUCE_WORKGROUP: usize = 256;
 
@@ -1022,7 +1055,7 @@ impl Accumulation {
 
     /// What an adaptive render's decisions need besides the sums.
     pub fn adapt_query(&self) -> AdaptQuery {
-        AdaptQuery { replicate: self.settings.replicate(), range: self.sample_range() }
+        AdaptQuery { replicate: self.settings.replicate(), range: self.sample_range(), width: self.settings.width }
     }
 
     /// Each pixel's samples, complete replicates and whether it is stopped, from the
@@ -1038,19 +1071,34 @@ impl Accumulation {
             .collect()
     }
 
-    /// The image-level sums of an adaptive render's decisions over the exact sums, in f32
-    /// in the tree a device's `stats.wgsl` sums them in (`pixel_sigma`): what the CPU
-    /// reference decides from, and the reference a device's sums are held to.
-    pub fn adapt_sums(&self) -> AdaptSums {
+    /// Each pixel's `pixel_sigma` (v, mean, σ, k) over the exact sums, and the σ̃ that
+    /// decides its share (`share_sigma`).
+    fn adapt_pixels(&self) -> (Vec<[f32; 4]>, Vec<f32>) {
         let (query, e) = (self.adapt_query(), (self.exact.sum_exponent, self.exact.sq_exponent));
         let counts = self.pixel_counts();
         let x = &self.exact;
-        let terms: Vec<[f32; 4]> = (0..x.sum.len())
+        let pixels: Vec<[f32; 4]> = (0..x.sum.len())
             .map(|i| {
                 let r = x.replicate_sq.get(i).copied().unwrap_or(0);
-                let [v, mean, sigma, _] = pixel_sigma((x.sum[i], x.sum_sq[i], r), counts[i].0, counts[i].1, &query, e);
-                [v, v * v, mean, sigma]
+                pixel_sigma((x.sum[i], x.sum_sq[i], r), counts[i].0, counts[i].1, &query, e)
             })
+            .collect();
+        let sigmas: Vec<f32> = pixels.iter().map(|p| p[2]).collect();
+        let bound = query.sigma_bound();
+        let shares = (0..sigmas.len()).map(|i| share_sigma(&sigmas, i, query.width as usize, bound)).collect();
+        (pixels, shares)
+    }
+
+    /// The image-level sums of an adaptive render's decisions over the exact sums, in f32
+    /// in the tree a device's `stats.wgsl` sums them in (`pixel_sigma`, `share_sigma`):
+    /// what the CPU reference decides from, and the reference a device's sums are held to.
+    pub fn adapt_sums(&self) -> AdaptSums {
+        let counts = self.pixel_counts();
+        let (pixels, shares) = self.adapt_pixels();
+        let terms: Vec<[f32; 4]> = pixels
+            .iter()
+            .zip(&shares)
+            .map(|(&[v, mean, sigma, _], &share)| [v, v * v, mean, share_weight(sigma, share)])
             .collect();
         let [variance, variance_sq, mean, sigma] = tree_sum(&terms);
         let fewest = counts.iter().filter(|c| !(c.2 && c.1 < 2)).map(|c| c.1).min();
@@ -1062,9 +1110,12 @@ impl Accumulation {
     /// that is not exact has `MIN_TARGET_REPLICATES` replicates (`None` before, or for a
     /// target that is not an image's). For a mean square error (1/P) Σ σᵢ² / kᵢ at a
     /// given total of replicates, the best kᵢ is in proportion to σᵢ, the standard
-    /// deviation of pixel i's replicate means (`pixel_sigma`): kᵢ = σᵢ Σσ / (P e′²)
-    /// gives an error of e′, and saves mean(σ²) / mean(σ)² of the replicates of uniform
-    /// sampling. e′ is `ADAPTIVE_SHARE` of the target over the ratio of the image's RMSE
+    /// deviation of pixel i's replicate means (`pixel_sigma`), which saves
+    /// mean(σ²) / mean(σ)² of the replicates of uniform sampling. A share taken from σᵢ's
+    /// own estimate biases the pixel's mean (it stops when its estimate is low, which on
+    /// nearly open pixels comes with a high mean), so kᵢ ∝ σ̃ᵢ, its neighbours' σ
+    /// (`share_sigma`): kᵢ = σ̃ᵢ Σ(σⱼ² / σ̃ⱼ) / (P e′²) gives an error of e′ with each
+    /// pixel's own σ in the sum (`AdaptSums::sigma`). e′ is `ADAPTIVE_SHARE` of the target over the ratio of the image's RMSE
     /// bound (`film::rmse_bound`) to its estimate, so that the bound, above the estimate,
     /// meets the target when the pixels have the replicates allocated to them.
     pub fn allocation(&self, target: ErrorTarget, sums: &AdaptSums) -> Option<Allocation> {
@@ -1105,19 +1156,8 @@ impl Accumulation {
         if self.exact.replicates >= MIN_TARGET_REPLICATES
             && let Some(a) = self.allocation(target, &self.adapt_sums())
         {
-            let (query, e) = (self.adapt_query(), (self.exact.sum_exponent, self.exact.sq_exponent));
-            let counts = self.pixel_counts();
-            let x = &self.exact;
-            let mut mask: Vec<bool> = counts.iter().map(|c| c.2).collect();
-            let mut stops = 0;
-            for (i, off) in mask.iter_mut().enumerate().filter(|(_, off)| !**off) {
-                let r = x.replicate_sq.get(i).copied().unwrap_or(0);
-                let [_, _, sigma, k] = pixel_sigma((x.sum[i], x.sum_sq[i], r), counts[i].0, counts[i].1, &query, e);
-                if k >= sigma * a.per_sigma {
-                    *off = true;
-                    stops += 1;
-                }
-            }
+            let mask = self.allocated(&a);
+            let stops = mask.iter().zip(self.pixel_counts()).filter(|(off, c)| **off && !c.2).count();
             // The bound is of these sums: where it is not met yet, the pixels go on.
             if stops > 0 && (a.met || !mask.iter().all(|&off| off)) {
                 self.stop(&mask);
@@ -1125,6 +1165,17 @@ impl Accumulation {
             }
         }
         Ok(changed.then(|| self.inactive()))
+    }
+
+    /// The pixels stopped, with those still sampled that have the replicates allocation
+    /// `a` gives them added: k ≥ σ̃ × `per_sigma`, σ̃ decided by the neighbours (`share_sigma`).
+    pub(crate) fn allocated(&self, a: &Allocation) -> Vec<bool> {
+        let (pixels, shares) = self.adapt_pixels();
+        self.pixel_counts()
+            .iter()
+            .zip(pixels.iter().zip(&shares))
+            .map(|(c, (p, &share))| c.2 || p[3] >= share * a.per_sigma)
+            .collect()
     }
 
     /// The stopped pixels with the background ones added, when that adds one.
@@ -1741,5 +1792,100 @@ mod tests {
         // An image's identity from the same sampling keeps the same `Sampling`.
         let image = SampleSettings::image(hash, &Settings { sampling: base, ..Settings::default() });
         assert_eq!(image.sampling, id(&base).sampling);
+    }
+
+    /// An adaptive render's accumulation of `width` × `height` pixels of 0/1 samples in 8
+    /// replicates of 16: pixel i's replicates have `ones(i)` samples that are 1.
+    fn binary_replicates(width: u32, height: u32, ones: impl Fn(usize) -> [u32; 8]) -> Accumulation {
+        let sampling = Sampling { replicate: Some(16), ..Sampling::default() };
+        let settings = SampleSettings::new([0; 32], FilmLayout::Image, width, height, 4096, 0.0, &sampling);
+        let mut acc =
+            Accumulation::new(settings, DeviceKind::Cpu, BvhLayout::default(), BuildQuality::default(), 0, 4096, 1.0);
+        acc.next = 8 * 16;
+        acc.exact.replicates = 8;
+        acc.exact.replicate_sq = vec![0; (width * height) as usize];
+        for i in 0..(width * height) as usize {
+            set_pixel(&mut acc, i, ones(i));
+        }
+        acc
+    }
+
+    /// Sets pixel `i`'s exact sums to replicates of 16 samples with `ones` samples 1 each.
+    fn set_pixel(acc: &mut Accumulation, i: usize, ones: [u32; 8]) {
+        let x = &mut acc.exact;
+        let quantum = |e: i32| 1i128 << -e;
+        let total: i128 = ones.iter().map(|&c| c as i128).sum();
+        x.sum[i] = total * quantum(x.sum_exponent);
+        x.sum_sq[i] = total * quantum(x.sq_exponent);
+        x.replicate_sq[i] =
+            ones.iter().map(|&c| (c * c) as i128).sum::<i128>() * quantum(x.sq_exponent + REPLICATE_SQ_SHIFT);
+    }
+
+    /// Replicates of a nearly open pixel, `seed` choosing which.
+    fn nearly_open(seed: usize) -> [u32; 8] {
+        std::array::from_fn(|r| 16 - ((seed * 7 + r * 3) % 5) as u32 / 2)
+    }
+
+    #[test]
+    fn a_pixel_share_is_its_row_neighbours_rms_sigma_never_its_own() {
+        // Two rows of 5; 0 marks an exact pixel.
+        let sigmas = [0.3, 0.4, 0.0, 0.2, 0.5, 0.1, 0.0, 0.0, 0.0, 0.0];
+        let rms = |s: &[f32]| (s.iter().map(|&x| x as f64 * x as f64).sum::<f64>() / s.len() as f64).sqrt();
+        let expected = [
+            rms(&[0.4]),
+            rms(&[0.3, 0.2]),
+            rms(&[0.3, 0.4, 0.2, 0.5]),
+            rms(&[0.4, 0.5]),
+            rms(&[0.2]),
+            // Nothing from the row above; no neighbour with an estimate: the bound.
+            0.75,
+            rms(&[0.1]),
+            rms(&[0.1]),
+            0.75,
+            0.75,
+        ];
+        for (i, want) in expected.into_iter().enumerate() {
+            let got = share_sigma(&sigmas, i, 5, 0.75) as f64;
+            assert!((got - want).abs() <= 1e-6 * want, "pixel {i}: σ̃ {got}, expected {want}");
+            // Its own σ does not enter; a neighbour's does.
+            let mut own = sigmas;
+            own[i] = 0.9;
+            assert_eq!(share_sigma(&own, i, 5, 0.75), share_sigma(&sigmas, i, 5, 0.75), "pixel {i}");
+        }
+        let mut neighbour = sigmas;
+        neighbour[3] = 0.9;
+        assert_ne!(share_sigma(&neighbour, 2, 5, 0.75), share_sigma(&sigmas, 2, 5, 0.75));
+        assert_eq!(share_weight(0.0, 0.5), 0.0);
+        assert_eq!(share_weight(0.5, 0.25), 1.0);
+    }
+
+    #[test]
+    fn an_adaptive_pixel_stops_whatever_its_own_samples_and_not_whatever_its_neighbours() {
+        let (width, height, i) = (6, 2, 8);
+        let acc = binary_replicates(width, height, nearly_open);
+        let per_sigma: Vec<f32> = (0..400).map(|j| 0.5 * 1.02f32.powi(j)).collect();
+        let stops = |acc: &Accumulation| -> Vec<bool> {
+            per_sigma.iter().map(|&p| acc.allocated(&Allocation { per_sigma: p, met: false })[i]).collect()
+        };
+        let own_sigma = |acc: &Accumulation| acc.adapt_pixels().0[i][2];
+        let before = stops(&acc);
+        assert!(before.contains(&true) && before.contains(&false), "the sweep crosses the pixel's share");
+        // Its own samples, from nearly open to half occluded and to all open: its decision
+        // stays, though its own σ moves it (the rule of a share from its own σ would not).
+        for ones in [[8, 9, 7, 8, 10, 6, 8, 8], [16; 8], [0, 16, 0, 16, 0, 16, 0, 16]] {
+            let mut perturbed = acc.clone();
+            set_pixel(&mut perturbed, i, ones);
+            let own_rule =
+                |acc: &Accumulation| -> Vec<bool> { per_sigma.iter().map(|&p| 8.0 >= own_sigma(acc) * p).collect() };
+            assert_ne!(own_rule(&perturbed), own_rule(&acc), "{ones:?}: a share from its own σ would move");
+            assert_eq!(stops(&perturbed), before, "pixel {i} with its replicates {ones:?}");
+        }
+        // A neighbour's samples in its row move it; one in the row above does not.
+        let mut neighbour = acc.clone();
+        set_pixel(&mut neighbour, i + 1, [8, 9, 7, 8, 10, 6, 8, 8]);
+        assert_ne!(stops(&neighbour), before, "a neighbour's spread decides the pixel's share");
+        let mut above = acc.clone();
+        set_pixel(&mut above, i - width as usize, [8, 9, 7, 8, 10, 6, 8, 8]);
+        assert_eq!(stops(&above), before);
     }
 }

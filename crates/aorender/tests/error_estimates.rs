@@ -302,11 +302,11 @@ fn renders_with_an_error_target_meet_it_uniform_or_adaptive() {
                 let (avg, truth, se) = mean_over_seeds(&means, &reference);
                 eprintln!(
                     "{what}: target met in {met} of {seeds}; {:.0} samples a pixel on average; image mean \
-                     {avg:.6} against {truth:.6}: bias {:+.2e} ({:.3} of the target, {:.2} standard errors)",
+                     {avg:.6} against {truth:.6}: bias {:+.2e} ({:.3} of the target, {:+.2} standard errors)",
                     mean_samples[adaptive as usize],
                     avg - truth,
                     (avg - truth).abs() / target,
-                    (avg - truth).abs() / se
+                    (avg - truth) / se
                 );
                 assert!(met * 100 >= 95 * seeds, "{what}: target met in {met} of {seeds} seeds");
                 assert!(

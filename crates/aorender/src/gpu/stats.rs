@@ -109,7 +109,8 @@ struct StatsParams {
     max_value: f32,
     apply: u32,
     per_sigma: f32,
-    _pad: [u32; 3],
+    width: u32,
+    _pad: [u32; 2],
 }
 const _: () = assert!(std::mem::size_of::<StatsParams>() as u64 == PARAMS_BYTES);
 
@@ -160,6 +161,8 @@ pub struct AdaptQuery {
     pub replicate: u32,
     /// What one sample can be.
     pub range: SampleRange,
+    /// Pixels in a row of the image, whose neighbours decide a pixel's share.
+    pub width: u32,
 }
 
 impl AdaptQuery {
@@ -170,6 +173,15 @@ impl AdaptQuery {
             SampleRange::Binary(m) => (0, m as f32),
             SampleRange::Bounded(m) => (1, m as f32),
             SampleRange::Signed(m) => (2, m as f32),
+        }
+    }
+
+    /// The largest standard deviation a replicate's mean can have, half the samples'
+    /// range, in f32 (`stats.wgsl`'s `sigma_bound`).
+    pub fn sigma_bound(&self) -> f32 {
+        match self.range_code() {
+            (2, m) => m,
+            (_, m) => 0.5 * m,
         }
     }
 }
@@ -185,7 +197,8 @@ pub struct AdaptSums {
     pub variance_sq: f32,
     /// Σ of the pixels' means.
     pub mean: f32,
-    /// Σσ, σ the standard deviation of a pixel's replicate means the allocation takes.
+    /// Σ σ² / σ̃, σ the standard deviation of a pixel's replicate means the allocation
+    /// takes and σ̃ its neighbours' (`accumulation::share_sigma`).
     pub sigma: f32,
     /// The fewest complete replicates of a pixel whose value is not exact (`None`: none).
     pub fewest: Option<u32>,
@@ -328,7 +341,8 @@ impl DeviceSums {
         match adapt {
             Some(query) => {
                 let (range, max_value) = query.range_code();
-                StatsParams { per_pixel: 1, b: query.replicate as f32, range, max_value, ..base }
+                let (b, width) = (query.replicate as f32, query.width);
+                StatsParams { per_pixel: 1, b, range, max_value, width, ..base }
             }
             None => base,
         }
@@ -367,7 +381,7 @@ impl DeviceSums {
     }
 
     /// The image-level sums of an adaptive render's decisions over the sums and counts
-    /// held, keeping each pixel's σ on the device for [`DeviceSums::allocate`]; reads
+    /// held, keeping each pixel's σ̃ on the device for [`DeviceSums::allocate`]; reads
     /// back [`CHECK_BYTES`]. Also the first slot whose block held a sample out of range.
     pub fn adapt_check(
         &self,
@@ -392,7 +406,7 @@ impl DeviceSums {
     }
 
     /// Stops (`apply`) or counts the pixels still sampled whose replicates k reach
-    /// σ × `per_sigma` ([`AdaptSums`]'s σ), with each pixel's σ kept by the last
+    /// σ̃ × `per_sigma` ([`AdaptSums`]'s σ), with each pixel's σ̃ kept by the last
     /// [`DeviceSums::adapt_check`] of the same `query` and `exponents` (no block folded
     /// since); returns how many do and how many go on. Reads back [`CHECK_BYTES`].
     pub fn allocate(
