@@ -110,8 +110,8 @@ gpu_struct! {
         pub sample_count: u32 = "u32",
         /// Traversal loop iterations for all of them together.
         pub traversal_budget: u32 = "u32",
-        /// Padding to 16 bytes.
-        pub _pad: u32 = "u32",
+        /// Image pixels listed in `live_pixels` that the dispatch renders (0: its tiles').
+        pub listed: u32 = "u32",
     }
 }
 
@@ -432,8 +432,19 @@ pub fn wgsl_bindings() -> String {
         };
         s += &format!("// {}\n@group(0) @binding({}) var<storage, {access}> {}: {};\n", b.doc, b.index, b.name, b.ty);
     }
+    // The probe points' binding, which an image does not use, holds the list of an
+    // adaptive image's live pixels: no storage binding more, which the geometry's
+    // chunks would lose. One entry point reads one of the two.
+    s += &format!(
+        "// an image's live pixels (their film slots), for a listed pass (gpu/compact.rs)\n\
+         @group(0) @binding({}) var<storage, read> live_pixels: array<u32>;\n",
+        LIVE_PIXELS_BINDING
+    );
     s
 }
+
+/// The binding of the list of an adaptive image's live pixels: the probe points'.
+pub const LIVE_PIXELS_BINDING: u32 = PROBE_POINTS.index;
 
 #[cfg(test)]
 mod tests {
