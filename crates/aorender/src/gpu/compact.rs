@@ -96,7 +96,8 @@ pub struct LivePixels {
     bind_group: wgpu::BindGroup,
     /// The live pixels' film slots, in order (one word a slot).
     list: wgpu::Buffer,
-    /// Per block of tiles, the live pixels before it; then the total.
+    /// Per block of tiles, the live pixels before it; then the total (read by tests).
+    #[cfg(feature = "testing")]
     blocks: wgpu::Buffer,
     /// Workgroups over the tiles, and in one row of the dispatch.
     groups: u32,
@@ -149,7 +150,16 @@ impl LivePixels {
         });
         ctx.take_error()?;
         let device_bytes = [&list, &tile_info, &blocks, &params].into_iter().map(|b| b.size()).sum();
-        Ok(LivePixels { pipelines, bind_group, list, blocks, groups, row_groups, device_bytes })
+        Ok(LivePixels {
+            pipelines,
+            bind_group,
+            list,
+            #[cfg(feature = "testing")]
+            blocks,
+            groups,
+            row_groups,
+            device_bytes,
+        })
     }
 
     /// The list: the live pixels' film slots, from the first.
@@ -158,6 +168,7 @@ impl LivePixels {
     }
 
     /// The word that holds the count of live pixels the last listing found.
+    #[cfg(feature = "testing")]
     pub fn total(&self) -> (&wgpu::Buffer, u64) {
         (&self.blocks, self.groups as u64 * 4)
     }
