@@ -192,14 +192,14 @@ fn render_sample(
     begin_traversal(lid);
     // The target's film holds the rows of its band, from frame.first_row. A listed pass
     // (an adaptive render's, once pixels have stopped) takes the n-th live pixel of
-    // live_pixels, the workgroups numbered row by row: each live pixel is still rendered
+    // the list in `counters` from LIVE_LIST, the workgroups numbered row by row: each live pixel is still rendered
     // by one invocation, with the same samples, and no lane waits on a stopped one.
     var pixel: vec2u;
     var inside: bool;
     if (dispatch.listed > 0u) {
         let n = (tile.y * groups.x + tile.x) * (WORKGROUP_WIDTH * WORKGROUP_HEIGHT) + lid;
         inside = n < dispatch.listed;
-        let slot = live_pixels[select(0u, n, inside)];
+        let slot = atomicLoad(&counters[LIVE_LIST + select(0u, n, inside)]);
         pixel = vec2u(slot % frame.width, slot / frame.width + frame.first_row);
     } else {
         pixel = tile_pixel(tile.xy, lid) + vec2u(0u, frame.first_row);

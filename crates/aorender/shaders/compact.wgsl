@@ -37,7 +37,8 @@ const COMPACT_BLOCK: u32 = 256u;
 // Per block: its live pixels, then (after `scan_blocks`) those of the blocks before it;
 // past the last block, the total.
 @group(0) @binding(3) var<storage, read_write> compact_blocks: array<u32>;
-// The live pixels' film slots, in order.
+// A listed pass's counters (the kernel's `counters`), then from word LIVE_LIST the live
+// pixels' film slots, in order.
 @group(0) @binding(4) var<storage, read_write> live_list: array<u32>;
 
 var<workgroup> compact_shared: array<u32, COMPACT_BLOCK>;
@@ -128,7 +129,7 @@ fn list_live(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_inde
     let tile = compact_tile(t);
     for (var lid = 0u; lid < WORKGROUP_WIDTH * WORKGROUP_HEIGHT; lid++) {
         if (((info[lid / 32u] >> (lid % 32u)) & 1u) != 0u) {
-            live_list[at] = compact_slot(tile_pixel(tile, lid));
+            live_list[LIVE_LIST + at] = compact_slot(tile_pixel(tile, lid));
             at++;
         }
     }

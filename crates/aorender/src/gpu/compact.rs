@@ -11,7 +11,7 @@
 //! samples and is rendered by one invocation: the film's bits do not change.
 
 use super::context::GpuContext;
-use super::layout::WORKGROUP_SIZE;
+use super::layout::{LIVE_LIST, WORKGROUP_SIZE};
 use super::shaders::{FILES, compose_with};
 use crate::error::Result;
 use wgpu::util::DeviceExt;
@@ -94,7 +94,8 @@ struct CompactParams {
 pub struct LivePixels {
     pipelines: CompactPipelines,
     bind_group: wgpu::BindGroup,
-    /// The live pixels' film slots, in order (one word a slot).
+    /// The counters of a listed pass, then from word [`LIVE_LIST`] the live pixels' film
+    /// slots, in order (one word a slot): bound as the kernel's counters.
     list: wgpu::Buffer,
     /// Per block of tiles, the live pixels before it; then the total (read by tests).
     #[cfg(feature = "testing")]
@@ -123,16 +124,17 @@ impl LivePixels {
         let groups = tiles.div_ceil(BLOCK).max(1);
         let row_groups = groups.min(device.limits().max_compute_workgroups_per_dimension);
         let params = CompactParams { width, rows, tiles_x, tiles, blocks: groups, row_groups, _pad: [0; 2] };
-        ctx.check_size("live pixels", slots * 4)?;
+        let list_bytes = (LIVE_LIST as u64 + slots) * 4;
+        ctx.check_size("live pixels", list_bytes)?;
         let buffer = |label: &str, size: u64| {
             device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
                 size: size.max(16),
-                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
                 mapped_at_creation: false,
             })
         };
-        let list = buffer("live pixels", slots * 4);
+        let list = buffer("live pixels", list_bytes);
         let tile_info = buffer("live tiles", tiles as u64 * 16);
         let blocks = buffer("live blocks", (groups as u64 + 1) * 4);
         let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -162,7 +164,7 @@ impl LivePixels {
         })
     }
 
-    /// The list: the live pixels' film slots, from the first.
+    /// A listed pass's counters, then from word [`LIVE_LIST`] the live pixels' film slots.
     pub fn list(&self) -> &wgpu::Buffer {
         &self.list
     }

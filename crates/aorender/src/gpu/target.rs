@@ -6,8 +6,8 @@ use super::budget::{PREFERRED_SAMPLES_PER_INVOCATION, dispatch_budget, safe_samp
 use super::compact::LivePixels;
 use super::layout::{
     COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, COUNTERS, DISPATCH, DISPATCH_STRIDE, DispatchUniforms, FILM,
-    FRAME, FrameUniforms, GpuProbePoint, LIVE_PIXELS_BINDING, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS,
-    PROBE_WORKGROUP_SIZE, TRAVERSAL_LANES, WORKGROUP_SIZE,
+    FRAME, FrameUniforms, GpuProbePoint, LIVE_LIST, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE,
+    TRAVERSAL_LANES, WORKGROUP_SIZE,
 };
 use super::pipeline::{GpuDevice, Kernel, PipelineKey};
 use super::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, DeviceSums};
@@ -40,6 +40,7 @@ struct Rebind {
     layout: wgpu::BindGroupLayout,
     frame: wgpu::Buffer,
     planes: wgpu::Buffer,
+    probe_points: wgpu::Buffer,
     geometry: GeometryBindings,
 }
 
@@ -100,7 +101,8 @@ pub struct GpuTarget {
     /// them.
     sums: Option<DeviceSums>,
     /// An image's passes once some of its pixels have stopped: the live pixels listed
-    /// ([`LivePixels`], made on first use) and bound in place of the probe points.
+    /// ([`LivePixels`], made on first use) after the counters of a listed pass, bound in
+    /// place of the target's counters.
     listed: Option<Listed>,
     /// What an image binds besides its list, to bind the list later.
     rebind: Option<Rebind>,
@@ -299,6 +301,7 @@ impl GpuTarget {
             layout: pipeline.bind_group_layout.clone(),
             frame: frame.clone(),
             planes: scene.planes.clone(),
+            probe_points: probe_points.clone(),
             geometry: scene.bindings(),
         });
         // Some drivers (lavapipe) compile the kernel at its first dispatch: run one
@@ -446,7 +449,12 @@ impl GpuTarget {
         }
         ctx.queue.write_buffer(&self.dispatch, 0, &uniforms);
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("pass") });
-        encoder.clear_buffer(&self.counters, 0, None);
+        // A listed pass counts in its list's buffer, ahead of the list.
+        let counters = match (&self.listed, self.live) {
+            (Some(listed), Some(_)) => listed.pixels.list().clone(),
+            _ => self.counters.clone(),
+        };
+        encoder.clear_buffer(&counters, 0, Some(4 * COUNTER_COUNT as u64));
         if keep_film {
             encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, self.film.size());
         }
@@ -479,7 +487,7 @@ impl GpuTarget {
                 }
             }
         }
-        encoder.copy_buffer_to_buffer(&self.counters, 0, &self.counters_readback, 0, Some(4 * COUNTER_COUNT as u64));
+        encoder.copy_buffer_to_buffer(&counters, 0, &self.counters_readback, 0, Some(4 * COUNTER_COUNT as u64));
         if let Some((set, resolved)) = &self.timestamps {
             encoder.resolve_query_set(set, 0..2, resolved, 0);
             encoder.copy_buffer_to_buffer(resolved, 0, &self.counters_readback, TIMESTAMPS_AT, None);
@@ -592,8 +600,8 @@ impl GpuTarget {
                 },
                 wgpu::BindGroupEntry { binding: PLANES.index, resource: rebind.planes.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: FILM.index, resource: self.film.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: COUNTERS.index, resource: self.counters.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: LIVE_PIXELS_BINDING, resource: pixels.list().as_entire_binding() },
+                wgpu::BindGroupEntry { binding: COUNTERS.index, resource: pixels.list().as_entire_binding() },
+                wgpu::BindGroupEntry { binding: PROBE_POINTS.index, resource: rebind.probe_points.as_entire_binding() },
             ];
             entries.extend(rebind.geometry.entries());
             let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -630,7 +638,7 @@ impl GpuTarget {
         });
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("live") });
         if bytes > 0 {
-            encoder.copy_buffer_to_buffer(listed.pixels.list(), 0, &staging, 0, Some(bytes));
+            encoder.copy_buffer_to_buffer(listed.pixels.list(), LIVE_LIST as u64 * 4, &staging, 0, Some(bytes));
         }
         encoder.copy_buffer_to_buffer(total, at, &staging, bytes, Some(4));
         ctx.submit([encoder.finish()])?;
