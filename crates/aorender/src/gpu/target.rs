@@ -6,8 +6,8 @@ use super::budget::{PREFERRED_SAMPLES_PER_INVOCATION, dispatch_budget, safe_samp
 use super::compact::LivePixels;
 use super::layout::{
     COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, COUNTERS, DISPATCH, DISPATCH_STRIDE, DispatchUniforms, FILM,
-    FRAME, FrameUniforms, GpuProbePoint, LIVE_LIST, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE,
-    TRAVERSAL_LANES, WORKGROUP_SIZE,
+    FRAME, FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE, TRAVERSAL_LANES,
+    WORKGROUP_SIZE,
 };
 use super::pipeline::{GpuDevice, Kernel, PipelineKey};
 use super::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, DeviceSums};
@@ -638,7 +638,13 @@ impl GpuTarget {
         });
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("live") });
         if bytes > 0 {
-            encoder.copy_buffer_to_buffer(listed.pixels.list(), LIVE_LIST as u64 * 4, &staging, 0, Some(bytes));
+            encoder.copy_buffer_to_buffer(
+                listed.pixels.list(),
+                super::layout::LIVE_LIST as u64 * 4,
+                &staging,
+                0,
+                Some(bytes),
+            );
         }
         encoder.copy_buffer_to_buffer(total, at, &staging, bytes, Some(4));
         ctx.submit([encoder.finish()])?;
