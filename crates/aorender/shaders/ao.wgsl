@@ -1,5 +1,6 @@
 //#import sampler.wgsl
 //#import sums.wgsl
+//#import tiles.wgsl
 //#import traversal.wgsl
 // traversal.wgsl is generated for each pipeline: an import of the chosen traversal,
 // trace_bvh2.wgsl, trace_cwbvh.wgsl or trace_cwbvh_group.wgsl (src/gpu/shaders.rs).
@@ -181,22 +182,29 @@ fn flush_counters(lid: u32) {
     }
 }
 
-// The pixel of invocation `lid` of the workgroup that renders the 8 x 8 tile `tile`:
-// every 8 consecutive invocations (a SIMD batch on lavapipe) take a 4 x 2 block, every
-// 32 an 8 x 4 half: rays of a batch stay close together, so their traversals differ less.
-fn tile_pixel(tile: vec2u, lid: u32) -> vec2u {
-    let x = (lid & 3u) | ((lid >> 1u) & 4u);
-    let y = ((lid >> 2u) & 1u) | ((lid >> 3u) & 6u);
-    return tile * vec2u(WORKGROUP_WIDTH, WORKGROUP_HEIGHT) + vec2u(x, y);
-}
-
 @compute @workgroup_size(WORKGROUP_WIDTH, WORKGROUP_HEIGHT, 1)
-fn render_sample(@builtin(workgroup_id) tile: vec3u, @builtin(local_invocation_index) lid: u32) {
+fn render_sample(
+    @builtin(workgroup_id) tile: vec3u,
+    @builtin(num_workgroups) groups: vec3u,
+    @builtin(local_invocation_index) lid: u32,
+) {
     load_constants();
     begin_traversal(lid);
-    // The target's film holds the rows of its band, from frame.first_row.
-    let pixel = tile_pixel(tile.xy, lid) + vec2u(0u, frame.first_row);
-    let inside = pixel.x < frame.width && pixel.y < frame.height;
+    // The target's film holds the rows of its band, from frame.first_row. A listed pass
+    // (an adaptive render's, once pixels have stopped) takes the n-th live pixel of
+    // the list in `counters` from LIVE_LIST, the workgroups numbered row by row: each live pixel is still rendered
+    // by one invocation, with the same samples, and no lane waits on a stopped one.
+    var pixel: vec2u;
+    var inside: bool;
+    if (dispatch.listed > 0u) {
+        let n = (tile.y * groups.x + tile.x) * (WORKGROUP_WIDTH * WORKGROUP_HEIGHT) + lid;
+        inside = n < dispatch.listed;
+        let slot = atomicLoad(&counters[LIVE_LIST + select(0u, n, inside)]);
+        pixel = vec2u(slot % frame.width, slot / frame.width + frame.first_row);
+    } else {
+        pixel = tile_pixel(tile.xy, lid) + vec2u(0u, frame.first_row);
+        inside = pixel.x < frame.width && pixel.y < frame.height;
+    }
     let i = select(0u, (pixel.y - frame.first_row) * frame.width + pixel.x, inside);
     var acc = film[i];
     // A pixel an adaptive render no longer samples is marked in its slot's last word.

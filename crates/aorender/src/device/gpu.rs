@@ -98,8 +98,7 @@ impl Passes for GpuTarget {
     }
 
     fn set_inactive(&mut self, inactive: &[bool]) -> Result<()> {
-        self.inactive = inactive.to_vec();
-        self.mark_inactive(None)
+        self.stop_pixels(inactive)
     }
 }
 

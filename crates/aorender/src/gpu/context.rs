@@ -105,6 +105,9 @@ pub struct GpuContext {
     /// Fewer bindings for the geometry than the adapter allows, for tests of a scene that
     /// needs too many.
     geometry_binding_limit: Option<u32>,
+    /// Whether an adaptive image's passes, once pixels have stopped, dispatch its live
+    /// pixels only (`gpu/compact.rs`); else every tile, for tests of the same bits.
+    list_live_pixels: bool,
 }
 
 impl Drop for GpuContext {
@@ -206,6 +209,7 @@ impl GpuContext {
             #[cfg(not(feature = "testing"))]
             stack_limit: None,
             geometry_binding_limit: None,
+            list_live_pixels: true,
         })
     }
 
@@ -271,6 +275,19 @@ impl GpuContext {
     #[cfg(feature = "testing")]
     pub fn limit_film_bytes(&mut self, bytes: u64) {
         self.max_film_bytes = self.max_film_bytes.min(bytes);
+    }
+
+    /// Whether an adaptive image's passes dispatch its live pixels only.
+    pub(crate) fn lists_live_pixels(&self) -> bool {
+        self.list_live_pixels
+    }
+
+    /// Dispatches every tile of an adaptive image's film in every pass, as a render that
+    /// lists no live pixels (`false`; by default `true`), for tests that the film's bits
+    /// do not depend on it.
+    #[cfg(feature = "testing")]
+    pub fn set_list_live_pixels(&mut self, list: bool) {
+        self.list_live_pixels = list;
     }
 
     /// Largest width and height of a geometry texture.

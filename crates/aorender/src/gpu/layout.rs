@@ -42,6 +42,10 @@ pub const COUNTER_AO_RAYS: u32 = 0;
 pub const COUNTER_TRUNCATED: u32 = 1;
 /// Number of counters.
 pub const COUNTER_COUNT: u32 = 2;
+/// Word of the counters' buffer where a listed pass's live pixels begin (its film slots,
+/// `gpu/compact.rs`): the list shares the counters' binding, so the geometry keeps every
+/// storage binding it had, and 256 bytes in, an offset every adapter can bind.
+pub const LIVE_LIST: u32 = 64;
 /// Most samples (dispatches) in one pass.
 pub const MAX_PASS_SAMPLES: u32 = 1024;
 /// Stride of the per-dispatch constants (the largest `min_storage_buffer_offset_alignment`).
@@ -110,8 +114,8 @@ gpu_struct! {
         pub sample_count: u32 = "u32",
         /// Traversal loop iterations for all of them together.
         pub traversal_budget: u32 = "u32",
-        /// Padding to 16 bytes.
-        pub _pad: u32 = "u32",
+        /// Image pixels listed in `counters` from `LIVE_LIST` that it renders (0: its tiles').
+        pub listed: u32 = "u32",
     }
 }
 
@@ -259,6 +263,7 @@ pub fn constants() -> Vec<Constant> {
         U32("COUNTER_AO_RAYS", COUNTER_AO_RAYS),
         U32("COUNTER_TRUNCATED", COUNTER_TRUNCATED),
         U32("COUNTER_COUNT", COUNTER_COUNT),
+        U32("LIVE_LIST", LIVE_LIST),
         U32("HEMISPHERE_UNIFORM", Hemisphere::Uniform.shader_id()),
         U32("HEMISPHERE_COSINE", Hemisphere::Cosine.shader_id()),
         U32("HEMISPHERE_COSINE_POLAR", Hemisphere::CosinePolar.shader_id()),
@@ -375,10 +380,10 @@ pub const FILM: Binding = Binding {
 pub const COUNTERS: Binding = Binding {
     index: 6,
     name: "counters",
-    ty: "array<atomic<u32>, COUNTER_COUNT>",
+    ty: "array<atomic<u32>>",
     access: Access::ReadWrite,
     dynamic_offset: false,
-    doc: "COUNTER_AO_RAYS, COUNTER_TRUNCATED",
+    doc: "COUNTER_AO_RAYS, COUNTER_TRUNCATED; from LIVE_LIST, an adaptive image's live pixels (gpu/compact.rs)",
 };
 /// The probe points.
 pub const PROBE_POINTS: Binding = Binding {

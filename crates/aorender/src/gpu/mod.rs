@@ -9,6 +9,7 @@
 //! ```
 
 pub mod budget;
+pub mod compact;
 pub mod context;
 pub mod fault;
 pub mod layout;

@@ -6,6 +6,7 @@
 //! (Vulkan), it is kept on disk between processes ([`DiskCache`]), so that a later
 //! process on the same adapter and driver skips the driver's compilation.
 
+use super::compact::CompactPipelines;
 use super::context::GpuContext;
 use super::layout::{Access, BINDINGS, node_binding, primitive_binding};
 use super::shaders::{GeometryChunks, GeometryStorage, Traversal, compose};
@@ -389,6 +390,8 @@ pub struct GpuDevice {
     pub pipelines: Pipelines,
     /// The statistics kernels, compiled when a render first keeps its sums on the device.
     stats: std::sync::Mutex<Option<StatsPipelines>>,
+    /// The kernels that list an adaptive image's live pixels, compiled on first use.
+    compact: std::sync::Mutex<Option<CompactPipelines>>,
     /// The adapter, device and queue.
     pub ctx: GpuContext,
 }
@@ -396,7 +399,7 @@ pub struct GpuDevice {
 impl GpuDevice {
     /// Wraps an opened context (after any test limits were set on it).
     pub fn new(ctx: GpuContext) -> GpuDevice {
-        GpuDevice { pipelines: Pipelines::new(&ctx), ctx, stats: Default::default() }
+        GpuDevice { pipelines: Pipelines::new(&ctx), ctx, stats: Default::default(), compact: Default::default() }
     }
 
     /// The statistics kernels (`stats.wgsl`), compiled on first use.
@@ -404,6 +407,16 @@ impl GpuDevice {
         let mut cached = self.stats.lock().unwrap_or_else(|e| e.into_inner());
         if cached.is_none() {
             *cached = Some(StatsPipelines::new(&self.ctx)?);
+        }
+        Ok(cached.clone().expect("compiled above"))
+    }
+
+    /// The kernels that list an adaptive image's live pixels (`compact.wgsl`), compiled
+    /// on first use.
+    pub fn compact_pipelines(&self) -> Result<CompactPipelines> {
+        let mut cached = self.compact.lock().unwrap_or_else(|e| e.into_inner());
+        if cached.is_none() {
+            *cached = Some(CompactPipelines::new(&self.ctx)?);
         }
         Ok(cached.clone().expect("compiled above"))
     }

@@ -12,6 +12,7 @@ use crate::error::{Error, Result};
 pub const FILES: &[(&str, &str)] = &[
     ("ao.wgsl", include_str!("../../shaders/ao.wgsl")),
     ("bindings.wgsl", include_str!("../../shaders/bindings.wgsl")),
+    ("compact.wgsl", include_str!("../../shaders/compact.wgsl")),
     ("cwbvh.wgsl", include_str!("../../shaders/cwbvh.wgsl")),
     ("cwbvh_node.wgsl", crate::bvh::cwbvh::NODE_WGSL),
     ("exact.wgsl", include_str!("../../shaders/exact.wgsl")),
@@ -22,6 +23,7 @@ pub const FILES: &[(&str, &str)] = &[
     ("sampling.wgsl", include_str!("../../shaders/sampling.wgsl")),
     ("stats.wgsl", include_str!("../../shaders/stats.wgsl")),
     ("sums.wgsl", include_str!("../../shaders/sums.wgsl")),
+    ("tiles.wgsl", include_str!("../../shaders/tiles.wgsl")),
     ("trace_bvh2.wgsl", include_str!("../../shaders/trace_bvh2.wgsl")),
     ("trace_common.wgsl", include_str!("../../shaders/trace_common.wgsl")),
     ("trace_cwbvh.wgsl", include_str!("../../shaders/trace_cwbvh.wgsl")),

@@ -3,13 +3,15 @@
 //! it, bound to the session's geometry. A pass adds a range of samples to the film.
 
 use super::budget::{PREFERRED_SAMPLES_PER_INVOCATION, dispatch_budget, safe_samples_per_invocation};
+use super::compact::LivePixels;
 use super::layout::{
     COUNTER_AO_RAYS, COUNTER_COUNT, COUNTER_TRUNCATED, COUNTERS, DISPATCH, DISPATCH_STRIDE, DispatchUniforms, FILM,
-    FRAME, FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE, WORKGROUP_SIZE,
+    FRAME, FrameUniforms, GpuProbePoint, MAX_PASS_SAMPLES, PLANES, PROBE_POINTS, PROBE_WORKGROUP_SIZE, TRAVERSAL_LANES,
+    WORKGROUP_SIZE,
 };
 use super::pipeline::{GpuDevice, Kernel, PipelineKey};
 use super::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, DeviceSums};
-use super::upload::{GpuScene, storage_buffer};
+use super::upload::{GeometryBindings, GpuScene, storage_buffer};
 use crate::error::{Error, Result};
 use crate::film::{ExactSums, INACTIVE_SLOT_BITS};
 use crate::sampler::Sampler;
@@ -25,6 +27,22 @@ pub const TEST_LOSE_DEVICE_ENV: &str = "AORENDER_TEST_LOSE_DEVICE_AFTER_PASSES";
 
 /// Offset of the pass timestamps in the counters' readback buffer.
 const TIMESTAMPS_AT: u64 = 256;
+
+/// An image's live pixels on the device, and the kernel's bindings with them.
+struct Listed {
+    pixels: LivePixels,
+    bind_group: wgpu::BindGroup,
+}
+
+/// The bindings of an image's kernel other than the film, the counters and the constants
+/// of each dispatch (which the target holds): to bind its live pixels' list.
+struct Rebind {
+    layout: wgpu::BindGroupLayout,
+    frame: wgpu::Buffer,
+    planes: wgpu::Buffer,
+    probe_points: wgpu::Buffer,
+    geometry: GeometryBindings,
+}
 
 /// What one pass did.
 #[derive(Clone, Copy, Debug, Default)]
@@ -82,6 +100,14 @@ pub struct GpuTarget {
     /// The film's exact sums on the device, made when a render first folds a block into
     /// them.
     sums: Option<DeviceSums>,
+    /// An image's passes once some of its pixels have stopped: the live pixels listed
+    /// ([`LivePixels`], made on first use) after the counters of a listed pass, bound in
+    /// place of the target's counters.
+    listed: Option<Listed>,
+    /// What an image binds besides its list, to bind the list later.
+    rebind: Option<Rebind>,
+    /// Pixels the list holds, when passes dispatch it (`None`: every tile).
+    live: Option<u32>,
     /// The scene's file, for messages.
     source: std::path::PathBuf,
     /// The adapter: last, so that its device outlives the resources above.
@@ -271,6 +297,13 @@ impl GpuTarget {
             entries: &entries,
         });
         ctx.take_error()?;
+        let rebind = (kernel == Kernel::Image).then(|| Rebind {
+            layout: pipeline.bind_group_layout.clone(),
+            frame: frame.clone(),
+            planes: scene.planes.clone(),
+            probe_points: probe_points.clone(),
+            geometry: scene.bindings(),
+        });
         // Some drivers (lavapipe) compile the kernel at its first dispatch: run one
         // workgroup of a new pipeline now, then clear what it wrote. Not waited for: the
         // driver compiles while the host makes the request, and the next wait (the exact
@@ -337,6 +370,9 @@ impl GpuTarget {
             #[cfg(feature = "testing")]
             value_exponent,
             sums: None,
+            listed: None,
+            rebind,
+            live: None,
             source: scene.source.clone(),
             dev: dev.clone(),
         })
@@ -406,14 +442,19 @@ impl GpuTarget {
                 first_sample: first.wrapping_add(k * per),
                 sample_count: n,
                 traversal_budget: self.dispatch_budget(n),
-                _pad: 0,
+                listed: self.live.unwrap_or(0),
             };
             let at = (DISPATCH_STRIDE * k as u64) as usize;
             uniforms[at..at + std::mem::size_of::<DispatchUniforms>()].copy_from_slice(bytemuck::bytes_of(&u));
         }
         ctx.queue.write_buffer(&self.dispatch, 0, &uniforms);
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("pass") });
-        encoder.clear_buffer(&self.counters, 0, None);
+        // A listed pass counts in its list's buffer, ahead of the list.
+        let counters = match (&self.listed, self.live) {
+            (Some(listed), Some(_)) => listed.pixels.list().clone(),
+            _ => self.counters.clone(),
+        };
+        encoder.clear_buffer(&counters, 0, Some(4 * COUNTER_COUNT as u64));
         if keep_film {
             encoder.copy_buffer_to_buffer(&self.film, 0, &self.film_readback, 0, self.film.size());
         }
@@ -426,17 +467,27 @@ impl GpuTarget {
             let mut pass =
                 encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("ao"), timestamp_writes });
             pass.set_pipeline(&self.pipeline);
-            let (groups_x, groups_y) = match self.kernel {
-                Kernel::Image => (self.width.div_ceil(WORKGROUP_SIZE[0]), self.height.div_ceil(WORKGROUP_SIZE[1])),
-                Kernel::Probe => probe_groups(&self.dev, self.width * self.height),
-                Kernel::BentProbe => probe_groups(&self.dev, self.height),
+            let (groups_x, groups_y) = match (self.kernel, self.live) {
+                (Kernel::Image, Some(live)) => rows_of_groups(&self.dev, live.div_ceil(TRAVERSAL_LANES), 0),
+                (Kernel::Image, None) => {
+                    (self.width.div_ceil(WORKGROUP_SIZE[0]), self.height.div_ceil(WORKGROUP_SIZE[1]))
+                }
+                (Kernel::Probe, _) => probe_groups(&self.dev, self.width * self.height),
+                (Kernel::BentProbe, _) => probe_groups(&self.dev, self.height),
             };
-            for k in 0..dispatches {
-                pass.set_bind_group(0, &self.bind_group, &[(DISPATCH_STRIDE * k as u64) as u32]);
-                pass.dispatch_workgroups(groups_x, groups_y, 1);
+            let bind_group = match (&self.listed, self.live) {
+                (Some(listed), Some(_)) => &listed.bind_group,
+                _ => &self.bind_group,
+            };
+            // With every pixel stopped there is nothing to dispatch.
+            if groups_x > 0 {
+                for k in 0..dispatches {
+                    pass.set_bind_group(0, bind_group, &[(DISPATCH_STRIDE * k as u64) as u32]);
+                    pass.dispatch_workgroups(groups_x, groups_y, 1);
+                }
             }
         }
-        encoder.copy_buffer_to_buffer(&self.counters, 0, &self.counters_readback, 0, Some(4 * COUNTER_COUNT as u64));
+        encoder.copy_buffer_to_buffer(&counters, 0, &self.counters_readback, 0, Some(4 * COUNTER_COUNT as u64));
         if let Some((set, resolved)) = &self.timestamps {
             encoder.resolve_query_set(set, 0..2, resolved, 0);
             encoder.copy_buffer_to_buffer(resolved, 0, &self.counters_readback, TIMESTAMPS_AT, None);
@@ -522,6 +573,7 @@ impl GpuTarget {
     /// pixel is active.
     pub fn mark_inactive(&mut self, words: Option<&[[u32; 4]]>) -> Result<()> {
         if !self.inactive.iter().any(|&x| x) {
+            self.live = None;
             return Ok(());
         }
         let mut marked = words.map_or_else(|| vec![[0u32; 4]; self.slots()], <[_]>::to_vec);
@@ -530,7 +582,94 @@ impl GpuTarget {
                 *w = [0, 0, 0, INACTIVE_SLOT_BITS];
             }
         }
-        self.set_film_words(&marked)
+        self.set_film_words(&marked)?;
+        let stopped = self.inactive.iter().take(self.slots()).filter(|&&off| off).count();
+        self.list_live((self.slots() - stopped) as u32)
+    }
+
+    /// Stops sampling the pixels marked in `inactive` from the next pass on, marking them
+    /// in an emptied film (the block must hold no samples). An empty mask leaves the film
+    /// as it is: [`GpuTarget::clear_film`] then samples every pixel again.
+    pub fn stop_pixels(&mut self, inactive: &[bool]) -> Result<()> {
+        self.inactive = inactive.to_vec();
+        self.mark_inactive(None)
+    }
+
+    /// Lists the film's live pixels on the device (`live` of them, as the host counts
+    /// them), so that the next passes dispatch those alone: submitted, not waited for.
+    /// Every tile is dispatched instead for probes, and where the context says so.
+    fn list_live(&mut self, live: u32) -> Result<()> {
+        let Some(rebind) = self.rebind.as_ref().filter(|_| self.dev.ctx.lists_live_pixels()) else {
+            self.live = None;
+            return Ok(());
+        };
+        let ctx = &self.dev.ctx;
+        if self.listed.is_none() {
+            let pixels = LivePixels::new(ctx, self.dev.compact_pipelines()?, &self.film, self.width, self.height)?;
+            let dispatch_binding = wgpu::BufferBinding {
+                buffer: &self.dispatch,
+                offset: 0,
+                size: wgpu::BufferSize::new(std::mem::size_of::<DispatchUniforms>() as u64),
+            };
+            let mut entries = vec![
+                wgpu::BindGroupEntry { binding: FRAME.index, resource: rebind.frame.as_entire_binding() },
+                wgpu::BindGroupEntry {
+                    binding: DISPATCH.index,
+                    resource: wgpu::BindingResource::Buffer(dispatch_binding),
+                },
+                wgpu::BindGroupEntry { binding: PLANES.index, resource: rebind.planes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: FILM.index, resource: self.film.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: COUNTERS.index, resource: pixels.list().as_entire_binding() },
+                wgpu::BindGroupEntry { binding: PROBE_POINTS.index, resource: rebind.probe_points.as_entire_binding() },
+            ];
+            entries.extend(rebind.geometry.entries());
+            let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("ao bindings, live pixels"),
+                layout: &rebind.layout,
+                entries: &entries,
+            });
+            ctx.take_error()?;
+            self.listed = Some(Listed { pixels, bind_group });
+        }
+        let listed = self.listed.as_ref().expect("made above");
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("live") });
+        listed.pixels.record(&mut encoder);
+        ctx.submit([encoder.finish()])?;
+        self.live = Some(live);
+        Ok(())
+    }
+
+    /// The live pixels the passes dispatch, as the device listed them, and the count the
+    /// listing found (`None`: the passes dispatch every tile).
+    #[cfg(feature = "testing")]
+    pub fn live_pixels(&self) -> Result<Option<(Vec<u32>, u32)>> {
+        let (Some(listed), Some(live)) = (&self.listed, self.live) else {
+            return Ok(None);
+        };
+        let ctx = &self.dev.ctx;
+        let (total, at) = listed.pixels.total();
+        let bytes = live as u64 * 4;
+        let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("live pixels readback"),
+            size: bytes + 4,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("live") });
+        if bytes > 0 {
+            encoder.copy_buffer_to_buffer(
+                listed.pixels.list(),
+                super::layout::LIVE_LIST as u64 * 4,
+                &staging,
+                0,
+                Some(bytes),
+            );
+        }
+        encoder.copy_buffer_to_buffer(total, at, &staging, bytes, Some(4));
+        ctx.submit([encoder.finish()])?;
+        let mut words: Vec<u32> = ctx.read(&staging)?;
+        let found = words.pop().expect("the total is read");
+        Ok(Some((words, found)))
     }
 
     /// Bytes mapped from the device's readback buffers (films and pass counters) since the
@@ -559,9 +698,11 @@ impl GpuTarget {
         Ok(self.sums.as_ref().expect("made above"))
     }
 
-    /// Bytes of device memory of the target with its exact sums.
+    /// Bytes of device memory of the target with its exact sums and its live pixels' list.
     pub fn all_device_bytes(&self) -> u64 {
-        self.device_bytes + self.sums.as_ref().map_or(0, |s| s.device_bytes)
+        self.device_bytes
+            + self.sums.as_ref().map_or(0, |s| s.device_bytes)
+            + self.listed.as_ref().map_or(0, |l| l.pixels.device_bytes)
     }
 
     /// Replaces the device's exact sums and counts with `exact`'s (`samples` a pixel
@@ -595,7 +736,12 @@ impl GpuTarget {
     ) -> Result<(u32, u32)> {
         self.device_sums()?;
         let sums = self.sums.as_ref().expect("made above");
-        sums.allocate(&self.dev.ctx, query, exponents, per_sigma, apply, &self.readback_bytes)
+        let (stops, going) = sums.allocate(&self.dev.ctx, query, exponents, per_sigma, apply, &self.readback_bytes)?;
+        // The pixels still sampled are those that go on: the next passes take them alone.
+        if apply && stops > 0 {
+            self.list_live(going)?;
+        }
+        Ok((stops, going))
     }
 
     /// Each pixel's samples, replicates and whether it is stopped, as the device keeps
@@ -632,6 +778,8 @@ impl GpuTarget {
         let mut encoder =
             ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("clear film") });
         encoder.clear_buffer(&self.film, 0, None);
+        // The film has no stopped pixels now: every tile again.
+        self.live = None;
         ctx.submit([encoder.finish()])
     }
 }
@@ -660,9 +808,15 @@ fn probe_groups_per_dimension(dev: &GpuDevice) -> u32 {
 /// The probe dispatch of `slots` invocations: rows of at most the per-dimension limit of
 /// workgroups (the kernels number slots row by row).
 fn probe_groups(dev: &GpuDevice, slots: u32) -> (u32, u32) {
-    let groups = slots.div_ceil(PROBE_WORKGROUP_SIZE).max(1);
-    let x = groups.min(probe_groups_per_dimension(dev));
-    (x, groups.div_ceil(x))
+    rows_of_groups(dev, slots.div_ceil(PROBE_WORKGROUP_SIZE).max(1), probe_groups_per_dimension(dev))
+}
+
+/// A dispatch of `groups` workgroups in rows of at most `per_row` (0: the adapter's
+/// limit per dimension); (0, 0) for none.
+fn rows_of_groups(dev: &GpuDevice, groups: u32, per_row: u32) -> (u32, u32) {
+    let limit = dev.ctx.device.limits().max_compute_workgroups_per_dimension;
+    let x = groups.min(if per_row == 0 { limit } else { per_row.min(limit) });
+    if x == 0 { (0, 0) } else { (x, groups.div_ceil(x)) }
 }
 
 /// Overrides how many probe points one target takes when not zero (fewer: tests split a

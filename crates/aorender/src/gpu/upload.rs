@@ -161,9 +161,29 @@ impl GpuScene {
         nodes.chain(prims).map(|(binding, g)| wgpu::BindGroupEntry { binding, resource: g.resource() }).collect()
     }
 
+    /// The geometry's bindings, held apart from the scene: a target binds them again
+    /// when it lists its live pixels.
+    pub(crate) fn bindings(&self) -> GeometryBindings {
+        let nodes = self.nodes.iter().enumerate().map(|(k, g)| (node_binding(k as u32), g.clone()));
+        let prims = self.primitives.iter().enumerate().map(|(k, g)| (primitive_binding(k as u32), g.clone()));
+        GeometryBindings(nodes.chain(prims).collect())
+    }
+
     /// Bytes of device memory the geometry and the planes take.
     pub fn device_bytes(&self) -> u64 {
         self.planes.size() + self.nodes.iter().chain(&self.primitives).map(Geometry::bytes).sum::<u64>()
+    }
+}
+
+/// The bindings of a scene's node and primitive chunks (handles to the scene's buffers or
+/// textures, not copies).
+#[derive(Clone, Debug)]
+pub(crate) struct GeometryBindings(Vec<(u32, Geometry)>);
+
+impl GeometryBindings {
+    /// The bind group entries of the chunks.
+    pub(crate) fn entries(&self) -> Vec<wgpu::BindGroupEntry<'_>> {
+        self.0.iter().map(|(binding, g)| wgpu::BindGroupEntry { binding: *binding, resource: g.resource() }).collect()
     }
 }
 
@@ -334,7 +354,7 @@ fn storage_mapped(
 }
 
 /// One chunk of nodes or primitives on the device.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 enum Geometry {
     Buffer(wgpu::Buffer),
     Texture(wgpu::TextureView, u64),
