@@ -27,14 +27,11 @@ use glam::{DVec2, DVec3};
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// The process's CPU seconds so far (user and system, every thread).
-fn cpu_seconds() -> f64 {
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: getrusage fills the struct it is given.
-    unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) };
-    let t = |v: libc::timeval| v.tv_sec as f64 + v.tv_usec as f64 * 1e-6;
-    t(usage.ru_utime) + t(usage.ru_stime)
-}
+// This example takes no median of rounds.
+#[allow(dead_code)]
+#[path = "shared/measure.rs"]
+mod measure;
+use measure::cpu_seconds;
 
 /// One triangle of the atlas: its surface positions, its coordinates in texels (y down
 /// the atlas) and its chart.

@@ -12,22 +12,9 @@ use aorender::Film;
 use aorender::output::write_image;
 use std::time::Instant;
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
-/// CPU seconds (user and system) this process has taken so far, all threads.
-fn cpu_seconds() -> f64 {
-    let mut usage = std::mem::MaybeUninit::<libc::rusage>::zeroed();
-    // SAFETY: getrusage fills the struct it is given; RUSAGE_SELF is always valid.
-    let usage = unsafe {
-        libc::getrusage(libc::RUSAGE_SELF, usage.as_mut_ptr());
-        usage.assume_init()
-    };
-    let seconds = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
-    seconds(usage.ru_utime) + seconds(usage.ru_stime)
-}
+#[path = "shared/measure.rs"]
+mod measure;
+use measure::{cpu_seconds, median};
 
 /// A film whose means look like an AO render: a gradient with noise of a few percent.
 fn film(width: u32, height: u32) -> Film {

@@ -10,9 +10,8 @@
 //! run) and the rays of a batch stay as close together as a tile's. A pixel keeps its
 //! samples and is rendered by one invocation: the film's bits do not change.
 
-use super::context::GpuContext;
+use super::context::{GpuContext, StorageKernels};
 use super::layout::{LIVE_LIST, WORKGROUP_SIZE};
-use super::shaders::{FILES, compose_with};
 use crate::error::Result;
 use wgpu::util::DeviceExt;
 
@@ -31,46 +30,13 @@ pub struct CompactPipelines {
 impl CompactPipelines {
     /// Compiles `compact.wgsl`'s entry points.
     pub fn new(ctx: &GpuContext) -> Result<CompactPipelines> {
-        let lookup = |n: &str| FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t);
-        let source = compose_with("compact.wgsl", &lookup)?;
-        let device = &ctx.device;
-        let entry = |binding: u32, read_only: bool| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let entries = [entry(0, true), entry(1, true), entry(2, false), entry(3, false), entry(4, false)];
-        let layout = device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("compact"), entries: &entries });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("compact.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("compact"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = |name: &str| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(name),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(name),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
+        let kernels = StorageKernels::new(ctx, "compact.wgsl", &[true, true, false, false, false])?;
+        let pipeline = |name: &str| kernels.pipeline(ctx, name);
         let pipelines = CompactPipelines {
             count: pipeline("count_live"),
             scan: pipeline("scan_blocks"),
             list: pipeline("list_live"),
-            layout,
+            layout: kernels.layout,
         };
         ctx.take_error()?;
         Ok(pipelines)

@@ -4,7 +4,7 @@
 
 use super::fault::{Fault, Faults, catch_panic};
 use super::layout::{GROUP_LANES, OTHER_STORAGE_BINDINGS};
-use super::shaders::{GeometryStorage, Traversal};
+use super::shaders::{FILES, GeometryStorage, Traversal, compose_with};
 use crate::bvh::BvhLayout;
 use crate::error::{Error, Result};
 use std::mem::ManuallyDrop;
@@ -462,5 +462,62 @@ impl GpuContext {
             });
         }
         Ok(())
+    }
+}
+
+/// The compute kernels of one WGSL file over one bind group of storage buffers: its
+/// bind group layout, and a pipeline for each entry point asked for.
+pub(crate) struct StorageKernels {
+    /// The bind group layout every kernel of the file takes.
+    pub layout: wgpu::BindGroupLayout,
+    module: wgpu::ShaderModule,
+    pipeline_layout: wgpu::PipelineLayout,
+}
+
+impl StorageKernels {
+    /// Compiles `file` (its imports composed from the shader files) for a bind group whose
+    /// binding i is a storage buffer, read-only where `read_only[i]`.
+    pub(crate) fn new(ctx: &GpuContext, file: &str, read_only: &[bool]) -> Result<StorageKernels> {
+        let lookup = |n: &str| FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t);
+        let source = compose_with(file, &lookup)?;
+        let label = file.trim_end_matches(".wgsl");
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = (0u32..)
+            .zip(read_only)
+            .map(|(binding, &read_only)| wgpu::BindGroupLayoutEntry {
+                binding,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Storage { read_only },
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            })
+            .collect();
+        let device = &ctx.device;
+        let layout =
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some(label), entries: &entries });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(file),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(label),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        Ok(StorageKernels { layout, module, pipeline_layout })
+    }
+
+    /// The pipeline of the entry point `name`.
+    pub(crate) fn pipeline(&self, ctx: &GpuContext, name: &str) -> wgpu::ComputePipeline {
+        ctx.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(name),
+            layout: Some(&self.pipeline_layout),
+            module: &self.module,
+            entry_point: Some(name),
+            compilation_options: Default::default(),
+            cache: None,
+        })
     }
 }

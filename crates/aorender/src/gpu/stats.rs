@@ -12,8 +12,7 @@
 //! their share of σ (`DeviceSums::allocate`, 32 bytes back); the counts and the stopped
 //! pixels (8 bytes a pixel) are read with the sums.
 
-use super::context::GpuContext;
-use super::shaders::{FILES, compose_with};
+use super::context::{GpuContext, StorageKernels};
 use crate::error::{Error, Result};
 use crate::film::{ExactSums, REPLICATE_SQ_SHIFT, SampleRange};
 use rayon::prelude::*;
@@ -40,47 +39,15 @@ pub struct StatsPipelines {
 impl StatsPipelines {
     /// Compiles `stats.wgsl`'s entry points.
     pub fn new(ctx: &GpuContext) -> Result<StatsPipelines> {
-        let lookup = |n: &str| FILES.iter().find(|(f, _)| *f == n).map(|(_, t)| *t);
-        let source = compose_with("stats.wgsl", &lookup)?;
-        let device = &ctx.device;
-        let entry = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
-        let storage = wgpu::BufferBindingType::Storage { read_only: false };
-        let mut entries: Vec<_> = (0..4).map(|b| entry(b, storage)).collect();
-        entries.push(entry(4, wgpu::BufferBindingType::Storage { read_only: true }));
-        entries.extend((5..8).map(|b| entry(b, storage)));
-        let layout = device
-            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("stats"), entries: &entries });
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("stats.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("stats"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = |name: &str| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(name),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(name),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
+        let kernels = StorageKernels::new(ctx, "stats.wgsl", &[false, false, false, false, true, false, false, false])?;
+        let pipeline = |name: &str| kernels.pipeline(ctx, name);
         let pipelines = StatsPipelines {
             fold: pipeline("fold"),
             reduce: pipeline("reduce"),
             reduce_groups: pipeline("reduce_groups"),
             allocate: pipeline("allocate"),
             mark: pipeline("mark"),
-            layout,
+            layout: kernels.layout,
         };
         ctx.take_error()?;
         Ok(pipelines)
