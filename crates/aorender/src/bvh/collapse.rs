@@ -12,15 +12,13 @@
 //! computed once; every cost, comparison and node field is obvhs's, in its order, so the
 //! CWBVH is the same, bit for bit (`tests/bvh_collapse.rs` compares them).
 
+use super::cwbvh::{node_frame, set_child_box};
 use glam::Vec3A;
 use obvhs::bvh2::Bvh2;
 use obvhs::cwbvh::{CwBvh, node::CwBvhNode};
 
 /// obvhs's cost of a primitive in a leaf, relative to a node's (its `PRIM_COST`).
 const PRIM_COST: f32 = 0.3;
-
-/// Steps of a child box's quantization: 8 bits (obvhs's `DENOM`).
-const DENOM: f32 = 1.0 / 255.0;
 
 /// An empty child slot.
 const INVALID: u32 = u32::MAX;
@@ -146,12 +144,9 @@ impl Converter<'_> {
     fn convert(&mut self, at: usize, index: usize) {
         let mut node = self.nodes[at];
         let aabb = self.bvh2.nodes[index].aabb();
-        let p = aabb.min;
+        let (p, e, rcp_e) = node_frame(aabb);
         node.p = p.into();
-        let e = ((aabb.max - aabb.min).max(Vec3A::splat(1e-20)) * DENOM).log2().ceil().exp2();
-        let rcp_e = 1.0 / e;
-        let exponent = |x: f32| (x.to_bits() >> 23) as u8;
-        node.e = [exponent(e.x), exponent(e.y), exponent(e.z)];
+        node.e = e;
 
         let mut children = [INVALID; 8];
         let mut child_count = 0;
@@ -167,16 +162,7 @@ impl Converter<'_> {
             if child == INVALID {
                 continue;
             }
-            let b = self.bvh2.nodes[child as usize].aabb();
-            // obvhs pads by 0.0: min - p - 0.0 is min - p; max - p + 0.0 turns -0.0 into +0.0.
-            let lo = ((b.min - p) * rcp_e).floor().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
-            let hi = ((b.max - p + 0.0) * rcp_e).ceil().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
-            node.child_min_x[i] = lo.x as u8;
-            node.child_min_y[i] = lo.y as u8;
-            node.child_min_z[i] = lo.z as u8;
-            node.child_max_x[i] = hi.x as u8;
-            node.child_max_y[i] = hi.y as u8;
-            node.child_max_z[i] = hi.z as u8;
+            set_child_box(&mut node, i, self.bvh2.nodes[child as usize].aabb(), p, rcp_e);
             if self.choices[child as usize * 7][0] == LEAF {
                 let count = self.push_primitives(child as usize);
                 // The three highest bits hold the primitive count in unary.

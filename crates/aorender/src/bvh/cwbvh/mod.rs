@@ -51,6 +51,30 @@ pub fn placed(node: &CwBvhNode, node_base: u32, primitive_base: u32) -> CwBvhNod
     }
 }
 
+/// The quantisation frame of a node over `node_box`, as obvhs's `Bvh2Converter` makes it:
+/// the node's minimum `p`, the exponent bytes of its power-of-two step per axis, and the
+/// step's reciprocal.
+pub fn node_frame(node_box: &Aabb) -> (Vec3A, [u8; 3], Vec3A) {
+    let e = ((node_box.max - node_box.min).max(Vec3A::splat(1e-20)) * (1.0 / 255.0)).log2().ceil().exp2();
+    let exponent = |x: f32| (x.to_bits() >> 23) as u8;
+    (node_box.min, [exponent(e.x), exponent(e.y), exponent(e.z)], 1.0 / e)
+}
+
+/// Writes child `slot`'s box `b` into `node`, rounded outwards to 8 bits in the frame
+/// ([`node_frame`]) of minimum `p` and step reciprocal `rcp_e`.
+pub fn set_child_box(node: &mut CwBvhNode, slot: usize, b: &Aabb, p: Vec3A, rcp_e: Vec3A) {
+    // obvhs pads by 0.0: min - p - 0.0 is min - p; max - p + 0.0 turns -0.0 into +0.0
+    // (either rounds to the byte 0).
+    let lo = ((b.min - p) * rcp_e).floor().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
+    let hi = ((b.max - p + 0.0) * rcp_e).ceil().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
+    node.child_min_x[slot] = lo.x as u8;
+    node.child_min_y[slot] = lo.y as u8;
+    node.child_min_z[slot] = lo.z as u8;
+    node.child_max_x[slot] = hi.x as u8;
+    node.child_max_y[slot] = hi.y as u8;
+    node.child_max_z[slot] = hi.z as u8;
+}
+
 /// A CWBVH node whose children, all inner, are `(slot, box)`, quantized as obvhs's
 /// `Bvh2Converter` does: the node's minimum and a power-of-two step per axis, the child
 /// boxes rounded outwards to 8 bits.
@@ -60,26 +84,10 @@ pub fn inner_node(
     child_base_idx: u32,
     primitive_base_idx: u32,
 ) -> CwBvhNode {
-    let p = node_box.min;
-    let e = ((node_box.max - node_box.min).max(Vec3A::splat(1e-20)) * (1.0 / 255.0)).log2().ceil().exp2();
-    let rcp_e = 1.0 / e;
-    let exponent = |x: f32| (x.to_bits() >> 23) as u8;
-    let mut node = CwBvhNode {
-        p: p.into(),
-        e: [exponent(e.x), exponent(e.y), exponent(e.z)],
-        child_base_idx,
-        primitive_base_idx,
-        ..Default::default()
-    };
+    let (p, e, rcp_e) = node_frame(node_box);
+    let mut node = CwBvhNode { p: p.into(), e, child_base_idx, primitive_base_idx, ..Default::default() };
     for &(slot, b) in children {
-        let lo = ((b.min - p) * rcp_e).floor().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
-        let hi = ((b.max - p) * rcp_e).ceil().clamp(Vec3A::ZERO, Vec3A::splat(255.0));
-        node.child_min_x[slot] = lo.x as u8;
-        node.child_min_y[slot] = lo.y as u8;
-        node.child_min_z[slot] = lo.z as u8;
-        node.child_max_x[slot] = hi.x as u8;
-        node.child_max_y[slot] = hi.y as u8;
-        node.child_max_z[slot] = hi.z as u8;
+        set_child_box(&mut node, slot, &b, p, rcp_e);
         node.imask |= 1 << slot;
         node.child_meta[slot] = (24 + slot as u8) | 0b0010_0000;
     }
