@@ -14,12 +14,24 @@
 // halvings; a stride over at most 65,536 partial sums), far below lavapipe's cap.
 //
 // An adaptive render's pixels have their own counts (`stats_counts`, added by `fold` to
-// the pixels still sampled) and its decisions are taken here: `reduce` in per-pixel mode
-// also takes each pixel's σ (accumulation.rs `pixel_sigma`, whose f32 steps these are)
-// and the σ̃ of its row neighbours that decides its share (`share_sigma`), sums σ² / σ̃
-// and keeps σ̃ for `allocate`, which stops the pixels that have the replicates an
-// allocation ∝ σ̃ gives them without evaluating the rule again; `mark` writes the
-// stopped flags into the counts before they are read.
+// the pixels still sampled) and its decisions are taken here. Each check works only
+// where something changed, and where lanes run in lockstep and pay for a branch's code
+// whether or not one takes it (lavapipe's eight), the kernels walk runs of slots to the
+// next one with work: a loop ends when every lane is done, a branch does not. None has a
+// barrier, which costs lavapipe more the more code the kernel holds.
+
+// - `evaluate` evaluates the rule of each pixel that changed since the last check
+//   (accumulation.rs `pixel_sigma`, whose f32 steps these are) and keeps its (σ, v,
+//   mean). `fold` and `stop_allocated` mark the pixels they change stale: a stopped
+//   pixel's sums no longer change, so its rule is evaluated once, not at every check.
+// - `group_sums` sums, one invocation a workgroup of 256 pixels, each pixel's (v, v²,
+//   mean, σ² / σ̃), σ̃ the root mean square of its row neighbours' kept σ
+//   (`share_sigma`), in the tree of `reduce_shared`, and takes the fewest and most
+//   replicates. A workgroup none of whose pixels, nor those up to SHARE_NEIGHBOURS slots
+//   beside them, changed keeps its sums and extremes.
+// - `allocate` counts the pixels still sampled that have the replicates an allocation
+//   ∝ σ̃ gives them, and `stop_allocated` stops them, or only when some pixel goes on;
+//   `mark` writes the stopped flags into the counts before they are read.
 
 //#import sums.wgsl
 //#import exact.wgsl
@@ -27,7 +39,7 @@
 struct StatsParams {
     // Film slots.
     slots: u32,
-    // Workgroups of `reduce`: its partial sums.
+    // Workgroups of 256 slots: the partial sums.
     groups: u32,
     // 1: `fold` adds the block's square as a replicate's; `reduce` estimates the error
     // from the replicates. 0: from independent samples.
@@ -44,15 +56,15 @@ struct StatsParams {
     sum_exponent: i32,
     square_exponent: i32,
     replicate_exponent: i32,
-    // 1: every pixel has its own counts (`stats_counts`); 0: `n` and `k`.
-    per_pixel: u32,
+    _pad3: u32,
     // Samples `fold` adds to the counts of the pixels it folds.
     taken: u32,
     // What a sample can be (accumulation.rs `RANGE_*`), and its largest magnitude.
     range: u32,
     max_value: f32,
-    // `allocate`: 1 stops the pixels, 0 counts them; and replicates per unit of σ.
-    apply: u32,
+    // `stop_allocated`: 1 stops the pixels `allocate` counted, 0 only when some pixel
+    // goes on; and (both) replicates per unit of σ̃.
+    met: u32,
     per_sigma: f32,
     // Pixels in a row of the image (a band holds whole rows).
     width: u32,
@@ -67,14 +79,18 @@ struct StatsParams {
 // A storage buffer, not a uniform one: lavapipe would recompile the kernels at every
 // dispatch for the uniform values they branch on (shaders/bindings.wgsl).
 @group(0) @binding(4) var<storage, read> stats_params: StatsParams;
-// One partial sum (Σv, Σv², Σ mean, Σ σ² / σ̃) per workgroup of `reduce`, then the total;
-// past it, from `sigma_base()`, each pixel's σ̃ of the last per-pixel `reduce`, four a word (one
-// binding more would pass the eight storage buffers every adapter allows a stage).
-@group(0) @binding(5) var<storage, read_write> stats_partial: array<vec4f>;
+// Words: one partial sum (Σv, Σv², Σ mean, Σ σ² / σ̃) per workgroup of 256 slots, then the
+// total (f32 bits, four words each); past them each pixel's kept evaluation in three
+// regions (`kept_index`): σ's bits, v's, and the mean's bits inverted (0: stale, evaluated
+// again; no mean is the NaN whose bits are all ones); then each workgroup's fewest and
+// most replicates as `group_sums` took them (`group_index`). One binding more would pass
+// the eight storage buffers every adapter allows a stage.
+@group(0) @binding(5) var<storage, read_write> stats_partial: array<u32>;
 // [0]: 2^32 − 1 − the first pixel whose block held a sample out of range (0: none).
-// `reduce` per pixel: [2] 2^32 − 1 − the fewest replicates of a pixel whose value is
-// not exact (0: none), [3] the most of any. `allocate`: [1] the pixels it stops (or
-// would), [2] those that go on.
+// `group_sums`: [2] 2^32 − 1 − the fewest replicates of a pixel whose value is not exact
+// (0: none), [3] the most of any. `allocate`: [1] the pixels that have their share, [2]
+// those that go on. From [4], one word a workgroup of 256 slots: 1 where `evaluate`
+// evaluated one of its pixels in this check.
 @group(0) @binding(6) var<storage, read_write> stats_status: array<atomic<u32>>;
 // Per pixel: samples folded, and complete replicates (bit 31: stopped, set by `mark`).
 @group(0) @binding(7) var<storage, read_write> stats_counts: array<vec2u>;
@@ -129,9 +145,55 @@ fn replicate_square(s: vec2u) -> vec4u {
     );
 }
 
-// The first word of `stats_partial` that holds the pixels' σ.
-fn sigma_base() -> u32 {
-    return stats_params.groups + 1u;
+// Kept regions of `stats_partial`: σ, v, and the mean's bits inverted (0: stale).
+const KEPT_SIGMA: u32 = 0u;
+const KEPT_VARIANCE: u32 = 1u;
+const KEPT_MEAN: u32 = 2u;
+
+// The word of `stats_partial` that holds pixel i's kept value `region`.
+fn kept_index(region: u32, i: u32) -> u32 {
+    return 4u * (stats_params.groups + 1u) + region * stats_params.slots + i;
+}
+
+fn kept(region: u32, i: u32) -> u32 {
+    return stats_partial[kept_index(region, i)];
+}
+
+fn keep(region: u32, i: u32, value: u32) {
+    stats_partial[kept_index(region, i)] = value;
+}
+
+// Fields of a workgroup's record: 2^32 − 1 − its fewest replicates of a pixel whose value
+// is not exact (0: none), and its most.
+const GROUP_FEWEST: u32 = 0u;
+const GROUP_MOST: u32 = 1u;
+
+// The word of `stats_partial` that holds field `field` of workgroup g's record.
+fn group_index(g: u32, field: u32) -> u32 {
+    return 4u * (stats_params.groups + 1u) + 3u * stats_params.slots + 2u * g + field;
+}
+
+// The first word of `stats_status` past the status: workgroup 0's evaluated flag.
+const EVALUATED_BASE: u32 = 4u;
+
+// Workgroup g's partial sum (or, g = `groups`, the total).
+fn partial_sum(g: u32) -> vec4f {
+    let b = 4u * g;
+    return bitcast<vec4f>(vec4u(stats_partial[b], stats_partial[b + 1u], stats_partial[b + 2u], stats_partial[b + 3u]));
+}
+
+fn set_partial_sum(g: u32, x: vec4f) {
+    let b = 4u * g;
+    let u = bitcast<vec4u>(x);
+    stats_partial[b] = u.x;
+    stats_partial[b + 1u] = u.y;
+    stats_partial[b + 2u] = u.z;
+    stats_partial[b + 3u] = u.w;
+}
+
+// Pixel i's σ as `evaluate` kept it.
+fn own_sigma(i: u32) -> f32 {
+    return bitcast<f32>(kept(KEPT_SIGMA, i));
 }
 
 // The slot of this invocation in a dispatch of rows of `row_groups` workgroups.
@@ -154,6 +216,7 @@ fn fold(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) lo
         atomicMax(&stats_status[0], 0xffffffffu - i);
         return;
     }
+    keep(KEPT_MEAN, i, 0u);
     stats_counts[i] += vec2u(stats_params.taken, stats_params.replicate);
     stats_sum[i] = add128(stats_sum[i], widen_shifted(w.xy, true));
     stats_square[i] = add128(stats_square[i], widen_shifted(w.zw, false));
@@ -275,7 +338,8 @@ fn sigma_bound() -> f32 {
 // The σ̃ that decides pixel i's share: the root mean square of the σ of the pixels up to
 // SHARE_NEIGHBOURS on either side in its row that have one (σ > 0), never its own, so
 // that its stopping is independent of its samples; `sigma_bound()` where none has.
-// accumulation.rs `share_sigma`, step for step; a loop of 2 × SHARE_NEIGHBOURS steps.
+// accumulation.rs `share_sigma`, step for step, on the σ `evaluate` kept; a loop of
+// 2 × SHARE_NEIGHBOURS steps.
 fn share_sigma(i: u32) -> f32 {
     let w = stats_params.width;
     let x = i % w;
@@ -285,7 +349,7 @@ fn share_sigma(i: u32) -> f32 {
         let nx = x + d + select(0u, 1u, d >= SHARE_NEIGHBOURS) - SHARE_NEIGHBOURS;
         let j = i - x + nx;
         if (nx < w && j < stats_params.slots) {
-            let s = adaptive_pixel(j).z;
+            let s = own_sigma(j);
             if (s > 0.0) {
                 sum = sum + exact_mul(s, s);
                 count += 1u;
@@ -309,26 +373,163 @@ fn reduce_shared(local: u32) {
     workgroupBarrier();
 }
 
+// Consecutive slots an invocation of the kernels that walk runs looks after.
+const RUN_SLOTS: u32 = 8u;
+
+// The first slot of this invocation's run, in a dispatch of workgroups of 64 (a run past
+// the slots' last is empty).
+fn run_first(group: vec3u, n: vec3u, local: u32) -> u32 {
+    return ((group.y * n.x + group.x) * 64u + local) * RUN_SLOTS;
+}
+
+// The end of the run that starts at `first`.
+fn run_end(first: u32) -> u32 {
+    return min(first + RUN_SLOTS, stats_params.slots);
+}
+
+// Whether slot i is a pixel still sampled.
+fn is_live(i: u32) -> bool {
+    return stats_film[i].w != INACTIVE_SLOT;
+}
+
+// Evaluates the rule (an adaptive render's) of each pixel that changed since the last
+// check, keeps it, and flags its workgroup of 256 slots. An invocation walks its run of
+// RUN_SLOTS slots from stale one to stale one: where lanes run in lockstep and a branch
+// costs its code whether or not a lane takes it (lavapipe), the rule is evaluated as
+// often as the stalest lane needs, and not at all where every slot is kept. At most
+// 2 × RUN_SLOTS steps besides the rule's own bounded loops.
+@compute @workgroup_size(64)
+fn evaluate(@builtin(workgroup_id) group: vec3u, @builtin(num_workgroups) n: vec3u,
+        @builtin(local_invocation_index) local: u32) {
+    opaque_zero = stats_params.zero;
+    let first = run_first(group, n, local);
+    let end = run_end(first);
+    var i = first;
+    loop {
+        while (i < end && kept(KEPT_MEAN, i) != 0u) {
+            i++;
+        }
+        if (i >= end) {
+            break;
+        }
+        let a = adaptive_pixel(i);
+        keep(KEPT_SIGMA, i, bitcast<u32>(a.z));
+        keep(KEPT_VARIANCE, i, bitcast<u32>(a.x));
+        keep(KEPT_MEAN, i, ~bitcast<u32>(a.y));
+        atomicStore(&stats_status[EVALUATED_BASE + i / 256u], 1u);
+        i++;
+    }
+}
+
+// Pixel i's σ² / σ̃, from its kept σ > 0.
+fn pixel_weight(i: u32) -> f32 {
+    let sigma = own_sigma(i);
+    let share = share_sigma(i);
+    if (share > 0.0) {
+        return exact_div(exact_mul(sigma, sigma), share);
+    }
+    return 0.0;
+}
+
+// Whether slot i (in range or not) has an estimate of σ, and so a weight.
+fn has_sigma(i: u32) -> bool {
+    return i < stats_params.slots && own_sigma(i) > 0.0;
+}
+
+// The bits of m, 0..256, in reverse order.
+fn reverse8(m: u32) -> u32 {
+    return reverseBits(m) >> 24u;
+}
+
+// Workgroup g's sums of its pixels' terms in the tree of `reduce_shared` (which adds the
+// value at l + h to that at l for h = 128, 64, …, 1): its leaves taken in bit-reversed
+// order and added as a binary counter carries, so that each addition has the operands,
+// left and right, of the shared tree's. Slots past the last add zeros, as there. Also
+// its fewest and most replicates (as `GROUP_*`).
+fn group_tree(g: u32) -> array<vec4f, 2> {
+    // The weights first, walking from one pixel with σ > 0 to the next (as `evaluate`
+    // walks its run): the exact divisions run as often as the lane with the most such
+    // pixels needs. At most 512 steps besides theirs.
+    var weights: array<f32, 256>;
+    var j = 0u;
+    loop {
+        while (j < 256u && !has_sigma(256u * g + j)) {
+            j++;
+        }
+        if (j >= 256u) {
+            break;
+        }
+        weights[j] = pixel_weight(256u * g + j);
+        j++;
+    }
+    var stack: array<vec4f, 9>;
+    var depth = 0u;
+    var fewest = 0u;
+    var most = 0u;
+    for (var m = 0u; m < 256u; m++) {
+        let l = reverse8(m);
+        let i = 256u * g + l;
+        var x = vec4f(0.0);
+        if (i < stats_params.slots) {
+            let v = bitcast<f32>(kept(KEPT_VARIANCE, i));
+            x = vec4f(v, exact_mul(v, v), bitcast<f32>(~kept(KEPT_MEAN, i)), weights[l]);
+            let kk = stats_counts[i].y & 0x7fffffffu;
+            if (!(stats_film[i].w == INACTIVE_SLOT && kk < 2u)) {
+                fewest = max(fewest, 0xffffffffu - kk);
+            }
+            most = max(most, kk);
+        }
+        // Each trailing one of m closes a subtree whose left half is on the stack.
+        for (var c = m; (c & 1u) == 1u; c >>= 1u) {
+            depth -= 1u;
+            x = stack[depth] + x;
+        }
+        stack[depth] = x;
+        depth += 1u;
+    }
+    return array<vec4f, 2>(stack[0], bitcast<vec4f>(vec4u(fewest, most, 0u, 0u)));
+}
+
+// Adds a workgroup's fewest and most replicates to the status words.
+fn add_extremes(fewest: u32, most: u32) {
+    if (fewest != 0u) {
+        atomicMax(&stats_status[2], fewest);
+    }
+    atomicMax(&stats_status[3], most);
+}
+
+// One invocation a workgroup of 256 slots (after `evaluate`): its sums of the pixels'
+// terms and its fewest and most replicates, taken again where `evaluate` evaluated a
+// pixel in it or in a workgroup beside it (a pixel's σ̃ reads σ up to SHARE_NEIGHBOURS
+// slots away), kept otherwise; either way added to the status words.
+@compute @workgroup_size(64)
+fn group_sums(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups) n: vec3u) {
+    opaque_zero = stats_params.zero;
+    let g = id.y * n.x * 64u + id.x;
+    if (g >= stats_params.groups) {
+        return;
+    }
+    var changed = 0u;
+    for (var h = max(g, 1u) - 1u; h <= g + 1u && h < stats_params.groups; h++) {
+        changed |= atomicLoad(&stats_status[EVALUATED_BASE + h]);
+    }
+    if (changed != 0u) {
+        let t = group_tree(g);
+        set_partial_sum(g, t[0]);
+        let extremes = bitcast<vec4u>(t[1]);
+        stats_partial[group_index(g, GROUP_FEWEST)] = extremes.x;
+        stats_partial[group_index(g, GROUP_MOST)] = extremes.y;
+    }
+    add_extremes(stats_partial[group_index(g, GROUP_FEWEST)], stats_partial[group_index(g, GROUP_MOST)]);
+}
+
+// Each pixel's (v, v², mean) summed per workgroup, v its variance of the mean.
 @compute @workgroup_size(256)
 fn reduce(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
     opaque_zero = stats_params.zero;
     let i = stats_slot(group, local);
     var x = vec4f(0.0);
-    if (i < stats_params.slots && stats_params.per_pixel == 1u) {
-        let a = adaptive_pixel(i);
-        let share = share_sigma(i);
-        var weight = 0.0;
-        if (a.z > 0.0 && share > 0.0) {
-            weight = exact_div(exact_mul(a.z, a.z), share);
-        }
-        x = vec4f(a.x, exact_mul(a.x, a.x), a.y, weight);
-        stats_partial[sigma_base() + i / 4u][i % 4u] = share;
-        let kk = stats_counts[i].y & 0x7fffffffu;
-        if (!(stats_film[i].w == INACTIVE_SLOT && kk < 2u)) {
-            atomicMax(&stats_status[2], 0xffffffffu - kk);
-        }
-        atomicMax(&stats_status[3], kk);
-    } else if (i < stats_params.slots) {
+    if (i < stats_params.slots) {
         let vm = pixel_variance(i);
         x = vec4f(vm.x, exact_mul(vm.x, vm.x), vm.y, 0.0);
     }
@@ -337,7 +538,7 @@ fn reduce(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) 
     // The last row of the dispatch may have workgroups past the slots' last.
     let g = group.y * stats_params.row_groups + group.x;
     if (local == 0u && g < stats_params.groups) {
-        stats_partial[g] = stats_shared[0];
+        set_partial_sum(g, stats_shared[0]);
     }
 }
 
@@ -345,33 +546,84 @@ fn reduce(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) 
 fn reduce_groups(@builtin(local_invocation_index) local: u32) {
     var x = vec4f(0.0);
     for (var g = local; g < stats_params.groups; g += 256u) {
-        x += stats_partial[g];
+        x += partial_sum(g);
     }
     stats_shared[local] = x;
     reduce_shared(local);
     if (local == 0u) {
-        stats_partial[stats_params.groups] = stats_shared[0];
+        set_partial_sum(stats_params.groups, stats_shared[0]);
     }
 }
 
-// Stops (with `apply`; else counts) the pixels still sampled that have the replicates
-// the allocation gives them: k ≥ σ̃ × per_sigma, σ̃ the one the last per-pixel `reduce`
-// kept (the sums and counts have not changed since).
-@compute @workgroup_size(256)
-fn allocate(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
-    let i = stats_slot(group, local);
-    if (i >= stats_params.slots || stats_film[i].w == INACTIVE_SLOT) {
+// Whether pixel i, still sampled, has the replicates the allocation gives it:
+// k ≥ σ̃ × per_sigma, σ̃ from the σ `evaluate` kept (the sums and counts have not
+// changed since).
+fn has_share(i: u32) -> bool {
+    let k = f32(stats_counts[i].y & 0x7fffffffu);
+    return k >= share_sigma(i) * stats_params.per_sigma;
+}
+
+// Counts the pixels still sampled that have their share ([1]) and those that go on ([2]),
+// walking each run from live pixel to live pixel (as `evaluate` walks its run).
+@compute @workgroup_size(64)
+fn allocate(@builtin(workgroup_id) group: vec3u, @builtin(num_workgroups) n: vec3u,
+        @builtin(local_invocation_index) local: u32) {
+    opaque_zero = stats_params.zero;
+    let first = run_first(group, n, local);
+    let end = run_end(first);
+    var i = first;
+    var counts = vec2u(0u);
+    loop {
+        while (i < end && !is_live(i)) {
+            i++;
+        }
+        if (i >= end) {
+            break;
+        }
+        counts += select(vec2u(0u, 1u), vec2u(1u, 0u), has_share(i));
+        i++;
+    }
+    if (counts.x > 0u) {
+        atomicAdd(&stats_status[1], counts.x);
+    }
+    if (counts.y > 0u) {
+        atomicAdd(&stats_status[2], counts.y);
+    }
+}
+
+// Stops the pixels still sampled that have their share: with `met`, always; without, only
+// when `allocate` before it counted some pixel that goes on (the bound is of these sums:
+// where it is not met yet, the pixels go on). Walks runs as `allocate` does.
+@compute @workgroup_size(64)
+fn stop_allocated(@builtin(workgroup_id) group: vec3u, @builtin(num_workgroups) n: vec3u,
+        @builtin(local_invocation_index) local: u32) {
+    opaque_zero = stats_params.zero;
+    if (stats_params.met == 0u && atomicLoad(&stats_status[2]) == 0u) {
         return;
     }
-    let k = f32(stats_counts[i].y & 0x7fffffffu);
-    let share = stats_partial[sigma_base() + i / 4u][i % 4u];
-    if (k >= share * stats_params.per_sigma) {
-        atomicAdd(&stats_status[1], 1u);
-        if (stats_params.apply == 1u) {
-            stats_film[i] = vec4u(0u, 0u, 0u, INACTIVE_SLOT);
+    let first = run_first(group, n, local);
+    let end = run_end(first);
+    // Stopped after the walk: a pixel's share reads its neighbours' σ, never their marks.
+    var stops = 0u;
+    var i = first;
+    loop {
+        while (i < end && !is_live(i)) {
+            i++;
         }
-    } else {
-        atomicAdd(&stats_status[2], 1u);
+        if (i >= end) {
+            break;
+        }
+        if (has_share(i)) {
+            stops |= 1u << (i - first);
+        }
+        i++;
+    }
+    for (var k = 0u; k < RUN_SLOTS; k++) {
+        if ((stops & (1u << k)) != 0u) {
+            stats_film[first + k] = vec4u(0u, 0u, 0u, INACTIVE_SLOT);
+            // Its workgroup's fewest replicates may change with its mark.
+            keep(KEPT_MEAN, first + k, 0u);
+        }
     }
 }
 

@@ -8,6 +8,7 @@ use crate::accumulation::{Accumulation, ErrorTarget, FilmLayout, MIN_TARGET_REPL
 use crate::device::{Passes, Setup};
 use crate::error::Result;
 use crate::film::{ErrorEstimator, Film};
+use crate::gpu::stats::Stop;
 use crate::kinds::BvhLayout;
 use crate::sampler::Sampler;
 use crate::sampling::Hemisphere;
@@ -1370,12 +1371,10 @@ fn adapt_on_device(
         times.readback_seconds += t.elapsed().as_secs_f64();
         return Ok(false);
     };
-    let (stops, going) = passes.allocate(query, exponents, a.per_sigma, false)?;
     // The bound is of these sums: where it is not met yet, the pixels go on.
-    let apply = stops > 0 && (a.met || going > 0);
-    if apply {
-        passes.allocate(query, exponents, a.per_sigma, true)?;
-    }
+    let stop = if a.met { Stop::Always } else { Stop::IfAnyGoesOn };
+    let (stops, going) = passes.allocate(query, exponents, a.per_sigma, stop)?;
+    let apply = stops > 0 && stop.applies(going);
     times.readback_seconds += t.elapsed().as_secs_f64();
     Ok(apply && going == 0)
 }

@@ -7,8 +7,14 @@
 mod common;
 
 use aorender::Sampling;
-use aorender::{Accumulation, Control, DeviceKind, ErrorTarget, ImageRequest, PassSizing, Sampler, Scene, Settings};
-use common::{Config, gpu_available, repo, session};
+use aorender::accumulation::max_sample_value;
+use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
+use aorender::film::{ExactSums, SampleRange};
+use aorender::gpu::stats::{AdaptQuery, Stop};
+use aorender::{
+    Accumulation, Control, DeviceKind, ErrorTarget, ImageRequest, PassSizing, RunEnd, Sampler, Scene, Settings,
+};
+use common::{Config, gpu_adapter, gpu_available, gpu_image, repo, session};
 
 /// The bunny, framed bare, at `w`×`h` with AO rays of at most 0.05.
 fn bunny(w: u32, h: u32) -> Scene {
@@ -248,4 +254,99 @@ fn adaptive_decisions_on_the_device_are_the_host_rules() {
         let host = render.accumulation().unwrap().adapt_sums();
         assert_eq!(device, host, "{what}: the device's sums of the rule at {part} spp");
     }
+}
+
+/// An adaptive render on an image of many workgroups of 256 slots, some of them all
+/// background: a check evaluates the rule again only for the pixels folded or stopped
+/// since the last, and sums again only the workgroups beside one of them, keeping the
+/// others' evaluations and sums. Stopped to check after every replicate from the first
+/// decision on, the device's image-level sums of the rule are the host's bit for bit each
+/// time, and the render ends with the CPU reference's bits, checked or not in between.
+#[test]
+fn kept_evaluations_give_the_host_rules_at_every_check() {
+    if !gpu_available() {
+        eprintln!("no GPU adapter: nothing to compare");
+        return;
+    }
+    let scene = bunny(96, 80);
+    let cpu = session(&scene, &Config::cpu());
+    let gpu = session(&scene, &Config { device: DeviceKind::Gpu, ..Default::default() });
+    let replicate = 8;
+    let sampling = Sampling { sampler: Sampler::Sobol, replicate: Some(replicate), seed: 5, ..scene.settings.sampling };
+    let settings = Settings { sampling, spp: 1 << 12, ..scene.settings.clone() };
+    let request = ImageRequest { camera: scene.camera, settings, samples: None };
+    let control = || Control { target: Some(ErrorTarget::Rmse(0.005)), adaptive: true, ..Control::default() };
+    let reference = cpu.render(&request).unwrap().complete(&mut control()).unwrap();
+    let r = reference.accumulation.exact();
+    assert_eq!(reference.stats.ended_by, "target");
+    // Workgroups whose pixels all stopped after their first replicate (background), and
+    // pixels that went on past the first decisions: both kinds of workgroup are there.
+    let background = r.pixel_replicates.chunks(256).filter(|g| g.iter().all(|&k| k <= 1)).count();
+    let late = r.pixel_replicates.iter().filter(|&&k| k as u64 > 2 * 8).count();
+    eprintln!(
+        "{} spp, {:.1} on average; {background} of {} workgroups all background, {late} pixels past 16 replicates",
+        reference.stats.samples_per_pixel,
+        reference.stats.mean_samples_per_pixel,
+        r.sum.len().div_ceil(256)
+    );
+    assert!(background > 0 && late > 0, "the image does not exercise kept workgroups");
+
+    let mut render = gpu.render(&request).unwrap();
+    let mut checked = 0;
+    for k in 8.. {
+        let end = render.run_to(k * replicate, &mut control()).unwrap();
+        let device = render.device_adapt_sums().unwrap().expect("the GPU keeps an adaptive image's sums");
+        let host = render.accumulation().unwrap().adapt_sums();
+        assert_eq!(device, host, "the device's sums of the rule after {k} replicates");
+        checked += 1;
+        if end != RunEnd::Done {
+            break;
+        }
+    }
+    let out = render.finish().unwrap();
+    eprintln!("{checked} checks held against the host's");
+    assert!(out.accumulation.exact() == reference.accumulation.exact(), "the sums differ from the CPU reference's");
+    assert_eq!(out.accumulation.exact().stopped, r.stopped, "other pixels stopped");
+    assert!(out.film == reference.film, "the films differ");
+}
+
+/// What a check keeps from the last: the evaluations of the pixels neither folded nor
+/// stopped since, and the sums of the workgroups none of whose pixels, nor those up to two
+/// slots beside them in their row, changed. On a film of 119 workgroups of 256 slots,
+/// whose rows of 203 pixels cross them, with pixels stopped a few at a time by the
+/// device's own allocation, each check's image-level sums are those of the same check
+/// keeping nothing, bit for bit.
+#[test]
+fn a_check_that_keeps_what_did_not_change_sums_as_one_that_keeps_nothing() {
+    if !gpu_available() {
+        eprintln!("no GPU adapter: nothing to compare");
+        return;
+    }
+    let scene = bunny(203, 150);
+    let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
+    let mut target = gpu_image(&gpu_adapter(), &scene, &bvh, None).unwrap_or_else(|e| panic!("{e}")).1;
+    let max = max_sample_value(&scene, scene.settings.background);
+    let exponents = ExactSums::exponents(max);
+    let replicate = 4;
+    let query = AdaptQuery { replicate, range: SampleRange::Binary(max), width: 203 };
+    let (mut checks, mut stopping, mut live) = (0, 0, 203 * 150);
+    for k in 1..=40u32 {
+        target.render_pass((k - 1) * replicate, replicate).unwrap();
+        target.fold(true, replicate).unwrap();
+        if k < 3 {
+            continue;
+        }
+        let (kept, _) = target.adapt_check(query, exponents).unwrap();
+        target.forget_kept();
+        let (fresh, _) = target.adapt_check(query, exponents).unwrap();
+        assert_eq!(kept, fresh, "the check after {k} replicates");
+        checks += 1;
+        // The pixels whose σ̃ is at most k / 160 stop: a few more each replicate.
+        let (stops, going) = target.allocate(query, exponents, 160.0, Stop::Always).unwrap();
+        assert_eq!(stops + going, live, "the pixels still sampled");
+        live = going;
+        stopping += (stops > 0 && going > 0) as u32;
+    }
+    eprintln!("{checks} checks; {stopping} stopped some pixels and left others; {live} pixels left");
+    assert!(stopping >= 10 && live > 0, "pixels did not stop a few at a time");
 }

@@ -4,7 +4,7 @@
 use super::passes::{PassReport, Passes};
 use crate::error::{Error, Result};
 use crate::film::{BlockSums, ExactSums};
-use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
+use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, Stop};
 use crate::gpu::{GpuTarget, MAX_PASS_SAMPLES};
 
 /// The slots `range` of `exact`: its sums (and replicates' squares, where it has them).
@@ -67,14 +67,8 @@ impl Passes for GpuTarget {
         GpuTarget::adapt_check(self, query, exponents)
     }
 
-    fn allocate(
-        &mut self,
-        query: AdaptQuery,
-        exponents: (i32, i32),
-        per_sigma: f32,
-        apply: bool,
-    ) -> Result<(u32, u32)> {
-        GpuTarget::allocate(self, query, exponents, per_sigma, apply)
+    fn allocate(&mut self, query: AdaptQuery, exponents: (i32, i32), per_sigma: f32, stop: Stop) -> Result<(u32, u32)> {
+        GpuTarget::allocate(self, query, exponents, per_sigma, stop)
     }
 
     fn read_counts(&mut self) -> Result<Vec<(u32, u32, bool)>> {
@@ -223,17 +217,21 @@ impl Passes for GpuChunks {
         Ok((total.unwrap_or_default(), bad))
     }
 
-    fn allocate(
-        &mut self,
-        query: AdaptQuery,
-        exponents: (i32, i32),
-        per_sigma: f32,
-        apply: bool,
-    ) -> Result<(u32, u32)> {
+    fn allocate(&mut self, query: AdaptQuery, exponents: (i32, i32), per_sigma: f32, stop: Stop) -> Result<(u32, u32)> {
+        // Each target counts its own pixels; whether any goes on is the whole film's.
+        let each = match stop {
+            Stop::IfAnyGoesOn => Stop::Count,
+            other => other,
+        };
         let mut total = (0, 0);
         for (target, _) in &mut self.targets {
-            let (stop, go) = target.allocate(query, exponents, per_sigma, apply)?;
-            total = (total.0 + stop, total.1 + go);
+            let (stops, go) = target.allocate(query, exponents, per_sigma, each)?;
+            total = (total.0 + stops, total.1 + go);
+        }
+        if each != stop && total.0 > 0 && stop.applies(total.1) {
+            for (target, _) in &mut self.targets {
+                target.allocate(query, exponents, per_sigma, Stop::Always)?;
+            }
         }
         Ok(total)
     }

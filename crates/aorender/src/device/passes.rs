@@ -3,7 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::film::{BlockSums, ExactSums};
-use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums};
+use crate::gpu::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, Stop};
 
 /// What a pass did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -63,14 +63,15 @@ pub(crate) trait Passes {
     fn adapt_check(&mut self, _query: AdaptQuery, _exponents: (i32, i32)) -> Result<(AdaptSums, Option<u32>)> {
         Err(Error::settings("this device does not keep exact sums"))
     }
-    /// Stops (`apply`) or counts the pixels still sampled whose replicates reach σ ×
-    /// `per_sigma`; how many do, and how many go on.
+    /// Counts the pixels still sampled whose replicates reach σ̃ × `per_sigma` and stops
+    /// them as `stop` says (over the whole film: [`Stop::IfAnyGoesOn`] looks at every
+    /// pixel); how many have their share, and how many go on.
     fn allocate(
         &mut self,
         _query: AdaptQuery,
         _exponents: (i32, i32),
         _per_sigma: f32,
-        _apply: bool,
+        _stop: Stop,
     ) -> Result<(u32, u32)> {
         Err(Error::settings("this device does not keep exact sums"))
     }

@@ -7,10 +7,13 @@
 //!
 //! An adaptive render keeps each pixel's counts of samples and replicates on the device
 //! as well, and takes its decisions there: a decision reduces the image-level sums of
-//! the allocation (`DeviceSums::adapt_check`, 32 bytes back), which evaluates the rule
-//! of each pixel once and keeps its σ on the device, then stops the pixels that have
-//! their share of σ (`DeviceSums::allocate`, 32 bytes back); the counts and the stopped
-//! pixels (8 bytes a pixel) are read with the sums.
+//! the allocation (`DeviceSums::adapt_check`, 32 bytes back), then counts and stops the
+//! pixels that have their share of σ in one submission (`DeviceSums::allocate`, 32
+//! bytes back); the counts and the stopped pixels (8 bytes a pixel) are read with the
+//! sums. A check evaluates the rule only for the pixels folded or stopped since the last
+//! and sums again only the workgroups beside one of them: the device keeps each pixel's
+//! evaluation and each workgroup's sums (12 bytes a pixel), so that a decision costs in
+//! proportion to the pixels still sampled, as the passes do.
 
 use super::context::{GpuContext, StorageKernels};
 use crate::error::{Error, Result};
@@ -18,21 +21,46 @@ use crate::film::{ExactSums, REPLICATE_SQ_SHIFT, SampleRange};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// Invocations of a workgroup of the statistics kernels (`stats.wgsl`).
+/// Invocations of a workgroup of the statistics kernels (`stats.wgsl`), and slots of a
+/// workgroup's partial sums.
 const STATS_WORKGROUP: u32 = 256;
+/// Invocations of a workgroup of `group_sums` (one a workgroup of slots) and of the
+/// kernels that walk runs of [`RUN_SLOTS`] slots.
+const SMALL_WORKGROUP: u32 = 64;
+/// Consecutive slots an invocation of the kernels that walk runs looks after
+/// (`stats.wgsl`'s `RUN_SLOTS`).
+const RUN_SLOTS: u32 = 8;
+
+/// What a statistics kernel's dispatch covers.
+#[derive(Clone, Copy, Debug)]
+enum Shape {
+    /// One invocation a slot.
+    Slots,
+    /// One invocation a workgroup of slots.
+    Groups,
+    /// One invocation each [`RUN_SLOTS`] slots.
+    Runs,
+    /// One workgroup.
+    One,
+}
 /// Bytes of the parameters (`StatsParams`).
 const PARAMS_BYTES: u64 = 80;
 /// Bytes a check reads back: the total (Σv, Σv², Σ mean, 0) and the status word.
 const CHECK_BYTES: u64 = 32;
+/// Values kept per pixel by an adaptive render's checks (`stats.wgsl`'s `KEPT_*`).
+const KEPT_REGIONS: u64 = 3;
 
 /// The statistics kernels of one adapter, compiled once.
 #[derive(Clone, Debug)]
 pub struct StatsPipelines {
     layout: wgpu::BindGroupLayout,
     fold: wgpu::ComputePipeline,
+    evaluate: wgpu::ComputePipeline,
+    group_sums: wgpu::ComputePipeline,
     reduce: wgpu::ComputePipeline,
     reduce_groups: wgpu::ComputePipeline,
     allocate: wgpu::ComputePipeline,
+    stop_allocated: wgpu::ComputePipeline,
     mark: wgpu::ComputePipeline,
 }
 
@@ -43,9 +71,12 @@ impl StatsPipelines {
         let pipeline = |name: &str| kernels.pipeline(ctx, name);
         let pipelines = StatsPipelines {
             fold: pipeline("fold"),
+            evaluate: pipeline("evaluate"),
+            group_sums: pipeline("group_sums"),
             reduce: pipeline("reduce"),
             reduce_groups: pipeline("reduce_groups"),
             allocate: pipeline("allocate"),
+            stop_allocated: pipeline("stop_allocated"),
             mark: pipeline("mark"),
             layout: kernels.layout,
         };
@@ -70,11 +101,11 @@ struct StatsParams {
     sum_exponent: i32,
     square_exponent: i32,
     replicate_exponent: i32,
-    per_pixel: u32,
+    _pad3: u32,
     taken: u32,
     range: u32,
     max_value: f32,
-    apply: u32,
+    met: u32,
     per_sigma: f32,
     width: u32,
     _pad: [u32; 2],
@@ -175,6 +206,30 @@ pub struct AdaptSums {
     pub pixels: u64,
 }
 
+/// What [`DeviceSums::allocate`] does with the pixels still sampled that have their share.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stop {
+    /// Counts them.
+    Count,
+    /// Stops them.
+    Always,
+    /// Stops them when some pixel goes on, in the same submission as the count: the
+    /// rule's bound is not met yet, so stopping every pixel would end the render short
+    /// of it.
+    IfAnyGoesOn,
+}
+
+impl Stop {
+    /// Whether the pixels that have their share are stopped, `going` pixels going on.
+    pub fn applies(self, going: u32) -> bool {
+        match self {
+            Stop::Count => false,
+            Stop::Always => true,
+            Stop::IfAnyGoesOn => going > 0,
+        }
+    }
+}
+
 /// A film's exact sums on the device, with the buffers its checks reduce into.
 pub struct DeviceSums {
     pipelines: StatsPipelines,
@@ -188,6 +243,8 @@ pub struct DeviceSums {
     /// Each pixel's samples and complete replicates (bit 31: stopped).
     counts: wgpu::Buffer,
     slots: u32,
+    /// The query and exponents the pixels' kept evaluations are of (`None`: none kept).
+    kept: Option<(AdaptQuery, (i32, i32))>,
     /// Workgroups of a dispatch over the slots, and of one row of it.
     groups: u32,
     row_groups: u32,
@@ -210,11 +267,13 @@ impl DeviceSums {
         let groups = slots.div_ceil(STATS_WORKGROUP).max(1);
         let row_groups = groups.min(device.limits().max_compute_workgroups_per_dimension);
         let params = buffer("stats params", PARAMS_BYTES, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
-        // The workgroups' sums and their total, then each pixel's σ (four a 16-byte word).
-        let partial_bytes = (groups as u64 + 1 + slots.div_ceil(4) as u64) * 16;
+        // The workgroups' sums and their total, each pixel's kept σ, v and mean, and each
+        // workgroup's record (`stats.wgsl`'s `stats_partial`).
+        let partial_bytes = (groups as u64 + 1) * 16 + KEPT_REGIONS * slots as u64 * 4 + groups as u64 * 8;
         ctx.check_size("stats partial sums", partial_bytes)?;
         let partial = buffer("stats partial sums", partial_bytes, wgpu::BufferUsages::STORAGE | copy);
-        let status = buffer("stats status", 16, wgpu::BufferUsages::STORAGE | copy);
+        // The status, then a flag a workgroup for the adaptive checks.
+        let status = buffer("stats status", 16 + groups as u64 * 4, wgpu::BufferUsages::STORAGE | copy);
         let readback =
             buffer("stats readback", CHECK_BYTES, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
         let counts = buffer("stats counts", (slots as u64 * 8).max(16), wgpu::BufferUsages::STORAGE | copy);
@@ -254,6 +313,7 @@ impl DeviceSums {
             readback,
             counts,
             slots,
+            kept: None,
             groups,
             row_groups,
             device_bytes,
@@ -266,16 +326,37 @@ impl DeviceSums {
         ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") })
     }
 
-    /// Records `pipeline` over the slots (`whole`) or in one workgroup.
-    fn pass(&self, encoder: &mut wgpu::CommandEncoder, pipeline: &wgpu::ComputePipeline, whole: bool) {
+    /// Marks every pixel's kept evaluation stale, on `encoder`.
+    fn forget_kept(&self, encoder: &mut wgpu::CommandEncoder) {
+        // The kept means, whose zero words mark stale pixels.
+        let start = (self.groups as u64 + 1) * 16 + 2 * self.slots as u64 * 4;
+        encoder.clear_buffer(&self.partial, start, Some(self.slots as u64 * 4));
+    }
+
+    /// Has the next [`DeviceSums::adapt_check`] evaluate every pixel again: the pixels'
+    /// stopped marks were written from the host.
+    pub fn forget(&mut self) {
+        self.kept = None;
+    }
+
+    /// Records `pipeline` over `shape`.
+    fn pass(&self, encoder: &mut wgpu::CommandEncoder, pipeline: &wgpu::ComputePipeline, shape: Shape) {
         let mut pass =
             encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("stats"), timestamp_writes: None });
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &self.bind_group, &[]);
-        if whole {
-            pass.dispatch_workgroups(self.row_groups, self.groups.div_ceil(self.row_groups), 1);
-        } else {
-            pass.dispatch_workgroups(1, 1, 1);
+        match shape {
+            Shape::Slots => pass.dispatch_workgroups(self.row_groups, self.groups.div_ceil(self.row_groups), 1),
+            Shape::Groups | Shape::Runs => {
+                let invocations = match shape {
+                    Shape::Groups => self.groups,
+                    _ => self.slots.div_ceil(RUN_SLOTS),
+                };
+                let workgroups = invocations.div_ceil(SMALL_WORKGROUP).max(1);
+                let row = workgroups.min(self.row_groups);
+                pass.dispatch_workgroups(row, workgroups.div_ceil(row), 1)
+            }
+            Shape::One => pass.dispatch_workgroups(1, 1, 1),
         }
     }
 
@@ -287,7 +368,7 @@ impl DeviceSums {
         params: StatsParams,
     ) -> wgpu::CommandEncoder {
         let mut encoder = self.encoder(ctx, params);
-        self.pass(&mut encoder, pipeline, true);
+        self.pass(&mut encoder, pipeline, Shape::Slots);
         encoder
     }
 
@@ -309,7 +390,7 @@ impl DeviceSums {
             Some(query) => {
                 let (range, max_value) = query.range_code();
                 let (b, width) = (query.replicate as f32, query.width);
-                StatsParams { per_pixel: 1, b, range, max_value, width, ..base }
+                StatsParams { b, range, max_value, width, ..base }
             }
             None => base,
         }
@@ -327,7 +408,7 @@ impl DeviceSums {
     /// The image-level sums of the stopping rule for the sums held (`exponents`: those
     /// of the quanta of Σv and Σv², [`ExactSums`]'s); reads back [`CHECK_BYTES`].
     pub fn check(
-        &self,
+        &mut self,
         ctx: &GpuContext,
         query: CheckQuery,
         exponents: (i32, i32),
@@ -341,24 +422,34 @@ impl DeviceSums {
             b: b as f32,
             ..self.rule_params(exponents, None)
         };
-        let words = self.reduce_and_read(ctx, params, &self.pipelines.reduce, readback_bytes)?;
+        let p = &self.pipelines;
+        let passes = [(&p.reduce, Shape::Slots), (&p.reduce_groups, Shape::One)];
+        let words = self.reduce_and_read(ctx, params, false, &passes, readback_bytes)?;
+        // Its workgroups' sums replace those an adaptive check keeps.
+        self.kept = None;
         let f = |i: usize| f32::from_bits(words[i]) as f64;
         let sums = CheckSums { variance: f(0), variance_sq: f(1), mean: f(2), pixels: self.slots as u64 };
         Ok((sums, bad_slot(words[4])))
     }
 
     /// The image-level sums of an adaptive render's decisions over the sums and counts
-    /// held, keeping each pixel's σ̃ on the device for [`DeviceSums::allocate`]; reads
-    /// back [`CHECK_BYTES`]. Also the first slot whose block held a sample out of range.
+    /// held, keeping each pixel's σ on the device for [`DeviceSums::allocate`] and the
+    /// next checks (the rule is evaluated again only for the pixels folded since, and
+    /// for all of them when `query` or `exponents` change); reads back [`CHECK_BYTES`].
+    /// Also the first slot whose block held a sample out of range.
     pub fn adapt_check(
-        &self,
+        &mut self,
         ctx: &GpuContext,
         query: AdaptQuery,
         exponents: (i32, i32),
         readback_bytes: &AtomicU64,
     ) -> Result<(AdaptSums, Option<u32>)> {
         let params = self.rule_params(exponents, Some(query));
-        let words = self.reduce_and_read(ctx, params, &self.pipelines.reduce, readback_bytes)?;
+        let p = &self.pipelines;
+        let passes = [(&p.evaluate, Shape::Runs), (&p.group_sums, Shape::Groups), (&p.reduce_groups, Shape::One)];
+        let forget = self.kept != Some((query, exponents));
+        let words = self.reduce_and_read(ctx, params, forget, &passes, readback_bytes)?;
+        self.kept = Some((query, exponents));
         let f = |i: usize| f32::from_bits(words[i]);
         let sums = AdaptSums {
             variance: f(0),
@@ -372,39 +463,52 @@ impl DeviceSums {
         Ok((sums, bad_slot(words[4])))
     }
 
-    /// Stops (`apply`) or counts the pixels still sampled whose replicates k reach
-    /// σ̃ × `per_sigma` ([`AdaptSums`]'s σ), with each pixel's σ̃ kept by the last
-    /// [`DeviceSums::adapt_check`] of the same `query` and `exponents` (no block folded
-    /// since); returns how many do and how many go on. Reads back [`CHECK_BYTES`].
+    /// Counts the pixels still sampled whose replicates k reach σ̃ × `per_sigma`
+    /// ([`AdaptSums`]'s σ), σ̃ from the σ the last [`DeviceSums::adapt_check`] of the same
+    /// `query` and `exponents` kept (no block folded since), and stops them as `stop`
+    /// says, in one submission; returns how many have their share and how many go on.
+    /// Reads back [`CHECK_BYTES`].
     pub fn allocate(
         &self,
         ctx: &GpuContext,
         query: AdaptQuery,
         exponents: (i32, i32),
         per_sigma: f32,
-        apply: bool,
+        stop: Stop,
         readback_bytes: &AtomicU64,
     ) -> Result<(u32, u32)> {
-        let params = StatsParams { apply: apply as u32, per_sigma, ..self.rule_params(exponents, Some(query)) };
-        let words = self.reduce_and_read(ctx, params, &self.pipelines.allocate, readback_bytes)?;
+        if self.kept != Some((query, exponents)) {
+            return Err(Error::Gpu("an allocation without the check of its sums".into()));
+        }
+        let met = (stop == Stop::Always) as u32;
+        let params = StatsParams { met, per_sigma, ..self.rule_params(exponents, Some(query)) };
+        let p = &self.pipelines;
+        let passes: &[_] = match stop {
+            Stop::Count => &[(&p.allocate, Shape::Runs)],
+            Stop::Always | Stop::IfAnyGoesOn => &[(&p.allocate, Shape::Runs), (&p.stop_allocated, Shape::Runs)],
+        };
+        let words = self.reduce_and_read(ctx, params, false, passes, readback_bytes)?;
         Ok((words[5], words[6]))
     }
 
-    /// Clears the status words past the first, runs `pipeline` over the slots (with the
-    /// workgroups' sums reduced after it, for `reduce`) and reads back the total and the
-    /// status: one submission.
+    /// Clears the status words past the first and the workgroups' flags (and the pixels'
+    /// kept evaluations, with `forget`), runs `passes` in turn and reads back the total
+    /// and the status: one submission.
     fn reduce_and_read(
         &self,
         ctx: &GpuContext,
         params: StatsParams,
-        pipeline: &wgpu::ComputePipeline,
+        forget: bool,
+        passes: &[(&wgpu::ComputePipeline, Shape)],
         readback_bytes: &AtomicU64,
     ) -> Result<Vec<u32>> {
         let mut encoder = self.encoder(ctx, params);
-        encoder.clear_buffer(&self.status, 4, Some(12));
-        self.pass(&mut encoder, pipeline, true);
-        if std::ptr::eq(pipeline, &self.pipelines.reduce) {
-            self.pass(&mut encoder, &self.pipelines.reduce_groups, false);
+        encoder.clear_buffer(&self.status, 4, None);
+        if forget {
+            self.forget_kept(&mut encoder);
+        }
+        for &(pipeline, shape) in passes {
+            self.pass(&mut encoder, pipeline, shape);
         }
         encoder.copy_buffer_to_buffer(&self.partial, self.groups as u64 * 16, &self.readback, 0, Some(16));
         encoder.copy_buffer_to_buffer(&self.status, 0, &self.readback, 16, Some(16));
@@ -483,7 +587,7 @@ impl DeviceSums {
     /// Replaces the device's sums with `exact`'s (the replicates' squares zero where it
     /// has none), and its counts with `exact`'s per-pixel ones, or `samples` and its
     /// replicates for every pixel.
-    pub fn write(&self, ctx: &GpuContext, exact: &ExactSums, samples: u32) -> Result<()> {
+    pub fn write(&mut self, ctx: &GpuContext, exact: &ExactSums, samples: u32) -> Result<()> {
         let n = self.slots as usize;
         if exact.sum.len() != n {
             return Err(Error::Gpu(format!("sums of {} pixels written to device sums of {n}", exact.sum.len())));
@@ -517,6 +621,8 @@ impl DeviceSums {
             ctx.queue.write_buffer(&self.counts, 0, bytemuck::cast_slice(&counts));
         }
         encoder.clear_buffer(&self.status, 0, None);
+        self.forget_kept(&mut encoder);
+        self.kept = None;
         ctx.submit([encoder.finish()])?;
         ctx.wait()
     }

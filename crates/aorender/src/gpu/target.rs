@@ -10,7 +10,7 @@ use super::layout::{
     WORKGROUP_SIZE,
 };
 use super::pipeline::{GpuDevice, Kernel, PipelineKey};
-use super::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, DeviceSums};
+use super::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, DeviceSums, Stop};
 use super::upload::{GeometryBindings, GpuScene, storage_buffer};
 use crate::error::{Error, Result};
 use crate::film::{ExactSums, INACTIVE_SLOT_BITS};
@@ -572,6 +572,9 @@ impl GpuTarget {
     /// `None` for a cleared film), so that the kernel skips them; nothing to do when every
     /// pixel is active.
     pub fn mark_inactive(&mut self, words: Option<&[[u32; 4]]>) -> Result<()> {
+        if let Some(sums) = self.sums.as_mut() {
+            sums.forget();
+        }
         if !self.inactive.iter().any(|&x| x) {
             self.live = None;
             return Ok(());
@@ -709,7 +712,7 @@ impl GpuTarget {
     /// where it does not count them per pixel).
     pub fn write_sums(&mut self, exact: &ExactSums, samples: u32) -> Result<()> {
         self.device_sums()?;
-        self.sums.as_ref().expect("made above").write(&self.dev.ctx, exact, samples)
+        self.sums.as_mut().expect("made above").write(&self.dev.ctx, exact, samples)
     }
 
     /// Folds the film's block of `taken` samples into the device's exact sums and empties
@@ -722,26 +725,37 @@ impl GpuTarget {
     /// The image-level sums of an adaptive render's decisions ([`DeviceSums::adapt_check`]).
     pub fn adapt_check(&mut self, query: AdaptQuery, exponents: (i32, i32)) -> Result<(AdaptSums, Option<u32>)> {
         self.device_sums()?;
-        let sums = self.sums.as_ref().expect("made above");
+        let sums = self.sums.as_mut().expect("made above");
         sums.adapt_check(&self.dev.ctx, query, exponents, &self.readback_bytes)
     }
 
-    /// Stops or counts the pixels that have their share ([`DeviceSums::allocate`]).
+    /// Counts the pixels that have their share and stops them as `stop` says
+    /// ([`DeviceSums::allocate`]).
     pub fn allocate(
         &mut self,
         query: AdaptQuery,
         exponents: (i32, i32),
         per_sigma: f32,
-        apply: bool,
+        stop: Stop,
     ) -> Result<(u32, u32)> {
         self.device_sums()?;
         let sums = self.sums.as_ref().expect("made above");
-        let (stops, going) = sums.allocate(&self.dev.ctx, query, exponents, per_sigma, apply, &self.readback_bytes)?;
+        let (stops, going) = sums.allocate(&self.dev.ctx, query, exponents, per_sigma, stop, &self.readback_bytes)?;
         // The pixels still sampled are those that go on: the next passes take them alone.
-        if apply && stops > 0 {
+        if stops > 0 && stop.applies(going) {
             self.list_live(going)?;
         }
         Ok((stops, going))
+    }
+
+    /// Has the next [`GpuTarget::adapt_check`] evaluate every pixel and sum every
+    /// workgroup again, keeping nothing from the last, for tests that hold what a check
+    /// keeps against a check that keeps nothing.
+    #[cfg(feature = "testing")]
+    pub fn forget_kept(&mut self) {
+        if let Some(sums) = self.sums.as_mut() {
+            sums.forget();
+        }
     }
 
     /// Each pixel's samples, replicates and whether it is stopped, as the device keeps
@@ -761,7 +775,7 @@ impl GpuTarget {
     /// first slot that received a sample out of range.
     pub fn check(&mut self, query: CheckQuery, exponents: (i32, i32)) -> Result<(CheckSums, Option<u32>)> {
         self.device_sums()?;
-        let sums = self.sums.as_ref().expect("made above");
+        let sums = self.sums.as_mut().expect("made above");
         sums.check(&self.dev.ctx, query, exponents, &self.readback_bytes)
     }
 
@@ -780,6 +794,9 @@ impl GpuTarget {
         encoder.clear_buffer(&self.film, 0, None);
         // The film has no stopped pixels now: every tile again.
         self.live = None;
+        if let Some(sums) = self.sums.as_mut() {
+            sums.forget();
+        }
         ctx.submit([encoder.finish()])
     }
 }
