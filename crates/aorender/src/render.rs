@@ -623,6 +623,10 @@ pub struct Render {
     adapting_on_device: bool,
     /// Whether this render has stopped the background pixels (after their first replicate).
     background_stopped: bool,
+    /// The sample count at the device's last adaptive decision, and whether the sums it
+    /// took found the target met: a check of the target at the same count reads the
+    /// same sums (stopping a pixel changes none of them) and says the same.
+    decided: Option<(u32, bool)>,
 }
 
 /// The bookkeeping of one run of passes ([`Render::run_to`]).
@@ -678,6 +682,7 @@ impl Render {
             on_device: false,
             adapting_on_device: false,
             background_stopped: false,
+            decided: None,
         }
     }
 
@@ -710,6 +715,7 @@ impl Render {
         self.acc = saved;
         self.on_device = false;
         self.background_stopped = false;
+        self.decided = None;
         Ok(())
     }
 
@@ -727,6 +733,7 @@ impl Render {
         self.passes.take_readback_bytes();
         self.on_device = false;
         self.background_stopped = false;
+        self.decided = None;
         self.acc.restart();
         self.resumed = 0;
         self.count = 1;
@@ -981,8 +988,9 @@ impl Render {
         self.times.host_stats_seconds += t.elapsed().as_secs_f64();
         if let (true, Some(target)) = (control.adaptive, control.target) {
             self.times.checks += 1;
-            let all =
+            let (all, met) =
                 adapt_on_device(self.passes.as_mut(), acc, target, &mut self.background_stopped, &mut self.times)?;
+            self.decided = met.map(|met| (acc.next(), met));
             if all {
                 return Ok(true);
             }
@@ -1072,6 +1080,11 @@ impl Render {
         let acc = &mut self.acc;
         if acc.target_replicates() < MIN_TARGET_REPLICATES {
             return Ok(false);
+        }
+        if let (true, Some((at, met))) = (adaptive, self.decided)
+            && at == acc.next()
+        {
+            return Ok(met);
         }
         let t = Instant::now();
         // A stretch of independent samples is folded whole: no replicate's
@@ -1335,16 +1348,17 @@ fn sync_sums(passes: &mut dyn Passes, acc: &mut Accumulation, counts: bool) -> R
 
 /// An adaptive render's decision after a block, on a device that keeps its sums: the
 /// steps of [`Accumulation::adapt`], with the sums and the allocation on the device and
-/// a few bytes read back. Returns whether every pixel has stopped.
+/// a few bytes read back. Returns whether every pixel has stopped, and whether the sums
+/// the decision took meet the target (`None` where it took none).
 fn adapt_on_device(
     passes: &mut dyn Passes,
     acc: &mut Accumulation,
     target: ErrorTarget,
     background_stopped: &mut bool,
     times: &mut PassTimes,
-) -> Result<bool> {
+) -> Result<(bool, Option<bool>)> {
     if acc.exact().replicates == 0 || matches!(target, ErrorTarget::PointStdError(_)) {
-        return Ok(false);
+        return Ok((false, None));
     }
     // The background pixels stop after their first replicate, before the device stops
     // any other in this run: the host's mask is still the device's.
@@ -1354,12 +1368,12 @@ fn adapt_on_device(
             passes.set_inactive(&mask)?;
             acc.stop(&mask);
             if mask.iter().all(|&off| off) {
-                return Ok(true);
+                return Ok((true, None));
             }
         }
     }
     if acc.exact().replicates < MIN_TARGET_REPLICATES {
-        return Ok(false);
+        return Ok((false, None));
     }
     let t = Instant::now();
     let (query, exponents) = (acc.adapt_query(), (acc.exact().sum_exponent, acc.exact().sq_exponent));
@@ -1369,14 +1383,14 @@ fn adapt_on_device(
     }
     let Some(a) = acc.allocation(target, &sums) else {
         times.readback_seconds += t.elapsed().as_secs_f64();
-        return Ok(false);
+        return Ok((false, Some(false)));
     };
     // The bound is of these sums: where it is not met yet, the pixels go on.
     let stop = if a.met { Stop::Always } else { Stop::IfAnyGoesOn };
     let (stops, going) = passes.allocate(query, exponents, a.per_sigma, stop)?;
     let apply = stops > 0 && stop.applies(going);
     times.readback_seconds += t.elapsed().as_secs_f64();
-    Ok(apply && going == 0)
+    Ok((apply && going == 0, Some(a.met)))
 }
 
 /// The error of a block that held a sample out of range at film slot `slot`, as the
