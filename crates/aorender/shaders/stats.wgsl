@@ -17,18 +17,19 @@
 // the pixels still sampled) and its decisions are taken here. Each check works only
 // where something changed, and where lanes run in lockstep and pay for a branch's code
 // whether or not one takes it (lavapipe's eight), the kernels walk runs of slots to the
-// next one with work: a loop ends when every lane is done, a branch does not. None has a
-// barrier, which costs lavapipe more the more code the kernel holds.
+// next one with work: a loop ends when every lane is done, a branch does not. On a CPU
+// adapter none has a barrier, which costs lavapipe more the more code the kernel holds.
 
 // - `evaluate` evaluates the rule of each pixel that changed since the last check
 //   (accumulation.rs `pixel_sigma`, whose f32 steps these are) and keeps its (σ, v,
 //   mean). `fold` and `stop_allocated` mark the pixels they change stale: a stopped
 //   pixel's sums no longer change, so its rule is evaluated once, not at every check.
-// - `group_sums` sums, one invocation a workgroup of 256 pixels, each pixel's (v, v²,
-//   mean, σ² / σ̃), σ̃ the root mean square of its row neighbours' kept σ
-//   (`share_sigma`), in the tree of `reduce_shared`, and takes the fewest and most
-//   replicates. A workgroup none of whose pixels, nor those up to SHARE_NEIGHBOURS slots
-//   beside them, changed keeps its sums and extremes.
+// - `group_sums` sums, one invocation a workgroup of 256 pixels (on a GPU,
+//   `group_sums_shared`: the workgroup in shared memory), each pixel's (v, v², mean,
+//   σ² / σ̃), σ̃ the root mean square of its row neighbours' kept σ (`share_sigma`), in
+//   the tree of `reduce_shared`, and takes the fewest and most replicates. A workgroup
+//   none of whose pixels, nor those up to SHARE_NEIGHBOURS slots beside them, changed
+//   keeps its sums and extremes.
 // - `allocate` counts the pixels still sampled that have the replicates an allocation
 //   ∝ σ̃ gives them, and `stop_allocated` stops them, or only when some pixel goes on;
 //   `mark` writes the stopped flags into the counts before they are read.
@@ -498,10 +499,33 @@ fn add_extremes(fewest: u32, most: u32) {
     atomicMax(&stats_status[3], most);
 }
 
-// One invocation a workgroup of 256 slots (after `evaluate`): its sums of the pixels'
-// terms and its fewest and most replicates, taken again where `evaluate` evaluated a
-// pixel in it or in a workgroup beside it (a pixel's σ̃ reads σ up to SHARE_NEIGHBOURS
-// slots away), kept otherwise; either way added to the status words.
+// Whether `evaluate` evaluated a pixel in workgroup g or in one beside it (a pixel's σ̃
+// reads σ up to SHARE_NEIGHBOURS slots away): its sums are to be taken again.
+fn group_changed(g: u32) -> bool {
+    var changed = 0u;
+    for (var h = max(g, 1u) - 1u; h <= g + 1u && h < stats_params.groups; h++) {
+        changed |= atomicLoad(&stats_status[EVALUATED_BASE + h]);
+    }
+    return changed != 0u;
+}
+
+// Keeps workgroup g's sums and extremes and adds its extremes to the status words.
+fn keep_group(g: u32, sums: vec4f, fewest: u32, most: u32) {
+    set_partial_sum(g, sums);
+    stats_partial[group_index(g, GROUP_FEWEST)] = fewest;
+    stats_partial[group_index(g, GROUP_MOST)] = most;
+    add_extremes(fewest, most);
+}
+
+// Adds the extremes workgroup g kept to the status words.
+fn add_kept_extremes(g: u32) {
+    add_extremes(stats_partial[group_index(g, GROUP_FEWEST)], stats_partial[group_index(g, GROUP_MOST)]);
+}
+
+// One invocation a workgroup of 256 slots (after `evaluate`; for lanes in lockstep, the
+// kernel without a barrier): its sums of the pixels' terms and its fewest and most
+// replicates, taken again where `group_changed`, kept otherwise; either way added to the
+// status words.
 @compute @workgroup_size(64)
 fn group_sums(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups) n: vec3u) {
     opaque_zero = stats_params.zero;
@@ -509,18 +533,58 @@ fn group_sums(@builtin(global_invocation_id) id: vec3u, @builtin(num_workgroups)
     if (g >= stats_params.groups) {
         return;
     }
-    var changed = 0u;
-    for (var h = max(g, 1u) - 1u; h <= g + 1u && h < stats_params.groups; h++) {
-        changed |= atomicLoad(&stats_status[EVALUATED_BASE + h]);
-    }
-    if (changed != 0u) {
+    if (group_changed(g)) {
         let t = group_tree(g);
-        set_partial_sum(g, t[0]);
         let extremes = bitcast<vec4u>(t[1]);
-        stats_partial[group_index(g, GROUP_FEWEST)] = extremes.x;
-        stats_partial[group_index(g, GROUP_MOST)] = extremes.y;
+        keep_group(g, t[0], extremes.x, extremes.y);
+    } else {
+        add_kept_extremes(g);
     }
-    add_extremes(stats_partial[group_index(g, GROUP_FEWEST)], stats_partial[group_index(g, GROUP_MOST)]);
+}
+
+// Whether this workgroup's sums are taken again, uniform across it once loaded.
+var<workgroup> stats_flag: u32;
+// This workgroup's fewest (as 2^32 − 1 − k) and most replicates.
+var<workgroup> stats_fewest: atomic<u32>;
+var<workgroup> stats_most: atomic<u32>;
+
+// `group_sums` as a workgroup of 256 invocations, one a slot, the terms summed in
+// `reduce_shared` (for GPUs, whose lanes branch apart in batches and whose workgroups
+// share memory cheaply): the same sums and extremes.
+@compute @workgroup_size(256)
+fn group_sums_shared(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) local: u32) {
+    opaque_zero = stats_params.zero;
+    let i = stats_slot(group, local);
+    // The last row of the dispatch may have workgroups past the slots' last.
+    let g = group.y * stats_params.row_groups + group.x;
+    if (local == 0u) {
+        stats_flag = select(0u, 1u, g < stats_params.groups && group_changed(g));
+    }
+    if (workgroupUniformLoad(&stats_flag) == 0u) {
+        if (local == 0u && g < stats_params.groups) {
+            add_kept_extremes(g);
+        }
+        return;
+    }
+    var x = vec4f(0.0);
+    if (i < stats_params.slots) {
+        let v = bitcast<f32>(kept(KEPT_VARIANCE, i));
+        var weight = 0.0;
+        if (has_sigma(i)) {
+            weight = pixel_weight(i);
+        }
+        x = vec4f(v, exact_mul(v, v), bitcast<f32>(~kept(KEPT_MEAN, i)), weight);
+        let kk = stats_counts[i].y & 0x7fffffffu;
+        if (!(stats_film[i].w == INACTIVE_SLOT && kk < 2u)) {
+            atomicMax(&stats_fewest, 0xffffffffu - kk);
+        }
+        atomicMax(&stats_most, kk);
+    }
+    stats_shared[local] = x;
+    reduce_shared(local);
+    if (local == 0u) {
+        keep_group(g, stats_shared[0], atomicLoad(&stats_fewest), atomicLoad(&stats_most));
+    }
 }
 
 // Each pixel's (v, v², mean) summed per workgroup, v its variance of the mean.

@@ -10,11 +10,11 @@ use aorender::Sampling;
 use aorender::accumulation::max_sample_value;
 use aorender::bvh::{BuildQuality, BvhLayout, GpuBvh};
 use aorender::film::{ExactSums, SampleRange};
-use aorender::gpu::stats::{AdaptQuery, Stop};
+use aorender::gpu::stats::{AdaptQuery, AdaptSums, Stop};
 use aorender::{
     Accumulation, Control, DeviceKind, ErrorTarget, ImageRequest, PassSizing, RunEnd, Sampler, Scene, Settings,
 };
-use common::{Config, gpu_adapter, gpu_available, gpu_image, repo, session};
+use common::{Config, gpu_available, gpu_device_with, gpu_image, repo, session};
 
 /// The bunny, framed bare, at `w`×`h` with AO rays of at most 0.05.
 fn bunny(w: u32, h: u32) -> Scene {
@@ -256,12 +256,28 @@ fn adaptive_decisions_on_the_device_are_the_host_rules() {
     }
 }
 
+/// The GPU sessions of `scene` whose workgroups' sums are taken by one invocation (lanes
+/// in lockstep, `true`) and in shared memory (`false`): `stats.wgsl`'s two formulations,
+/// whichever the adapter is.
+fn both_formulations(scene: &Scene) -> Vec<(bool, aorender::Session)> {
+    [true, false]
+        .into_iter()
+        .map(|cpu_lanes| {
+            let dev =
+                std::sync::Arc::into_inner(gpu_device_with(|ctx| ctx.set_cpu_lanes(cpu_lanes))).expect("one owner");
+            let session = aorender::Session::new(&aorender::Device::from_gpu(dev), scene.clone(), &Default::default());
+            (cpu_lanes, session.unwrap_or_else(|e| panic!("{e}")))
+        })
+        .collect()
+}
+
 /// An adaptive render on an image of many workgroups of 256 slots, some of them all
 /// background: a check evaluates the rule again only for the pixels folded or stopped
 /// since the last, and sums again only the workgroups beside one of them, keeping the
 /// others' evaluations and sums. Stopped to check after every replicate from the first
 /// decision on, the device's image-level sums of the rule are the host's bit for bit each
-/// time, and the render ends with the CPU reference's bits, checked or not in between.
+/// time, and the render ends with the CPU reference's bits, checked or not in between;
+/// with the workgroups summed by one invocation and in shared memory alike.
 #[test]
 fn kept_evaluations_give_the_host_rules_at_every_check() {
     if !gpu_available() {
@@ -270,7 +286,6 @@ fn kept_evaluations_give_the_host_rules_at_every_check() {
     }
     let scene = bunny(96, 80);
     let cpu = session(&scene, &Config::cpu());
-    let gpu = session(&scene, &Config { device: DeviceKind::Gpu, ..Default::default() });
     let replicate = 8;
     let sampling = Sampling { sampler: Sampler::Sobol, replicate: Some(replicate), seed: 5, ..scene.settings.sampling };
     let settings = Settings { sampling, spp: 1 << 12, ..scene.settings.clone() };
@@ -291,23 +306,27 @@ fn kept_evaluations_give_the_host_rules_at_every_check() {
     );
     assert!(background > 0 && late > 0, "the image does not exercise kept workgroups");
 
-    let mut render = gpu.render(&request).unwrap();
-    let mut checked = 0;
-    for k in 8.. {
-        let end = render.run_to(k * replicate, &mut control()).unwrap();
-        let device = render.device_adapt_sums().unwrap().expect("the GPU keeps an adaptive image's sums");
-        let host = render.accumulation().unwrap().adapt_sums();
-        assert_eq!(device, host, "the device's sums of the rule after {k} replicates");
-        checked += 1;
-        if end != RunEnd::Done {
-            break;
+    for (cpu_lanes, gpu) in both_formulations(&scene) {
+        let what = if cpu_lanes { "one invocation a workgroup" } else { "workgroups in shared memory" };
+        let mut render = gpu.render(&request).unwrap();
+        let mut checked = 0;
+        for k in 8.. {
+            let end = render.run_to(k * replicate, &mut control()).unwrap();
+            let device = render.device_adapt_sums().unwrap().expect("the GPU keeps an adaptive image's sums");
+            let host = render.accumulation().unwrap().adapt_sums();
+            assert_eq!(device, host, "{what}: the device's sums of the rule after {k} replicates");
+            checked += 1;
+            if end != RunEnd::Done {
+                break;
+            }
         }
+        let out = render.finish().unwrap();
+        eprintln!("{what}: {checked} checks held against the host's");
+        let exact = out.accumulation.exact();
+        assert!(exact == reference.accumulation.exact(), "{what}: the sums differ from the CPU reference's");
+        assert_eq!(exact.stopped, r.stopped, "{what}: other pixels stopped");
+        assert!(out.film == reference.film, "{what}: the films differ");
     }
-    let out = render.finish().unwrap();
-    eprintln!("{checked} checks held against the host's");
-    assert!(out.accumulation.exact() == reference.accumulation.exact(), "the sums differ from the CPU reference's");
-    assert_eq!(out.accumulation.exact().stopped, r.stopped, "other pixels stopped");
-    assert!(out.film == reference.film, "the films differ");
 }
 
 /// What a check keeps from the last: the evaluations of the pixels neither folded nor
@@ -315,7 +334,8 @@ fn kept_evaluations_give_the_host_rules_at_every_check() {
 /// slots beside them in their row, changed. On a film of 119 workgroups of 256 slots,
 /// whose rows of 203 pixels cross them, with pixels stopped a few at a time by the
 /// device's own allocation, each check's image-level sums are those of the same check
-/// keeping nothing, bit for bit.
+/// keeping nothing, bit for bit; with the workgroups summed by one invocation and in
+/// shared memory alike, each formulation's sums the other's.
 #[test]
 fn a_check_that_keeps_what_did_not_change_sums_as_one_that_keeps_nothing() {
     if !gpu_available() {
@@ -324,12 +344,24 @@ fn a_check_that_keeps_what_did_not_change_sums_as_one_that_keeps_nothing() {
     }
     let scene = bunny(203, 150);
     let bvh = GpuBvh::build(&scene, BvhLayout::Cwbvh, BuildQuality::default());
-    let mut target = gpu_image(&gpu_adapter(), &scene, &bvh, None).unwrap_or_else(|e| panic!("{e}")).1;
+    let mut all = Vec::new();
+    for cpu_lanes in [true, false] {
+        let dev = gpu_device_with(|ctx| ctx.set_cpu_lanes(cpu_lanes));
+        let target = gpu_image(&dev, &scene, &bvh, None).unwrap_or_else(|e| panic!("{e}")).1;
+        all.push(checks_keeping_and_not(target, &scene, cpu_lanes));
+    }
+    assert!(all[0] == all[1], "the two formulations' sums differ");
+}
+
+/// Each check's sums of a render on `target` (pixels stopped a few at a time by the
+/// device's allocation), held against the same check keeping nothing.
+fn checks_keeping_and_not(mut target: aorender::gpu::GpuTarget, scene: &Scene, cpu_lanes: bool) -> Vec<AdaptSums> {
+    let what = if cpu_lanes { "one invocation a workgroup" } else { "workgroups in shared memory" };
     let max = max_sample_value(&scene, scene.settings.background);
     let exponents = ExactSums::exponents(max);
     let replicate = 4;
     let query = AdaptQuery { replicate, range: SampleRange::Binary(max), width: 203 };
-    let (mut checks, mut stopping, mut live) = (0, 0, 203 * 150);
+    let (mut sums, mut stopping, mut live) = (Vec::new(), 0, 203 * 150);
     for k in 1..=40u32 {
         target.render_pass((k - 1) * replicate, replicate).unwrap();
         target.fold(true, replicate).unwrap();
@@ -339,14 +371,15 @@ fn a_check_that_keeps_what_did_not_change_sums_as_one_that_keeps_nothing() {
         let (kept, _) = target.adapt_check(query, exponents).unwrap();
         target.forget_kept();
         let (fresh, _) = target.adapt_check(query, exponents).unwrap();
-        assert_eq!(kept, fresh, "the check after {k} replicates");
-        checks += 1;
+        assert_eq!(kept, fresh, "{what}: the check after {k} replicates");
+        sums.push(kept);
         // The pixels whose σ̃ is at most k / 160 stop: a few more each replicate.
         let (stops, going) = target.allocate(query, exponents, 160.0, Stop::Always).unwrap();
         assert_eq!(stops + going, live, "the pixels still sampled");
         live = going;
         stopping += (stops > 0 && going > 0) as u32;
     }
-    eprintln!("{checks} checks; {stopping} stopped some pixels and left others; {live} pixels left");
-    assert!(stopping >= 10 && live > 0, "pixels did not stop a few at a time");
+    eprintln!("{what}: {} checks; {stopping} stopped some pixels and left others; {live} left", sums.len());
+    assert!(stopping >= 10 && live > 0, "{what}: pixels did not stop a few at a time");
+    sums
 }

@@ -57,6 +57,7 @@ pub struct StatsPipelines {
     fold: wgpu::ComputePipeline,
     evaluate: wgpu::ComputePipeline,
     group_sums: wgpu::ComputePipeline,
+    group_sums_shared: wgpu::ComputePipeline,
     reduce: wgpu::ComputePipeline,
     reduce_groups: wgpu::ComputePipeline,
     allocate: wgpu::ComputePipeline,
@@ -73,6 +74,7 @@ impl StatsPipelines {
             fold: pipeline("fold"),
             evaluate: pipeline("evaluate"),
             group_sums: pipeline("group_sums"),
+            group_sums_shared: pipeline("group_sums_shared"),
             reduce: pipeline("reduce"),
             reduce_groups: pipeline("reduce_groups"),
             allocate: pipeline("allocate"),
@@ -446,7 +448,13 @@ impl DeviceSums {
     ) -> Result<(AdaptSums, Option<u32>)> {
         let params = self.rule_params(exponents, Some(query));
         let p = &self.pipelines;
-        let passes = [(&p.evaluate, Shape::Runs), (&p.group_sums, Shape::Groups), (&p.reduce_groups, Shape::One)];
+        // Lanes in lockstep (a CPU's) sum a workgroup in one invocation, with no barrier;
+        // a GPU's workgroup sums its slots in shared memory. The same tree either way.
+        let group_sums = match ctx.cpu_lanes() {
+            true => (&p.group_sums, Shape::Groups),
+            false => (&p.group_sums_shared, Shape::Slots),
+        };
+        let passes = [(&p.evaluate, Shape::Runs), group_sums, (&p.reduce_groups, Shape::One)];
         let forget = self.kept != Some((query, exponents));
         let words = self.reduce_and_read(ctx, params, forget, &passes, readback_bytes)?;
         self.kept = Some((query, exponents));
