@@ -357,7 +357,7 @@ fn a_check_that_keeps_what_did_not_change_sums_as_one_that_keeps_nothing() {
 /// device's allocation), held against the same check keeping nothing.
 fn checks_keeping_and_not(mut target: aorender::gpu::GpuTarget, scene: &Scene, cpu_lanes: bool) -> Vec<AdaptSums> {
     let what = if cpu_lanes { "one invocation a workgroup" } else { "workgroups in shared memory" };
-    let max = max_sample_value(&scene, scene.settings.background);
+    let max = max_sample_value(scene, scene.settings.background);
     let exponents = ExactSums::exponents(max);
     let replicate = 4;
     let query = AdaptQuery { replicate, range: SampleRange::Binary(max), width: 203 };
