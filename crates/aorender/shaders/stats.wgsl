@@ -393,6 +393,24 @@ fn is_live(i: u32) -> bool {
     return stats_film[i].w != INACTIVE_SLOT;
 }
 
+// The first slot from i, before `end`, whose kept evaluation is stale (`end`: none).
+fn next_stale(i: u32, end: u32) -> u32 {
+    var j = i;
+    while (j < end && kept(KEPT_MEAN, j) != 0u) {
+        j++;
+    }
+    return j;
+}
+
+// The first slot from i, before `end`, of a pixel still sampled (`end`: none).
+fn next_live(i: u32, end: u32) -> u32 {
+    var j = i;
+    while (j < end && !is_live(j)) {
+        j++;
+    }
+    return j;
+}
+
 // Evaluates the rule (an adaptive render's) of each pixel that changed since the last
 // check, keeps it, and flags its workgroup of 256 slots. An invocation walks its run of
 // RUN_SLOTS slots from stale one to stale one: where lanes run in lockstep and a branch
@@ -405,20 +423,12 @@ fn evaluate(@builtin(workgroup_id) group: vec3u, @builtin(num_workgroups) n: vec
     opaque_zero = stats_params.zero;
     let first = run_first(group, n, local);
     let end = run_end(first);
-    var i = first;
-    loop {
-        while (i < end && kept(KEPT_MEAN, i) != 0u) {
-            i++;
-        }
-        if (i >= end) {
-            break;
-        }
+    for (var i = next_stale(first, end); i < end; i = next_stale(i + 1u, end)) {
         let a = adaptive_pixel(i);
         keep(KEPT_SIGMA, i, bitcast<u32>(a.z));
         keep(KEPT_VARIANCE, i, bitcast<u32>(a.x));
         keep(KEPT_MEAN, i, ~bitcast<u32>(a.y));
         atomicStore(&stats_status[EVALUATED_BASE + i / 256u], 1u);
-        i++;
     }
 }
 
@@ -437,6 +447,15 @@ fn has_sigma(i: u32) -> bool {
     return i < stats_params.slots && own_sigma(i) > 0.0;
 }
 
+// The first of workgroup g's slots from its l-th with a weight (256: none).
+fn next_weighted(g: u32, l: u32) -> u32 {
+    var j = l;
+    while (j < 256u && !has_sigma(256u * g + j)) {
+        j++;
+    }
+    return j;
+}
+
 // The bits of m, 0..256, in reverse order.
 fn reverse8(m: u32) -> u32 {
     return reverseBits(m) >> 24u;
@@ -452,16 +471,8 @@ fn group_tree(g: u32) -> array<vec4f, 2> {
     // walks its run): the exact divisions run as often as the lane with the most such
     // pixels needs. At most 512 steps besides theirs.
     var weights: array<f32, 256>;
-    var j = 0u;
-    loop {
-        while (j < 256u && !has_sigma(256u * g + j)) {
-            j++;
-        }
-        if (j >= 256u) {
-            break;
-        }
+    for (var j = next_weighted(g, 0u); j < 256u; j = next_weighted(g, j + 1u)) {
         weights[j] = pixel_weight(256u * g + j);
-        j++;
     }
     var stack: array<vec4f, 9>;
     var depth = 0u;
@@ -635,17 +646,9 @@ fn allocate(@builtin(workgroup_id) group: vec3u, @builtin(num_workgroups) n: vec
     opaque_zero = stats_params.zero;
     let first = run_first(group, n, local);
     let end = run_end(first);
-    var i = first;
     var counts = vec2u(0u);
-    loop {
-        while (i < end && !is_live(i)) {
-            i++;
-        }
-        if (i >= end) {
-            break;
-        }
+    for (var i = next_live(first, end); i < end; i = next_live(i + 1u, end)) {
         counts += select(vec2u(0u, 1u), vec2u(1u, 0u), has_share(i));
-        i++;
     }
     if (counts.x > 0u) {
         atomicAdd(&stats_status[1], counts.x);
@@ -669,18 +672,10 @@ fn stop_allocated(@builtin(workgroup_id) group: vec3u, @builtin(num_workgroups) 
     let end = run_end(first);
     // Stopped after the walk: a pixel's share reads its neighbours' σ, never their marks.
     var stops = 0u;
-    var i = first;
-    loop {
-        while (i < end && !is_live(i)) {
-            i++;
-        }
-        if (i >= end) {
-            break;
-        }
+    for (var i = next_live(first, end); i < end; i = next_live(i + 1u, end)) {
         if (has_share(i)) {
             stops |= 1u << (i - first);
         }
-        i++;
     }
     for (var k = 0u; k < RUN_SLOTS; k++) {
         if ((stops & (1u << k)) != 0u) {
