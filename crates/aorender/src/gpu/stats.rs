@@ -43,6 +43,7 @@ enum Shape {
     /// One workgroup.
     One,
 }
+
 /// Bytes of the parameters (`StatsParams`).
 const PARAMS_BYTES: u64 = 80;
 /// Bytes a check reads back: the total (Σv, Σv², Σ mean, 0) and the status word.
