@@ -246,6 +246,8 @@ pub struct DeviceSums {
     /// Each pixel's samples and complete replicates (bit 31: stopped).
     counts: wgpu::Buffer,
     slots: u32,
+    /// The film the kernels bind (for a bind group made again with room for kept values).
+    film: wgpu::Buffer,
     /// The query and exponents the pixels' kept evaluations are of (`None`: none kept).
     kept: Option<(AdaptQuery, (i32, i32))>,
     /// Workgroups of a dispatch over the slots, and of one row of it.
@@ -270,33 +272,19 @@ impl DeviceSums {
         let groups = slots.div_ceil(STATS_WORKGROUP).max(1);
         let row_groups = groups.min(device.limits().max_compute_workgroups_per_dimension);
         let params = buffer("stats params", PARAMS_BYTES, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST);
-        // The workgroups' sums and their total, each pixel's kept σ, v and mean, and each
-        // workgroup's record (`stats.wgsl`'s `stats_partial`).
-        let partial_bytes = (groups as u64 + 1) * 16 + KEPT_REGIONS * slots as u64 * 4 + groups as u64 * 8;
-        ctx.check_size("stats partial sums", partial_bytes)?;
-        let partial = buffer("stats partial sums", partial_bytes, wgpu::BufferUsages::STORAGE | copy);
+        // The workgroups' sums and their total; an adaptive check's kept values follow them
+        // once one is made (`DeviceSums::keep_room`).
+        let partial = buffer("stats partial sums", (groups as u64 + 1) * 16, wgpu::BufferUsages::STORAGE | copy);
         // The status, then a flag a workgroup for the adaptive checks.
         let status = buffer("stats status", 16 + groups as u64 * 4, wgpu::BufferUsages::STORAGE | copy);
         let readback =
             buffer("stats readback", CHECK_BYTES, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
         let counts = buffer("stats counts", (slots as u64 * 8).max(16), wgpu::BufferUsages::STORAGE | copy);
-        fn bind(binding: u32, b: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
-            wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }
-        }
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("stats"),
-            layout: &pipelines.layout,
-            entries: &[
-                bind(0, film),
-                bind(1, &sums[0]),
-                bind(2, &sums[1]),
-                bind(3, &sums[2]),
-                bind(4, &params),
-                bind(5, &partial),
-                bind(6, &status),
-                bind(7, &counts),
-            ],
-        });
+        let bind_group = bind_stats(
+            ctx,
+            &pipelines.layout,
+            [film, &sums[0], &sums[1], &sums[2], &params, &partial, &status, &counts],
+        );
         let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") });
         for b in sums.iter().chain([&status, &counts]) {
             encoder.clear_buffer(b, 0, None);
@@ -309,6 +297,7 @@ impl DeviceSums {
         Ok(DeviceSums {
             pipelines,
             bind_group,
+            film: film.clone(),
             sums,
             params,
             partial,
@@ -327,6 +316,43 @@ impl DeviceSums {
     fn encoder(&self, ctx: &GpuContext, params: StatsParams) -> wgpu::CommandEncoder {
         ctx.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("stats") })
+    }
+
+    /// Bytes of the partial sums with an adaptive check's kept values: the workgroups'
+    /// sums and their total, each pixel's kept σ, v and mean, and each workgroup's record
+    /// (`stats.wgsl`'s `stats_partial`).
+    fn kept_partial_bytes(&self) -> u64 {
+        (self.groups as u64 + 1) * 16 + KEPT_REGIONS * self.slots as u64 * 4 + self.groups as u64 * 8
+    }
+
+    /// Whether the partial sums have room for an adaptive check's kept values.
+    fn has_kept_room(&self) -> bool {
+        self.partial.size() >= self.kept_partial_bytes()
+    }
+
+    /// Makes room for an adaptive check's kept values (12 bytes a pixel), the first time
+    /// one is made: renders that are not adaptive never hold them. The new buffer is
+    /// zero, every pixel stale.
+    fn keep_room(&mut self, ctx: &GpuContext) -> Result<()> {
+        if self.has_kept_room() {
+            return Ok(());
+        }
+        let bytes = self.kept_partial_bytes();
+        ctx.check_size("stats partial sums", bytes)?;
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST;
+        let partial = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("stats partial sums"),
+            size: bytes,
+            usage,
+            mapped_at_creation: false,
+        });
+        let [s0, s1, s2] = &self.sums;
+        let buffers = [&self.film, s0, s1, s2, &self.params, &partial, &self.status, &self.counts];
+        self.bind_group = bind_stats(ctx, &self.pipelines.layout, buffers);
+        self.device_bytes += bytes - self.partial.size();
+        self.partial = partial;
+        self.kept = None;
+        ctx.take_error()
     }
 
     /// Marks every pixel's kept evaluation stale, on `encoder`.
@@ -447,6 +473,7 @@ impl DeviceSums {
         exponents: (i32, i32),
         readback_bytes: &AtomicU64,
     ) -> Result<(AdaptSums, Option<u32>)> {
+        self.keep_room(ctx)?;
         let params = self.rule_params(exponents, Some(query));
         let p = &self.pipelines;
         // Lanes in lockstep (a CPU's) sum a workgroup in one invocation, with no barrier;
@@ -630,11 +657,23 @@ impl DeviceSums {
             ctx.queue.write_buffer(&self.counts, 0, bytemuck::cast_slice(&counts));
         }
         encoder.clear_buffer(&self.status, 0, None);
-        self.forget_kept(&mut encoder);
+        if self.has_kept_room() {
+            self.forget_kept(&mut encoder);
+        }
         self.kept = None;
         ctx.submit([encoder.finish()])?;
         ctx.wait()
     }
+}
+
+/// The statistics kernels' bind group over `buffers`, in binding order: the film, Σv, Σv²,
+/// the replicates' squares, the parameters, the partial sums, the status and the counts.
+fn bind_stats(ctx: &GpuContext, layout: &wgpu::BindGroupLayout, buffers: [&wgpu::Buffer; 8]) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = (0u32..)
+        .zip(buffers)
+        .map(|(binding, b)| wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() })
+        .collect();
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor { label: Some("stats"), layout, entries: &entries })
 }
 
 /// Device words of 128-bit sums (little-endian 32-bit words, lowest first) as `dst`'s
