@@ -57,7 +57,8 @@ struct StatsParams {
     sum_exponent: i32,
     square_exponent: i32,
     replicate_exponent: i32,
-    _pad3: u32,
+    // 1: `stats_partial` has room for the kept evaluations (an adaptive render's).
+    kept: u32,
     // Samples `fold` adds to the counts of the pixels it folds.
     taken: u32,
     // What a sample can be (accumulation.rs `RANGE_*`), and its largest magnitude.
@@ -217,7 +218,9 @@ fn fold(@builtin(workgroup_id) group: vec3u, @builtin(local_invocation_index) lo
         atomicMax(&stats_status[0], 0xffffffffu - i);
         return;
     }
-    keep(KEPT_MEAN, i, 0u);
+    if (stats_params.kept == 1u) {
+        keep(KEPT_MEAN, i, 0u);
+    }
     stats_counts[i] += vec2u(stats_params.taken, stats_params.replicate);
     stats_sum[i] = add128(stats_sum[i], widen_shifted(w.xy, true));
     stats_square[i] = add128(stats_square[i], widen_shifted(w.zw, false));

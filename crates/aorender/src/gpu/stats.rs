@@ -104,7 +104,8 @@ struct StatsParams {
     sum_exponent: i32,
     square_exponent: i32,
     replicate_exponent: i32,
-    _pad3: u32,
+    /// 1: the partial sums have room for the kept evaluations.
+    kept: u32,
     taken: u32,
     range: u32,
     max_value: f32,
@@ -402,7 +403,13 @@ impl DeviceSums {
     }
 
     fn params(&self) -> StatsParams {
-        StatsParams { slots: self.slots, groups: self.groups, row_groups: self.row_groups, ..Default::default() }
+        StatsParams {
+            slots: self.slots,
+            groups: self.groups,
+            row_groups: self.row_groups,
+            kept: self.has_kept_room() as u32,
+            ..Default::default()
+        }
     }
 
     /// The parameters of the stopping rule over the sums held, whose quanta have the
