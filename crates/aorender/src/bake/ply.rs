@@ -343,7 +343,20 @@ struct Column {
     /// For a list property: the count's type, and where the items of each element start
     /// in `values` (one entry more than there are elements).
     list: Option<(ScalarType, Starts)>,
+    /// Its values, empty (of their type) where the mesh holds them (`held`).
     values: Values,
+    held: Held,
+}
+
+/// Where a column's values are held.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Held {
+    /// In the column.
+    Own,
+    /// In the mesh's positions, as coordinate `k` (a `float` x, y or z: the same bits).
+    Axis(usize),
+    /// In the mesh's corners (an `int` or `uint` vertex index list: the same bits).
+    Corners,
 }
 
 /// Where the items of each element's list start in its column's values, one entry more
@@ -457,7 +470,7 @@ impl From<Vec<usize>> for Starts {
 impl Column {
     /// A scalar `float` property.
     fn float(name: &str, values: Vec<f32>) -> Column {
-        Column { name: name.to_string(), list: None, values: Values::Float(values) }
+        Column { name: name.to_string(), list: None, values: Values::Float(values), held: Held::Own }
     }
 
     /// The bytes it holds.
@@ -470,6 +483,36 @@ impl Column {
         match &self.list {
             Some((_, starts)) => starts.get(i)..starts.get(i + 1),
             None => i..i + 1,
+        }
+    }
+
+    /// How many values it has (in the mesh, where the mesh holds them).
+    #[cfg(feature = "testing")]
+    fn len(&self, mesh: &AssetMesh) -> usize {
+        match self.held {
+            Held::Own => self.values.len(),
+            Held::Axis(_) => mesh.positions.len(),
+            Held::Corners => mesh.face_indices.len(),
+        }
+    }
+
+    /// Appends value `i` in binary little-endian.
+    fn put_le(&self, i: usize, mesh: &AssetMesh, out: &mut Vec<u8>) {
+        match (self.held, &self.values) {
+            (Held::Own, values) => values.put_le(i, out),
+            (Held::Axis(k), _) => mesh.positions[i][k].put_le(out),
+            // An `int` index is below 2^31: the same bytes as the `uint`.
+            (Held::Corners, _) => mesh.face_indices[i].put_le(out),
+        }
+    }
+
+    /// Appends value `i` as ascii text.
+    fn put_ascii(&self, i: usize, mesh: &AssetMesh, out: &mut Vec<u8>) {
+        match (self.held, &self.values) {
+            (Held::Own, values) => values.put_ascii(i, out),
+            (Held::Axis(k), _) => mesh.positions[i][k].put_ascii(out),
+            // An `int` index is below 2^31: the same digits as the `uint`.
+            (Held::Corners, _) => mesh.face_indices[i].put_ascii(out),
         }
     }
 
@@ -561,6 +604,9 @@ impl PlyAsset {
         };
         let label = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
         let mesh = mesh(path, &header, &elements, label)?;
+        let mut elements = elements;
+        let face = header.element("face").ok_or_else(|| Error::scene(path, "no face element"))?;
+        hand_to_mesh(&mut elements, &mesh, &index_list_name(path, face)?);
         Ok(PlyAsset { meshes: vec![mesh], header, elements })
     }
 
@@ -589,7 +635,7 @@ impl PlyAsset {
                 if let Some((_, starts)) = &column.list {
                     starts.iter().for_each(|s| out.extend_from_slice(&(s as u64).to_le_bytes()));
                 }
-                (0..column.values.len()).for_each(|i| column.values.put_le(i, &mut out));
+                (0..column.len(&asset.meshes[0])).for_each(|i| column.put_le(i, &asset.meshes[0], &mut out));
             }
         }
         let mesh = &asset.meshes[0];
@@ -645,13 +691,16 @@ fn columns_with(def: &ElementDef, capacity: usize, list_items: usize) -> Vec<Col
     def.properties
         .values()
         .map(|p| match &p.data_type {
-            PropertyType::Scalar(t) => Column { name: p.name.clone(), list: None, values: Values::new(t, capacity) },
+            PropertyType::Scalar(t) => {
+                Column { name: p.name.clone(), list: None, values: Values::new(t, capacity), held: Held::Own }
+            }
             PropertyType::List(count, item) => {
                 let starts = Starts::with_room(capacity + 1);
                 Column {
                     name: p.name.clone(),
                     list: Some((count.clone(), starts)),
                     values: Values::new(item, list_items),
+                    held: Held::Own,
                 }
             }
         })
@@ -1215,6 +1264,7 @@ fn columns_like(columns: &[Column], capacity: usize) -> Vec<Column> {
         name: c.name.clone(),
         list: c.list.as_ref().map(|(count, _)| (count.clone(), Starts::with_room(1))),
         values: Values::new(&c.values.scalar_type(), capacity),
+        held: Held::Own,
     };
     columns.iter().map(like).collect()
 }
@@ -1243,6 +1293,38 @@ fn scalar_columns<'a, const N: usize>(element: &'a Element, names: [&str; N]) ->
         *slot = Some(column(element, name).filter(|c| c.list.is_none())?);
     }
     Some(found.map(|c| c.expect("every slot was filled")))
+}
+
+/// Empties the columns whose values `mesh` holds with the same bits, so that a file's
+/// positions and corners are held once, by the mesh, and written back from it: a `float`
+/// x, y or z, and an `int` or `uint` vertex index list (`index_list`). Each is compared
+/// with the mesh first, and kept where it differs.
+fn hand_to_mesh(elements: &mut [Element], mesh: &AssetMesh, index_list: &str) {
+    for element in elements.iter_mut() {
+        for column in &mut element.columns {
+            let held = match (element.name.as_str(), column.name.as_str(), &column.values, &column.list) {
+                ("vertex", axis @ ("x" | "y" | "z"), Values::Float(v), None) => {
+                    let k = ["x", "y", "z"].iter().position(|a| a == &axis).expect("one of the three");
+                    let same = v.len() == mesh.positions.len()
+                        && v.iter().zip(&mesh.positions).all(|(a, p)| a.to_bits() == p[k].to_bits());
+                    same.then_some(Held::Axis(k))
+                }
+                ("face", name, Values::UInt(v), Some(_)) if name == index_list => {
+                    (v[..] == mesh.face_indices[..]).then_some(Held::Corners)
+                }
+                ("face", name, Values::Int(v), Some(_)) if name == index_list => {
+                    let same = v.len() == mesh.face_indices.len()
+                        && v.iter().zip(&mesh.face_indices).all(|(&a, &b)| a as u32 == b && a >= 0);
+                    same.then_some(Held::Corners)
+                }
+                _ => None,
+            };
+            if let Some(held) = held {
+                column.values = Values::new(&column.values.scalar_type(), 0);
+                column.held = held;
+            }
+        }
+    }
 }
 
 /// The mesh of the file: positions and faces checked as the scene loader checks them.
@@ -1482,7 +1564,12 @@ impl PlyAsset {
                 if own.is_some() {
                     kept_colours.push(format!("{name} ({})", type_name(&t)));
                 }
-                added.push(Column { name: name.to_string(), list: None, values: grey(&t, &values.ao) });
+                added.push(Column {
+                    name: name.to_string(),
+                    list: None,
+                    values: grey(&t, &values.ao),
+                    held: Held::Own,
+                });
             }
         }
         for a in &added {
@@ -1551,6 +1638,7 @@ impl Asset for PlyAsset {
                 name: "texcoord".to_string(),
                 list: Some((ScalarType::UChar, Starts::from(starts))),
                 values: Values::Float(values),
+                held: Held::Own,
             });
         }
         write_maps_beside(path, maps)?;
@@ -1617,18 +1705,18 @@ impl PlyAsset {
         head.extend_from_slice(b"end_header\n");
 
         let gzip = is_gzip_name(path);
-        let elements = &self.elements;
+        let (elements, mesh) = (&self.elements, &self.meshes[0]);
         let body = |out: &mut dyn Write| -> std::io::Result<()> {
             out.write_all(&head)?;
             for (element, columns) in elements.iter().zip(&plan) {
                 let rows = if !ascii && columns.is_empty() { 0 } else { element.count };
                 if ascii {
                     write_rows(out, rows, WRITE_BLOCK_ROWS, &|i, text| {
-                        put_ascii_row(columns, i, text);
+                        put_ascii_row(columns, mesh, i, text);
                         Ok(())
                     })?;
                 } else {
-                    write_rows(out, rows, WRITE_BLOCK_ROWS, &|i, text| put_binary_row(columns, i, text))?;
+                    write_rows(out, rows, WRITE_BLOCK_ROWS, &|i, text| put_binary_row(columns, mesh, i, text))?;
                 }
             }
             Ok(())
@@ -1646,8 +1734,8 @@ impl PlyAsset {
     }
 }
 
-/// Appends element `i` of `columns` as one ascii line.
-fn put_ascii_row(columns: &[&Column], i: usize, out: &mut Vec<u8>) {
+/// Appends element `i` of `columns` (the values some hold in `mesh`) as one ascii line.
+fn put_ascii_row(columns: &[&Column], mesh: &AssetMesh, i: usize, out: &mut Vec<u8>) {
     for (k, c) in columns.iter().enumerate() {
         if k > 0 {
             out.push(b' ');
@@ -1663,14 +1751,14 @@ fn put_ascii_row(columns: &[&Column], i: usize, out: &mut Vec<u8>) {
             if j > 0 {
                 out.push(b' ');
             }
-            c.values.put_ascii(item, out);
+            c.put_ascii(item, mesh, out);
         }
     }
     out.push(b'\n');
 }
 
-/// Appends element `i` of `columns` in binary little-endian.
-fn put_binary_row(columns: &[&Column], i: usize, out: &mut Vec<u8>) -> std::io::Result<()> {
+/// Appends element `i` of `columns` (the values some hold in `mesh`) in binary little-endian.
+fn put_binary_row(columns: &[&Column], mesh: &AssetMesh, i: usize, out: &mut Vec<u8>) -> std::io::Result<()> {
     for c in columns {
         let items = c.items(i);
         if let Some((count_type, _)) = &c.list {
@@ -1688,7 +1776,7 @@ fn put_binary_row(columns: &[&Column], i: usize, out: &mut Vec<u8>) -> std::io::
             }
         }
         for item in items {
-            c.values.put_le(item, out);
+            c.put_le(item, mesh, out);
         }
     }
     Ok(())
@@ -2196,6 +2284,76 @@ mod tests {
         let again = PlyAsset::read(&output).unwrap();
         assert_eq!(again.elements[0].columns[..3], asset.elements[0].columns[..]);
         assert_eq!(again.elements[1..], asset.elements[1..]);
+        // The positions and corners, which the columns leave to the mesh.
+        let (a, b) = (&again.meshes()[0], &asset.meshes()[0]);
+        let bits = |m: &AssetMesh| m.positions.iter().flat_map(|p| p.to_array().map(f32::to_bits)).collect::<Vec<_>>();
+        assert_eq!(bits(a), bits(b));
+        assert_eq!((&a.face_starts, &a.face_indices), (&b.face_starts, &b.face_indices));
+    }
+
+    /// A file's `float` x, y and z and its `int` vertex index list are held once, by the
+    /// mesh (the round trips above write them back from it); a column of another type, or
+    /// one whose bits differ from the mesh's, keeps its values.
+    #[test]
+    fn positions_and_corners_are_held_once_by_the_mesh() {
+        let dir = tempfile::tempdir().unwrap();
+        for encoding in [Encoding::Ascii, Encoding::BinaryLittleEndian, Encoding::BinaryBigEndian] {
+            let input = dir.path().join("in.ply");
+            std::fs::write(&input, encode(&mut fixture(encoding))).unwrap();
+            let asset = PlyAsset::read(&input).unwrap();
+            let held: Vec<(&str, &str, Held, usize)> = asset
+                .elements
+                .iter()
+                .flat_map(|e| e.columns.iter().map(move |c| (e.name.as_str(), c.name.as_str(), c.held, c.values.len())))
+                .filter(|c| c.2 != Held::Own)
+                .collect();
+            let want = [
+                ("vertex", "x", Held::Axis(0), 0),
+                ("vertex", "y", Held::Axis(1), 0),
+                ("vertex", "z", Held::Axis(2), 0),
+                ("face", "vertex_indices", Held::Corners, 0),
+            ];
+            assert_eq!(held, want, "{encoding:?}");
+        }
+
+        let scalar = |name: &str, values: Values| Column { name: name.into(), list: None, values, held: Held::Own };
+        let mesh = AssetMesh {
+            positions: vec![Vec3::new(1.0, 2.0, 0.0), Vec3::new(-1.0, 0.5, 3.0), Vec3::new(0.0, 0.0, 1.0)],
+            face_starts: vec![0, 3],
+            face_indices: vec![0, 1, 2],
+            ..AssetMesh::default()
+        };
+        let corners = |values: Values| Column {
+            name: "vertex_indices".into(),
+            list: Some((ScalarType::UChar, Starts::from(vec![0, 3]))),
+            values,
+            held: Held::Own,
+        };
+        let element = |name: &str, count: usize, columns: Vec<Column>| Element { name: name.into(), count, columns };
+        let mut elements = vec![
+            // y a double, z's first value -0.0 where the mesh has 0.0.
+            element(
+                "vertex",
+                3,
+                vec![
+                    scalar("x", Values::Float(vec![1.0, -1.0, 0.0])),
+                    scalar("y", Values::Double(vec![2.0, 0.5, 0.0])),
+                    scalar("z", Values::Float(vec![-0.0, 3.0, 1.0])),
+                ],
+            ),
+            element("face", 1, vec![corners(Values::UInt(vec![0, 1, 2]))]),
+        ];
+        let before = elements.clone();
+        hand_to_mesh(&mut elements, &mesh, "vertex_indices");
+        let held: Vec<Held> = elements.iter().flat_map(|e| e.columns.iter().map(|c| c.held)).collect();
+        assert_eq!(held, [Held::Axis(0), Held::Own, Held::Own, Held::Corners]);
+        assert_eq!(elements[0].columns[1..], before[0].columns[1..], "the columns kept are unchanged");
+        // An index list of another type, or of other values, keeps its values.
+        for values in [Values::UShort(vec![0, 1, 2]), Values::Int(vec![0, 2, 1]), Values::Int(vec![0, 1])] {
+            let mut elements = vec![element("face", 1, vec![corners(values)])];
+            hand_to_mesh(&mut elements, &mesh, "vertex_indices");
+            assert_eq!(elements[0].columns[0].held, Held::Own);
+        }
     }
 
     /// `text` written to `name` and read: the error's message.
