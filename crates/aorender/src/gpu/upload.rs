@@ -456,8 +456,11 @@ fn texels(
         fill(whole, &mut piece);
         write(full_rows, (rest / TEXEL) as u32, 1, &piece);
     }
-    // The writes wait in the queue's staging memory until a submission: send them now.
+    // The writes wait in the queue's staging memory until a submission: send them now,
+    // and wait for them, so that the staging memory (as large as the texture) is freed
+    // before the next texture is written and before the render or bake allocates its own.
     ctx.queue.submit([]);
+    ctx.wait()?;
     let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
     Ok(Geometry::Texture(view, rows as u64 * row_bytes as u64))
 }
