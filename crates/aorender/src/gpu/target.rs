@@ -11,7 +11,7 @@ use super::layout::{
 };
 use super::pipeline::{GpuDevice, Kernel, PipelineKey};
 use super::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, DeviceSums, Stop};
-use super::upload::{GeometryBindings, GpuScene, storage_buffer};
+use super::upload::{GeometryBindings, GpuScene, storage_filled};
 use crate::error::{Error, Result};
 use crate::film::{ExactSums, INACTIVE_SLOT_BITS};
 use crate::sampler::Sampler;
@@ -114,6 +114,19 @@ pub struct GpuTarget {
     dev: Arc<GpuDevice>,
 }
 
+/// A target's probe points, made where they are uploaded: `fill(first, out)` writes
+/// points `first..first + out.len()` of `count`.
+#[derive(Clone, Copy)]
+pub(crate) struct MadePoints<'a> {
+    pub count: usize,
+    pub fill: &'a (dyn Fn(usize, &mut [GpuProbePoint]) + Sync),
+}
+
+impl MadePoints<'_> {
+    /// No points: an image's target.
+    const NONE: MadePoints<'static> = MadePoints { count: 0, fill: &|_, _| {} };
+}
+
 impl GpuTarget {
     /// A target rendering an image with `frame`'s constants, sampled by `sampler` with
     /// directions from `hemisphere`.
@@ -125,7 +138,7 @@ impl GpuTarget {
         hemisphere: Hemisphere,
     ) -> Result<GpuTarget> {
         let rows = frame.height;
-        GpuTarget::build(dev, scene, Kernel::Image, frame, rows, sampler, hemisphere, &[], None)
+        GpuTarget::build(dev, scene, Kernel::Image, frame, rows, sampler, hemisphere, MadePoints::NONE, None)
     }
 
     /// A target rendering the band of `rows` image rows from `frame.first_row` (a
@@ -144,7 +157,7 @@ impl GpuTarget {
         readback: Option<Arc<wgpu::Buffer>>,
     ) -> Result<GpuTarget> {
         assert!(frame.first_row.is_multiple_of(WORKGROUP_SIZE[1]) && frame.first_row + rows <= frame.height);
-        GpuTarget::build(dev, scene, Kernel::Image, frame, rows, sampler, hemisphere, &[], readback)
+        GpuTarget::build(dev, scene, Kernel::Image, frame, rows, sampler, hemisphere, MadePoints::NONE, readback)
     }
 
     /// The buffer this target reads its film through, to share with other bands.
@@ -155,6 +168,7 @@ impl GpuTarget {
     /// A target estimating AO at `points`: `frame.width` film slots (lanes) per point
     /// share the point's `frame.probe_samples` sample indices (see
     /// [`GpuTarget::render_pass`]).
+    #[cfg(feature = "testing")]
     pub fn probes(
         dev: &Arc<GpuDevice>,
         scene: &GpuScene,
@@ -164,16 +178,32 @@ impl GpuTarget {
         points: &[GpuProbePoint],
         bent_normals: bool,
     ) -> Result<GpuTarget> {
+        let fill = |first: usize, out: &mut [GpuProbePoint]| out.copy_from_slice(&points[first..first + out.len()]);
+        let points = MadePoints { count: points.len(), fill: &fill };
+        GpuTarget::probes_made(dev, scene, frame, sampler, hemisphere, points, bent_normals)
+    }
+
+    /// [`GpuTarget::probes`] with the points made straight into the device's buffer, a
+    /// piece at a time, rather than from a copy of them all.
+    pub(crate) fn probes_made(
+        dev: &Arc<GpuDevice>,
+        scene: &GpuScene,
+        frame: FrameUniforms,
+        sampler: Sampler,
+        hemisphere: Hemisphere,
+        points: MadePoints<'_>,
+        bent_normals: bool,
+    ) -> Result<GpuTarget> {
         let lanes = frame.width;
         // With bent normals, one invocation fills a point's four slots.
-        let slots = if bent_normals { points.len() as u64 } else { lanes as u64 * points.len() as u64 };
+        let slots = if bent_normals { points.count as u64 } else { lanes as u64 * points.count as u64 };
         // Workgroups in x and y (rows of x): the slot index must fit a u32.
         let per_dimension = u64::from(dev.ctx.device.limits().max_compute_workgroups_per_dimension);
         let max_slots = (per_dimension * per_dimension * u64::from(PROBE_WORKGROUP_SIZE)).min(u64::from(u32::MAX));
         if slots > max_slots {
             return Err(Error::Gpu(format!(
                 "{} probe points × {lanes} lanes need {slots} invocations per dispatch; the adapter allows {max_slots}",
-                points.len()
+                points.count
             )));
         }
         let kernel = if bent_normals { Kernel::BentProbe } else { Kernel::Probe };
@@ -193,7 +223,7 @@ impl GpuTarget {
         rows: u32,
         sampler: Sampler,
         hemisphere: Hemisphere,
-        points: &[GpuProbePoint],
+        points: MadePoints<'_>,
         readback: Option<Arc<wgpu::Buffer>>,
     ) -> Result<GpuTarget> {
         let ctx = &dev.ctx;
@@ -212,8 +242,20 @@ impl GpuTarget {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let probe_points =
-            storage_buffer(ctx, "probe points", bytemuck::cast_slice(points), std::mem::size_of::<GpuProbePoint>())?;
+        let size = std::mem::size_of::<GpuProbePoint>();
+        let probe_points = storage_filled(ctx, "probe points", points.count * size, size, &|at, out| {
+            let first = at / size;
+            // Straight into the piece where it is aligned for the records, else through
+            // records of its own.
+            match bytemuck::try_cast_slice_mut::<u8, GpuProbePoint>(out) {
+                Ok(records) => (points.fill)(first, records),
+                Err(_) => {
+                    let mut piece = vec![bytemuck::Zeroable::zeroed(); out.len() / size];
+                    (points.fill)(first, &mut piece);
+                    out.copy_from_slice(bytemuck::cast_slice(&piece));
+                }
+            }
+        })?;
         let film_bytes = width as u64 * height as u64 * 16;
         ctx.check_size("film", film_bytes)?;
         let film = device.create_buffer(&wgpu::BufferDescriptor {

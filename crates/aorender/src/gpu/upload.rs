@@ -290,8 +290,9 @@ enum Contents<'a> {
 }
 
 /// A read-only storage buffer of `len` bytes written through its mapping by `fill(offset,
-/// piece)`, so no copy of the whole is needed on the host.
-fn storage_filled(
+/// piece)` (pieces of whole elements, on rayon's threads), so no copy of the whole is
+/// needed on the host.
+pub(crate) fn storage_filled(
     ctx: &GpuContext,
     label: &'static str,
     len: usize,
