@@ -11,7 +11,7 @@ use super::layout::{
 };
 use super::pipeline::{GpuDevice, Kernel, PipelineKey};
 use super::stats::{AdaptQuery, AdaptSums, CheckQuery, CheckSums, DeviceSums, Stop};
-use super::upload::{GeometryBindings, GpuScene, storage_filled};
+use super::upload::{GeometryBindings, GpuScene, fill_records, storage_filled};
 use crate::error::{Error, Result};
 use crate::film::{ExactSums, INACTIVE_SLOT_BITS};
 use crate::sampler::Sampler;
@@ -244,17 +244,7 @@ impl GpuTarget {
         });
         let size = std::mem::size_of::<GpuProbePoint>();
         let probe_points = storage_filled(ctx, "probe points", points.count * size, size, &|at, out| {
-            let first = at / size;
-            // Straight into the piece where it is aligned for the records, else through
-            // records of its own.
-            match bytemuck::try_cast_slice_mut::<u8, GpuProbePoint>(out) {
-                Ok(records) => (points.fill)(first, records),
-                Err(_) => {
-                    let mut piece = vec![bytemuck::Zeroable::zeroed(); out.len() / size];
-                    (points.fill)(first, &mut piece);
-                    out.copy_from_slice(bytemuck::cast_slice(&piece));
-                }
-            }
+            fill_records(out, |records: &mut [GpuProbePoint]| (points.fill)(at / size, records))
         })?;
         let film_bytes = width as u64 * height as u64 * 16;
         ctx.check_size("film", film_bytes)?;

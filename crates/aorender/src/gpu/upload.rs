@@ -112,17 +112,9 @@ impl GpuScene {
         let primitives: Vec<Geometry> = chunk_ranges(record_count, chunks.primitives_per_chunk)
             .map(|r| {
                 Geometry::upload(ctx, "primitives", r.len() * prim_size, prim_size, chunks, &|at, out| {
-                    let first = r.start + at / prim_size;
-                    // Straight into the upload where it is aligned for the records (mapped
-                    // memory is), else through a piece of records.
-                    match bytemuck::try_cast_slice_mut::<u8, GpuPrimitive>(out) {
-                        Ok(records) => bvh.records.write(scene, first, records),
-                        Err(_) => {
-                            let mut piece = vec![bytemuck::Zeroable::zeroed(); out.len() / prim_size];
-                            bvh.records.write(scene, first, &mut piece);
-                            out.copy_from_slice(bytemuck::cast_slice(&piece));
-                        }
-                    }
+                    fill_records(out, |records: &mut [GpuPrimitive]| {
+                        bvh.records.write(scene, r.start + at / prim_size, records)
+                    })
                 })
             })
             .collect::<Result<_>>()?;
@@ -287,6 +279,19 @@ enum Contents<'a> {
     Bytes(&'a [u8]),
     /// The bytes `fill(offset, piece)` makes, a piece at a time.
     Made(&'a Fill<'a>),
+}
+
+/// Writes the records `fill` makes into `out`, bytes of whole records: straight in where
+/// `out` is aligned for them (mapped memory is), else through records of their own.
+pub(crate) fn fill_records<T: bytemuck::Pod>(out: &mut [u8], fill: impl FnOnce(&mut [T])) {
+    match bytemuck::try_cast_slice_mut::<u8, T>(out) {
+        Ok(records) => fill(records),
+        Err(_) => {
+            let mut piece = vec![T::zeroed(); out.len() / std::mem::size_of::<T>()];
+            fill(&mut piece);
+            out.copy_from_slice(bytemuck::cast_slice(&piece));
+        }
+    }
 }
 
 /// A read-only storage buffer of `len` bytes written through its mapping by `fill(offset,
