@@ -498,21 +498,21 @@ impl Column {
 
     /// Appends value `i` in binary little-endian.
     fn put_le(&self, i: usize, mesh: &AssetMesh, out: &mut Vec<u8>) {
-        match (self.held, &self.values) {
-            (Held::Own, values) => values.put_le(i, out),
-            (Held::Axis(k), _) => mesh.positions[i][k].put_le(out),
+        match self.held {
+            Held::Own => self.values.put_le(i, out),
+            Held::Axis(k) => mesh.positions[i][k].put_le(out),
             // An `int` index is below 2^31: the same bytes as the `uint`.
-            (Held::Corners, _) => mesh.face_indices[i].put_le(out),
+            Held::Corners => mesh.face_indices[i].put_le(out),
         }
     }
 
     /// Appends value `i` as ascii text.
     fn put_ascii(&self, i: usize, mesh: &AssetMesh, out: &mut Vec<u8>) {
-        match (self.held, &self.values) {
-            (Held::Own, values) => values.put_ascii(i, out),
-            (Held::Axis(k), _) => mesh.positions[i][k].put_ascii(out),
+        match self.held {
+            Held::Own => self.values.put_ascii(i, out),
+            Held::Axis(k) => mesh.positions[i][k].put_ascii(out),
             // An `int` index is below 2^31: the same digits as the `uint`.
-            (Held::Corners, _) => mesh.face_indices[i].put_ascii(out),
+            Held::Corners => mesh.face_indices[i].put_ascii(out),
         }
     }
 
