@@ -121,7 +121,7 @@ pub mod scene;
 pub mod sky;
 
 pub use accumulation::{Accumulation, ErrorTarget, FilmLayout, Merged, MergedShard, SampleSettings, merge, scene_hash};
-pub use device::{BvhOptions, Device, DeviceKind, DeviceOpening, OpenedDevice, Setup};
+pub use device::{BvhOptions, Device, DeviceKind, DeviceOpening, OpenedDevice, Ready, Setup};
 pub use error::{Error, Result};
 pub use film::{BLOCK_SAMPLES, ErrorEstimator, Film, SampleRange, interval_95, t_quantile_975};
 pub use footprint::background_pixels;

@@ -6,7 +6,9 @@
 //! whatever the samples.
 
 mod common;
-use aorender::{BvhOptions, Control, Device, DeviceKind, Error, Hemisphere, PassSizing, RenderOutput, Scene, Session};
+use aorender::{
+    BvhOptions, Control, Device, DeviceKind, Error, Hemisphere, PassSizing, Ready, RenderOutput, Scene, Session,
+};
 use common::*;
 
 /// A small aobench view with `spp` samples per pixel.
@@ -16,6 +18,11 @@ fn aobench(spp: u32) -> Scene {
     (s.width, s.height, s.spp, s.sampling.hemisphere) = (40, 30, spp, Hemisphere::Cosine);
     scene
 }
+
+/// An opening readied for every image kernel: each statistics kernel and the listing of
+/// live pixels compiled and run once over no pixels, which must leave a later render's
+/// film as it would be.
+const IMAGES: Ready = Ready::Images { target: true, adaptive: true };
 
 /// The session's default image, in passes of `sizing`.
 fn render(session: &Session, sizing: PassSizing) -> RenderOutput {
@@ -115,7 +122,7 @@ fn a_device_opened_beside_the_build_renders_the_same_film() {
         let expected = render(&first, PassSizing::Timed);
         let before = threads();
         let mut checked = None;
-        let mut opening = Device::open_beside(kind, None, true);
+        let mut opening = Device::open_beside(kind, None, IMAGES);
         assert_eq!(opening.kind(), kind);
         // Ready without waiting once its thread is done (the CPU reference at once).
         let start = std::time::Instant::now();
@@ -163,14 +170,14 @@ fn openings_fail_in_one_line_and_leave_no_thread() {
     let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let name = "no adapter is called this";
     let error = |e: Error| e.to_string();
-    let mut failing = Device::open_beside(DeviceKind::Gpu, Some(name), false);
+    let mut failing = Device::open_beside(DeviceKind::Gpu, Some(name), Ready::Points);
     std::thread::sleep(std::time::Duration::from_millis(200));
     assert!(failing.ready().is_none(), "a failed opening is ready");
     let message = failing.wait().err().map(error);
     let message = message.expect("no adapter has that name");
     assert!(message.contains(name) && !message.contains('\n'), "{message}");
     let mut checked = false;
-    let opening = Device::open_beside(DeviceKind::Gpu, Some(name), false);
+    let opening = Device::open_beside(DeviceKind::Gpu, Some(name), Ready::Points);
     let session = Session::beside(opening, aobench(4), &BvhOptions::default(), |_, _| {
         checked = true;
         Ok(())
@@ -178,7 +185,7 @@ fn openings_fail_in_one_line_and_leave_no_thread() {
     assert_eq!(session.err().map(error), Some(message), "the session's error is the opening's");
     assert!(!checked, "a device that did not open was checked");
     let refused = Session::beside(
-        Device::open_beside(DeviceKind::Cpu, None, false),
+        Device::open_beside(DeviceKind::Cpu, None, Ready::Points),
         aobench(4),
         &BvhOptions::default(),
         |_, _| Err(Error::settings("refused before the upload")),
@@ -187,10 +194,10 @@ fn openings_fail_in_one_line_and_leave_no_thread() {
     assert!(message.contains("refused before the upload"), "{message}");
     if gpu_available() {
         // The instance, its driver's threads and rayon's, made before counting.
-        drop(Device::open_beside(DeviceKind::Gpu, None, true).wait().expect("device"));
+        drop(Device::open_beside(DeviceKind::Gpu, None, IMAGES).wait().expect("device"));
         let before = threads();
         for _ in 0..3 {
-            drop(Device::open_beside(DeviceKind::Gpu, None, true));
+            drop(Device::open_beside(DeviceKind::Gpu, None, IMAGES));
             assert!(back_to(before), "a dropped opening left threads: {before} before, {} after", threads());
         }
     }

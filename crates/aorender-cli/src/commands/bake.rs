@@ -12,7 +12,7 @@ use aorender::bake::{
     UvWrap, check_mesh_output, check_output, is_map, sibling,
 };
 use aorender::output::{FilePlan, OutputRules};
-use aorender::{Accumulation, Device, DeviceOpening, ReadLimits, Scene, Session};
+use aorender::{Accumulation, Device, DeviceOpening, ReadLimits, Ready, Scene, Session};
 use clap::ValueEnum;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -246,7 +246,8 @@ pub fn run(args: BakeArgs) -> Result<()> {
     let (load_start, start_seconds) = (std::time::Instant::now(), phases::process_seconds());
     // The device opens beside the loading and the BVH build (a merge traces nothing).
     let kind = args.scene.device.kind();
-    let opening = args.merge.is_empty().then(|| Device::open_beside(kind, args.scene.adapter.as_deref(), false));
+    let opening =
+        args.merge.is_empty().then(|| Device::open_beside(kind, args.scene.adapter.as_deref(), Ready::Points));
     let limits = ReadLimits::from_env()?;
     let (mut scene, read) = args.scene.load_for_bake()?;
     args.sampling.apply(&mut scene)?;

@@ -6,7 +6,9 @@ use crate::{memory, output};
 use anyhow::{Result, anyhow, bail};
 use aorender::output::{Destination, FilePlan, write_output};
 use aorender::scene::read_text;
-use aorender::{Control, Device, ErrorTarget, Probe, ProbeValue, ReadLimits, Sampler, Session, SurfaceTolerance};
+use aorender::{
+    Control, Device, ErrorTarget, Probe, ProbeValue, ReadLimits, Ready, Sampler, Session, SurfaceTolerance,
+};
 use glam::{DVec3, Vec3};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -80,7 +82,7 @@ pub fn run(args: ProbeArgs) -> Result<()> {
     let mut phases = Phases { start_seconds: phases::process_seconds(), ..Phases::default() };
     let loading = Instant::now();
     // The device opens beside the loading and the BVH build: it needs nothing of the scene.
-    let opening = Device::open_beside(args.scene.device.kind(), args.scene.adapter.as_deref(), false);
+    let opening = Device::open_beside(args.scene.device.kind(), args.scene.adapter.as_deref(), Ready::Points);
     let mut scene = args.scene.load()?;
     args.sampling.apply(&mut scene)?;
     if args.samples == 0 {

@@ -8,7 +8,7 @@ use crate::{memory, output, signals};
 use anyhow::{Result, bail};
 use aorender::output::{FLOAT_IMAGE_EXTENSIONS, FilePlan, IMAGE_EXTENSIONS, write_error_image, write_image};
 use aorender::{
-    Accumulation, BvhOptions, Control, Device, DeviceOpening, EndedBy, ErrorTarget, ImageRequest, RenderOutput,
+    Accumulation, BvhOptions, Control, Device, DeviceOpening, EndedBy, ErrorTarget, ImageRequest, Ready, RenderOutput,
     RenderStats, Sampler, Scene, Session, replicate_by_expected_cost,
 };
 
@@ -66,7 +66,9 @@ pub fn run(args: RenderArgs) -> Result<()> {
     plan_files(&args)?;
     let (load_start, start_seconds) = (std::time::Instant::now(), phases::process_seconds());
     // The device opens beside the loading and the BVH build: it needs nothing of the scene.
-    let mut opening = Device::open_beside(args.scene.device.kind(), args.scene.adapter.as_deref(), true);
+    let target = args.target_error.is_some() || args.target_relative_error.is_some();
+    let ready = Ready::Images { target, adaptive: args.adaptive };
+    let mut opening = Device::open_beside(args.scene.device.kind(), args.scene.adapter.as_deref(), ready);
     let mut scene = args.scene.load()?;
     let load_seconds = load_start.elapsed().as_secs_f64();
     args.size.apply(&mut scene);

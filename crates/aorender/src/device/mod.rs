@@ -16,7 +16,7 @@ mod open;
 mod passes;
 mod prepare;
 
-pub use open::{Device, DeviceKind, DeviceOpening, OpenedDevice};
+pub use open::{Device, DeviceKind, DeviceOpening, OpenedDevice, Ready};
 pub(crate) use passes::Passes;
 pub(crate) use prepare::{Built, Prepared};
 pub use prepare::{BvhOptions, Setup};

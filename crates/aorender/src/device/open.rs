@@ -53,9 +53,10 @@ impl Device {
     /// Starts opening a device of `kind` on a thread of its own ([`DeviceOpening`]), so that
     /// the caller loads its scene and builds the BVH meanwhile: opening an adapter needs
     /// nothing of the scene, and neither do the statistics kernels that keep an image's
-    /// exact sums on the device, which that thread also compiles where `images` says the
-    /// device is for images. The CPU reference opens at once, on no thread.
-    pub fn open_beside(kind: DeviceKind, adapter: Option<&str>, images: bool) -> DeviceOpening {
+    /// exact sums on the device, which that thread also compiles, and runs once over no
+    /// pixels, where `ready` says the device is for images. The CPU reference opens at
+    /// once, on no thread.
+    pub fn open_beside(kind: DeviceKind, adapter: Option<&str>, ready: Ready) -> DeviceOpening {
         let start = Instant::now();
         let state = match kind {
             DeviceKind::Cpu => Beside::Done(Ok(Device::cpu()), 0.0, 0.0),
@@ -64,11 +65,11 @@ impl Device {
                 let spawned = std::thread::Builder::new().name("aorender-device".into()).spawn(move || {
                     let device = Device::gpu(adapter.as_deref());
                     let opened = Instant::now();
-                    let device = match device {
-                        Ok(Device(Opened::Gpu(gpu))) if images => {
-                            gpu.stats_pipelines().map(|_| Device(Opened::Gpu(gpu)))
+                    let device = match (device, ready) {
+                        (Ok(Device(Opened::Gpu(gpu))), Ready::Images { target, adaptive }) => {
+                            gpu.warm_image_kernels(target, adaptive).map(|_| Device(Opened::Gpu(gpu)))
                         }
-                        other => other,
+                        (other, _) => other,
                     };
                     (device, start.elapsed().as_secs_f64(), opened.elapsed().as_secs_f64())
                 });
@@ -167,6 +168,22 @@ impl Device {
             Opened::Cpu(_) => None,
         }
     }
+}
+
+/// What a device opened beside the scene ([`Device::open_beside`]) is readied for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ready {
+    /// Points (probes and bakes): the adapter alone.
+    Points,
+    /// Images: the kernels that keep the exact sums on the device, with `target` those of
+    /// an error target's checks and with `adaptive` those of adaptive decisions, compiled
+    /// and run once.
+    Images {
+        /// The render has an error target.
+        target: bool,
+        /// The render samples adaptively.
+        adaptive: bool,
+    },
 }
 
 /// A device being opened on a thread of its own ([`Device::open_beside`]). Dropped before

@@ -421,6 +421,18 @@ impl GpuDevice {
         Ok(cached.clone().expect("compiled above"))
     }
 
+    /// Compiles the statistics kernels an image render dispatches and runs each once over
+    /// no pixels (with `target` a check's, with `adaptive` the decisions' and the listing
+    /// of the live pixels): on an adapter that compiles a kernel at its first dispatch
+    /// (lavapipe), a render's first checks then cost what later ones do.
+    pub fn warm_image_kernels(&self, target: bool, adaptive: bool) -> Result<()> {
+        self.stats_pipelines()?.warm(&self.ctx, target, adaptive)?;
+        if adaptive {
+            self.compact_pipelines()?.warm(&self.ctx)?;
+        }
+        Ok(())
+    }
+
     /// Opens the best adapter, or the first whose name contains `name_filter`
     /// (case-insensitive): [`GpuContext::new`].
     pub fn open(name_filter: Option<&str>) -> Result<GpuDevice> {

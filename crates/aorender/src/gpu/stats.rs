@@ -86,6 +86,36 @@ impl StatsPipelines {
         ctx.take_error()?;
         Ok(pipelines)
     }
+
+    /// Runs once, over no slots, the kernels a render dispatches (the fold; with `target`
+    /// a check's; with `adaptive` the decisions') and waits for them. An adapter that
+    /// compiles a kernel at its first dispatch rather than with its pipeline (lavapipe
+    /// does) compiles them here, where the device opens beside the scene's loading, rather
+    /// than within the render's first checks.
+    pub fn warm(&self, ctx: &GpuContext, target: bool, adaptive: bool) -> Result<()> {
+        let film = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("warm-up film"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let sums = DeviceSums::new(ctx, self.clone(), &film, 0)?;
+        let mut kernels = vec![&self.fold];
+        if target || adaptive {
+            kernels.extend([&self.reduce, &self.reduce_groups]);
+        }
+        if adaptive {
+            let group_sums = if ctx.cpu_lanes() { &self.group_sums } else { &self.group_sums_shared };
+            kernels.extend([&self.evaluate, group_sums, &self.allocate, &self.stop_allocated]);
+        }
+        // No slots and no workgroups of them: every invocation returns at once.
+        let mut encoder = sums.encoder(ctx, StatsParams::default());
+        for kernel in kernels {
+            sums.pass(&mut encoder, kernel, Shape::One);
+        }
+        ctx.submit([encoder.finish()])?;
+        ctx.wait()
+    }
 }
 
 /// The parameters of `stats.wgsl` (`StatsParams`).
