@@ -127,7 +127,7 @@ fn cells_build_the_same_tree_on_any_number_of_threads() {
     let n = primitive_aabbs(&scene).len();
     // One cell for all and one primitive short of it (the first cut), cells just under
     // and over 1/8 of the scene, and cells small enough for several built at once (one
-    // lane per 16 cells).
+    // lane per 16 cells, or as many as 64 MiB holds).
     let cells = [n, n - 1, n / 8, n / 8 + 1, n / 40, n / 40 + 1];
     for cell in cells {
         let pool = |threads| rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");

@@ -10,7 +10,7 @@
 //! and ordered the way obvhs makes its own (Ylitie, Karras and Laine 2017). The workspace
 //! is then the sorted keys (8 bytes a primitive) and ~320 bytes × `chunk` for each cell
 //! being built, with no more cells at once than threads, nor than one per 16 cells' worth of
-//! primitives.
+//! primitives or what 64 MiB holds, whichever is more.
 
 use super::cwbvh::{inner_node, placed};
 use super::ploc::cwbvh_over;
@@ -54,9 +54,7 @@ pub fn build_cwbvh_in_cells(
         (keys, plan)
     });
 
-    // Each lane builds one cell at a time, so no more than `lanes` workspaces are live;
-    // one lane per 16 cells' worth of primitives keeps them within ~20 bytes a primitive.
-    let lanes = rayon::current_num_threads().min(count / chunk / 16).max(1);
+    let lanes = rayon::current_num_threads().min(cell_lanes(count, chunk)).max(1);
     let next = AtomicUsize::new(0);
     let built: Vec<(usize, CwBvh)> = (0..lanes)
         .into_par_iter()
@@ -71,6 +69,24 @@ pub fn build_cwbvh_in_cells(
         .collect();
     drop(keys);
     Some(timed(Stage::Join, || join(built, &plan)))
+}
+
+/// Bytes of a cell's workspace at its peak, per primitive of the cell (the module's note).
+const CELL_BYTES_PER_PRIMITIVE: usize = 320;
+
+/// Workspace the cells being built may hold whatever the mesh's size.
+const LANE_WORKSPACE_FLOOR: usize = 64 << 20;
+
+/// The most cells of at most `chunk` primitives built at once for `count` primitives:
+/// each lane builds one at a time, so no more than this many workspaces are live. One
+/// lane per 16 cells' worth of primitives keeps them within ~20 bytes a primitive, and
+/// [`LANE_WORKSPACE_FLOOR`] lets a smaller mesh use as many lanes as fit in it (12 cells
+/// of 16,384 primitives): a cell's conversion to 8-wide nodes runs on its lane's thread
+/// alone, so lanes are what a build's threads can share.
+fn cell_lanes(count: usize, chunk: usize) -> usize {
+    let by_mesh = count / chunk / 16;
+    let by_floor = LANE_WORKSPACE_FLOOR / (CELL_BYTES_PER_PRIMITIVE * chunk);
+    by_mesh.max(by_floor)
 }
 
 /// The CWBVH of the cells `built` (with their indices in build order) under the nodes of `plan`.
@@ -302,6 +318,16 @@ fn child_slots(node_box: &Aabb, boxes: &[Aabb]) -> Vec<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cells_are_built_as_many_at_once_as_the_mesh_or_the_floor_allows() {
+        // 320 bytes × 16,384 primitives a cell: 12 cells in 64 MiB.
+        const CELL: usize = 1 << 14;
+        assert_eq!(cell_lanes(69_451, CELL), 12, "the bunny (69 k triangles): 12 cells at once");
+        assert_eq!(cell_lanes(871_306, CELL), 12, "the dragon (871 k triangles): 12 cells at once");
+        assert_eq!(cell_lanes(31_366_834, CELL), 119, "31 M triangles: one lane per 16 cells' worth");
+        assert_eq!(cell_lanes(10, 4), LANE_WORKSPACE_FLOOR / (CELL_BYTES_PER_PRIMITIVE * 4));
+    }
 
     #[test]
     fn the_morton_keys_are_the_sequential_sort_on_any_number_of_threads() {
