@@ -441,6 +441,21 @@ impl GpuContext {
         })?
     }
 
+    /// Maps `buffer` for writing once the work submitted so far is done with it (one round
+    /// trip), for the host to fill it again.
+    pub(crate) fn map_for_write(&self, buffer: &wgpu::Buffer) -> Result<()> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        catch_panic("mapping a staging buffer", || {
+            buffer.map_async(wgpu::MapMode::Write, .., move |r| {
+                let _ = tx.send(r);
+            })
+        })?;
+        self.wait()?;
+        rx.recv()
+            .map_err(|_| self.fault("buffer mapping was dropped".into()))?
+            .map_err(|e| self.fault(format!("cannot map a staging buffer: {e}")))
+    }
+
     /// Fails with [`Error::TooLarge`] when a buffer of `bytes` exceeds a binding or a buffer.
     pub(crate) fn check_size(&self, what: &'static str, bytes: u64) -> Result<()> {
         let limits = self.device.limits();

@@ -250,19 +250,6 @@ const UPLOAD_PIECE: usize = 1 << 20;
 /// Pieces of an upload made at once, on rayon's threads.
 const UPLOAD_BATCH: usize = 16;
 
-/// Makes bytes `0..len` a piece at a time: each piece, whole elements of about
-/// [`UPLOAD_PIECE`] bytes, is filled by `fill(offset, piece)` and handed to `put(offset,
-/// piece)`.
-fn fill_pieces(len: usize, element: usize, fill: &Fill<'_>, put: &mut dyn FnMut(usize, &[u8])) {
-    let step = (UPLOAD_PIECE / element).max(1) * element;
-    let mut piece = Vec::with_capacity(step.min(len));
-    for at in (0..len).step_by(step) {
-        piece.resize(step.min(len - at), 0);
-        fill(at, &mut piece);
-        put(at, &piece);
-    }
-}
-
 /// A read-only storage buffer; `element` is the size of one array element in the shader.
 pub(crate) fn storage_buffer(
     ctx: &GpuContext,
@@ -398,9 +385,16 @@ impl Geometry {
     }
 }
 
+/// Bytes of the staging buffer a texture's rows go through, filled again for each round of
+/// rows: the rows are not staged in fresh memory a piece at a time (`queue.write_texture`),
+/// whose first touch cost more than the copies on lavapipe.
+const TEXEL_STAGING: usize = 32 << 20;
+
 /// An `Rgba32Uint` texture `row_texels` wide holding `len` bytes row after row (elements
-/// of `element` bytes never straddle rows: `row_texels` is a multiple of their texels),
-/// written by `fill(offset, piece)` a few rows at a time.
+/// of `element` bytes never straddle rows: `row_texels` is a multiple of their texels; the
+/// last row is padded with zeros), made by `fill(offset, piece)` a row at a time on
+/// rayon's threads and copied through one staging buffer, [`TEXEL_STAGING`] bytes of rows
+/// at a time.
 fn texels(
     ctx: &GpuContext,
     label: &'static str,
@@ -413,11 +407,9 @@ fn texels(
     debug_assert_eq!(len % TEXEL, 0);
     let row_bytes = row_texels as usize * TEXEL;
     debug_assert_eq!(row_bytes % element, 0);
-    let full_rows = (len / row_bytes) as u32;
-    let rest = len % row_bytes;
-    let rows = (full_rows + (rest > 0) as u32).max(1);
+    let rows = len.div_ceil(row_bytes).max(1);
     let max = ctx.device.limits().max_texture_dimension_2d;
-    if rows > max {
+    if rows > max as usize {
         return Err(Error::TooLarge {
             what: label,
             needed: len as u64,
@@ -427,7 +419,7 @@ fn texels(
     }
     let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
         label: Some(label),
-        size: wgpu::Extent3d { width: row_texels, height: rows, depth_or_array_layers: 1 },
+        size: wgpu::Extent3d { width: row_texels, height: rows as u32, depth_or_array_layers: 1 },
         mip_level_count: 1,
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
@@ -435,38 +427,66 @@ fn texels(
         usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
     });
-    let write = |y: u32, width: u32, height: u32, data: &[u8]| {
-        ctx.queue.write_texture(
+    // A copy's rows start at multiples of the copy alignment in the staging buffer.
+    let stride = row_bytes.next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT as usize);
+    let round = (TEXEL_STAGING / stride).clamp(1, rows);
+    let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("texture staging"),
+        size: (round * stride) as u64,
+        usage: wgpu::BufferUsages::MAP_WRITE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: true,
+    });
+    // A round's rows are made on threads, then copied in (a mapped view is written on its
+    // thread); their buffers are reused from round to round.
+    let mut made: Vec<Vec<u8>> = vec![Vec::new(); round];
+    for first in (0..rows).step_by(round) {
+        let count = round.min(rows - first);
+        if first > 0 {
+            ctx.map_for_write(&staging)?;
+        }
+        made[..count].par_iter_mut().enumerate().for_each(|(k, row)| {
+            let at = (first + k) * row_bytes;
+            let bytes = row_bytes.min(len - at);
+            row.resize(row_bytes, 0);
+            if bytes > 0 {
+                fill(at, &mut row[..bytes]);
+            }
+            row[bytes..].fill(0);
+        });
+        {
+            let mut view = staging
+                .slice(..(count * stride) as u64)
+                .get_mapped_range_mut()
+                .map_err(|e| ctx.fault(format!("cannot write the mapped {label} staging buffer: {e}")))?;
+            for (k, row) in made[..count].iter().enumerate() {
+                view.slice(k * stride..k * stride + row_bytes).copy_from_slice(row);
+            }
+        }
+        staging.unmap();
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        encoder.copy_buffer_to_texture(
+            wgpu::TexelCopyBufferInfo {
+                buffer: &staging,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(stride as u32),
+                    rows_per_image: Some(count as u32),
+                },
+            },
             wgpu::TexelCopyTextureInfo {
                 texture: &texture,
                 mip_level: 0,
-                origin: wgpu::Origin3d { x: 0, y, z: 0 },
+                origin: wgpu::Origin3d { x: 0, y: first as u32, z: 0 },
                 aspect: wgpu::TextureAspect::All,
             },
-            data,
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(width * TEXEL as u32),
-                rows_per_image: Some(height),
-            },
-            wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+            wgpu::Extent3d { width: row_texels, height: count as u32, depth_or_array_layers: 1 },
         );
-    };
-    // Pieces of whole rows, then the last, partial row on its own.
-    let whole = full_rows as usize * row_bytes;
-    fill_pieces(whole, row_bytes, fill, &mut |at, piece| {
-        write((at / row_bytes) as u32, row_texels, (piece.len() / row_bytes) as u32, piece)
-    });
-    if rest > 0 {
-        let mut piece = vec![0; rest];
-        fill(whole, &mut piece);
-        write(full_rows, (rest / TEXEL) as u32, 1, &piece);
+        ctx.submit([encoder.finish()])?;
     }
-    // The writes wait in the queue's staging memory until a submission: send them now,
-    // and wait for them, so that the staging memory (as large as the texture) is freed
-    // before the next texture is written and before the render or bake allocates its own.
-    ctx.queue.submit([]);
+    // The copies done, the staging buffer goes before the next texture is written and
+    // before the render or bake allocates its own.
     ctx.wait()?;
+    drop(staging);
     let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
     Ok(Geometry::Texture(view, rows as u64 * row_bytes as u64))
 }
