@@ -436,30 +436,34 @@ fn texels(
         usage: wgpu::BufferUsages::MAP_WRITE | wgpu::BufferUsages::COPY_SRC,
         mapped_at_creation: true,
     });
-    // A round's rows are made on threads, then copied in (a mapped view is written on its
-    // thread); their buffers are reused from round to round.
-    let mut made: Vec<Vec<u8>> = vec![Vec::new(); round];
+    // A batch of rows is made on threads, then copied in (a mapped view is written on its
+    // thread); the batch's buffers are reused, so the host holds a few of them at a time.
+    let mut made: Vec<Vec<u8>> = vec![Vec::new(); UPLOAD_BATCH.min(round)];
     for first in (0..rows).step_by(round) {
         let count = round.min(rows - first);
         if first > 0 {
             ctx.map_for_write(&staging)?;
         }
-        made[..count].par_iter_mut().enumerate().for_each(|(k, row)| {
-            let at = (first + k) * row_bytes;
-            let bytes = row_bytes.min(len - at);
-            row.resize(row_bytes, 0);
-            if bytes > 0 {
-                fill(at, &mut row[..bytes]);
-            }
-            row[bytes..].fill(0);
-        });
         {
             let mut view = staging
                 .slice(..(count * stride) as u64)
                 .get_mapped_range_mut()
                 .map_err(|e| ctx.fault(format!("cannot write the mapped {label} staging buffer: {e}")))?;
-            for (k, row) in made[..count].iter().enumerate() {
-                view.slice(k * stride..k * stride + row_bytes).copy_from_slice(row);
+            for batch in (0..count).step_by(made.len()) {
+                let batch_rows = made.len().min(count - batch);
+                made[..batch_rows].par_iter_mut().enumerate().for_each(|(k, row)| {
+                    let at = (first + batch + k) * row_bytes;
+                    let bytes = row_bytes.min(len - at);
+                    row.resize(row_bytes, 0);
+                    if bytes > 0 {
+                        fill(at, &mut row[..bytes]);
+                    }
+                    row[bytes..].fill(0);
+                });
+                for (k, row) in made[..batch_rows].iter().enumerate() {
+                    let to = (batch + k) * stride;
+                    view.slice(to..to + row_bytes).copy_from_slice(row);
+                }
             }
         }
         staging.unmap();
