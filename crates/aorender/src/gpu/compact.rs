@@ -42,17 +42,11 @@ impl CompactPipelines {
         Ok(pipelines)
     }
 
-    /// Lists the live pixels of an empty film once and waits: an adapter that compiles a
+    /// Lists the live pixels of `film`, taken as empty, once and waits: an adapter that compiles a
     /// kernel at its first dispatch (lavapipe) compiles these here
     /// ([`super::stats::StatsPipelines::warm`]).
-    pub fn warm(&self, ctx: &GpuContext) -> Result<()> {
-        let film = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("warm-up film"),
-            size: 16,
-            usage: wgpu::BufferUsages::STORAGE,
-            mapped_at_creation: false,
-        });
-        let live = LivePixels::new(ctx, self.clone(), &film, 0, 0)?;
+    pub fn warm(&self, ctx: &GpuContext, film: &wgpu::Buffer) -> Result<()> {
+        let live = LivePixels::new(ctx, self.clone(), film, 0, 0)?;
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("warm-up") });
         live.record(&mut encoder);
         ctx.submit([encoder.finish()])?;

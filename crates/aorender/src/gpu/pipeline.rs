@@ -426,9 +426,16 @@ impl GpuDevice {
     /// of the live pixels): on an adapter that compiles a kernel at its first dispatch
     /// (lavapipe), a render's first checks then cost what later ones do.
     pub fn warm_image_kernels(&self, target: bool, adaptive: bool) -> Result<()> {
-        self.stats_pipelines()?.warm(&self.ctx, target, adaptive)?;
+        // A film of one slot's bytes that holds no pixel.
+        let film = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("warm-up film"),
+            size: 16,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        self.stats_pipelines()?.warm(&self.ctx, &film, target, adaptive)?;
         if adaptive {
-            self.compact_pipelines()?.warm(&self.ctx)?;
+            self.compact_pipelines()?.warm(&self.ctx, &film)?;
         }
         Ok(())
     }

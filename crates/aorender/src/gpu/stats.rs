@@ -92,14 +92,9 @@ impl StatsPipelines {
     /// compiles a kernel at its first dispatch rather than with its pipeline (lavapipe
     /// does) compiles them here, where the device opens beside the scene's loading, rather
     /// than within the render's first checks.
-    pub fn warm(&self, ctx: &GpuContext, target: bool, adaptive: bool) -> Result<()> {
-        let film = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("warm-up film"),
-            size: 16,
-            usage: wgpu::BufferUsages::STORAGE,
-            mapped_at_creation: false,
-        });
-        let sums = DeviceSums::new(ctx, self.clone(), &film, 0)?;
+    /// `film` is an empty film of one slot's bytes.
+    pub fn warm(&self, ctx: &GpuContext, film: &wgpu::Buffer, target: bool, adaptive: bool) -> Result<()> {
+        let sums = DeviceSums::new(ctx, self.clone(), film, 0)?;
         let mut kernels = vec![&self.fold];
         if target || adaptive {
             kernels.extend([&self.reduce, &self.reduce_groups]);
